@@ -153,25 +153,34 @@ class ArmBatch:
     lengths: np.ndarray  # (B, n)
     base: np.ndarray  # (B, 2)
     phi: np.ndarray  # (B,)
+    passive_first_joint: bool = True
 
     @classmethod
     def stack(cls, arms: Sequence[ArmParams]) -> ArmBatch:
-        """Stack arms that share their number of links."""
+        """Stack arms that share their number of links and their actuation."""
         if not arms:
             raise ValueError("ArmBatch.stack needs at least one arm")
-        sizes = {arm.n_links for arm in arms}
-        if len(sizes) != 1:
-            raise ValueError(f"ArmBatch.stack needs arms with one number of links, got {sizes}")
+        kinds = {(arm.n_links, arm.passive_first_joint) for arm in arms}
+        if len(kinds) != 1:
+            raise ValueError(
+                "ArmBatch.stack needs arms with one number of links and one actuation "
+                f"(passive_first_joint), got {sorted(kinds)}"
+            )
         return cls(
             lam=np.stack([arm.lam for arm in arms]),
             lengths=np.stack([arm.lengths for arm in arms]),
             base=np.stack([arm.base for arm in arms]),
             phi=np.array([arm.phi for arm in arms]),
+            passive_first_joint=arms[0].passive_first_joint,
         )
 
     @property
     def n_links(self) -> int:
         return int(self.lengths.shape[-1])
+
+    @property
+    def n_actuated(self) -> int:
+        return self.n_links - 1 if self.passive_first_joint else self.n_links
 
     def __len__(self) -> int:
         return int(self.lengths.shape[0])

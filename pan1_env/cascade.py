@@ -1,0 +1,199 @@
+"""The cascaded (reduced-order) model of a PAn−1 arm and its integrators (MODEL.md §2–3).
+
+For a PAn−1 arm started from rest the passive momentum Σ_α M_1α q̇_α stays zero (Lemma 1), so
+the passive velocity is a function of the active ones and the arm becomes the cascade
+
+    q̇ = g0(q) v,                  g0 = [−M_1a / M_11 ; I_{n−1}]
+    v̇ = f1(q, v) + g1(q) τ_a,     g1 = M_comb⁻¹,  f1 = −M_comb⁻¹ H_comb
+
+with ``v = q̇_a`` the active-joint velocities, ``M_comb = M_aa − M_au M_ua / M_uu`` (a Schur
+complement) and ``H_comb = H_a − M_au H_u / M_uu`` where ``H = C(q, q̇) q̇`` at ``q̇ = g0 v``.
+A fully actuated arm is the case ``g0 = I``, ``M_comb = M``, ``H_comb = C q̇``.
+
+The module also owns the full-order model ``M q̈ + C q̇ = τ`` and fixed-step RK4 integrators of
+both, so that the cascade can be checked against the full dynamics.
+
+Functions accept an :class:`~pan1_env.dynamics.ArmParams` or :class:`~pan1_env.dynamics.ArmBatch`
+and arrays with an optional leading batch axis, like :mod:`pan1_env.dynamics`.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from .dynamics import (
+    Arm,
+    _angle_differences,
+    _as_joints,
+    _sandwich,
+    coriolis_vector,
+    jacobian,
+    link_angles,
+    mass_matrix,
+)
+
+__all__ = [
+    "CascadeTerms",
+    "cascade_terms",
+    "passive_velocity_map",
+    "joint_velocity",
+    "reduced_jacobian",
+    "passive_momentum",
+    "f1",
+    "g1",
+    "cascade_rhs",
+    "cascade_rk4_step",
+    "full_order_rhs",
+    "full_order_rk4_step",
+    "full_torque",
+]
+
+
+class CascadeTerms(NamedTuple):
+    """Everything the controller and the integrator need at one state (q, v)."""
+
+    g0: np.ndarray  # (..., n, k)   q̇ = g0 v
+    M_comb: np.ndarray  # (..., k, k)
+    H_comb: np.ndarray  # (..., k)
+    qd: np.ndarray  # (..., n)      = g0 v
+    M: np.ndarray  # (..., n, n)   the full mass matrix
+
+
+def _g0_from_mass(M: np.ndarray, passive: bool) -> np.ndarray:
+    n = M.shape[-1]
+    if not passive:
+        return np.broadcast_to(np.eye(n), M.shape).copy()
+    g0 = np.zeros(M.shape[:-1] + (n - 1,))
+    g0[..., 0, :] = -M[..., 0, 1:] / M[..., 0, 0:1]
+    g0[..., 1:, :] = np.eye(n - 1)
+    return g0
+
+
+def passive_velocity_map(arm: Arm, q: np.ndarray) -> np.ndarray:
+    """g0(q): maps the actuated velocities v to q̇ (``(n, n−1)`` for a PA arm, ``I_n`` otherwise)."""
+    return _g0_from_mass(mass_matrix(arm, q), arm.passive_first_joint)
+
+
+def _as_active(arm: Arm, v: np.ndarray, lead: tuple[int, ...]) -> np.ndarray:
+    v = np.asarray(v, dtype=float)
+    k = arm.n_actuated
+    if v.shape != lead + (k,):
+        raise ValueError(f"v must have shape {lead + (k,)} (actuated joints), got {v.shape}")
+    return v
+
+
+def joint_velocity(arm: Arm, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """q̇ = g0(q) v."""
+    q = _as_joints(arm, q)
+    v = _as_active(arm, v, q.shape[:-1])
+    return np.einsum("...ij,...j->...i", passive_velocity_map(arm, q), v)
+
+
+def reduced_jacobian(arm: Arm, q: np.ndarray) -> np.ndarray:
+    """J̄ = J g0: the map from actuated velocities v to the end-effector velocity, ``(..., 2, k)``."""
+    return jacobian(arm, q) @ passive_velocity_map(arm, q)
+
+
+def passive_momentum(arm: Arm, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+    """Σ_α M_1α(q) q̇_α: conserved for a PA arm with no torque on joint 1 (zero from rest)."""
+    qd = _as_joints(arm, qd, "qd")
+    return np.einsum("...a,...a->...", mass_matrix(arm, q)[..., 0, :], qd)
+
+
+def cascade_terms(arm: Arm, q: np.ndarray, v: np.ndarray) -> CascadeTerms:
+    """g0, M_comb, H_comb and q̇ at (q, v), sharing one evaluation of the trigonometry."""
+    q = _as_joints(arm, q)
+    v = _as_active(arm, v, q.shape[:-1])
+    D = _angle_differences(link_angles(q))
+    M = _sandwich(arm.lam * np.cos(D))
+    g0 = _g0_from_mass(M, arm.passive_first_joint)
+    qd = np.einsum("...ij,...j->...i", g0, v)
+    theta_dot = link_angles(qd)
+    h = -np.einsum("...ab,...b->...a", arm.lam * np.sin(D), theta_dot**2)
+    H = np.cumsum(h[..., ::-1], axis=-1)[..., ::-1]
+    if not arm.passive_first_joint:
+        return CascadeTerms(g0, M, H, qd, M)
+    M_au = M[..., 1:, 0]
+    inv_uu = 1.0 / M[..., 0, 0]
+    M_comb = M[..., 1:, 1:] - M_au[..., :, None] * M_au[..., None, :] * inv_uu[..., None, None]
+    H_comb = H[..., 1:] - M_au * (H[..., 0] * inv_uu)[..., None]
+    return CascadeTerms(g0, M_comb, H_comb, qd, M)
+
+
+def g1(arm: Arm, q: np.ndarray) -> np.ndarray:
+    """g1(q) = M_comb(q)⁻¹, shape ``(..., k, k)``."""
+    q = _as_joints(arm, q)
+    zeros = np.zeros(q.shape[:-1] + (arm.n_actuated,))
+    return np.linalg.inv(cascade_terms(arm, q, zeros).M_comb)
+
+
+def f1(arm: Arm, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """f1(q, v) = −M_comb⁻¹ H_comb, shape ``(..., k)``."""
+    t = cascade_terms(arm, q, v)
+    return -np.linalg.solve(t.M_comb, t.H_comb[..., None])[..., 0]
+
+
+def cascade_rhs(
+    arm: Arm, q: np.ndarray, v: np.ndarray, tau_a: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Time derivatives (q̇, v̇) of the cascaded state under actuated torques τ_a."""
+    t = cascade_terms(arm, q, v)
+    vdot = np.linalg.solve(t.M_comb, (np.asarray(tau_a, dtype=float) - t.H_comb)[..., None])[..., 0]
+    return t.qd, vdot
+
+
+def cascade_rk4_step(
+    arm: Arm,
+    q: np.ndarray,
+    v: np.ndarray,
+    tau_a: np.ndarray,
+    dt: float,
+    terms: CascadeTerms | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One classical RK4 step of (q, v) with τ_a held constant over ``dt`` (zero-order hold).
+
+    ``terms`` may pass :func:`cascade_terms` at (q, v) when the caller has it already.
+    """
+    if terms is None:
+        k1q, k1v = cascade_rhs(arm, q, v, tau_a)
+    else:
+        k1q = terms.qd
+        k1v = np.linalg.solve(terms.M_comb, (tau_a - terms.H_comb)[..., None])[..., 0]
+    k2q, k2v = cascade_rhs(arm, q + 0.5 * dt * k1q, v + 0.5 * dt * k1v, tau_a)
+    k3q, k3v = cascade_rhs(arm, q + 0.5 * dt * k2q, v + 0.5 * dt * k2v, tau_a)
+    k4q, k4v = cascade_rhs(arm, q + dt * k3q, v + dt * k3v, tau_a)
+    q_next = q + dt / 6.0 * (k1q + 2.0 * k2q + 2.0 * k3q + k4q)
+    v_next = v + dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
+    return q_next, v_next
+
+
+def full_torque(arm: Arm, tau_a: np.ndarray) -> np.ndarray:
+    """The full joint torque vector: τ = [0, τ_a] for a PA arm, τ_a otherwise."""
+    tau_a = np.asarray(tau_a, dtype=float)
+    if not arm.passive_first_joint:
+        return tau_a
+    return np.concatenate([np.zeros(tau_a.shape[:-1] + (1,)), tau_a], axis=-1)
+
+
+def full_order_rhs(
+    arm: Arm, q: np.ndarray, qd: np.ndarray, tau: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Time derivatives (q̇, q̈) of the full model M q̈ + C q̇ = τ (τ has all n entries)."""
+    M = mass_matrix(arm, q)
+    rhs = np.asarray(tau, dtype=float) - coriolis_vector(arm, q, qd)
+    return np.asarray(qd, dtype=float), np.linalg.solve(M, rhs[..., None])[..., 0]
+
+
+def full_order_rk4_step(
+    arm: Arm, q: np.ndarray, qd: np.ndarray, tau: np.ndarray, dt: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """One RK4 step of the full-order state (q, q̇) with τ held over ``dt``."""
+    k1q, k1v = full_order_rhs(arm, q, qd, tau)
+    k2q, k2v = full_order_rhs(arm, q + 0.5 * dt * k1q, qd + 0.5 * dt * k1v, tau)
+    k3q, k3v = full_order_rhs(arm, q + 0.5 * dt * k2q, qd + 0.5 * dt * k2v, tau)
+    k4q, k4v = full_order_rhs(arm, q + dt * k3q, qd + dt * k3v, tau)
+    q_next = q + dt / 6.0 * (k1q + 2.0 * k2q + 2.0 * k3q + k4q)
+    qd_next = qd + dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
+    return q_next, qd_next

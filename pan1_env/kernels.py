@@ -1,0 +1,395 @@
+"""Compiled (numba) kernels of the physics sub-step: the engine's single implementation.
+
+The formulas are those of :mod:`pan1_env.dynamics`, :mod:`pan1_env.cascade`,
+:mod:`pan1_env.safety` and :mod:`pan1_env.control` (the documented, vectorised numpy reference);
+the tests check every kernel against them. The kernels loop over the arms of one group (arms with
+the same number of links n and actuation, k actuated joints) so that a sub-step costs a handful of
+calls whatever the team size.
+
+Importing this module imports numba (about half a second); :mod:`pan1_env` itself does not, so
+``import pan1_env`` stays fast. Compiled code is cached on disk (``cache=True``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = [
+    "group_terms",
+    "group_control",
+    "group_rk4",
+    "group_end_effectors",
+    "qp_project",
+]
+
+STATUS_NOMINAL, STATUS_SOLVED, STATUS_FALLBACK = 0, 1, 2
+
+
+@njit(cache=True, inline="always")
+def _arm_terms(lam, q, v, passive, M, Mc, Hc, qd):
+    """Mass matrix M, q̇ = g0 v, M_comb and H_comb of one arm (writes the output arrays)."""
+    n = q.shape[0]
+    theta = np.empty(n)
+    acc = 0.0
+    for a in range(n):
+        acc += q[a]
+        theta[a] = acc
+    cosd = np.empty((n, n))
+    sind = np.empty((n, n))
+    for a in range(n):
+        for b in range(n):
+            d = theta[b] - theta[a]
+            cosd[a, b] = np.cos(d)
+            sind[a, b] = np.sin(d)
+    # M = Sᵀ (λ ∘ cos D) S: reverse cumulative sums over both indices.
+    R = np.empty((n, n))
+    for a in range(n):
+        acc = 0.0
+        for b in range(n - 1, -1, -1):
+            acc += lam[a, b] * cosd[a, b]
+            R[a, b] = acc
+    for b in range(n):
+        acc = 0.0
+        for a in range(n - 1, -1, -1):
+            acc += R[a, b]
+            M[a, b] = acc
+    off = 1 if passive else 0
+    k = n - off
+    if passive:
+        s = 0.0
+        for j in range(k):
+            s += M[0, j + 1] * v[j]
+        qd[0] = -s / M[0, 0]
+    for j in range(k):
+        qd[j + off] = v[j]
+    # H = Sᵀ h,  h_a = −Σ_b λ_ab sin(θ_b − θ_a) θ̇_b²
+    thd = np.empty(n)
+    acc = 0.0
+    for a in range(n):
+        acc += qd[a]
+        thd[a] = acc
+    H = np.empty(n)
+    acc = 0.0
+    for a in range(n - 1, -1, -1):
+        h = 0.0
+        for b in range(n):
+            h -= lam[a, b] * sind[a, b] * thd[b] * thd[b]
+        acc += h
+        H[a] = acc
+    if passive:
+        inv = 1.0 / M[0, 0]
+        for i in range(k):
+            Hc[i] = H[i + 1] - M[i + 1, 0] * H[0] * inv
+            for j in range(k):
+                Mc[i, j] = M[i + 1, j + 1] - M[i + 1, 0] * M[0, j + 1] * inv
+    else:
+        for i in range(n):
+            Hc[i] = H[i]
+            for j in range(n):
+                Mc[i, j] = M[i, j]
+
+
+@njit(cache=True, inline="always")
+def _spd_solve(G, r, x):
+    """Solve G x = r for a small symmetric positive definite G by Cholesky; False if not SPD."""
+    s = G.shape[0]
+    L = np.zeros((s, s))
+    scale = 0.0
+    for i in range(s):
+        scale = max(scale, G[i, i])
+    for i in range(s):
+        for j in range(i + 1):
+            acc = G[i, j]
+            for t in range(j):
+                acc -= L[i, t] * L[j, t]
+            if i == j:
+                if acc <= 1e-12 * scale:
+                    return False
+                L[i, i] = np.sqrt(acc)
+            else:
+                L[i, j] = acc / L[j, j]
+    y = np.empty(s)
+    for i in range(s):
+        acc = r[i]
+        for t in range(i):
+            acc -= L[i, t] * y[t]
+        y[i] = acc / L[i, i]
+    for i in range(s - 1, -1, -1):
+        acc = y[i]
+        for t in range(i + 1, s):
+            acc -= L[t, i] * x[t]
+        x[i] = acc / L[i, i]
+    return True
+
+
+@njit(cache=True, inline="always")
+def _arm_rhs(lam, q, v, tau, passive, dq, dv):
+    n = q.shape[0]
+    k = v.shape[0]
+    M = np.empty((n, n))
+    Mc = np.empty((k, k))
+    Hc = np.empty(k)
+    _arm_terms(lam, q, v, passive, M, Mc, Hc, dq)
+    r = np.empty(k)
+    for i in range(k):
+        r[i] = tau[i] - Hc[i]
+    if not _spd_solve(Mc, r, dv):
+        for i in range(k):
+            dv[i] = np.nan
+
+
+@njit(cache=True)
+def group_terms(lam, lengths, base, phi, passive, q, v, p, Jbar, Mc, Hc, momentum):
+    """Per arm: end-effector p (A,2), reduced Jacobian J̄ (A,2,k), M_comb, H_comb, passive momentum."""
+    A, n = q.shape
+    k = v.shape[1]
+    off = 1 if passive else 0
+    M = np.empty((n, n))
+    qd = np.empty(n)
+    J = np.empty((2, n))
+    for i in range(A):
+        _arm_terms(lam[i], q[i], v[i], passive, M, Mc[i], Hc[i], qd)
+        mom = 0.0
+        for a in range(n):
+            mom += M[0, a] * qd[a]
+        momentum[i] = mom if passive else np.nan
+        ang = phi[i]
+        px = base[i, 0]
+        py = base[i, 1]
+        for a in range(n):
+            ang += q[i, a]
+            J[0, a] = lengths[i, a] * np.cos(ang)
+            J[1, a] = -lengths[i, a] * np.sin(ang)
+            px += lengths[i, a] * np.sin(ang)
+            py += lengths[i, a] * np.cos(ang)
+        p[i, 0] = px
+        p[i, 1] = py
+        for a in range(n - 2, -1, -1):  # reverse cumulative sum: ∂p/∂q_a = Σ_{α≥a} …
+            J[0, a] += J[0, a + 1]
+            J[1, a] += J[1, a + 1]
+        if passive:
+            # J̄ = J g0,  g0 = [−M_0a / M_00 ; I]
+            for c in range(2):
+                for j in range(k):
+                    Jbar[i, c, j] = J[c, j + 1] - J[c, 0] * M[0, j + 1] / M[0, 0]
+        else:
+            for c in range(2):
+                for j in range(k):
+                    Jbar[i, c, j] = J[c, j + off]
+
+
+@njit(cache=True)
+def group_end_effectors(lengths, base, phi, q, p):
+    """End-effector positions (A, 2) of a group."""
+    A, n = q.shape
+    for i in range(A):
+        ang = phi[i]
+        px = base[i, 0]
+        py = base[i, 1]
+        for a in range(n):
+            ang += q[i, a]
+            px += lengths[i, a] * np.sin(ang)
+            py += lengths[i, a] * np.cos(ang)
+        p[i, 0] = px
+        p[i, 1] = py
+
+
+@njit(cache=True)
+def _project_one(v0, A, b, active, v_out):
+    """Exact min ½‖v − v0‖² s.t. A_j v ≤ b_j (rows with active_j): returns a status code.
+
+    Enumerates linearly independent sets of active rows (sizes 1..k): the optimum is the projection
+    of v0 onto one of them, the closest feasible candidate (see :mod:`pan1_env.safety`).
+    """
+    m, k = A.shape
+    feasible = True
+    for j in range(m):
+        if active[j]:
+            s = 0.0
+            for t in range(k):
+                s += A[j, t] * v0[t]
+            if s > b[j] + 1e-12 * (1.0 + abs(b[j])):
+                feasible = False
+                break
+    if feasible:
+        for t in range(k):
+            v_out[t] = v0[t]
+        return STATUS_NOMINAL
+    rows = np.empty(m, dtype=np.int64)
+    na = 0
+    for j in range(m):
+        if active[j]:
+            nrm = 0.0
+            for t in range(k):
+                nrm += A[j, t] * A[j, t]
+            if nrm > 0.0:
+                rows[na] = j
+                na += 1
+    best = np.inf
+    cand = np.empty(k)
+    smax = min(na, k)
+    idx = np.empty(max(smax, 1), dtype=np.int64)
+    for size in range(1, smax + 1):
+        # iterate over combinations of `size` rows out of `na` (lexicographic)
+        for t in range(size):
+            idx[t] = t
+        while True:
+            G = np.empty((size, size))
+            r = np.empty(size)
+            for x in range(size):
+                jx = rows[idx[x]]
+                acc = 0.0
+                for t in range(k):
+                    acc += A[jx, t] * v0[t]
+                r[x] = acc - b[jx]
+                for y in range(size):
+                    jy = rows[idx[y]]
+                    acc = 0.0
+                    for t in range(k):
+                        acc += A[jx, t] * A[jy, t]
+                    G[x, y] = acc
+            lam = np.empty(size)
+            if _spd_solve(G, r, lam):
+                lmax = 0.0
+                for x in range(size):
+                    lmax = max(lmax, abs(lam[x]))
+                ok = True
+                for x in range(size):
+                    if lam[x] < -1e-12 * (1.0 + lmax):
+                        ok = False
+                if ok:
+                    for t in range(k):
+                        acc = v0[t]
+                        for x in range(size):
+                            acc -= A[rows[idx[x]], t] * lam[x]
+                        cand[t] = acc
+                    cn = 0.0
+                    for t in range(k):
+                        cn += cand[t] * cand[t]
+                    cn = np.sqrt(cn)
+                    for jj in range(na):
+                        j = rows[jj]
+                        s = 0.0
+                        an = 0.0
+                        for t in range(k):
+                            s += A[j, t] * cand[t]
+                            an += A[j, t] * A[j, t]
+                        if s > b[j] + 1e-9 * (1.0 + abs(b[j]) + np.sqrt(an) * (1.0 + cn)):
+                            ok = False
+                            break
+                    if ok:
+                        d = 0.0
+                        for t in range(k):
+                            d += (cand[t] - v0[t]) ** 2
+                        if d < best:
+                            best = d
+                            for t in range(k):
+                                v_out[t] = cand[t]
+            # next combination
+            x = size - 1
+            while x >= 0 and idx[x] == na - size + x:
+                x -= 1
+            if x < 0:
+                break
+            idx[x] += 1
+            for y in range(x + 1, size):
+                idx[y] = idx[y - 1] + 1
+    if best < np.inf:
+        return STATUS_SOLVED
+    for t in range(k):
+        v_out[t] = 0.0
+    return STATUS_FALLBACK
+
+
+@njit(cache=True)
+def qp_project(v0, A, b, active, v_out, status):
+    """Batched exact safety QP: for each arm i, project v0[i] onto {A[i] v ≤ b[i]}."""
+    for i in range(v0.shape[0]):
+        status[i] = _project_one(v0[i], A[i], b[i], active[i], v_out[i])
+
+
+@njit(cache=True)
+def group_control(p, Jbar, Mc, Hc, v, v_ref, v_prev, has_prev, filter_on, centers, radii, mask,
+                  kappa, epsilon, margin, ke, dt, v_star, tau, status, min_h):
+    """RCBF-QP filter (optional) and backstepping torque for every arm of a group.
+
+    v* = QP(v_ref) with rows −L_g0 h_j v ≤ κ (h_j − margin) − ‖L_g0 h_j‖² / ε (or v* = v_ref);
+    τ_a = M_comb (v̇* − K_e (v − v*)) + H_comb with v̇* = (v* − v*_prev) / dt.
+    """
+    nA, k = v.shape
+    O = radii.shape[0]
+    A = np.zeros((O, k))
+    b = np.empty(O)
+    for i in range(nA):
+        min_h[i] = np.inf
+        status[i] = STATUS_NOMINAL
+        use = False
+        if filter_on:
+            for j in range(O):
+                if mask[i, j]:
+                    use = True
+        if use:
+            for j in range(O):
+                dx = p[i, 0] - centers[j, 0]
+                dy = p[i, 1] - centers[j, 1]
+                h = dx * dx + dy * dy - radii[j] * radii[j]
+                lg2 = 0.0
+                for t in range(k):
+                    lg = 2.0 * (dx * Jbar[i, 0, t] + dy * Jbar[i, 1, t])
+                    A[j, t] = -lg
+                    lg2 += lg * lg
+                b[j] = kappa * (h - margin) - lg2 / epsilon
+                if mask[i, j] and h < min_h[i]:
+                    min_h[i] = h
+            status[i] = _project_one(v_ref[i], A, b, mask[i], v_star[i])
+        else:
+            for t in range(k):
+                v_star[i, t] = v_ref[i, t]
+        acc = np.empty(k)
+        for t in range(k):
+            vdot = (v_star[i, t] - v_prev[i, t]) / dt if has_prev else 0.0
+            acc[t] = vdot - ke * (v[i, t] - v_star[i, t])
+        for r in range(k):
+            s = Hc[i, r]
+            for t in range(k):
+                s += Mc[i, r, t] * acc[t]
+            tau[i, r] = s
+
+
+@njit(cache=True)
+def group_rk4(lam, passive, q, v, tau, dt, q_out, v_out):
+    """One RK4 step of the cascaded state of every arm, τ held over dt (zero-order hold)."""
+    A, n = q.shape
+    k = v.shape[1]
+    k1q = np.empty(n)
+    k2q = np.empty(n)
+    k3q = np.empty(n)
+    k4q = np.empty(n)
+    k1v = np.empty(k)
+    k2v = np.empty(k)
+    k3v = np.empty(k)
+    k4v = np.empty(k)
+    qt = np.empty(n)
+    vt = np.empty(k)
+    for i in range(A):
+        _arm_rhs(lam[i], q[i], v[i], tau[i], passive, k1q, k1v)
+        for a in range(n):
+            qt[a] = q[i, a] + 0.5 * dt * k1q[a]
+        for a in range(k):
+            vt[a] = v[i, a] + 0.5 * dt * k1v[a]
+        _arm_rhs(lam[i], qt, vt, tau[i], passive, k2q, k2v)
+        for a in range(n):
+            qt[a] = q[i, a] + 0.5 * dt * k2q[a]
+        for a in range(k):
+            vt[a] = v[i, a] + 0.5 * dt * k2v[a]
+        _arm_rhs(lam[i], qt, vt, tau[i], passive, k3q, k3v)
+        for a in range(n):
+            qt[a] = q[i, a] + dt * k3q[a]
+        for a in range(k):
+            vt[a] = v[i, a] + dt * k3v[a]
+        _arm_rhs(lam[i], qt, vt, tau[i], passive, k4q, k4v)
+        for a in range(n):
+            q_out[i, a] = q[i, a] + dt / 6.0 * (k1q[a] + 2.0 * k2q[a] + 2.0 * k3q[a] + k4q[a])
+        for a in range(k):
+            v_out[i, a] = v[i, a] + dt / 6.0 * (k1v[a] + 2.0 * k2v[a] + 2.0 * k3v[a] + k4v[a])

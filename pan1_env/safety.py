@@ -1,0 +1,219 @@
+"""Disk obstacles, robust control barrier functions and the safety QP (MODEL.md §5, Eq. 48–61).
+
+For arm i and obstacle j (centre o_j, radius r_j):
+
+    h_ij = ‖p_i − o_j‖² − r_j²,       L_g0 h_ij = 2 (p_i − o_j)ᵀ J̄_i        (a row, 1 × k)
+
+and the robust CBF condition (Eq. 56) with κ(h) = κ h is
+
+    L_g0 h_ij · v ≥ −κ h_ij + (1/ε) ‖L_g0 h_ij‖².
+
+The safety filter (Eq. 60–61) projects a desired velocity v0 onto these half-spaces:
+
+    v* = argmin ½ ‖v − v0‖²   s.t.   A v ≤ b,   A_j = −L_g0 h_ij,   b_j = κ h_ij − ‖L_g0 h_ij‖² / ε.
+
+With tracking error ‖v − v*‖ ≤ δ the arm stays in h ≥ −Γ(δ), Γ(δ) = ε δ² / (4 κ) (Eq. 57); pass
+``margin = Γ(δ̄)`` to filter with h − Γ(δ̄) and keep the original set.
+
+Two exact solvers are offered for the per-arm QP, both batched over arms:
+
+* ``"piqp"`` – qpsolvers with the PIQP interior-point solver (the reference);
+* ``"active_set"`` – enumeration of the linearly independent active sets, which is exact for the
+  few rows and ≤ n−1 unknowns of this problem (even when rows are parallel: rank A ≤ 2 always).
+
+If the desired velocity already satisfies every row it is the optimum and is returned unchanged.
+If the QP is infeasible (or the solver fails) the documented fallback is **braking**: v* = 0, so
+q̇ = g0·0 = 0 and no barrier can decrease; the status says so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = [
+    "Obstacles",
+    "barrier",
+    "clearance",
+    "barrier_lie_derivative",
+    "robust_margin",
+    "rcbf_constraints",
+    "QPStatus",
+    "FilterResult",
+    "project_velocity",
+    "QP_SOLVERS",
+]
+
+QP_SOLVERS = ("active_set", "piqp")
+
+
+@dataclass(frozen=True)
+class Obstacles:
+    """Disk obstacles: ``centers`` of shape (O, 2) and ``radii`` of shape (O,), metres."""
+
+    centers: np.ndarray
+    radii: np.ndarray
+
+    def __post_init__(self) -> None:
+        c = np.array(self.centers, dtype=float).reshape(-1, 2)
+        r = np.array(self.radii, dtype=float).reshape(-1)
+        if c.shape[0] != r.shape[0]:
+            raise ValueError(f"Obstacles: {c.shape[0]} centres but {r.shape[0]} radii")
+        if not (np.all(np.isfinite(c)) and np.all(np.isfinite(r))):
+            raise ValueError("Obstacles: centres and radii must be finite")
+        if np.any(r <= 0):
+            raise ValueError(f"Obstacles: radii must be positive, got {r.tolist()}")
+        c.setflags(write=False)
+        r.setflags(write=False)
+        object.__setattr__(self, "centers", c)
+        object.__setattr__(self, "radii", r)
+
+    def __len__(self) -> int:
+        return int(self.radii.shape[0])
+
+
+def barrier(p: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """h = ‖p − o_j‖² − r_j² for positions ``(..., 2)``: shape ``(..., O)``."""
+    d = p[..., None, :] - centers
+    return np.sum(d * d, axis=-1) - radii**2
+
+
+def clearance(p: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """Signed distance ‖p − o_j‖ − r_j to each obstacle's boundary (negative inside): ``(..., O)``."""
+    return np.linalg.norm(p[..., None, :] - centers, axis=-1) - radii
+
+
+def barrier_lie_derivative(p: np.ndarray, Jbar: np.ndarray, centers: np.ndarray) -> np.ndarray:
+    """L_g0 h_j = 2 (p − o_j)ᵀ J̄ for ``p (..., 2)`` and ``J̄ (..., 2, k)``: shape ``(..., O, k)``."""
+    d = p[..., None, :] - centers
+    return 2.0 * np.einsum("...oc,...ck->...ok", d, Jbar)
+
+
+def robust_margin(delta: float, kappa: float, epsilon: float) -> float:
+    """Γ(δ) = ε δ² / (4 κ): how far outside the safe set a tracking error δ can push (Eq. 57)."""
+    return epsilon * delta**2 / (4.0 * kappa)
+
+
+def rcbf_constraints(
+    p: np.ndarray,
+    Jbar: np.ndarray,
+    centers: np.ndarray,
+    radii: np.ndarray,
+    kappa: float,
+    epsilon: float,
+    active: np.ndarray | None = None,
+    margin: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The QP rows ``A v ≤ b`` of Eq. 61 and the barrier values used.
+
+    Args:
+        p: end-effector positions ``(..., 2)``.
+        Jbar: reduced Jacobians ``(..., 2, k)``.
+        centers, radii: obstacles ``(O, 2)``, ``(O,)``.
+        kappa, epsilon: the class-K gain κ and the robustness parameter ε.
+        active: optional boolean mask ``(..., O)``; rows where it is False are switched off
+            (A = 0, b = +inf), e.g. obstacles beyond an arm's reach.
+        margin: Γ(δ̄) to tighten the set (h − margin replaces h).
+
+    Returns:
+        ``A (..., O, k)``, ``b (..., O)``, ``h (..., O)`` (h before tightening).
+    """
+    h = barrier(p, centers, radii)
+    Lg = barrier_lie_derivative(p, Jbar, centers)
+    A = -Lg
+    b = kappa * (h - margin) - np.sum(Lg * Lg, axis=-1) / epsilon
+    if active is not None:
+        A = np.where(active[..., None], A, 0.0)
+        b = np.where(active, b, np.inf)
+    return A, b, h
+
+
+class QPStatus(IntEnum):
+    """Outcome of the safety QP for one arm."""
+
+    NOMINAL = 0  #: the desired velocity satisfied every row and was returned unchanged
+    SOLVED = 1  #: the QP was solved and its optimum returned
+    FALLBACK = 2  #: infeasible or solver failure: braking fallback v* = 0 was returned
+
+
+class FilterResult(NamedTuple):
+    v: np.ndarray  #: filtered velocities ``(B, k)``
+    status: np.ndarray  #: ``QPStatus`` per arm ``(B,)``
+
+
+def _feasible(A: np.ndarray, b: np.ndarray, v: np.ndarray, tol: float) -> np.ndarray:
+    lhs = np.einsum("...ok,...k->...o", A, v)
+    scale = 1.0 + np.abs(b) + np.linalg.norm(A, axis=-1) * (1.0 + np.linalg.norm(v, axis=-1))[..., None]
+    return np.all(lhs <= b + tol * np.where(np.isfinite(scale), scale, 1.0), axis=-1)
+
+
+def _solve_active_set(v0: np.ndarray, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact projection of each v0 onto {A v ≤ b} by enumerating independent active sets.
+
+    The optimum v* is the projection of v0 onto {A_S v = b_S} for a linearly independent set S of
+    active rows with non-negative multipliers, and no other feasible point is closer to v0; so the
+    closest feasible candidate over all such S is v*, and no feasible candidate means infeasible.
+    Runs in the compiled kernel :func:`pan1_env.kernels.qp_project`.
+    """
+    from .kernels import STATUS_FALLBACK, qp_project
+
+    active = np.isfinite(b)
+    v = np.empty_like(v0)
+    status = np.empty(v0.shape[0], dtype=np.int64)
+    qp_project(np.ascontiguousarray(v0), np.ascontiguousarray(A), np.where(active, b, 0.0), active,
+               v, status)
+    return v, status != STATUS_FALLBACK
+
+
+def _solve_piqp(v0: np.ndarray, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    import qpsolvers
+
+    B, m, k = A.shape
+    out = np.zeros((B, k))
+    found = np.zeros(B, dtype=bool)
+    P = np.eye(k)
+    for i in range(B):
+        keep = np.isfinite(b[i])
+        problem = qpsolvers.Problem(P, -v0[i], A[i, keep], b[i, keep])
+        try:
+            sol = qpsolvers.solve_problem(problem, solver="piqp", eps_abs=1e-11, eps_rel=1e-11)
+        except Exception:  # noqa: BLE001 - any solver failure takes the documented fallback
+            continue
+        if sol.found and sol.x is not None and np.all(np.isfinite(sol.x)):
+            out[i] = sol.x
+            found[i] = True
+    return out, found
+
+
+def project_velocity(
+    v_desired: np.ndarray, A: np.ndarray, b: np.ndarray, solver: str = "active_set"
+) -> FilterResult:
+    """Solve v* = argmin ½‖v − v_desired‖² s.t. A v ≤ b for each arm of a batch.
+
+    Args:
+        v_desired: ``(B, k)`` desired velocities.
+        A, b: ``(B, m, k)`` and ``(B, m)`` rows from :func:`rcbf_constraints` (+inf b = no row).
+        solver: ``"active_set"`` (exact enumeration, fast) or ``"piqp"`` (qpsolvers + PIQP).
+
+    Returns:
+        :class:`FilterResult` with the filtered velocities and a :class:`QPStatus` per arm.
+    """
+    if solver not in QP_SOLVERS:
+        raise ValueError(f"unknown QP solver {solver!r}; choose one of {QP_SOLVERS}")
+    v_desired = np.asarray(v_desired, dtype=float)
+    status = np.full(v_desired.shape[0], int(QPStatus.NOMINAL))
+    v = v_desired.copy()
+    if A.shape[-2] == 0:
+        return FilterResult(v, status)
+    nominal_ok = _feasible(A, b, v_desired, 1e-12)
+    todo = np.flatnonzero(~nominal_ok)
+    if todo.size == 0:
+        return FilterResult(v, status)
+    solve = _solve_active_set if solver == "active_set" else _solve_piqp
+    sol, found = solve(v_desired[todo], A[todo], b[todo])
+    v[todo] = np.where(found[:, None], sol, 0.0)
+    status[todo] = np.where(found, int(QPStatus.SOLVED), int(QPStatus.FALLBACK))
+    return FilterResult(v, status)
