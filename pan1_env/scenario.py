@@ -303,7 +303,8 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
             raise ScenarioError(src, key, f"expected a table, got {type(entry).__name__}")
         unknown = set(entry) - {"center", "radius"}
         if unknown:
-            raise ScenarioError(src, f"{key}.{sorted(unknown)[0]}", "unknown key; allowed keys are ['center', 'radius']")
+            raise ScenarioError(src, f"{key}.{sorted(unknown)[0]}",
+                                "unknown key; allowed keys are ['center', 'radius']")
         if "center" not in entry:
             raise ScenarioError(src, f"{key}.center", "missing")
         centers.append(_vector(entry["center"], src, f"{key}.center", size=2))
@@ -312,7 +313,7 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
 
     from .dynamics import end_effector
 
-    for i, (arm, q) in enumerate(zip(arms, q0)):
+    for i, (arm, q) in enumerate(zip(arms, q0, strict=True)):
         if len(obstacles):
             c = clearance(end_effector(arm, q), obstacles.centers, obstacles.radii)
             j = int(np.argmin(c))

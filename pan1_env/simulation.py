@@ -112,7 +112,7 @@ class Simulation:
         for i, arm in enumerate(scenario.arms):
             kinds.setdefault((arm.n_links, arm.passive_first_joint), []).append(i)
         self.groups: list[ArmGroup] = []
-        for (n, passive), ids in sorted(kinds.items()):
+        for (n, _passive), ids in sorted(kinds.items()):
             batch = ArmBatch.stack([scenario.arms[i] for i in ids])
             k = batch.n_actuated
             self.groups.append(
@@ -220,7 +220,7 @@ class Simulation:
             e = edge_errors(z, sc.formation.distances)
             e_hat = formation_gradient(self._incidence, z, e)
 
-        for g, (p, Jbar, Mc, Hc) in zip(self.groups, per_group):
+        for g, (p, Jbar, Mc, Hc) in zip(self.groups, per_group, strict=True):
             A, k = g.v.shape
             if v_command is None:
                 v_ref = nominal_velocity(Jbar, e_hat[g.arm_ids], sc.kp)

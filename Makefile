@@ -1,0 +1,32 @@
+# Two commands do all set-up on a fresh machine (see README.md):
+#   make demo   reproduce the paper's Section 5 (both scenarios, both controllers): figures + table
+#   make test   run the whole test suite (slow tests included)
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+OUT    ?= runs/paper
+
+.PHONY: demo test lint clean
+
+$(VENV)/.core: pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e .
+	touch $@
+
+$(VENV)/.dev: $(VENV)/.core
+	$(PY) -m pip install --quiet -e ".[dev,check]"
+	touch $@
+
+demo: $(VENV)/.core
+	$(PY) -m pan1_env paper --out $(OUT)
+
+test: $(VENV)/.dev
+	$(PY) -m ruff check .
+	$(PY) -m pytest -q tests
+
+lint: $(VENV)/.dev
+	$(PY) -m ruff check .
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache .ruff_cache

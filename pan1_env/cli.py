@@ -1,0 +1,181 @@
+"""The ``pan1-env`` command line (also ``python -m pan1_env``).
+
+Commands:
+
+* ``reproduce SCENARIO --controller nominal|safe --out DIR [--horizon S]``: one closed-loop run
+  with the paper's controller; writes ``metrics.json``, ``trajectory.npz`` and the figures.
+* ``paper [--out DIR] [--horizon S]``: the paper's whole Section 5 (both scenarios, both
+  controllers), the Figure-8 overlays, and a Markdown table of the metrics (``summary.md``).
+* ``scenarios``: list the built-in scenarios.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+__all__ = ["main"]
+
+PAPER_SCENARIOS = ("paper_pa3_square", "paper_pa_mixed_square")
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return value
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="pan1-env",
+        description="Multi-arm PAn-1 formation control with robust-CBF safety (the paper's Section 5).",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    rep = sub.add_parser("reproduce", help="simulate one scenario with the paper's controller")
+    rep.add_argument("scenario", help="built-in scenario name or path to a .toml file")
+    rep.add_argument("--controller", choices=("nominal", "safe"), required=True,
+                     help="nominal: v* = v0 (Eq. 39); safe: v* from the RCBF-QP (Eq. 61)")
+    rep.add_argument("--out", required=True, type=Path, help="output directory")
+    _common(rep)
+
+    paper = sub.add_parser("paper", help="reproduce Section 5: both scenarios, both controllers")
+    paper.add_argument("--out", type=Path, default=Path("runs/paper"), help="output directory")
+    _common(paper)
+
+    sub.add_parser("scenarios", help="list the built-in scenarios")
+    return parser
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--horizon", type=_positive_float, default=None,
+                   help="seconds to simulate (default: the scenario's horizon)")
+    p.add_argument("--record-dt", type=_positive_float, default=0.01,
+                   help="trajectory sampling period in seconds (default 0.01)")
+    p.add_argument("--qp-solver", choices=("active_set", "piqp"), default="active_set",
+                   help="exact active-set kernel (default) or qpsolvers + PIQP")
+    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _reproduce_one(scenario, controller: str, out: Path, args) -> dict:
+    from . import experiment
+
+    result = experiment.run(scenario, controller, horizon=args.horizon, record_dt=args.record_dt,
+                            qp_solver=args.qp_solver, progress=not args.no_progress)
+    paths = experiment.write_outputs(result, out)
+    if not args.no_figures:
+        from . import figures
+
+        fig = figures.run_figure(scenario, result.trajectory,
+                                 title=f"{scenario.name} — {controller} controller")
+        paths["figure"] = figures.save_figure(fig, out / "figure.png")
+        fig8 = figures.obstacle_distance_figure(scenario, {controller: result.trajectory})
+        if fig8 is not None:
+            paths["obstacle_distance"] = figures.save_figure(fig8, out / "obstacle_distance.png")
+    result.metrics["outputs"] = {k: str(v) for k, v in paths.items()}
+    return result.metrics
+
+
+def summary_table(rows: Sequence[dict]) -> str:
+    """A Markdown table of run metrics (arms numbered 1..N as in the paper)."""
+    head = ("| scenario | controller | collided arms | min clearance [mm] | final max edge error [m] "
+            "| time to 1 cm [s] | max momentum drift | wall time [s] |")
+    lines = [head, "|" + "---|" * 8]
+    for m in rows:
+        hit = [str(a["index"] + 1) for a in m["arms"] if a["collided"]]
+        clear = m["min_clearance_m"]
+        t1 = m["time_to_edge_error_1cm_s"]
+        drift = m["max_momentum_drift"]
+        lines.append(
+            f"| {m['scenario']} | {m['controller']} | {', '.join(hit) or 'none'} "
+            f"| {'—' if clear is None else f'{1000 * clear:+.1f}'} "
+            f"| {m['final_max_edge_error_m']:.2e} | {'never' if t1 is None else f'{t1:.1f}'} "
+            f"| {'—' if drift is None else f'{drift:.1e}'} | {m['wall_time_s']:.1f} |"
+        )
+    return "\n".join(lines)
+
+
+def _print_summary(m: dict) -> None:
+    print(f"\n{m['scenario']} / {m['controller']}: {m['steps']} steps of {m['physics_dt']} s "
+          f"in {m['wall_time_s']:.1f} s wall time")
+    for a in m["arms"]:
+        c = a["min_clearance_m"]
+        print(f"  arm {a['index'] + 1}: min clearance "
+              f"{'—' if c is None else f'{1000 * c:+.1f} mm'}{'  COLLIDED' if a['collided'] else ''}")
+    print(f"  final max edge error {m['final_max_edge_error_m']:.2e} m; "
+          f"time to 1 cm: {m['time_to_edge_error_1cm_s']}; "
+          f"QP solved/fallback steps: {m['qp_solved_steps']}/{m['qp_fallback_steps']}")
+    for k, v in m.get("outputs", {}).items():
+        print(f"  {k}: {v}")
+
+
+def _cmd_reproduce(args) -> int:
+    from . import scenario as scenario_mod
+
+    sc = scenario_mod.load(args.scenario)
+    metrics = _reproduce_one(sc, args.controller, args.out, args)
+    _print_summary(metrics)
+    return 0
+
+
+def _cmd_paper(args) -> int:
+    from . import scenario as scenario_mod
+    from .experiment import atomic_write
+
+    rows = []
+    for name in PAPER_SCENARIOS:
+        sc = scenario_mod.load(name)
+        trajs = {}
+        for controller in ("nominal", "safe"):
+            out = args.out / name / controller
+            rows.append(_reproduce_one(sc, controller, out, args))
+            _print_summary(rows[-1])
+            if not args.no_figures:
+                import numpy as np
+
+                with np.load(out / "trajectory.npz") as data:
+                    trajs[controller] = {k: data[k] for k in ("time", "p_end")}
+        if trajs:
+            from . import figures
+
+            fig8 = figures.obstacle_distance_figure(sc, trajs)
+            if fig8 is not None:
+                figures.save_figure(fig8, args.out / name / "obstacle_distance.png")
+    table = summary_table(rows)
+    atomic_write(args.out / "summary.md", lambda fh: fh.write(table + "\n"), mode="w")
+    atomic_write(args.out / "summary.json", lambda fh: fh.write(json.dumps(rows, indent=2) + "\n"),
+                 mode="w")
+    print("\nSection 5 reproduction (arms numbered as in the paper):\n")
+    print(table)
+    print(f"\nfigures, metrics and trajectories under {args.out}/")
+    return 0
+
+
+def _cmd_scenarios(args) -> int:
+    from . import scenario as scenario_mod
+
+    for name in scenario_mod.builtin_names():
+        sc = scenario_mod.load(name)
+        print(f"{name}: {sc.n_arms} arms, {len(sc.obstacles)} obstacles, horizon {sc.horizon:g} s")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``pan1-env`` console script."""
+    from .scenario import ScenarioError
+
+    args = _parser().parse_args(argv)
+    handlers = {"reproduce": _cmd_reproduce, "paper": _cmd_paper, "scenarios": _cmd_scenarios}
+    try:
+        return handlers[args.command](args)
+    except ScenarioError as err:
+        print(f"pan1-env: error: {err}", file=sys.stderr)
+        return 2
