@@ -1,0 +1,1 @@
+"""Baseline policies and training (the reference policy arrives with the shield issue)."""

@@ -1,0 +1,1 @@
+"""Safety wrappers for the environments (the RCBF-QP shield arrives with the shield issue)."""
