@@ -1,3 +1,26 @@
-"""pan1-env: multi-arm PAn−1 formation control with robust-CBF safety."""
+"""pan1-env: multi-arm PAn−1 formation control with robust-CBF safety.
+
+Importing the package registers the Gymnasium ids ``pan1_env/PaperPA3Square-v0``,
+``pan1_env/PaperMixedPA-v0`` and ``pan1_env/RandomFormation-v0`` (see
+:mod:`pan1_env.registration`). The PettingZoo constructors :func:`parallel_env`, :func:`env` and
+:data:`raw_env` are imported on first use, so ``import pan1_env`` stays fast.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from .registration import ENV_IDS, register_envs
 
 __version__ = "0.1.0"
+__all__ = ["parallel_env", "env", "raw_env", "ENV_IDS", "__version__"]
+
+register_envs()
+
+
+def __getattr__(name: str) -> Any:
+    if name in ("parallel_env", "env", "raw_env", "Pan1ParallelEnv"):
+        from . import env as env_module
+
+        return getattr(env_module, name)
+    raise AttributeError(f"module 'pan1_env' has no attribute {name!r}")

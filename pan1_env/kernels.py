@@ -393,3 +393,160 @@ def group_rk4(lam, passive, q, v, tau, dt, q_out, v_out):
             q_out[i, a] = q[i, a] + dt / 6.0 * (k1q[a] + 2.0 * k2q[a] + 2.0 * k3q[a] + k4q[a])
         for a in range(k):
             v_out[i, a] = v[i, a] + dt / 6.0 * (k1v[a] + 2.0 * k2v[a] + 2.0 * k3v[a] + k4v[a])
+
+
+@njit(cache=True)
+def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode,
+                  filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub,
+                  v_star_out, tau_out, min_clear, min_h, qp_counts):
+    """Advance every arm of a group by ``n_sub`` physics steps with a held command (in place).
+
+    Velocity mode (``torque_mode`` False): ``command`` is the desired active velocity; each
+    sub-step filters it through the RCBF-QP when ``filter_on`` (against the obstacles of ``mask``)
+    and tracks v* with the backstepping torque, v̇* by backward difference (``v_prev``/``has_prev``
+    hold the previous sub-step's v*; on return ``v_prev`` holds the last v*). Torque mode:
+    ``command`` is τ_a, applied as is.
+
+    Outputs (per arm): ``v_star_out``/``tau_out`` of the last sub-step, ``min_clear`` the smallest
+    clearance ‖p − o_j‖ − r_j to any obstacle after every sub-step (running minimum with the value
+    passed in), ``min_h`` the smallest filtered barrier seen, ``qp_counts[i, s]`` the number of
+    sub-steps with QP status s. Returns False if the state became non-finite (the arm's state is
+    then left at its last finite value).
+    """
+    nA, n = q.shape
+    k = v.shape[1]
+    O = radii.shape[0]
+    M = np.empty((n, n))
+    Mc = np.empty((k, k))
+    Hc = np.empty(k)
+    qd = np.empty(n)
+    J = np.empty((2, n))
+    Jbar = np.empty((2, k))
+    A = np.zeros((O, k))
+    b = np.empty(O)
+    vs = np.empty(k)
+    tau = np.empty(k)
+    acc = np.empty(k)
+    k1q = np.empty(n)
+    k2q = np.empty(n)
+    k3q = np.empty(n)
+    k4q = np.empty(n)
+    k1v = np.empty(k)
+    k2v = np.empty(k)
+    k3v = np.empty(k)
+    k4v = np.empty(k)
+    qt = np.empty(n)
+    vt = np.empty(k)
+    ok_all = True
+    for i in range(nA):
+        use_filter = False
+        if filter_on and not torque_mode:
+            for j in range(O):
+                if mask[i, j]:
+                    use_filter = True
+        prev_ok = has_prev
+        for _s in range(n_sub):
+            if not torque_mode:
+                _arm_terms(lam[i], q[i], v[i], passive, M, Mc, Hc, qd)
+                if use_filter:
+                    # kinematics for the RCBF rows
+                    ang = phi[i]
+                    px = base[i, 0]
+                    py = base[i, 1]
+                    for a in range(n):
+                        ang += q[i, a]
+                        J[0, a] = lengths[i, a] * np.cos(ang)
+                        J[1, a] = -lengths[i, a] * np.sin(ang)
+                        px += lengths[i, a] * np.sin(ang)
+                        py += lengths[i, a] * np.cos(ang)
+                    for a in range(n - 2, -1, -1):
+                        J[0, a] += J[0, a + 1]
+                        J[1, a] += J[1, a + 1]
+                    for c in range(2):
+                        for t in range(k):
+                            if passive:
+                                Jbar[c, t] = J[c, t + 1] - J[c, 0] * M[0, t + 1] / M[0, 0]
+                            else:
+                                Jbar[c, t] = J[c, t]
+                    for j in range(O):
+                        dx = px - centers[j, 0]
+                        dy = py - centers[j, 1]
+                        h = dx * dx + dy * dy - radii[j] * radii[j]
+                        lg2 = 0.0
+                        for t in range(k):
+                            lg = 2.0 * (dx * Jbar[0, t] + dy * Jbar[1, t])
+                            A[j, t] = -lg
+                            lg2 += lg * lg
+                        b[j] = kappa * (h - margin) - lg2 / epsilon
+                        if mask[i, j] and h < min_h[i]:
+                            min_h[i] = h
+                    st = _project_one(command[i], A, b, mask[i], vs)
+                    qp_counts[i, st] += 1
+                else:
+                    for t in range(k):
+                        vs[t] = command[i, t]
+                    qp_counts[i, STATUS_NOMINAL] += 1
+                for t in range(k):
+                    vdot = (vs[t] - v_prev[i, t]) / dt if prev_ok else 0.0
+                    acc[t] = vdot - ke * (v[i, t] - vs[t])
+                for r in range(k):
+                    s = Hc[r]
+                    for t in range(k):
+                        s += Mc[r, t] * acc[t]
+                    tau[r] = s
+                for t in range(k):
+                    v_prev[i, t] = vs[t]
+                prev_ok = True
+            else:
+                for t in range(k):
+                    tau[t] = command[i, t]
+                    vs[t] = np.nan
+            # RK4 with τ held
+            _arm_rhs(lam[i], q[i], v[i], tau, passive, k1q, k1v)
+            for a in range(n):
+                qt[a] = q[i, a] + 0.5 * dt * k1q[a]
+            for a in range(k):
+                vt[a] = v[i, a] + 0.5 * dt * k1v[a]
+            _arm_rhs(lam[i], qt, vt, tau, passive, k2q, k2v)
+            for a in range(n):
+                qt[a] = q[i, a] + 0.5 * dt * k2q[a]
+            for a in range(k):
+                vt[a] = v[i, a] + 0.5 * dt * k2v[a]
+            _arm_rhs(lam[i], qt, vt, tau, passive, k3q, k3v)
+            for a in range(n):
+                qt[a] = q[i, a] + dt * k3q[a]
+            for a in range(k):
+                vt[a] = v[i, a] + dt * k3v[a]
+            _arm_rhs(lam[i], qt, vt, tau, passive, k4q, k4v)
+            finite = True
+            for a in range(n):
+                qt[a] = q[i, a] + dt / 6.0 * (k1q[a] + 2.0 * k2q[a] + 2.0 * k3q[a] + k4q[a])
+                if not np.isfinite(qt[a]):
+                    finite = False
+            for a in range(k):
+                vt[a] = v[i, a] + dt / 6.0 * (k1v[a] + 2.0 * k2v[a] + 2.0 * k3v[a] + k4v[a])
+                if not np.isfinite(vt[a]):
+                    finite = False
+            if not finite:
+                ok_all = False
+                break
+            for a in range(n):
+                q[i, a] = qt[a]
+            for a in range(k):
+                v[i, a] = vt[a]
+            # clearance after the sub-step
+            ang = phi[i]
+            px = base[i, 0]
+            py = base[i, 1]
+            for a in range(n):
+                ang += q[i, a]
+                px += lengths[i, a] * np.sin(ang)
+                py += lengths[i, a] * np.cos(ang)
+            for j in range(O):
+                c = np.sqrt((px - centers[j, 0]) ** 2 + (py - centers[j, 1]) ** 2) - radii[j]
+                if c < min_clear[i]:
+                    min_clear[i] = c
+        for t in range(k):
+            v_star_out[i, t] = vs[t]
+            tau_out[i, t] = tau[t]
+    return ok_all

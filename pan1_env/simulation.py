@@ -34,7 +34,7 @@ from .formation import edge_errors, edge_length_errors, edge_vectors, formation_
 from .safety import QP_SOLVERS, QPStatus, clearance, project_velocity, rcbf_constraints
 from .scenario import Scenario
 
-__all__ = ["ArmGroup", "Simulation", "SubstepRecord"]
+__all__ = ["ArmGroup", "Simulation", "StepRecord", "SubstepRecord"]
 
 
 @dataclass
@@ -55,6 +55,18 @@ class ArmGroup:
     @property
     def k(self) -> int:
         return self.batch.n_actuated
+
+
+@dataclass
+class StepRecord:
+    """What one control step (``substeps`` physics steps with a held command) produced."""
+
+    v_star: np.ndarray  # (N, k_max) v* of the last sub-step (NaN in torque mode)
+    tau: np.ndarray  # (N, n_max) full joint torques of the last sub-step
+    min_clearance: np.ndarray  # (N,) smallest clearance over the step's sub-steps
+    min_barrier: np.ndarray  # (N,) smallest filtered barrier value h seen (inf: no row)
+    qp_counts: np.ndarray  # (N, 3) sub-steps per QPStatus
+    finite: bool  # False if the state went non-finite (the state is left at its last finite value)
 
 
 @dataclass
@@ -263,4 +275,59 @@ class Simulation:
         rec.max_edge_error = float(np.abs(edge_length_errors(
             edge_vectors(self._incidence, P), sc.formation.distances)).max())
         np.minimum(self.min_clearance, rec.clearance, out=self.min_clearance)
+        return rec
+
+    def step(self, command: np.ndarray, substeps: int, *, torque: bool = False) -> StepRecord:
+        """Advance ``substeps`` physics steps holding a per-arm command (the environments' path).
+
+        Args:
+            command: padded ``(N, k_max)`` array: desired actuated velocities (rad/s), tracked by
+                the backstepping law and, with the safety filter on, projected by the RCBF-QP at
+                every sub-step; or, with ``torque=True``, actuated torques (N·m) applied as is.
+            substeps: number of physics steps.
+            torque: command is a torque.
+        """
+        sc = self.scenario
+        N = self.n_arms
+        command = np.asarray(command, dtype=float)
+        if command.shape != (N, self.k_max):
+            raise ValueError(f"command must have shape {(N, self.k_max)}, got {command.shape}")
+        rec = StepRecord(
+            v_star=np.full((N, self.k_max), np.nan),
+            tau=np.full((N, self.n_max), np.nan),
+            min_clearance=np.full(N, np.inf),
+            min_barrier=np.full(N, np.inf),
+            qp_counts=np.zeros((N, 3), dtype=np.int64),
+            finite=True,
+        )
+        for g in self.groups:
+            A, k = g.v.shape
+            ids = g.arm_ids
+            b = g.batch
+            has_prev = g.v_star_prev is not None
+            v_prev = g.v_star_prev.copy() if has_prev else np.zeros((A, k))
+            v_star = np.empty((A, k))
+            tau_a = np.empty((A, k))
+            min_clear = np.full(A, np.inf)
+            min_h = np.full(A, np.inf)
+            counts = np.zeros((A, 3), dtype=np.int64)
+            q, v = g.q.copy(), g.v.copy()
+            ok = kernels.group_advance(
+                b.lam, b.lengths, b.base, b.phi, b.passive_first_joint, q, v, v_prev, has_prev,
+                np.ascontiguousarray(command[ids, :k]), torque, self.safety_filter, self._centers,
+                self._radii, g.obstacle_mask, sc.kappa, sc.epsilon, sc.safety_margin, sc.ke, self.dt,
+                int(substeps), v_star, tau_a, min_clear, min_h, counts)
+            g.q, g.v = q, v
+            g.v_star_prev = None if torque else v_prev
+            rec.finite &= bool(ok)
+            rec.v_star[ids, :k] = v_star
+            rec.tau[ids, : g.n] = 0.0
+            rec.tau[ids, g.n - k : g.n] = tau_a
+            rec.min_clearance[ids] = min_clear
+            rec.min_barrier[ids] = min_h
+            rec.qp_counts[ids] = counts
+        self.time += substeps * self.dt
+        self.steps += substeps
+        self._positions = None
+        np.minimum(self.min_clearance, rec.min_clearance, out=self.min_clearance)
         return rec

@@ -1,0 +1,454 @@
+"""The PettingZoo ``ParallelEnv``: spaces, local observations, rewards, cost, infos, seeding, render.
+
+See :class:`Pan1ParallelEnv` for the full description. :func:`parallel_env` builds one,
+:func:`env` gives PettingZoo's AEC view of it, and :data:`raw_env` is the class itself.
+"""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+from pettingzoo import ParallelEnv
+from pettingzoo.utils import parallel_to_aec, wrappers
+
+from .formation import edge_length_errors, edge_vectors
+from .random_scenario import RandomScenarioOptions, random_scenario
+from .registration import RENDER_FPS, RENDER_MODES
+from .scenario import Scenario, load
+
+__all__ = ["Pan1ParallelEnv", "parallel_env", "env", "raw_env", "ACTION_MODES"]
+
+ACTION_MODES = ("velocity", "torque")
+_NEIGHBOUR_FEATURES = 4  # present, dx, dy, edge error
+_OBSTACLE_FEATURES = 5  # present, dx, dy, radius, barrier h
+OBS_BOUND = 1e6  # observation entries other than cos/sin and flags are clipped to ±OBS_BOUND
+
+
+class Pan1ParallelEnv(ParallelEnv):
+    """Multi-arm PAn−1 formation with obstacles, as a PettingZoo parallel environment.
+
+    ## Description
+
+    N planar arms (agents ``arm_0`` … ``arm_{N−1}``, numbered from 0; the paper numbers from 1)
+    with n links each. A PA arm's first joint is passive (no motor), the others are actuated; a
+    fully actuated arm drives every joint. The arms must bring their end-effectors into a rigid
+    formation (distances d_k on the edges of an infinitesimally rigid graph) without any
+    end-effector entering a disk obstacle. The dynamics are the paper's (no gravity, RK4 with a
+    ``physics_dt`` step); a PA arm started at rest keeps zero passive momentum, so its passive joint
+    follows its active ones (the cascaded model).
+
+    ## Action Space
+
+    ``Box(-1, 1, (k,), float32)`` per agent, k = n − 1 for a PA arm and n for a fully actuated one.
+    Values outside [−1, 1] are clipped; NaN/inf or a wrong shape raise ``ValueError``.
+
+    * ``action_mode="velocity"`` (default): the desired active-joint velocity
+      v = a · ``max_joint_speed`` (rad/s), held for the control step and tracked inside the env by
+      the paper's backstepping law (Eq. 64) at every physics sub-step.
+    * ``action_mode="torque"``: the active-joint torque τ_a = a · ``max_torque`` (N·m), held.
+
+    ## Observation Space
+
+    ``Box(-inf, inf, (3n + 2 + 4D + 5K,), float32)`` per agent, *local* to the agent:
+
+    | slice | content |
+    |---|---|
+    | ``[0, n)`` | cos q (own joint angles) |
+    | ``[n, 2n)`` | sin q |
+    | ``[2n, 3n)`` | q̇ / ``max_joint_speed`` |
+    | ``[3n, 3n+2)`` | own end-effector relative to own base, p − p0 (m) |
+    | next ``4D`` | D neighbour slots ``[present, dx, dy, err]`` |
+    | next ``5K`` | K obstacle slots ``[present, dx, dy, r, h]`` |
+
+    D is the formation graph's largest degree (N − 1 for random scenarios); for neighbour j,
+    (dx, dy) = p_j − p_i and err = ‖p_j − p_i‖ − d_ij (m). The K obstacles are the nearest by
+    clearance; for obstacle o, (dx, dy) = o − p_i, r its radius and h = ‖p_i − o‖² − r² the barrier
+    value. Absent slots are zeros. Entries other than cos, sin and flags are clipped to ±1e6.
+
+    Neighbours appear in the order of the formation's edges. This is everything the paper's
+    distributed controller needs besides the arm's own parameters (see
+    :class:`pan1_env.baselines.ReferencePolicy`). ``state()`` returns the global state: for every
+    arm q and q̇ (padded with zeros to the largest n) and p, then every obstacle's centre and radius.
+
+    Arms with different n have different spaces. For parameter sharing pad them to one size, e.g.
+    with SuperSuit: ``supersuit.pad_observations_v0(env)`` and ``supersuit.pad_action_space_v0(env)``.
+
+    ## Rewards
+
+    Every agent receives the shared formation term plus its own optional terms:
+    ``r_i = −formation_weight · mean_k |‖z_k‖ − d_k| − effort_weight · ‖a_i‖² / k
+    − collision_penalty · cost_i`` (the mean edge-length error in metres, the squared normalised
+    action, and the cost below). Defaults: 1, 0, 0.
+
+    ## Cost
+
+    ``infos[agent]["cost"]`` is 1.0 in a step where that arm's end-effector was inside an obstacle
+    (clearance < 0) after any physics sub-step, else 0.0 (the safety-gymnasium convention).
+
+    ## Infos
+
+    Per agent: ``cost``, ``min_clearance`` (m, smallest over the step's sub-steps and obstacles),
+    ``formation_error`` (m, max over edges of |‖z_k‖ − d_k|), ``is_success`` (formation error below
+    ``success_tolerance``), ``qp_counts`` when a safety filter is on, and ``fault`` (a string) if the
+    episode was truncated by a numerical fault.
+
+    ## Starting State
+
+    The paper scenarios start at rest at the paper's configurations. ``scenario="random"`` draws a
+    new team (parameters, bases, starting configurations at rest, obstacles, formation placement)
+    on every ``reset`` from the seeded generator, each start collision-free, regular and with the
+    formation reachable (:mod:`pan1_env.random_scenario`); the team's structure (links and passive
+    joints per arm) is fixed by ``random_options``.
+
+    ## Episode End
+
+    Truncation after ``max_steps`` steps (default: the scenario's horizon / ``control_dt``: 2000
+    steps of 0.05 s for the paper scenarios, enough for the reference controller to form the
+    square) or when the state becomes non-finite (``infos[agent]["fault"]``). Termination (all
+    agents at once) on a collision with ``terminate_on_collision=True`` and on success with
+    ``terminate_on_success=True``; both default to False.
+
+    ## Arguments
+
+    * ``scenario``: a built-in name (``"paper_pa3_square"``, ``"paper_pa_mixed_square"``), a path
+      to a TOML file, a :class:`~pan1_env.scenario.Scenario`, or ``"random"``.
+    * ``action_mode``: ``"velocity"`` or ``"torque"``.
+    * ``control_dt``: seconds per env step (default 0.05); a whole multiple of ``physics_dt``.
+    * ``physics_dt``: RK4 step in seconds (default: the scenario's, 1 ms for the paper's).
+    * ``max_steps``: steps before truncation.
+    * ``render_mode``: ``None``, ``"rgb_array"`` or ``"human"``.
+    * ``terminate_on_collision``, ``terminate_on_success``, ``success_tolerance`` (m, default 0.01).
+    * ``formation_weight``, ``effort_weight``, ``collision_penalty``: reward weights.
+    * ``max_joint_speed`` (rad/s, default 2.0), ``max_torque`` (N·m, default 5.0): action scales.
+    * ``n_obstacle_obs``: K, obstacle slots per observation (default: 3).
+    * ``random_options``: a :class:`~pan1_env.random_scenario.RandomScenarioOptions` or a dict of
+      its fields, for ``scenario="random"``.
+
+    ## Version History
+
+    * v0: initial release.
+    """
+
+    metadata = {
+        "name": "pan1_env_v0",
+        "render_modes": RENDER_MODES,
+        "render_fps": RENDER_FPS,
+        "is_parallelizable": True,
+    }
+
+    _ARGUMENTS = (
+        "action_mode", "control_dt", "physics_dt", "max_steps", "render_mode",
+        "terminate_on_collision", "terminate_on_success", "success_tolerance", "formation_weight",
+        "effort_weight", "collision_penalty", "max_joint_speed", "max_torque", "n_obstacle_obs",
+        "random_options",
+    )
+
+    def __init__(self, scenario: str | Path | Scenario = "paper_pa3_square", **kwargs: Any) -> None:
+        unknown = sorted(set(kwargs) - set(self._ARGUMENTS))
+        if unknown:
+            hint = difflib.get_close_matches(unknown[0], self._ARGUMENTS, n=1)
+            raise TypeError(
+                f"Pan1ParallelEnv got an unknown argument {unknown[0]!r}"
+                + (f"; did you mean {hint[0]!r}?" if hint else "")
+                + f" Arguments: scenario, {', '.join(self._ARGUMENTS)}"
+            )
+        self._configure(scenario, **kwargs)
+
+    def _configure(
+        self,
+        scenario: str | Path | Scenario,
+        action_mode: str = "velocity",
+        control_dt: float = 0.05,
+        physics_dt: float | None = None,
+        max_steps: int | None = None,
+        render_mode: str | None = None,
+        terminate_on_collision: bool = False,
+        terminate_on_success: bool = False,
+        success_tolerance: float = 0.01,
+        formation_weight: float = 1.0,
+        effort_weight: float = 0.0,
+        collision_penalty: float = 0.0,
+        max_joint_speed: float = 2.0,
+        max_torque: float = 5.0,
+        n_obstacle_obs: int = 3,
+        random_options: RandomScenarioOptions | Mapping[str, Any] | None = None,
+    ) -> None:
+        if action_mode not in ACTION_MODES:
+            raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, "
+                             f"got {render_mode!r}")
+        for name, value in (("control_dt", control_dt), ("success_tolerance", success_tolerance),
+                            ("max_joint_speed", max_joint_speed), ("max_torque", max_torque)):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) \
+                    or value <= 0:
+                raise ValueError(f"{name} must be a positive number, got {value!r}")
+        for name, value in (("formation_weight", formation_weight), ("effort_weight", effort_weight),
+                            ("collision_penalty", collision_penalty)):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+                raise ValueError(f"{name} must be a finite number, got {value!r}")
+        if isinstance(n_obstacle_obs, bool) or not isinstance(n_obstacle_obs, (int, np.integer)) \
+                or n_obstacle_obs < 0:
+            raise ValueError(f"n_obstacle_obs must be an integer ≥ 0, got {n_obstacle_obs!r}")
+
+        self._random = isinstance(scenario, str) and scenario == "random"
+        if self._random:
+            if isinstance(random_options, Mapping):
+                random_options = RandomScenarioOptions(**random_options)
+            self.random_options = random_options or RandomScenarioOptions()
+            template = random_scenario(np.random.default_rng(0), self.random_options)
+        else:
+            if random_options is not None:
+                raise ValueError("random_options is only for scenario='random'")
+            template = load(scenario)
+        physics_dt = template.physics_dt if physics_dt is None else physics_dt
+        if isinstance(physics_dt, bool) or not isinstance(physics_dt, (int, float)) \
+                or not np.isfinite(physics_dt) or physics_dt <= 0:
+            raise ValueError(f"physics_dt must be a positive number, got {physics_dt!r}")
+        ratio = control_dt / physics_dt
+        if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
+            raise ValueError(f"control_dt={control_dt} must be a whole multiple of physics_dt={physics_dt}")
+        self.physics_dt = float(physics_dt)
+        self.control_dt = float(control_dt)
+        self.substeps = int(round(ratio))
+        if max_steps is None:
+            max_steps = int(np.ceil(template.horizon / self.control_dt - 1e-9))
+        if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+            raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+        self.max_steps = int(max_steps)
+        self.action_mode = action_mode
+        self.render_mode = render_mode
+        self.terminate_on_collision = bool(terminate_on_collision)
+        self.terminate_on_success = bool(terminate_on_success)
+        self.success_tolerance = float(success_tolerance)
+        self.formation_weight = float(formation_weight)
+        self.effort_weight = float(effort_weight)
+        self.collision_penalty = float(collision_penalty)
+        self.max_joint_speed = float(max_joint_speed)
+        self.max_torque = float(max_torque)
+        self.n_obstacle_obs = int(n_obstacle_obs)
+        self.safety_filter = False  # switched on by pan1_env.wrappers.SafetyShield
+
+        self.possible_agents = [f"arm_{i}" for i in range(template.n_arms)]
+        self.agents: list[str] = []
+        self._n = [a.n_links for a in template.arms]
+        self._k = [a.n_actuated for a in template.arms]
+        edges = template.formation.edges
+        degrees = np.bincount(edges.ravel(), minlength=template.n_arms)
+        self._slots = template.n_arms - 1 if self._random else int(degrees.max())
+        self._n_obstacles = len(template.obstacles)
+        self._n_max = max(self._n)
+        self.observation_spaces = {
+            agent: gymnasium.spaces.Box(*self._obs_bounds(i), dtype=np.float32)
+            for i, agent in enumerate(self.possible_agents)
+        }
+        self.action_spaces = {
+            agent: gymnasium.spaces.Box(-1.0, 1.0, (self._k[i],), np.float32)
+            for i, agent in enumerate(self.possible_agents)
+        }
+        state_size = template.n_arms * (2 * self._n_max + 2) + 3 * self._n_obstacles
+        self.state_space = gymnasium.spaces.Box(-OBS_BOUND, OBS_BOUND, (state_size,), np.float32)
+        self._set_scenario(template)
+        self.np_random, self.np_random_seed = gymnasium.utils.seeding.np_random(None)
+        self._renderer = None
+        self._needs_reset = True
+
+    # ----------------------------------------------------------------- spaces
+    def _obs_size(self, i: int) -> int:
+        return 3 * self._n[i] + 2 + _NEIGHBOUR_FEATURES * self._slots + _OBSTACLE_FEATURES * self.n_obstacle_obs
+
+    def _obs_bounds(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """cos/sin in [−1, 1], presence flags in [0, 1], everything else in ±OBS_BOUND."""
+        n = self._n[i]
+        low = np.full(self._obs_size(i), -OBS_BOUND, dtype=np.float32)
+        high = np.full(self._obs_size(i), OBS_BOUND, dtype=np.float32)
+        low[: 2 * n], high[: 2 * n] = -1.0, 1.0
+        base = 3 * n + 2
+        flags = [base + _NEIGHBOUR_FEATURES * s for s in range(self._slots)]
+        base += _NEIGHBOUR_FEATURES * self._slots
+        flags += [base + _OBSTACLE_FEATURES * s for s in range(self.n_obstacle_obs)]
+        low[flags], high[flags] = 0.0, 1.0
+        return low, high
+
+    def observation_space(self, agent: str) -> gymnasium.spaces.Box:
+        return self.observation_spaces[agent]
+
+    def action_space(self, agent: str) -> gymnasium.spaces.Box:
+        return self.action_spaces[agent]
+
+    # --------------------------------------------------------------- scenario
+    def _set_scenario(self, scenario: Scenario) -> None:
+        from .simulation import Simulation
+
+        if [a.n_links for a in scenario.arms] != self._n or [a.n_actuated for a in scenario.arms] != self._k:
+            raise ValueError("the scenario's team structure does not match the environment's spaces")
+        self.scenario = scenario
+        self.sim = Simulation(scenario, safety_filter=self.safety_filter, physics_dt=self.physics_dt)
+        f = scenario.formation
+        self._incidence = f.incidence
+        self._neighbours = [f.neighbours(i) for i in range(scenario.n_arms)]
+        self._edge_of = {}
+        for k, (a, b) in enumerate(f.edges):
+            self._edge_of[(int(a), int(b))] = self._edge_of[(int(b), int(a))] = k
+
+    # ------------------------------------------------------------------- API
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        if seed is not None:
+            self.np_random, self.np_random_seed = gymnasium.utils.seeding.np_random(seed)
+        if self._random:
+            self._set_scenario(random_scenario(self.np_random, self.random_options))
+        else:
+            self.sim.reset()
+        self.sim.safety_filter = self.safety_filter
+        self.agents = list(self.possible_agents)
+        self.num_steps = 0
+        self._needs_reset = False
+        self._last_fault = None
+        P = self.sim.positions()
+        err = self._edge_errors(P)
+        clear = self.sim.clearance()
+        infos = {agent: self._info(i, 0.0, clear[i], err) for i, agent in enumerate(self.agents)}
+        if self.render_mode == "human":
+            self.render()
+        return self._observations(), infos
+
+    def step(self, actions: Mapping[str, np.ndarray]):
+        if self._needs_reset or not self.agents:
+            raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
+        command = self._command(actions)
+        rec = self.sim.step(command, self.substeps, torque=(self.action_mode == "torque"))
+        self.num_steps += 1
+        P = self.sim.positions()
+        err = self._edge_errors(P)
+        cost = (rec.min_clearance < 0).astype(float)
+        shared = -self.formation_weight * float(np.mean(np.abs(err)))
+        max_err = float(np.max(np.abs(err)))
+        success = max_err < self.success_tolerance
+        fault = None if rec.finite else "non-finite state in the physics step; episode truncated"
+        terminated = bool((self.terminate_on_collision and cost.any()) or (self.terminate_on_success and success))
+        truncated = self.num_steps >= self.max_steps or fault is not None
+        rewards, infos = {}, {}
+        for i, agent in enumerate(self.agents):
+            a = np.clip(np.asarray(actions[agent], dtype=float), -1.0, 1.0)
+            effort = float(a @ a) / max(a.size, 1)
+            rewards[agent] = shared - self.effort_weight * effort - self.collision_penalty * cost[i]
+            infos[agent] = self._info(i, cost[i], rec.min_clearance[i], err)
+            if self.safety_filter:
+                infos[agent]["qp_counts"] = rec.qp_counts[i].copy()
+            if fault:
+                infos[agent]["fault"] = fault
+        self._last_record = rec
+        obs = self._observations()
+        terminations = {agent: terminated for agent in self.agents}
+        truncations = {agent: truncated for agent in self.agents}
+        if terminated or truncated:
+            self.agents = []
+            self._needs_reset = True
+        if self.render_mode == "human":
+            self.render()
+        return obs, rewards, terminations, truncations, infos
+
+    def state(self) -> np.ndarray:
+        q, qd = self.sim.joint_state()
+        q = np.nan_to_num(q, nan=0.0)
+        qd = np.nan_to_num(qd, nan=0.0)
+        P = self.sim.positions()
+        parts = [np.concatenate([q[i], qd[i], P[i]]) for i in range(self.scenario.n_arms)]
+        obs = self.scenario.obstacles
+        parts.append(np.concatenate([obs.centers, obs.radii[:, None]], axis=1).ravel())
+        return np.clip(np.concatenate(parts), -OBS_BOUND, OBS_BOUND).astype(np.float32)
+
+    def render(self):
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
+            return None
+        from .render import Renderer
+
+        if self._renderer is None:
+            self._renderer = Renderer(human=(self.render_mode == "human"))
+        return self._renderer.draw(self)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    # ------------------------------------------------------------- internals
+    def _command(self, actions: Mapping[str, np.ndarray]) -> np.ndarray:
+        if not isinstance(actions, Mapping):
+            raise ValueError(f"actions must be a dict keyed by agent, got {type(actions).__name__}")
+        if set(actions) != set(self.agents):
+            missing = sorted(set(self.agents) - set(actions))
+            extra = sorted(set(actions) - set(self.agents))
+            raise ValueError(f"actions must have one entry per live agent; missing {missing}, unexpected {extra}")
+        scale = self.max_joint_speed if self.action_mode == "velocity" else self.max_torque
+        command = np.zeros((self.scenario.n_arms, self.sim.k_max))
+        for i, agent in enumerate(self.possible_agents):
+            a = np.asarray(actions[agent], dtype=float)
+            if a.shape != (self._k[i],):
+                raise ValueError(f"action for {agent} must have shape ({self._k[i]},), got {a.shape}")
+            if not np.all(np.isfinite(a)):
+                raise ValueError(f"action for {agent} contains NaN or inf: {a.tolist()}")
+            command[i, : self._k[i]] = np.clip(a, -1.0, 1.0) * scale
+        return command
+
+    def _edge_errors(self, P: np.ndarray) -> np.ndarray:
+        f = self.scenario.formation
+        return edge_length_errors(edge_vectors(self._incidence, P), f.distances)
+
+    def _info(self, i: int, cost: float, min_clearance: float, err: np.ndarray) -> dict[str, Any]:
+        max_err = float(np.max(np.abs(err)))
+        return {
+            "cost": float(cost),
+            "min_clearance": float(min_clearance),
+            "formation_error": max_err,
+            "is_success": bool(max_err < self.success_tolerance),
+        }
+
+    def _observations(self) -> dict[str, np.ndarray]:
+        sc = self.scenario
+        q, qd = self.sim.joint_state()
+        P = self.sim.positions()
+        centers, radii = sc.obstacles.centers, sc.obstacles.radii
+        out = {}
+        for i, agent in enumerate(self.agents):
+            n = self._n[i]
+            o = np.zeros(self._obs_size(i), dtype=np.float64)
+            o[:n] = np.cos(q[i, :n])
+            o[n : 2 * n] = np.sin(q[i, :n])
+            o[2 * n : 3 * n] = qd[i, :n] / self.max_joint_speed
+            o[3 * n : 3 * n + 2] = P[i] - sc.arms[i].base
+            base = 3 * n + 2
+            for s, j in enumerate(self._neighbours[i]):
+                d = P[j] - P[i]
+                k = self._edge_of[(i, j)]
+                o[base + 4 * s : base + 4 * s + 4] = (1.0, d[0], d[1], np.linalg.norm(d) - sc.formation.distances[k])
+            base += _NEIGHBOUR_FEATURES * self._slots
+            if self.n_obstacle_obs and len(radii):
+                rel = centers - P[i]
+                dist = np.linalg.norm(rel, axis=-1)
+                order = np.argsort(dist - radii, kind="stable")[: self.n_obstacle_obs]
+                for s, j in enumerate(order):
+                    h = dist[j] ** 2 - radii[j] ** 2
+                    o[base + 5 * s : base + 5 * s + 5] = (1.0, rel[j, 0], rel[j, 1], radii[j], h)
+            out[agent] = np.clip(o, -OBS_BOUND, OBS_BOUND).astype(np.float32)
+        return out
+
+
+def parallel_env(scenario: str | Path | Scenario = "paper_pa3_square", **kwargs: Any) -> Pan1ParallelEnv:
+    """The PettingZoo parallel environment (see :class:`Pan1ParallelEnv` for the arguments)."""
+    return Pan1ParallelEnv(scenario, **kwargs)
+
+
+def env(scenario: str | Path | Scenario = "paper_pa3_square", **kwargs: Any):
+    """PettingZoo's AEC view of :func:`parallel_env`, with the standard order-enforcing wrapper."""
+    aec = parallel_to_aec(parallel_env(scenario, **kwargs))
+    return wrappers.OrderEnforcingWrapper(aec)
+
+
+raw_env = Pan1ParallelEnv

@@ -1,0 +1,102 @@
+"""Gymnasium ids and the centralised single-agent view used by ``gymnasium.make``.
+
+:class:`CentralizedEnv` wraps :class:`~pan1_env.env.Pan1ParallelEnv`: its observation is the
+concatenation of every agent's observation (agent order ``arm_0``, ``arm_1``, …), its action the
+concatenation of every agent's action, its reward the mean of the agents' rewards, and
+``info["cost"]`` the number of arms that entered an obstacle in the step (0.0 when none did);
+``info["agents"]`` keeps the per-agent infos. :func:`register_envs` registers
+
+* ``pan1_env/PaperPA3Square-v0`` (Section 5.1),
+* ``pan1_env/PaperMixedPA-v0`` (Section 5.2),
+* ``pan1_env/RandomFormation-v0`` (a new random team every reset),
+
+each with ``max_episode_steps`` equal to the env's ``max_steps`` at default arguments.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium
+import numpy as np
+
+__all__ = ["CentralizedEnv", "register_envs", "ENV_IDS"]
+
+ENV_IDS = {
+    "pan1_env/PaperPA3Square-v0": {"scenario": "paper_pa3_square"},
+    "pan1_env/PaperMixedPA-v0": {"scenario": "paper_pa_mixed_square"},
+    "pan1_env/RandomFormation-v0": {"scenario": "random"},
+}
+DEFAULT_MAX_EPISODE_STEPS = 2000  # 100 s at the default control_dt of 0.05 s
+RENDER_MODES = ["human", "rgb_array"]
+RENDER_FPS = 20
+
+
+class CentralizedEnv(gymnasium.Env):
+    """One agent controlling every arm of a :class:`~pan1_env.env.Pan1ParallelEnv`.
+
+    Takes the same arguments as the parallel env. See the module docstring for the spaces, reward
+    and cost; the parallel env's docstring documents everything else.
+    """
+
+    metadata = {"render_modes": RENDER_MODES, "render_fps": RENDER_FPS}
+
+    def __init__(self, scenario: Any = "paper_pa3_square", **kwargs: Any) -> None:
+        from .env import Pan1ParallelEnv
+
+        self.parallel = Pan1ParallelEnv(scenario, **kwargs)
+        self.render_mode = self.parallel.render_mode
+        agents = self.parallel.possible_agents
+        obs = [self.parallel.observation_space(a) for a in agents]
+        act = [self.parallel.action_space(a) for a in agents]
+        self.observation_space = gymnasium.spaces.Box(
+            np.concatenate([s.low for s in obs]), np.concatenate([s.high for s in obs]), dtype=np.float32)
+        self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (sum(s.shape[0] for s in act),), np.float32)
+        self._splits = np.cumsum([s.shape[0] for s in act])[:-1]
+
+    def _flat_obs(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        return np.concatenate([obs[a] for a in self.parallel.possible_agents]).astype(np.float32)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        obs, infos = self.parallel.reset(seed=seed, options=options)
+        return self._flat_obs(obs), {"cost": 0.0, "agents": infos}
+
+    def step(self, action: np.ndarray):
+        action = np.asarray(action, dtype=float)
+        if action.shape != self.action_space.shape:
+            raise ValueError(f"action must have shape {self.action_space.shape}, got {action.shape}")
+        parts = np.split(action, self._splits)
+        agents = list(self.parallel.possible_agents)
+        obs, rewards, terms, truncs, infos = self.parallel.step(dict(zip(agents, parts, strict=True)))
+        reward = float(np.mean([rewards[a] for a in agents]))
+        info = {
+            "cost": float(sum(infos[a]["cost"] for a in agents)),
+            "formation_error": infos[agents[0]]["formation_error"],
+            "is_success": infos[agents[0]]["is_success"],
+            "min_clearance": float(min(infos[a]["min_clearance"] for a in agents)),
+            "agents": infos,
+        }
+        faults = [infos[a]["fault"] for a in agents if "fault" in infos[a]]
+        if faults:
+            info["fault"] = faults[0]
+        return self._flat_obs(obs), reward, bool(terms[agents[0]]), bool(truncs[agents[0]]), info
+
+    def render(self):
+        return self.parallel.render()
+
+    def close(self) -> None:
+        self.parallel.close()
+
+
+def register_envs() -> None:
+    """Register the package's Gymnasium ids (idempotent)."""
+    for env_id, kwargs in ENV_IDS.items():
+        if env_id in gymnasium.registry:
+            continue
+        gymnasium.register(
+            id=env_id,
+            entry_point="pan1_env.registration:CentralizedEnv",
+            kwargs=kwargs,
+            max_episode_steps=DEFAULT_MAX_EPISODE_STEPS,
+        )

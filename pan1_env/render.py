@@ -1,0 +1,93 @@
+"""Frames of an environment (``rgb_array``) and its window (``human``), drawn with matplotlib.
+
+A frame shows each arm's links and joints (a PA arm's passive joint as a hollow red ring), the
+obstacles (red disks) with the safety filter's boundary (dashed), the formation's edges between the
+end-effectors (green when within 1 cm of their length, orange otherwise) and the target shape
+(grey, dashed) fitted to the end-effectors by the best rigid motion. Matplotlib is imported only
+when the first frame is drawn; ``rgb_array`` needs no display.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .dynamics import joint_positions
+
+__all__ = ["Renderer", "fit_shape"]
+
+
+def fit_shape(target: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """The rigid motion (rotation and translation, no reflection) of ``target`` closest to ``points``."""
+    tc, pc = target.mean(0), points.mean(0)
+    H = (target - tc).T @ (points - pc)
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
+    R = Vt.T @ np.diag([1.0, d]) @ U.T
+    return (target - tc) @ R.T + pc
+
+
+class Renderer:
+    """Draws an environment's current state into a fixed-size figure."""
+
+    def __init__(self, human: bool = False, size_px: int = 480) -> None:
+        import matplotlib
+
+        if not human:
+            matplotlib.use("Agg", force=False)
+        import matplotlib.pyplot as plt
+
+        self._plt = plt
+        self.human = human
+        if human:
+            plt.ion()
+        self.fig, self.ax = plt.subplots(figsize=(size_px / 80, size_px / 80), dpi=80)
+        self._limits = None
+
+    def draw(self, env) -> np.ndarray | None:
+        import matplotlib.patches as mpatches
+
+        sc, sim, ax = env.scenario, env.sim, self.ax
+        ax.clear()
+        if self._limits is None or getattr(self, "_scenario", None) is not sc:
+            self._scenario = sc
+            pts = [a.base for a in sc.arms] + list(sc.obstacles.centers)
+            reach = max(a.reach for a in sc.arms)
+            pts = np.array(pts)
+            self._limits = (pts.min(0) - reach * 0.6, pts.max(0) + reach * 0.6)
+        lo, hi = self._limits
+        margin = sc.safety_margin
+        for c, r in zip(sc.obstacles.centers, sc.obstacles.radii, strict=True):
+            ax.add_patch(mpatches.Circle(c, r, color="tab:red", alpha=0.55, lw=0))
+            ax.add_patch(mpatches.Circle(c, np.sqrt(r * r + margin), fill=False, ls="--", color="tab:red", lw=1))
+        q, _ = sim.joint_state()
+        P = sim.positions()
+        colors = self._plt.rcParams["axes.prop_cycle"].by_key()["color"]
+        for i, arm in enumerate(sc.arms):
+            pts = joint_positions(arm, q[i, : arm.n_links])
+            col = colors[i % len(colors)]
+            ax.plot(pts[:, 0], pts[:, 1], "-", color=col, lw=3, solid_capstyle="round")
+            ax.plot(pts[1:-1, 0], pts[1:-1, 1], "o", color="k", ms=4)
+            ax.plot(*arm.base, "s", color="k", ms=7)
+            if arm.passive_first_joint:
+                ax.plot(*arm.base, "o", mfc="none", mec="red", ms=12, mew=2)
+            ax.plot(*pts[-1], "o", color=col, ms=7)
+            ax.annotate(str(i), pts[-1], textcoords="offset points", xytext=(5, 5), fontsize=8)
+        f = sc.formation
+        fitted = fit_shape(f.target, P)
+        err = np.abs(np.linalg.norm(P[f.edges[:, 0]] - P[f.edges[:, 1]], axis=-1) - f.distances)
+        for (a, b), e in zip(f.edges, err, strict=True):
+            ax.plot(*fitted[[a, b]].T, "--", color="0.5", lw=1)
+            ax.plot(*P[[a, b]].T, "-", color="tab:green" if e < 0.01 else "tab:orange", lw=1.5)
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
+        ax.set_aspect("equal")
+        ax.set_title(f"{sc.name}  t = {sim.time:.2f} s  max edge error {err.max():.3f} m", fontsize=9)
+        self.fig.tight_layout()
+        self.fig.canvas.draw()
+        if self.human:
+            self._plt.pause(0.001)
+            return None
+        return np.asarray(self.fig.canvas.buffer_rgba())[..., :3].copy()
+
+    def close(self) -> None:
+        self._plt.close(self.fig)
