@@ -1,1 +1,5 @@
-"""Baseline policies and training (the reference policy arrives with the shield issue)."""
+"""Baseline policies: the paper's reference (nominal) law on local observations."""
+
+from .reference import ReferencePolicy, decode_observation
+
+__all__ = ["ReferencePolicy", "decode_observation"]

@@ -7,6 +7,7 @@ Commands:
 * ``paper [--out DIR] [--horizon S]``: the paper's whole Section 5 (both scenarios, both
   controllers), the Figure-8 overlays, and a Markdown table of the metrics (``summary.md``).
 * ``scenarios``: list the built-in scenarios.
+* ``animate SCENARIO --policy reference|zero|random --out FILE.gif``: a GIF of one env episode.
 """
 
 from __future__ import annotations
@@ -51,7 +52,31 @@ def _parser() -> argparse.ArgumentParser:
     _common(paper)
 
     sub.add_parser("scenarios", help="list the built-in scenarios")
+
+    anim = sub.add_parser("animate", help="write a GIF of one episode of the environment")
+    anim.add_argument("scenario", help="built-in scenario name, path to a .toml file, or 'random'")
+    anim.add_argument("--policy", choices=POLICIES, default="reference",
+                      help="reference: the paper's nominal law on local observations; zero; random")
+    anim.add_argument("--out", type=Path, required=True, help="output .gif file")
+    anim.add_argument("--steps", type=_positive_int, default=None,
+                      help="env steps (default: the env's max_steps)")
+    anim.add_argument("--frames", type=_positive_int, default=120, help="at most this many frames")
+    anim.add_argument("--seed", type=int, default=0, help="reset seed (and random policy seed)")
+    anim.add_argument("--fps", type=_positive_int, default=20, help="frames per second of the GIF")
     return parser
+
+
+POLICIES = ("reference", "zero", "random")
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive whole number, got {text!r}")
+    return value
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -168,12 +193,59 @@ def _cmd_scenarios(args) -> int:
     return 0
 
 
+def _cmd_animate(args) -> int:
+    import numpy as np
+
+    from .env import parallel_env
+    from .experiment import atomic_write
+
+    if args.out.suffix.lower() != ".gif":
+        print(f"pan1-env: error: --out must end in .gif, got {args.out}", file=sys.stderr)
+        return 2
+    env = parallel_env(args.scenario, render_mode="rgb_array")
+    steps = args.steps or env.max_steps
+    every = max(1, int(np.ceil(steps / args.frames)))
+    obs, _ = env.reset(seed=args.seed)
+    rng = np.random.default_rng(args.seed)
+    if args.policy == "reference":
+        from .baselines import ReferencePolicy
+
+        policy = ReferencePolicy(env)
+    elif args.policy == "zero":
+        def policy(o):
+            return {a: np.zeros(env.action_space(a).shape, np.float32) for a in o}
+    else:
+        def policy(o):
+            return {a: rng.uniform(-1, 1, env.action_space(a).shape).astype(np.float32) for a in o}
+    frames = [env.render()]
+    cost = 0.0
+    for t in range(steps):
+        obs, _, _, _, infos = env.step(policy(obs))
+        cost += sum(i["cost"] for i in infos.values())
+        if (t + 1) % every == 0 or not env.agents:
+            frames.append(env.render())
+        if not env.agents:
+            break
+    env.close()
+    from PIL import Image
+
+    images = [Image.fromarray(f) for f in frames]
+    atomic_write(args.out, lambda fh: images[0].save(fh, format="GIF", save_all=True,
+                                                      append_images=images[1:], duration=1000 // args.fps,
+                                                      loop=0))
+    err = next(iter(infos.values()))["formation_error"] if infos else float("nan")
+    print(f"{args.out}: {len(frames)} frames of {t + 1} steps; policy {args.policy}; "
+          f"final max edge error {err:.4f} m; cost (arm-steps in obstacles) {cost:g}")
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``pan1-env`` console script."""
     from .scenario import ScenarioError
 
     args = _parser().parse_args(argv)
-    handlers = {"reproduce": _cmd_reproduce, "paper": _cmd_paper, "scenarios": _cmd_scenarios}
+    handlers = {"reproduce": _cmd_reproduce, "paper": _cmd_paper, "scenarios": _cmd_scenarios,
+                "animate": _cmd_animate}
     try:
         return handlers[args.command](args)
     except ScenarioError as err:

@@ -1,0 +1,74 @@
+"""The paper's nominal distributed formation law (Eq. 39) as a policy on local observations.
+
+For agent i it reads only its own observation (joint angles, and for each neighbour j the
+displacement Δ = p_j − p_i and the edge error ‖Δ‖ − d_ij) plus its own arm's known parameters, and
+returns
+
+    v_i0 = −K_P J̄_i(q_i)ᵀ ê_i,    ê_i = Σ_j 2 (p_i − p_j)(‖p_i − p_j‖² − d_ij²),
+
+as a normalised velocity action v_i0 / max_joint_speed. If the largest entry exceeds 1 the whole
+vector is scaled down (not clipped entry by entry), so the action stays a descent direction of V.
+Behind :class:`pan1_env.wrappers.SafetyShield` this is the paper's full safe controller.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pan1_env.cascade import reduced_jacobian
+
+__all__ = ["ReferencePolicy", "decode_observation"]
+
+
+def decode_observation(obs: np.ndarray, n_links: int, neighbour_slots: int) -> dict[str, np.ndarray]:
+    """Split one agent's observation (layout of :class:`pan1_env.env.Pan1ParallelEnv`)."""
+    obs = np.asarray(obs, dtype=float)
+    n = n_links
+    q = np.arctan2(obs[n : 2 * n], obs[:n])
+    base = 3 * n + 2
+    nb = obs[base : base + 4 * neighbour_slots].reshape(neighbour_slots, 4)
+    present = nb[:, 0] > 0.5
+    return {
+        "q": q,
+        "qd_scaled": obs[2 * n : 3 * n],
+        "ee_rel_base": obs[3 * n : 3 * n + 2],
+        "neighbour_delta": nb[present, 1:3],
+        "neighbour_error": nb[present, 3],
+        "obstacles": obs[base + 4 * neighbour_slots :].reshape(-1, 5),
+    }
+
+
+class ReferencePolicy:
+    """The nominal law of every agent of a :class:`~pan1_env.env.Pan1ParallelEnv` (velocity mode).
+
+    Args:
+        env: the parallel env (its current scenario supplies each arm's parameters and K_P; for
+            random scenarios the parameters are re-read at every call).
+        kp: overrides the scenario's K_P.
+    """
+
+    def __init__(self, env, kp: float | None = None) -> None:
+        if getattr(env, "action_mode", "velocity") != "velocity":
+            raise ValueError("ReferencePolicy outputs velocities: use action_mode='velocity'")
+        self.env = env
+        self.kp = kp
+
+    def act(self, agent: str, obs: np.ndarray) -> np.ndarray:
+        env = self.env
+        i = env.possible_agents.index(agent)
+        arm = env.scenario.arms[i]
+        kp = env.scenario.kp if self.kp is None else self.kp
+        d = decode_observation(obs, arm.n_links, env._slots)
+        delta = d["neighbour_delta"]  # p_j − p_i
+        dist = np.linalg.norm(delta, axis=-1)
+        desired = dist - d["neighbour_error"]
+        e_hat = np.sum(-2.0 * delta * (dist**2 - desired**2)[:, None], axis=0)
+        v0 = -kp * reduced_jacobian(arm, d["q"]).T @ e_hat
+        a = v0 / env.max_joint_speed
+        peak = np.max(np.abs(a)) if a.size else 0.0
+        if peak > 1.0:
+            a = a / peak
+        return a.astype(np.float32)
+
+    def __call__(self, observations: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        return {agent: self.act(agent, obs) for agent, obs in observations.items()}
