@@ -21,7 +21,7 @@ __all__ = ["ReferencePolicy", "decode_observation"]
 
 
 def decode_observation(obs: np.ndarray, n_links: int, neighbour_slots: int) -> dict[str, np.ndarray]:
-    """Split one agent's observation (layout of :class:`pan1_env.env.Pan1ParallelEnv`)."""
+    """Split one agent's observation (layout of :class:`pan1_env.environment.Pan1ParallelEnv`)."""
     obs = np.asarray(obs, dtype=float)
     n = n_links
     q = np.arctan2(obs[n : 2 * n], obs[:n])
@@ -39,7 +39,7 @@ def decode_observation(obs: np.ndarray, n_links: int, neighbour_slots: int) -> d
 
 
 class ReferencePolicy:
-    """The nominal law of every agent of a :class:`~pan1_env.env.Pan1ParallelEnv` (velocity mode).
+    """The nominal law of every agent of a :class:`~pan1_env.environment.Pan1ParallelEnv` (velocity mode).
 
     Args:
         env: the parallel env (its current scenario supplies each arm's parameters and K_P; for

@@ -8,19 +8,18 @@ Importing the package registers the Gymnasium ids ``pan1_env/PaperPA3Square-v0``
 
 from __future__ import annotations
 
+import importlib
 from typing import Any
 
 from .registration import ENV_IDS, register_envs
 
 __version__ = "0.1.0"
-__all__ = ["parallel_env", "env", "raw_env", "ENV_IDS", "__version__"]
+__all__ = ["parallel_env", "env", "raw_env", "Pan1ParallelEnv", "ENV_IDS", "__version__"]
 
 register_envs()
 
 
 def __getattr__(name: str) -> Any:
     if name in ("parallel_env", "env", "raw_env", "Pan1ParallelEnv"):
-        from . import env as env_module
-
-        return getattr(env_module, name)
+        return getattr(importlib.import_module("pan1_env.environment"), name)
     raise AttributeError(f"module 'pan1_env' has no attribute {name!r}")

@@ -196,7 +196,7 @@ def _cmd_scenarios(args) -> int:
 def _cmd_animate(args) -> int:
     import numpy as np
 
-    from .env import parallel_env
+    from .environment import parallel_env
     from .experiment import atomic_write
 
     if args.out.suffix.lower() != ".gif":

@@ -1,6 +1,6 @@
 """Gymnasium ids and the centralised single-agent view used by ``gymnasium.make``.
 
-:class:`CentralizedEnv` wraps :class:`~pan1_env.env.Pan1ParallelEnv`: its observation is the
+:class:`CentralizedEnv` wraps :class:`~pan1_env.environment.Pan1ParallelEnv`: its observation is the
 concatenation of every agent's observation (agent order ``arm_0``, ``arm_1``, …), its action the
 concatenation of every agent's action, its reward the mean of the agents' rewards, and
 ``info["cost"]`` the number of arms that entered an obstacle in the step (0.0 when none did);
@@ -33,7 +33,7 @@ RENDER_FPS = 20
 
 
 class CentralizedEnv(gymnasium.Env):
-    """One agent controlling every arm of a :class:`~pan1_env.env.Pan1ParallelEnv`.
+    """One agent controlling every arm of a :class:`~pan1_env.environment.Pan1ParallelEnv`.
 
     Takes the same arguments as the parallel env. See the module docstring for the spaces, reward
     and cost; the parallel env's docstring documents everything else.
@@ -42,7 +42,7 @@ class CentralizedEnv(gymnasium.Env):
     metadata = {"render_modes": RENDER_MODES, "render_fps": RENDER_FPS}
 
     def __init__(self, scenario: Any = "paper_pa3_square", **kwargs: Any) -> None:
-        from .env import Pan1ParallelEnv
+        from .environment import Pan1ParallelEnv
 
         self.parallel = Pan1ParallelEnv(scenario, **kwargs)
         self.render_mode = self.parallel.render_mode

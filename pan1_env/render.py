@@ -53,7 +53,7 @@ class Renderer:
             pts = [a.base for a in sc.arms] + list(sc.obstacles.centers)
             reach = max(a.reach for a in sc.arms)
             pts = np.array(pts)
-            self._limits = (pts.min(0) - reach * 0.6, pts.max(0) + reach * 0.6)
+            self._limits = (pts.min(0) - reach, pts.max(0) + reach)
         lo, hi = self._limits
         margin = sc.safety_margin
         for c, r in zip(sc.obstacles.centers, sc.obstacles.radii, strict=True):

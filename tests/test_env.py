@@ -12,8 +12,8 @@ from pettingzoo.test import api_test, parallel_api_test
 
 import pan1_env
 from pan1_env.baselines import ReferencePolicy
-from pan1_env.env import env as aec_env
-from pan1_env.env import parallel_env
+from pan1_env.environment import env as aec_env
+from pan1_env.environment import parallel_env
 
 MIXED = {"links": (2, 3, 4, 3), "passive_fraction": 0.5}
 
