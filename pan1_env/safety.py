@@ -179,7 +179,8 @@ def _solve_piqp(v0: np.ndarray, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarra
         keep = np.isfinite(b[i])
         problem = qpsolvers.Problem(P, -v0[i], A[i, keep], b[i, keep])
         try:
-            sol = qpsolvers.solve_problem(problem, solver="piqp", eps_abs=1e-11, eps_rel=1e-11)
+            sol = qpsolvers.solve_problem(problem, solver="piqp", eps_abs=1e-12, eps_rel=1e-12,
+                                          eps_duality_gap_abs=1e-12, eps_duality_gap_rel=1e-12)
         except Exception:  # noqa: BLE001 - any solver failure takes the documented fallback
             continue
         if sol.found and sol.x is not None and np.all(np.isfinite(sol.x)):
