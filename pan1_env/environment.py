@@ -233,6 +233,7 @@ class Pan1ParallelEnv(ParallelEnv):
         self.max_torque = float(max_torque)
         self.n_obstacle_obs = int(n_obstacle_obs)
         self.safety_filter = False  # switched on by pan1_env.wrappers.SafetyShield
+        self.shield_params: dict[str, float] | None = None  # kappa, epsilon, margin overrides
 
         self.possible_agents = [f"arm_{i}" for i in range(template.n_arms)]
         self.agents: list[str] = []
@@ -304,11 +305,12 @@ class Pan1ParallelEnv(ParallelEnv):
             self._set_scenario(random_scenario(self.np_random, self.random_options))
         else:
             self.sim.reset()
-        self.sim.safety_filter = self.safety_filter
+        self._apply_shield()
         self.agents = list(self.possible_agents)
         self.num_steps = 0
         self._needs_reset = False
-        self._last_fault = None
+        self._last_record = None
+        self._last_command = None
         P = self.sim.positions()
         err = self._edge_errors(P)
         clear = self.sim.clearance()
@@ -321,7 +323,9 @@ class Pan1ParallelEnv(ParallelEnv):
         if self._needs_reset or not self.agents:
             raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
         command = self._command(actions)
-        rec = self.sim.step(command, self.substeps, torque=(self.action_mode == "torque"))
+        self._last_command = command
+        rec = self.sim.step(command, self.substeps, torque=(self.action_mode == "torque"),
+                            max_speed=self.max_joint_speed)
         self.num_steps += 1
         P = self.sim.positions()
         err = self._edge_errors(P)
@@ -379,6 +383,13 @@ class Pan1ParallelEnv(ParallelEnv):
             self._renderer = None
 
     # ------------------------------------------------------------- internals
+    def _apply_shield(self) -> None:
+        self.sim.safety_filter = self.safety_filter
+        params = self.shield_params or {}
+        self.sim.kappa = params.get("kappa", self.scenario.kappa)
+        self.sim.epsilon = params.get("epsilon", self.scenario.epsilon)
+        self.sim.margin = params.get("margin", self.scenario.safety_margin)
+
     def _command(self, actions: Mapping[str, np.ndarray]) -> np.ndarray:
         if not isinstance(actions, Mapping):
             raise ValueError(f"actions must be a dict keyed by agent, got {type(actions).__name__}")

@@ -226,6 +226,11 @@ def _project_one(v0, A, b, active, v_out):
             if nrm > 0.0:
                 rows[na] = j
                 na += 1
+            elif b[j] < -1e-12:
+                # 0·v ≤ b < 0 can never hold: the QP is infeasible
+                for t in range(k):
+                    v_out[t] = 0.0
+                return STATUS_FALLBACK
     best = np.inf
     cand = np.empty(k)
     smax = min(na, k)
@@ -397,7 +402,7 @@ def group_rk4(lam, passive, q, v, tau, dt, q_out, v_out):
 
 @njit(cache=True)
 def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode,
-                  filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub,
+                  filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
                   v_star_out, tau_out, min_clear, min_h, qp_counts):
     """Advance every arm of a group by ``n_sub`` physics steps with a held command (in place).
 
@@ -405,7 +410,12 @@ def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, comm
     sub-step filters it through the RCBF-QP when ``filter_on`` (against the obstacles of ``mask``)
     and tracks v* with the backstepping torque, v̇* by backward difference (``v_prev``/``has_prev``
     hold the previous sub-step's v*; on return ``v_prev`` holds the last v*). Torque mode:
-    ``command`` is τ_a, applied as is.
+    ``command`` is τ_a. Without the filter it is applied as is; with it, the velocity the torque
+    would produce after one sub-step, v + dt·M_comb⁻¹(τ_a − H_comb), is filtered, and if the QP
+    changes it the arm is driven to the filtered velocity in one sub-step,
+    τ_a = M_comb (v* − v)/dt + H_comb, instead; in this mode the filter's QP also bounds every
+    actuated speed, |v_t| ≤ ``v_max``, so the one-step motion stays bounded (without it, steady
+    torque would build speeds at which a sub-step jumps over the safe set's boundary).
 
     Outputs (per arm): ``v_star_out``/``tau_out`` of the last sub-step, ``min_clear`` the smallest
     clearance ‖p − o_j‖ − r_j to any obstacle after every sub-step (running minimum with the value
@@ -422,8 +432,18 @@ def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, comm
     qd = np.empty(n)
     J = np.empty((2, n))
     Jbar = np.empty((2, k))
-    A = np.zeros((O, k))
-    b = np.empty(O)
+    rows = O + 2 * k
+    A = np.zeros((rows, k))
+    b = np.empty(rows)
+    active = np.zeros(rows, dtype=np.bool_)
+    if torque_mode:
+        for t in range(k):  # speed bounds ±v_t ≤ v_max
+            A[O + 2 * t, t] = 1.0
+            A[O + 2 * t + 1, t] = -1.0
+            b[O + 2 * t] = v_max
+            b[O + 2 * t + 1] = v_max
+            active[O + 2 * t] = True
+            active[O + 2 * t + 1] = True
     vs = np.empty(k)
     tau = np.empty(k)
     acc = np.empty(k)
@@ -439,53 +459,70 @@ def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, comm
     vt = np.empty(k)
     ok_all = True
     for i in range(nA):
-        use_filter = False
-        if filter_on and not torque_mode:
+        use_filter = filter_on and torque_mode
+        if filter_on:
             for j in range(O):
+                active[j] = mask[i, j]
                 if mask[i, j]:
                     use_filter = True
         prev_ok = has_prev
         for _s in range(n_sub):
-            if not torque_mode:
+            if use_filter or not torque_mode:
                 _arm_terms(lam[i], q[i], v[i], passive, M, Mc, Hc, qd)
+            # the velocity to filter: the command, or the one-step result of the commanded torque
+            if torque_mode:
+                for t in range(k):
+                    tau[t] = command[i, t]
                 if use_filter:
-                    # kinematics for the RCBF rows
-                    ang = phi[i]
-                    px = base[i, 0]
-                    py = base[i, 1]
-                    for a in range(n):
-                        ang += q[i, a]
-                        J[0, a] = lengths[i, a] * np.cos(ang)
-                        J[1, a] = -lengths[i, a] * np.sin(ang)
-                        px += lengths[i, a] * np.sin(ang)
-                        py += lengths[i, a] * np.cos(ang)
-                    for a in range(n - 2, -1, -1):
-                        J[0, a] += J[0, a + 1]
-                        J[1, a] += J[1, a + 1]
-                    for c in range(2):
-                        for t in range(k):
-                            if passive:
-                                Jbar[c, t] = J[c, t + 1] - J[c, 0] * M[0, t + 1] / M[0, 0]
-                            else:
-                                Jbar[c, t] = J[c, t]
-                    for j in range(O):
-                        dx = px - centers[j, 0]
-                        dy = py - centers[j, 1]
-                        h = dx * dx + dy * dy - radii[j] * radii[j]
-                        lg2 = 0.0
-                        for t in range(k):
-                            lg = 2.0 * (dx * Jbar[0, t] + dy * Jbar[1, t])
-                            A[j, t] = -lg
-                            lg2 += lg * lg
-                        b[j] = kappa * (h - margin) - lg2 / epsilon
-                        if mask[i, j] and h < min_h[i]:
-                            min_h[i] = h
-                    st = _project_one(command[i], A, b, mask[i], vs)
-                    qp_counts[i, st] += 1
-                else:
                     for t in range(k):
-                        vs[t] = command[i, t]
-                    qp_counts[i, STATUS_NOMINAL] += 1
+                        acc[t] = tau[t] - Hc[t]
+                    if not _spd_solve(Mc, acc.copy(), acc):
+                        for t in range(k):
+                            acc[t] = 0.0
+                    for t in range(k):
+                        vt[t] = v[i, t] + dt * acc[t]
+            else:
+                for t in range(k):
+                    vt[t] = command[i, t]
+            st = STATUS_NOMINAL
+            if use_filter:
+                ang = phi[i]
+                px = base[i, 0]
+                py = base[i, 1]
+                for a in range(n):
+                    ang += q[i, a]
+                    J[0, a] = lengths[i, a] * np.cos(ang)
+                    J[1, a] = -lengths[i, a] * np.sin(ang)
+                    px += lengths[i, a] * np.sin(ang)
+                    py += lengths[i, a] * np.cos(ang)
+                for a in range(n - 2, -1, -1):
+                    J[0, a] += J[0, a + 1]
+                    J[1, a] += J[1, a + 1]
+                for c in range(2):
+                    for t in range(k):
+                        if passive:
+                            Jbar[c, t] = J[c, t + 1] - J[c, 0] * M[0, t + 1] / M[0, 0]
+                        else:
+                            Jbar[c, t] = J[c, t]
+                for j in range(O):
+                    dx = px - centers[j, 0]
+                    dy = py - centers[j, 1]
+                    h = dx * dx + dy * dy - radii[j] * radii[j]
+                    lg2 = 0.0
+                    for t in range(k):
+                        lg = 2.0 * (dx * Jbar[0, t] + dy * Jbar[1, t])
+                        A[j, t] = -lg
+                        lg2 += lg * lg
+                    b[j] = kappa * (h - margin) - lg2 / epsilon
+                    if mask[i, j] and h < min_h[i]:
+                        min_h[i] = h
+                st = _project_one(vt, A, b, active, vs)
+            else:
+                for t in range(k):
+                    vs[t] = vt[t]
+            qp_counts[i, st] += 1
+            if not torque_mode:
+                # backstepping tracker of v* (Eq. 64), v̇* by backward difference
                 for t in range(k):
                     vdot = (vs[t] - v_prev[i, t]) / dt if prev_ok else 0.0
                     acc[t] = vdot - ke * (v[i, t] - vs[t])
@@ -497,9 +534,15 @@ def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, comm
                 for t in range(k):
                     v_prev[i, t] = vs[t]
                 prev_ok = True
-            else:
+            elif st != STATUS_NOMINAL:
+                # the torque's velocity was unsafe: reach the projected velocity in one step
+                for r in range(k):
+                    s = Hc[r]
+                    for t in range(k):
+                        s += Mc[r, t] * (vs[t] - v[i, t]) / dt
+                    tau[r] = s
+            if torque_mode and not use_filter:
                 for t in range(k):
-                    tau[t] = command[i, t]
                     vs[t] = np.nan
             # RK4 with τ held
             _arm_rhs(lam[i], q[i], v[i], tau, passive, k1q, k1v)

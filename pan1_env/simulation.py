@@ -106,6 +106,8 @@ class Simulation:
             raise ValueError(f"unknown qp_solver {qp_solver!r}; choose one of {QP_SOLVERS}")
         self.scenario = scenario
         self.safety_filter = bool(safety_filter)
+        #: RCBF parameters used by the filter (the scenario's unless overridden, e.g. by a shield)
+        self.kappa, self.epsilon, self.margin = scenario.kappa, scenario.epsilon, scenario.safety_margin
         self.qp_solver = qp_solver
         self.dt = float(scenario.physics_dt if physics_dt is None else physics_dt)
         if not (np.isfinite(self.dt) and self.dt > 0):
@@ -245,12 +247,12 @@ class Simulation:
             status = np.empty(A, dtype=np.int64)
             min_h = np.empty(A)
             kernels.group_control(p, Jbar, Mc, Hc, g.v, v_ref, v_prev, has_prev, self.safety_filter,
-                                  self._centers, self._radii, g.obstacle_mask, sc.kappa, sc.epsilon,
-                                  sc.safety_margin, sc.ke, dt, v_star, tau_a, status, min_h)
+                                  self._centers, self._radii, g.obstacle_mask, self.kappa, self.epsilon,
+                                  self.margin, sc.ke, dt, v_star, tau_a, status, min_h)
             if self.safety_filter and self.qp_solver == "piqp" and g.obstacle_mask.any():
-                A_rows, b_rows, _ = rcbf_constraints(p, Jbar, self._centers, self._radii, sc.kappa,
-                                                     sc.epsilon, active=g.obstacle_mask,
-                                                     margin=sc.safety_margin)
+                A_rows, b_rows, _ = rcbf_constraints(p, Jbar, self._centers, self._radii, self.kappa,
+                                                     self.epsilon, active=g.obstacle_mask,
+                                                     margin=self.margin)
                 result = project_velocity(v_ref, A_rows, b_rows, solver="piqp")
                 v_star, status = result.v, result.status
                 v_dot = (v_star - v_prev) / dt if has_prev else np.zeros_like(v_star)
@@ -277,7 +279,8 @@ class Simulation:
         np.minimum(self.min_clearance, rec.clearance, out=self.min_clearance)
         return rec
 
-    def step(self, command: np.ndarray, substeps: int, *, torque: bool = False) -> StepRecord:
+    def step(self, command: np.ndarray, substeps: int, *, torque: bool = False,
+             max_speed: float = np.inf) -> StepRecord:
         """Advance ``substeps`` physics steps holding a per-arm command (the environments' path).
 
         Args:
@@ -286,6 +289,7 @@ class Simulation:
                 every sub-step; or, with ``torque=True``, actuated torques (N·m) applied as is.
             substeps: number of physics steps.
             torque: command is a torque.
+            max_speed: with ``torque`` and the filter on, the filter also keeps |v_t| ≤ max_speed.
         """
         sc = self.scenario
         N = self.n_arms
@@ -315,8 +319,8 @@ class Simulation:
             ok = kernels.group_advance(
                 b.lam, b.lengths, b.base, b.phi, b.passive_first_joint, q, v, v_prev, has_prev,
                 np.ascontiguousarray(command[ids, :k]), torque, self.safety_filter, self._centers,
-                self._radii, g.obstacle_mask, sc.kappa, sc.epsilon, sc.safety_margin, sc.ke, self.dt,
-                int(substeps), v_star, tau_a, min_clear, min_h, counts)
+                self._radii, g.obstacle_mask, self.kappa, self.epsilon, self.margin, sc.ke, self.dt,
+                int(substeps), float(max_speed), v_star, tau_a, min_clear, min_h, counts)
             g.q, g.v = q, v
             g.v_star_prev = None if torque else v_prev
             rec.finite &= bool(ok)

@@ -1,0 +1,143 @@
+"""The safety shield: the paper's RCBF-QP filter between any policy and the arms.
+
+:class:`SafetyShield` wraps the PettingZoo parallel env, :class:`GymSafetyShield` the Gymnasium
+view. Whatever a policy sends, each arm moves with the RCBF-QP projection of it (Eq. 56–61; the
+rows and the QP are those of :mod:`pan1_env.safety`, run in the engine's kernels), re-evaluated at
+**every physics sub-step**, so safety holds between control steps:
+
+* velocity mode: the desired velocity is projected and the projection tracked by the backstepping
+  law (the paper's controller);
+* torque mode: the velocity the torque would produce after one sub-step is projected; if the
+  projection differs, the arm is driven to it in one sub-step instead of applying the torque.
+
+Obstacles beyond an arm's reach (farther from its base than its reach plus their radius) cannot be
+hit and are left out of its QP. If the QP is infeasible the fallback is braking (v* = 0: no barrier
+decreases). ``infos[agent]["shield"]`` reports, for the step: ``requested`` (the action sent),
+``applied`` (the action actually applied at the last sub-step, in the same normalised units),
+``intervened`` (the QP changed the action at some sub-step), ``min_barrier`` (the smallest barrier
+value h = ‖p − o‖² − r² seen by the filter; inf when the arm has no obstacle in reach), ``status``
+(the worst QP status over the sub-steps: ``"nominal"``, ``"solved"`` or ``"fallback"``),
+``fallback`` (the braking fallback was used) and ``qp_counts`` (sub-steps per status).
+
+With ``tracking_bound=δ̄`` the filter uses the tightened barrier h − Γ(δ̄), Γ(δ̄) = ε δ̄² / (4 κ)
+(MODEL.md §5): as long as the tracking error stays below δ̄ the arm stays in the *original* set
+h ≥ 0, not only in the inflated one h ≥ −Γ(δ̄).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium
+import numpy as np
+from pettingzoo.utils.wrappers import BaseParallelWrapper
+
+from pan1_env.safety import QPStatus, robust_margin
+
+__all__ = ["SafetyShield", "GymSafetyShield", "shield_parameters"]
+
+_STATUS_NAMES = {int(s): s.name.lower() for s in QPStatus}
+
+
+def shield_parameters(scenario, kappa: float | None, epsilon: float | None, margin: float | None,
+                      tracking_bound: float | None) -> dict[str, float]:
+    """Validated κ, ε and the barrier margin (explicit, or Γ(δ̄) from ``tracking_bound``)."""
+    kappa = scenario.kappa if kappa is None else kappa
+    epsilon = scenario.epsilon if epsilon is None else epsilon
+    for name, value in (("kappa", kappa), ("epsilon", epsilon)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
+            raise ValueError(f"SafetyShield: {name} must be a positive number, got {value!r}")
+    if margin is not None and tracking_bound is not None:
+        raise ValueError("SafetyShield: give margin or tracking_bound, not both")
+    if tracking_bound is not None:
+        if not (np.isfinite(tracking_bound) and tracking_bound >= 0):
+            raise ValueError(f"SafetyShield: tracking_bound must be ≥ 0, got {tracking_bound!r}")
+        margin = robust_margin(float(tracking_bound), float(kappa), float(epsilon))
+    margin = scenario.safety_margin if margin is None else margin
+    if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not np.isfinite(margin) or margin < 0:
+        raise ValueError(f"SafetyShield: margin must be a number ≥ 0, got {margin!r}")
+    return {"kappa": float(kappa), "epsilon": float(epsilon), "margin": float(margin)}
+
+
+def _shield_infos(core, actions: dict[str, np.ndarray]) -> dict[str, dict[str, Any]]:
+    rec = core._last_record
+    scale = core.max_joint_speed if core.action_mode == "velocity" else core.max_torque
+    out = {}
+    for i, agent in enumerate(core.possible_agents):
+        if agent not in actions or rec is None:
+            continue
+        k = core._k[i]
+        counts = rec.qp_counts[i]
+        if core.action_mode == "velocity":
+            applied = rec.v_star[i, :k] / scale
+        else:
+            n = core._n[i]
+            applied = rec.tau[i, n - k : n] / scale
+        worst = 2 if counts[2] else (1 if counts[1] else 0)
+        out[agent] = {
+            "requested": np.asarray(actions[agent], dtype=np.float32).copy(),
+            "applied": applied.astype(np.float32),
+            "intervened": bool(counts[1] + counts[2] > 0),
+            "min_barrier": float(rec.min_barrier[i]),
+            "status": _STATUS_NAMES[worst],
+            "fallback": bool(counts[2] > 0),
+            "qp_counts": counts.copy(),
+        }
+    return out
+
+
+class SafetyShield(BaseParallelWrapper):
+    """Shield a :class:`~pan1_env.environment.Pan1ParallelEnv` (or a wrapper of one).
+
+    Args:
+        env: the parallel env.
+        kappa, epsilon: RCBF parameters κ and ε (default: the scenario's).
+        margin: subtract this from every barrier (m²; default: the scenario's, 0 for the paper's).
+        tracking_bound: δ̄; sets ``margin = Γ(δ̄)`` (the tightened set that keeps h ≥ 0).
+    """
+
+    def __init__(self, env, kappa: float | None = None, epsilon: float | None = None,
+                 margin: float | None = None, tracking_bound: float | None = None) -> None:
+        super().__init__(env)
+        core = env.unwrapped
+        if not hasattr(core, "safety_filter"):
+            raise TypeError(f"SafetyShield wraps a pan1_env parallel env, got {type(core).__name__}")
+        core.shield_params = shield_parameters(core.scenario, kappa, epsilon, margin, tracking_bound)
+        core.safety_filter = True
+        core._apply_shield()
+
+    def step(self, actions):
+        obs, rewards, terms, truncs, infos = self.env.step(actions)
+        for agent, info in _shield_infos(self.env.unwrapped, actions).items():
+            infos[agent]["shield"] = info
+        return obs, rewards, terms, truncs, infos
+
+
+class GymSafetyShield(gymnasium.Wrapper):
+    """Shield the Gymnasium view (:class:`~pan1_env.registration.CentralizedEnv`).
+
+    ``info["shield"]`` holds the per-arm reports; ``info["shield_intervened"]`` and
+    ``info["shield_fallback"]`` summarise them. Arguments as :class:`SafetyShield`.
+    """
+
+    def __init__(self, env: gymnasium.Env, kappa: float | None = None, epsilon: float | None = None,
+                 margin: float | None = None, tracking_bound: float | None = None) -> None:
+        super().__init__(env)
+        inner = env.unwrapped
+        if not hasattr(inner, "parallel"):
+            raise TypeError(f"GymSafetyShield wraps a pan1_env Gymnasium env, got {type(inner).__name__}")
+        core = inner.parallel
+        core.shield_params = shield_parameters(core.scenario, kappa, epsilon, margin, tracking_bound)
+        core.safety_filter = True
+        core._apply_shield()
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        inner = self.env.unwrapped
+        core = inner.parallel
+        parts = np.split(np.asarray(action, dtype=float), inner._splits)
+        reports = _shield_infos(core, dict(zip(core.possible_agents, parts, strict=True)))
+        info["shield"] = reports
+        info["shield_intervened"] = any(r["intervened"] for r in reports.values())
+        info["shield_fallback"] = any(r["fallback"] for r in reports.values())
+        return obs, reward, terminated, truncated, info
