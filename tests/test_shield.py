@@ -1,0 +1,142 @@
+"""The safety shield: no policy can make an arm enter an obstacle, in either action mode."""
+
+import gymnasium
+import numpy as np
+import pytest
+
+from pan1_env.baselines import AdversarialPolicy, ReferencePolicy
+from pan1_env.environment import parallel_env
+from pan1_env.safety import robust_margin
+from pan1_env.wrappers import GymSafetyShield, SafetyShield
+
+MIXED = {"links": (2, 3, 4, 3), "passive_fraction": 0.5}
+
+
+def _episode(env, policy, seed: int) -> tuple[float, float, int]:
+    """Run to the end; return (total cost, smallest clearance over every sub-step, fallbacks)."""
+    obs, _ = env.reset(seed=seed)
+    cost, clearance, fallbacks = 0.0, np.inf, 0
+    while env.agents:
+        obs, _, _, _, infos = env.step(policy(obs))
+        for info in infos.values():
+            cost += info["cost"]
+            clearance = min(clearance, info["min_clearance"])
+            fallbacks += int(info.get("shield", {}).get("fallback", False))
+    return cost, clearance, fallbacks
+
+
+def _random_policy(env, seed: int):
+    rng = np.random.default_rng(seed)
+    return lambda obs: {a: rng.uniform(-1, 1, env.action_space(a).shape).astype(np.float32) for a in obs}
+
+
+@pytest.mark.parametrize("mode", ["velocity", "torque"])
+@pytest.mark.parametrize("scenario", ["paper_pa3_square", "paper_pa_mixed_square"])
+def test_shield_blocks_adversary_and_random_on_paper_scenarios(scenario: str, mode: str) -> None:
+    base = parallel_env(scenario, action_mode=mode, max_steps=200)
+    env = SafetyShield(base)
+    for policy in (AdversarialPolicy(base), _random_policy(base, 0)):
+        cost, clearance, _ = _episode(env, policy, seed=0)
+        assert cost == 0.0
+        assert clearance >= 0.0
+
+
+@pytest.mark.parametrize("mode", ["velocity", "torque"])
+def test_adversary_collides_without_the_shield(mode: str) -> None:
+    hits = 0
+    for scenario in ("paper_pa3_square", "paper_pa_mixed_square"):
+        base = parallel_env(scenario, action_mode=mode, max_steps=200)
+        cost, clearance, _ = _episode(base, AdversarialPolicy(base), seed=0)
+        hits += cost > 0 and clearance < 0
+    assert hits == 2
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", ["velocity", "torque"])
+def test_shield_on_100_random_scenarios(mode: str) -> None:
+    base = parallel_env("random", random_options=MIXED, action_mode=mode, max_steps=60)
+    env = SafetyShield(base)
+    adversary = AdversarialPolicy(base)
+    worst, total, unshielded_hits = np.inf, 0.0, 0
+    for seed in range(100):
+        for policy in (adversary, _random_policy(base, seed)):
+            cost, clearance, _ = _episode(env, policy, seed)
+            total += cost
+            worst = min(worst, clearance)
+    assert total == 0.0
+    assert worst >= 0.0
+    # the same adversary, unshielded, does collide on these scenarios
+    plain = parallel_env("random", random_options=MIXED, action_mode=mode, max_steps=60)
+    for seed in range(10):
+        cost, _, _ = _episode(plain, AdversarialPolicy(plain), seed)
+        unshielded_hits += cost > 0
+    assert unshielded_hits >= 5
+
+
+def test_shield_infos_report_the_intervention() -> None:
+    base = parallel_env("paper_pa_mixed_square")
+    env = SafetyShield(base)
+    policy = AdversarialPolicy(base)
+    obs, _ = env.reset(seed=0)
+    seen = False
+    for _ in range(100):
+        actions = policy(obs)
+        obs, _, _, _, infos = env.step(actions)
+        for agent, info in infos.items():
+            report = info["shield"]
+            assert {"requested", "applied", "intervened", "min_barrier", "status", "fallback"} <= set(report)
+            np.testing.assert_array_equal(report["requested"], actions[agent])
+            assert report["status"] in ("nominal", "solved", "fallback")
+            if agent != "arm_3":  # only the PA arm can reach the obstacle
+                assert not report["intervened"] and report["min_barrier"] == np.inf
+            elif report["intervened"]:
+                seen = True
+                assert not np.allclose(report["applied"], report["requested"])
+                assert report["min_barrier"] > 0
+    assert seen
+
+
+def test_tightened_set_uses_gamma_margin() -> None:
+    base = parallel_env("paper_pa3_square")
+    SafetyShield(base, tracking_bound=0.05)
+    assert base.sim.margin == pytest.approx(robust_margin(0.05, 0.5, 5.0))
+    with pytest.raises(ValueError, match="kappa"):
+        SafetyShield(parallel_env("paper_pa3_square"), kappa=-1.0)
+    with pytest.raises(ValueError, match="not both"):
+        SafetyShield(parallel_env("paper_pa3_square"), margin=0.01, tracking_bound=0.1)
+
+
+def test_gym_shield_reports_and_blocks() -> None:
+    env = GymSafetyShield(gymnasium.make("pan1_env/PaperMixedPA-v0", max_steps=150))
+    obs, info = env.reset(seed=0)
+    total = 0.0
+    rng = np.random.default_rng(0)
+    done = False
+    while not done:
+        obs, _, term, trunc, info = env.step(rng.uniform(-1, 1, env.action_space.shape))
+        total += info["cost"]
+        assert set(info["shield"]) == {"arm_0", "arm_1", "arm_2", "arm_3"}
+        done = term or trunc
+    assert total == 0.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["paper_pa3_square", "paper_pa_mixed_square"])
+def test_reference_policy_behind_shield_reproduces_safe_run(name: str) -> None:
+    from pan1_env import experiment, scenario
+
+    sc = scenario.load(name)
+    horizon = 100.0
+    expected = experiment.run(sc, "safe", horizon=horizon).metrics
+    base = parallel_env(name, control_dt=sc.physics_dt, max_steps=int(round(horizon / sc.physics_dt)),
+                        max_joint_speed=1e3)
+    env = SafetyShield(base)
+    policy = ReferencePolicy(base)
+    obs, _ = env.reset(seed=0)
+    clearance = np.full(4, np.inf)
+    while env.agents:
+        obs, _, _, _, infos = env.step(policy(obs))
+        clearance = np.minimum(clearance, [infos[a]["min_clearance"] for a in base.possible_agents])
+    got = [a["min_clearance_m"] for a in expected["arms"]]
+    np.testing.assert_allclose(clearance, got, atol=2e-4)
+    assert infos["arm_0"]["formation_error"] == pytest.approx(expected["final_max_edge_error_m"], abs=1e-4)
