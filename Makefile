@@ -1,6 +1,6 @@
 # Two commands do all set-up on a fresh machine (see README.md):
 #   make demo   reproduce the paper's Section 5 (both scenarios, both controllers): figures + table
-#   make test   run the whole test suite (slow tests included)
+#   make test   run the whole test suite (slow tests included; installs the dev, check and rl extras)
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
@@ -14,8 +14,10 @@ $(VENV)/.core: pyproject.toml
 	$(PY) -m pip install --quiet -e .
 	touch $@
 
+# torch first, from the local CPU build: otherwise stable-baselines3 pulls the CUDA wheels
 $(VENV)/.dev: $(VENV)/.core
-	$(PY) -m pip install --quiet -e ".[dev,check]"
+	$(PY) -m pip install --quiet torch==2.13.0
+	$(PY) -m pip install --quiet -e ".[dev,check,rl]"
 	touch $@
 
 demo: $(VENV)/.core

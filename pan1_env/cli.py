@@ -8,6 +8,10 @@ Commands:
   controllers), the Figure-8 overlays, and a Markdown table of the metrics (``summary.md``).
 * ``scenarios``: list the built-in scenarios.
 * ``animate SCENARIO --policy reference|zero|random --out FILE.gif``: a GIF of one env episode.
+* ``train --algo ppo|sac --scenario S --shield/--no-shield --timesteps T --seed K --out DIR``:
+  Stable-Baselines3 training (the ``rl`` extra).
+* ``benchmark --scenarios … --policies reference,zero,random,sb3:PATH --episodes K --seed S``:
+  the policy comparison (Markdown, JSON and a plot).
 """
 
 from __future__ import annotations
@@ -63,6 +67,33 @@ def _parser() -> argparse.ArgumentParser:
     anim.add_argument("--frames", type=_positive_int, default=120, help="at most this many frames")
     anim.add_argument("--seed", type=int, default=0, help="reset seed (and random policy seed)")
     anim.add_argument("--fps", type=_positive_int, default=20, help="frames per second of the GIF")
+
+    tr = sub.add_parser("train", help="train PPO or SAC with Stable-Baselines3 (needs the rl extra)")
+    tr.add_argument("--algo", choices=("ppo", "sac"), default="ppo")
+    tr.add_argument("--scenario", default="paper_pa3_square", help="built-in name, .toml path or 'random'")
+    tr.add_argument("--shield", action=argparse.BooleanOptionalAction, default=True,
+                    help="train behind the RCBF-QP safety shield (default: on)")
+    tr.add_argument("--timesteps", type=_positive_int, default=100_000, help="total environment steps")
+    tr.add_argument("--seed", type=int, default=0)
+    tr.add_argument("--out", type=Path, required=True, help="output directory")
+    tr.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in --out")
+    tr.add_argument("--n-envs", type=_positive_int, default=1, help="parallel copies of the env")
+    tr.add_argument("--param-sharing", action="store_true",
+                    help="one policy shared by every arm (PettingZoo env through SuperSuit, padded)")
+    tr.add_argument("--checkpoint-every", type=_positive_int, default=10_000, help="steps between checkpoints")
+    tr.add_argument("--max-steps", type=_positive_int, default=None, help="env steps per episode")
+    tr.add_argument("--no-progress", action="store_true")
+
+    bench = sub.add_parser("benchmark", help="compare policies on the same seeded starts, shield on and off")
+    bench.add_argument("--scenarios", default="paper_pa3_square,paper_pa_mixed_square",
+                       help="comma-separated scenario names or paths")
+    bench.add_argument("--policies", default="reference,zero,random",
+                       help="comma-separated: reference, zero, random, adversarial, sb3:PATH")
+    bench.add_argument("--episodes", type=_positive_int, default=5)
+    bench.add_argument("--seed", type=int, default=0)
+    bench.add_argument("--shield", choices=("both", "on", "off"), default="both")
+    bench.add_argument("--max-steps", type=_positive_int, default=None, help="env steps per episode")
+    bench.add_argument("--out", type=Path, default=Path("runs/benchmark"), help="output directory")
     return parser
 
 
@@ -239,15 +270,47 @@ def _cmd_animate(args) -> int:
     return 0
 
 
+def _cmd_train(args) -> int:
+    try:
+        from .baselines.training import train
+    except ImportError as err:  # pragma: no cover - depends on the installed extras
+        print(f"pan1-env: error: training needs the rl extra (pip install 'pan1-env[rl]'): {err}",
+              file=sys.stderr)
+        return 2
+    env_kwargs = {} if args.max_steps is None else {"max_steps": args.max_steps}
+    summary = train(args.algo, args.scenario, shield=args.shield, timesteps=args.timesteps, seed=args.seed,
+                    out=args.out, resume=args.resume, n_envs=args.n_envs, param_sharing=args.param_sharing,
+                    checkpoint_every=args.checkpoint_every, progress=not args.no_progress,
+                    env_kwargs=env_kwargs)
+    print(json.dumps(summary, indent=2))
+    return 0
+
+
+def _cmd_benchmark(args) -> int:
+    from .baselines.benchmark import markdown_table, plot_benchmark, run_benchmark
+    from .experiment import atomic_write
+
+    shields = {"both": (True, False), "on": (True,), "off": (False,)}[args.shield]
+    rows = run_benchmark([s for s in args.scenarios.split(",") if s], [p for p in args.policies.split(",") if p],
+                         episodes=args.episodes, seed=args.seed, shield_settings=shields,
+                         max_steps=args.max_steps, progress=print)
+    table = markdown_table(rows)
+    atomic_write(args.out / "benchmark.md", lambda fh: fh.write(table + "\n"), mode="w")
+    atomic_write(args.out / "benchmark.json", lambda fh: fh.write(json.dumps(rows, indent=2) + "\n"), mode="w")
+    plot_benchmark(rows, args.out / "benchmark.png")
+    print("\n" + table + f"\n\nbenchmark.md, benchmark.json and benchmark.png under {args.out}/")
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``pan1-env`` console script."""
     from .scenario import ScenarioError
 
     args = _parser().parse_args(argv)
     handlers = {"reproduce": _cmd_reproduce, "paper": _cmd_paper, "scenarios": _cmd_scenarios,
-                "animate": _cmd_animate}
+                "animate": _cmd_animate, "train": _cmd_train, "benchmark": _cmd_benchmark}
     try:
         return handlers[args.command](args)
-    except ScenarioError as err:
+    except (ScenarioError, ValueError) as err:
         print(f"pan1-env: error: {err}", file=sys.stderr)
         return 2

@@ -1,0 +1,186 @@
+"""The policy benchmark: every policy meets the same seeded starts, with the shield on and off.
+
+Policies (by name): ``reference`` (the paper's nominal law on local observations; behind the shield
+it is the paper's full controller), ``zero``, ``random`` (uniform actions), ``adversarial`` (every
+arm heads for its nearest obstacle) and ``sb3:PATH`` (a Stable-Baselines3 model trained on the
+Gymnasium view of the same scenario, run deterministically).
+
+For each scenario × policy × shield setting, episodes ``seed, seed+1, …`` are run to their end
+(``max_steps``). Per row: ``success_rate`` (formation error < 1 cm at the end), ``mean_time_to_formation_s``
+(first time the error is below 1 cm, over successful episodes), ``mean_return`` (sum over steps of
+the mean agent reward), ``total_cost`` (arm-steps inside an obstacle), ``min_clearance_m`` (over every
+sub-step), ``intervention_rate`` (fraction of arm-steps where the shield changed the action) and
+``fallback_steps``. :func:`run_benchmark` returns the rows; :func:`markdown_table` and
+:func:`plot_benchmark` present them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["run_benchmark", "markdown_table", "plot_benchmark", "make_policy", "BUILTIN_POLICIES"]
+
+BUILTIN_POLICIES = ("reference", "zero", "random", "adversarial")
+
+
+def make_policy(name: str, env, seed: int) -> Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]]:
+    """A callable mapping the agents' observations to their actions (see the module docstring)."""
+    from . import AdversarialPolicy, ReferencePolicy
+
+    core = env.unwrapped
+    if name == "reference":
+        return ReferencePolicy(core)
+    if name == "adversarial":
+        return AdversarialPolicy(core)
+    if name == "zero":
+        return lambda obs: {a: np.zeros(core.action_space(a).shape, np.float32) for a in obs}
+    if name == "random":
+        rng = np.random.default_rng(seed)
+        return lambda obs: {a: rng.uniform(-1, 1, core.action_space(a).shape).astype(np.float32) for a in obs}
+    if name.startswith("sb3:"):
+        path = Path(name[4:])
+        if not path.exists():
+            raise ValueError(f"policy {name!r}: no such model file {path}")
+        return _sb3_policy(path, core)
+    raise ValueError(f"unknown policy {name!r}; use one of {BUILTIN_POLICIES} or sb3:PATH")
+
+
+def _sb3_policy(path: Path, core):
+    import torch
+    from stable_baselines3 import PPO, SAC
+
+    torch.set_num_threads(1)
+    model = None
+    for cls in (PPO, SAC):
+        try:
+            model = cls.load(path, device="cpu")
+            break
+        except Exception:  # noqa: BLE001 - try the next algorithm
+            continue
+    if model is None:
+        raise ValueError(f"{path} is not a PPO or SAC model saved by Stable-Baselines3")
+    agents = core.possible_agents
+    sizes = [core.action_space(a).shape[0] for a in agents]
+    n_obs = sum(core.observation_space(a).shape[0] for a in agents)
+    if model.observation_space.shape != (n_obs,) or model.action_space.shape != (sum(sizes),):
+        raise ValueError(f"{path} was trained on spaces {model.observation_space.shape} → "
+                         f"{model.action_space.shape}, this scenario has ({n_obs},) → ({sum(sizes)},)")
+    splits = np.cumsum(sizes)[:-1]
+
+    def policy(obs):
+        flat = np.concatenate([obs[a] for a in agents])
+        action, _ = model.predict(flat, deterministic=True)
+        return dict(zip(agents, np.split(np.asarray(action, np.float32), splits), strict=True))
+
+    return policy
+
+
+def _episode(env, policy, seed: int, shield: bool) -> dict[str, Any]:
+    core = env.unwrapped
+    obs, _ = env.reset(seed=seed)
+    ret, cost, steps, arm_steps, interventions, fallbacks = 0.0, 0.0, 0, 0, 0, 0
+    clearance = math.inf
+    first_success = None
+    infos: dict = {}
+    while env.agents:
+        obs, rewards, _, _, infos = env.step(policy(obs))
+        steps += 1
+        ret += float(np.mean(list(rewards.values())))
+        for info in infos.values():
+            cost += info["cost"]
+            clearance = min(clearance, info["min_clearance"])
+            arm_steps += 1
+            if shield:
+                interventions += int(info["shield"]["intervened"])
+                fallbacks += int(info["shield"]["fallback"])
+        if first_success is None and next(iter(infos.values()))["is_success"]:
+            first_success = steps * core.control_dt
+    final = next(iter(infos.values())) if infos else {"is_success": False}
+    return {"success": bool(final["is_success"]), "time_to_formation": first_success, "return": ret,
+            "cost": cost, "min_clearance": clearance, "arm_steps": arm_steps, "interventions": interventions,
+            "fallbacks": fallbacks}
+
+
+def run_benchmark(scenarios: Sequence[str], policies: Sequence[str], episodes: int = 5, seed: int = 0,
+                  shield_settings: Sequence[bool] = (True, False), max_steps: int | None = None,
+                  env_kwargs: dict[str, Any] | None = None,
+                  progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
+    """Run every scenario × policy × shield combination on episodes seeded ``seed … seed+episodes−1``."""
+    from pan1_env.environment import parallel_env
+    from pan1_env.wrappers import SafetyShield
+
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
+    for name in policies:
+        if name not in BUILTIN_POLICIES and not name.startswith("sb3:"):
+            raise ValueError(f"unknown policy {name!r}; use one of {BUILTIN_POLICIES} or sb3:PATH")
+    rows = []
+    kwargs = dict(env_kwargs or {})
+    if max_steps is not None:
+        kwargs["max_steps"] = max_steps
+    for scenario in scenarios:
+        for name in policies:
+            for shield in shield_settings:
+                base = parallel_env(scenario, **kwargs)
+                env = SafetyShield(base) if shield else base
+                policy = make_policy(name, env, seed)
+                results = [_episode(env, policy, seed + k, shield) for k in range(episodes)]
+                times = [r["time_to_formation"] for r in results if r["success"] and r["time_to_formation"]]
+                arm_steps = sum(r["arm_steps"] for r in results)
+                row = {
+                    "scenario": scenario, "policy": name, "shield": shield, "episodes": episodes,
+                    "success_rate": float(np.mean([r["success"] for r in results])),
+                    "mean_time_to_formation_s": float(np.mean(times)) if times else None,
+                    "mean_return": float(np.mean([r["return"] for r in results])),
+                    "total_cost": float(sum(r["cost"] for r in results)),
+                    "min_clearance_m": float(min(r["min_clearance"] for r in results)),
+                    "intervention_rate": (sum(r["interventions"] for r in results) / arm_steps) if shield else None,
+                    "fallback_steps": sum(r["fallbacks"] for r in results) if shield else None,
+                }
+                rows.append(row)
+                if progress is not None:
+                    progress(f"{scenario} / {name} / shield {'on' if shield else 'off'}: "
+                             f"success {row['success_rate']:.0%}, cost {row['total_cost']:g}")
+    return rows
+
+
+def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
+    """The benchmark rows as a Markdown table."""
+    head = ("| scenario | policy | shield | success | time to formation [s] | mean return | cost "
+            "| min clearance [mm] | interventions |")
+    lines = [head, "|" + "---|" * 9]
+    for r in rows:
+        t = r["mean_time_to_formation_s"]
+        iv = r["intervention_rate"]
+        lines.append(
+            f"| {r['scenario']} | {r['policy']} | {'on' if r['shield'] else 'off'} | {r['success_rate']:.0%} "
+            f"| {'—' if t is None else f'{t:.1f}'} | {r['mean_return']:.1f} | {r['total_cost']:g} "
+            f"| {1000 * r['min_clearance_m']:+.1f} | {'—' if iv is None else f'{iv:.1%}'} |")
+    return "\n".join(lines)
+
+
+def plot_benchmark(rows: Sequence[dict[str, Any]], path: Path) -> Path:
+    """Bar charts of success rate and total cost per policy, shield on and off."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    from pan1_env.figures import save_figure
+
+    labels = [f"{r['scenario']}\n{r['policy']} ({'shield' if r['shield'] else 'no shield'})" for r in rows]
+    fig, ax = plt.subplots(1, 2, figsize=(max(8, 1.1 * len(rows)), 5))
+    colors = ["tab:green" if r["shield"] else "tab:gray" for r in rows]
+    ax[0].bar(range(len(rows)), [r["success_rate"] for r in rows], color=colors)
+    ax[0].set(title="success rate (formation error < 1 cm at the end)", ylim=(0, 1.05))
+    ax[1].bar(range(len(rows)), [r["total_cost"] for r in rows], color=colors)
+    ax[1].set(title="total cost (arm-steps inside an obstacle)")
+    for a in ax:
+        a.set_xticks(range(len(rows)), labels, rotation=90, fontsize=7)
+    fig.tight_layout()
+    return save_figure(fig, path)

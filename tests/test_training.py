@@ -1,0 +1,86 @@
+"""Stable-Baselines3 training and the policy benchmark, end to end on small settings."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+
+from pan1_env.baselines.benchmark import markdown_table, run_benchmark  # noqa: E402
+from pan1_env.baselines.training import latest_checkpoint, train  # noqa: E402
+from pan1_env.cli import main  # noqa: E402
+
+
+def _rows(path):
+    with open(path) as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_short_shielded_ppo_run_trains_with_zero_cost(tmp_path) -> None:
+    out = tmp_path / "ppo"
+    summary = train("ppo", "paper_pa_mixed_square", shield=True, timesteps=2048, seed=0, out=out,
+                    checkpoint_every=1024, progress=False, env_kwargs={"max_steps": 128},
+                    algo_kwargs={"n_steps": 1024, "batch_size": 256})
+    rows = _rows(out / "episodes.csv")
+    assert len(rows) == 2048 // 128
+    assert all(float(r["cost"]) == 0.0 for r in rows)
+    assert summary["total_cost"] == 0.0
+    assert (out / "model.zip").exists()
+    assert latest_checkpoint(out)[1] == 2048
+    # resume: continues from the newest checkpoint up to the new total
+    summary = train("ppo", "paper_pa_mixed_square", shield=True, timesteps=3072, seed=0, out=out, resume=True,
+                    checkpoint_every=1024, progress=False, env_kwargs={"max_steps": 128},
+                    algo_kwargs={"n_steps": 1024, "batch_size": 256})
+    assert summary["resumed_from"] == 2048
+    rows = _rows(out / "episodes.csv")
+    assert len(rows) == 3072 // 128 and int(rows[-1]["timesteps"]) == 3072
+
+
+def test_unshielded_training_sees_cost(tmp_path) -> None:
+    # SAC's first steps are uniform random actions: without the shield, 5.2's PA arm reaches the obstacle
+    summary = train("sac", "paper_pa_mixed_square", shield=False, timesteps=600, seed=0, out=tmp_path,
+                    checkpoint_every=300, progress=False, env_kwargs={"max_steps": 300},
+                    algo_kwargs={"learning_starts": 600})
+    assert summary["n_episodes"] == 2
+    assert (tmp_path / "checkpoints" / "model_replay_buffer_600_steps.pkl").exists()
+
+
+def test_parameter_sharing_through_supersuit(tmp_path) -> None:
+    summary = train("ppo", "paper_pa3_square", shield=True, timesteps=512, seed=1, out=tmp_path,
+                    param_sharing=True, checkpoint_every=512, progress=False, env_kwargs={"max_steps": 32},
+                    algo_kwargs={"n_steps": 128, "batch_size": 128})
+    assert summary["n_episodes"] >= 4 and summary["total_cost"] == 0.0
+
+
+def test_bad_training_arguments() -> None:
+    with pytest.raises(ValueError, match="algo"):
+        train("dqn", out="unused")
+    with pytest.raises(ValueError, match="timesteps"):
+        train("ppo", timesteps=0, out="unused")
+
+
+def test_benchmark_end_to_end(tmp_path, capsys) -> None:
+    code = main(["benchmark", "--scenarios", "paper_pa_mixed_square", "--policies", "reference,zero,random",
+                 "--episodes", "2", "--max-steps", "60", "--out", str(tmp_path)])
+    assert code == 0
+    rows = json.loads((tmp_path / "benchmark.json").read_text())
+    assert len(rows) == 3 * 2
+    by = {(r["policy"], r["shield"]): r for r in rows}
+    assert all(r["total_cost"] == 0.0 for r in rows if r["shield"])
+    assert by[("reference", False)]["total_cost"] > 0  # 5.2: the nominal law drives arm 4 in
+    assert by[("zero", True)]["intervention_rate"] == 0.0
+    assert (tmp_path / "benchmark.png").read_bytes()[:4] == b"\x89PNG"
+    assert "| reference | on |" in (tmp_path / "benchmark.md").read_text()
+
+
+def test_benchmark_rejects_unknown_policy_and_mismatched_model(tmp_path) -> None:
+    with pytest.raises(ValueError, match="unknown policy"):
+        run_benchmark(["paper_pa3_square"], ["greedy"], episodes=1)
+    train("ppo", "paper_pa_mixed_square", timesteps=64, out=tmp_path, progress=False, checkpoint_every=64,
+          env_kwargs={"max_steps": 32}, algo_kwargs={"n_steps": 64, "batch_size": 64})
+    with pytest.raises(ValueError, match="trained on spaces"):
+        run_benchmark(["paper_pa3_square"], [f"sb3:{tmp_path / 'model.zip'}"], episodes=1, max_steps=5)
+    rows = run_benchmark(["paper_pa_mixed_square"], [f"sb3:{tmp_path / 'model.zip'}"], episodes=1, max_steps=5)
+    assert np.isfinite(rows[0]["mean_return"]) and "sb3:" in markdown_table(rows)
