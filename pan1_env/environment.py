@@ -19,13 +19,16 @@ from pettingzoo.utils import parallel_to_aec, wrappers
 from .formation import edge_length_errors, edge_vectors
 from .random_scenario import RandomScenarioOptions, random_scenario
 from .registration import RENDER_FPS, RENDER_MODES
+from .safety import QP_SOLVERS
 from .scenario import Scenario, load
+from .validation import positive_int, real, whole_ratio
 
 __all__ = ["Pan1ParallelEnv", "parallel_env", "env", "raw_env", "ACTION_MODES"]
 
 ACTION_MODES = ("velocity", "torque")
 _NEIGHBOUR_FEATURES = 4  # present, dx, dy, edge error
 _OBSTACLE_FEATURES = 5  # present, dx, dy, radius, barrier h
+MAX_KE_DT = 0.5  # largest K_e · physics_dt accepted (the tracker's error shrinks by ~(1 − K_e dt) a step)
 OBS_BOUND = 1e6  # observation entries other than cos/sin and flags are clipped to ±OBS_BOUND
 
 
@@ -128,6 +131,8 @@ class Pan1ParallelEnv(ParallelEnv):
     * ``n_obstacle_obs``: K, obstacle slots per observation (default: 3).
     * ``random_options``: a :class:`~pan1_env.random_scenario.RandomScenarioOptions` or a dict of
       its fields, for ``scenario="random"``.
+    * ``qp_solver``: the safety filter's QP solver when shielded: ``"active_set"`` (exact, compiled,
+      default) or ``"piqp"`` (qpsolvers + PIQP, velocity mode only; much slower).
 
     ## Version History
 
@@ -145,7 +150,7 @@ class Pan1ParallelEnv(ParallelEnv):
         "action_mode", "control_dt", "physics_dt", "max_steps", "render_mode",
         "terminate_on_collision", "terminate_on_success", "success_tolerance", "formation_weight",
         "effort_weight", "collision_penalty", "max_joint_speed", "max_torque", "n_obstacle_obs",
-        "random_options",
+        "random_options", "qp_solver",
     )
 
     def __init__(self, scenario: str | Path | Scenario = "paper_pa3_square", **kwargs: Any) -> None:
@@ -177,50 +182,51 @@ class Pan1ParallelEnv(ParallelEnv):
         max_torque: float = 5.0,
         n_obstacle_obs: int = 3,
         random_options: RandomScenarioOptions | Mapping[str, Any] | None = None,
+        qp_solver: str = "active_set",
     ) -> None:
         if action_mode not in ACTION_MODES:
             raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, "
                              f"got {render_mode!r}")
-        for name, value in (("control_dt", control_dt), ("success_tolerance", success_tolerance),
-                            ("max_joint_speed", max_joint_speed), ("max_torque", max_torque)):
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) \
-                    or value <= 0:
-                raise ValueError(f"{name} must be a positive number, got {value!r}")
-        for name, value in (("formation_weight", formation_weight), ("effort_weight", effort_weight),
-                            ("collision_penalty", collision_penalty)):
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-                raise ValueError(f"{name} must be a finite number, got {value!r}")
-        if isinstance(n_obstacle_obs, bool) or not isinstance(n_obstacle_obs, (int, np.integer)) \
-                or n_obstacle_obs < 0:
-            raise ValueError(f"n_obstacle_obs must be an integer ≥ 0, got {n_obstacle_obs!r}")
+        control_dt = real("control_dt", control_dt, positive=True)
+        success_tolerance = real("success_tolerance", success_tolerance, positive=True)
+        max_joint_speed = real("max_joint_speed", max_joint_speed, positive=True)
+        max_torque = real("max_torque", max_torque, positive=True)
+        formation_weight = real("formation_weight", formation_weight)
+        effort_weight = real("effort_weight", effort_weight)
+        collision_penalty = real("collision_penalty", collision_penalty)
+        n_obstacle_obs = positive_int("n_obstacle_obs", n_obstacle_obs, minimum=0)
+        if qp_solver not in QP_SOLVERS:
+            raise ValueError(f"qp_solver must be one of {QP_SOLVERS}, got {qp_solver!r}")
 
         self._random = isinstance(scenario, str) and scenario == "random"
         if self._random:
             if isinstance(random_options, Mapping):
+                unknown = sorted(set(random_options) - set(RandomScenarioOptions.__dataclass_fields__))
+                if unknown:
+                    raise ValueError(f"random_options: unknown option {unknown[0]!r}; options are "
+                                     f"{sorted(RandomScenarioOptions.__dataclass_fields__)}")
                 random_options = RandomScenarioOptions(**random_options)
+            elif random_options is not None and not isinstance(random_options, RandomScenarioOptions):
+                raise ValueError(f"random_options must be a dict or RandomScenarioOptions, got {random_options!r}")
             self.random_options = random_options or RandomScenarioOptions()
             template = random_scenario(np.random.default_rng(0), self.random_options)
         else:
             if random_options is not None:
                 raise ValueError("random_options is only for scenario='random'")
             template = load(scenario)
-        physics_dt = template.physics_dt if physics_dt is None else physics_dt
-        if isinstance(physics_dt, bool) or not isinstance(physics_dt, (int, float)) \
-                or not np.isfinite(physics_dt) or physics_dt <= 0:
-            raise ValueError(f"physics_dt must be a positive number, got {physics_dt!r}")
-        ratio = control_dt / physics_dt
-        if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
-            raise ValueError(f"control_dt={control_dt} must be a whole multiple of physics_dt={physics_dt}")
-        self.physics_dt = float(physics_dt)
-        self.control_dt = float(control_dt)
-        self.substeps = int(round(ratio))
+        physics_dt = real("physics_dt", template.physics_dt if physics_dt is None else physics_dt, positive=True)
+        if template.ke * physics_dt > MAX_KE_DT:
+            raise ValueError(f"physics_dt={physics_dt} is too long for the tracker gain K_e={template.ke}: "
+                             f"K_e·physics_dt must be ≤ {MAX_KE_DT} for the backstepping loop to stay stable")
+        self.substeps = whole_ratio("control_dt", control_dt, "physics_dt", physics_dt)
+        self.physics_dt = physics_dt
+        self.control_dt = control_dt
         if max_steps is None:
             max_steps = int(np.ceil(template.horizon / self.control_dt - 1e-9))
-        if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
-            raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
-        self.max_steps = int(max_steps)
+        self.max_steps = positive_int("max_steps", max_steps)
+        self.qp_solver = qp_solver
         self.action_mode = action_mode
         self.render_mode = render_mode
         self.terminate_on_collision = bool(terminate_on_collision)
@@ -289,7 +295,8 @@ class Pan1ParallelEnv(ParallelEnv):
         if [a.n_links for a in scenario.arms] != self._n or [a.n_actuated for a in scenario.arms] != self._k:
             raise ValueError("the scenario's team structure does not match the environment's spaces")
         self.scenario = scenario
-        self.sim = Simulation(scenario, safety_filter=self.safety_filter, physics_dt=self.physics_dt)
+        self.sim = Simulation(scenario, safety_filter=self.safety_filter, physics_dt=self.physics_dt,
+                              qp_solver=self.qp_solver)
         f = scenario.formation
         self._incidence = f.incidence
         self._neighbours = [f.neighbours(i) for i in range(scenario.n_arms)]

@@ -30,6 +30,7 @@ __all__ = ["CONTROLLERS", "RunResult", "run", "write_outputs", "atomic_write"]
 
 CONTROLLERS = ("nominal", "safe")
 SUCCESS_EDGE_ERROR_M = 0.01
+MAX_SAMPLES = 10_000_000  # trajectory samples a run may record
 
 
 @dataclass
@@ -50,10 +51,11 @@ def run(
     """Simulate ``scenario`` with the ``"nominal"`` (v* = v0) or ``"safe"`` (v* = QP(v0)) controller.
 
     Args:
-        scenario: the scenario (its physics_dt is the integration and control step).
+        scenario: the scenario: RK4 every ``physics_dt``; the nominal law is evaluated every
+            ``control_dt`` and held in between, the filter and tracker run every ``physics_dt``.
         controller: ``"nominal"`` or ``"safe"``.
         horizon: seconds to simulate (default: the scenario's).
-        record_dt: trajectory sampling period (rounded to a whole number of physics steps).
+        record_dt: trajectory sampling period (rounded to a whole number of control steps).
         qp_solver: ``"active_set"`` or ``"piqp"``.
         progress: ``True`` for a tqdm bar on stderr.
     """
@@ -62,17 +64,20 @@ def run(
     horizon = scenario.horizon if horizon is None else float(horizon)
     if not (math.isfinite(horizon) and horizon > 0):
         raise ValueError(f"horizon must be a positive number of seconds, got {horizon!r}")
-    dt = scenario.physics_dt
-    steps = int(round(horizon / dt))
-    if steps < 1:
-        raise ValueError(f"horizon {horizon} s is shorter than one physics step ({dt} s)")
-    every = max(1, int(round(record_dt / dt)))
+    dt, substeps = scenario.physics_dt, scenario.substeps
+    control_dt = dt * substeps
+    n_control = int(round(horizon / control_dt))
+    if n_control < 1:
+        raise ValueError(f"horizon {horizon} s is shorter than one control step ({control_dt} s)")
+    every = max(1, int(round(record_dt / control_dt)))
+    n_rec = (n_control - 1) // every + 2  # samples at control steps 0, every, 2·every, … and the end
+    if n_rec > MAX_SAMPLES:
+        raise ValueError(f"{n_rec} trajectory samples exceed {MAX_SAMPLES}: shorten the horizon or raise record_dt")
     sim = Simulation(scenario, safety_filter=(controller == "safe"), qp_solver=qp_solver)
-    sim.substep()  # compile (or load from cache) the kernels outside the timed loop
+    sim.step(sim.nominal_velocity(), 1)  # compile (or load from cache) the kernels outside the timed loop
     sim.reset()
     incidence, distances = scenario.formation.incidence, scenario.formation.distances
     N = scenario.n_arms
-    n_rec = (steps - 1) // every + 2  # samples at k = 0, every, 2·every, … and the final state
     traj = {
         "time": np.zeros(n_rec),
         "q": np.full((n_rec, N, sim.n_max), np.nan),
@@ -84,58 +89,58 @@ def run(
         "clearance": np.zeros((n_rec, N)),
     }
 
+    def edge_error() -> np.ndarray:
+        return edge_length_errors(edge_vectors(incidence, sim.positions()), distances)
+
     def sample_state(r: int) -> None:
-        P = sim.positions()
         traj["time"][r] = sim.time
         traj["q"][r], traj["qd"][r] = sim.joint_state()
-        traj["p_end"][r] = P
-        traj["edge_error"][r] = edge_length_errors(edge_vectors(incidence, P), distances)
+        traj["p_end"][r] = sim.positions()
+        traj["edge_error"][r] = edge_error()
         traj["clearance"][r] = sim.clearance()
 
     bar = None
     if progress is True:
         from tqdm import tqdm
 
-        bar = tqdm(total=steps, unit="step", desc=f"{scenario.name}/{controller}", mininterval=0.5)
+        bar = tqdm(total=n_control * substeps, unit="step", desc=f"{scenario.name}/{controller}", mininterval=0.5)
     max_track = np.zeros(N)
     max_track_after_1s = np.zeros(N)
     max_momentum = 0.0
     has_passive = any(a.passive_first_joint for a in scenario.arms)
     qp_counts = np.zeros(3, dtype=int)
-    # last time the largest edge error was ≥ 1 cm (None: never)
     sample_state(0)
+    # last time the largest edge error was ≥ 1 cm (None: never)
     last_bad_time = 0.0 if np.abs(traj["edge_error"][0]).max() >= SUCCESS_EDGE_ERROR_M else None
     t0 = time.perf_counter()
     r = 0
-    for k in range(steps):
-        if k % every == 0 and k > 0:
+    for c in range(n_control):
+        if c % every == 0 and c > 0:
             r += 1
             sample_state(r)
-        rec = sim.substep()
-        if k % every == 0:  # the v*, τ applied from the sampled state
+        if has_passive:
+            max_momentum = max(max_momentum, float(np.nanmax(np.abs(sim.passive_momentum()))))
+        rec = sim.step(sim.nominal_velocity(), substeps)
+        if c % every == 0:  # the v*, τ applied from the sampled state
             traj["v_star"][r] = rec.v_star
             traj["tau"][r] = rec.tau
-        np.maximum(max_track, rec.tracking_error, out=max_track)
+        np.maximum(max_track, rec.max_tracking_error, out=max_track)
         if sim.time > 1.0:
-            np.maximum(max_track_after_1s, rec.tracking_error, out=max_track_after_1s)
-        qp_counts += np.bincount(rec.qp_status, minlength=3)
-        if has_passive:
-            max_momentum = max(max_momentum, float(np.nanmax(np.abs(rec.passive_momentum))))
-        if rec.max_edge_error >= SUCCESS_EDGE_ERROR_M:
+            np.maximum(max_track_after_1s, rec.max_tracking_error, out=max_track_after_1s)
+        qp_counts += rec.qp_counts.sum(axis=0)
+        if np.abs(edge_error()).max() >= SUCCESS_EDGE_ERROR_M:
             last_bad_time = sim.time
-        if (k + 1) % 1000 == 0:
-            if bar is not None:
-                bar.update(1000)
-            elif callable(progress):
-                progress(k + 1)
+        if bar is not None and (c + 1) % 100 == 0:
+            bar.update((c + 1) * substeps - bar.n)
+        elif callable(progress) and (c + 1) % 1000 == 0:
+            progress((c + 1) * substeps)
     wall = time.perf_counter() - t0
     if bar is not None:
-        bar.update(steps - bar.n)
+        bar.update(n_control * substeps - bar.n)
         bar.close()
     sample_state(n_rec - 1)
-    final_momentum = sim.passive_momentum()
     if has_passive:
-        max_momentum = max(max_momentum, float(np.nanmax(np.abs(final_momentum))))
+        max_momentum = max(max_momentum, float(np.nanmax(np.abs(sim.passive_momentum()))))
     final_edge = float(np.abs(traj["edge_error"][-1]).max())
     min_clear = sim.min_clearance
     arms = [
@@ -155,8 +160,8 @@ def run(
         "qp_solver": qp_solver if controller == "safe" else None,
         "horizon_s": horizon,
         "physics_dt": dt,
-        "control_dt": dt,
-        "steps": steps,
+        "control_dt": control_dt,
+        "steps": n_control * substeps,
         "wall_time_s": wall,
         "arms": arms,
         "min_clearance_m": _finite_or_none(min_clear.min()),

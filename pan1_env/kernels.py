@@ -17,8 +17,7 @@ from numba import njit
 
 __all__ = [
     "group_terms",
-    "group_control",
-    "group_rk4",
+    "group_advance",
     "group_end_effectors",
     "qp_project",
 ]
@@ -27,23 +26,22 @@ STATUS_NOMINAL, STATUS_SOLVED, STATUS_FALLBACK = 0, 1, 2
 
 
 @njit(cache=True, inline="always")
-def _arm_terms(lam, q, v, passive, M, Mc, Hc, qd):
-    """Mass matrix M, q̇ = g0 v, M_comb and H_comb of one arm (writes the output arrays)."""
+def _arm_terms(lam, q, v, passive, M, Mc, Hc, qd, ws):
+    """Mass matrix M, q̇ = g0 v, M_comb and H_comb of one arm (writes the output arrays).
+
+    ``ws`` is the scratch space of :func:`_workspace` (no allocation in the hot loop)."""
     n = q.shape[0]
-    theta = np.empty(n)
+    theta, cosd, sind, R, thd, H = ws[0], ws[1], ws[2], ws[3], ws[4], ws[5]
     acc = 0.0
     for a in range(n):
         acc += q[a]
         theta[a] = acc
-    cosd = np.empty((n, n))
-    sind = np.empty((n, n))
     for a in range(n):
         for b in range(n):
             d = theta[b] - theta[a]
             cosd[a, b] = np.cos(d)
             sind[a, b] = np.sin(d)
     # M = Sᵀ (λ ∘ cos D) S: reverse cumulative sums over both indices.
-    R = np.empty((n, n))
     for a in range(n):
         acc = 0.0
         for b in range(n - 1, -1, -1):
@@ -64,12 +62,10 @@ def _arm_terms(lam, q, v, passive, M, Mc, Hc, qd):
     for j in range(k):
         qd[j + off] = v[j]
     # H = Sᵀ h,  h_a = −Σ_b λ_ab sin(θ_b − θ_a) θ̇_b²
-    thd = np.empty(n)
     acc = 0.0
     for a in range(n):
         acc += qd[a]
         thd[a] = acc
-    H = np.empty(n)
     acc = 0.0
     for a in range(n - 1, -1, -1):
         h = 0.0
@@ -91,10 +87,11 @@ def _arm_terms(lam, q, v, passive, M, Mc, Hc, qd):
 
 
 @njit(cache=True, inline="always")
-def _spd_solve(G, r, x):
-    """Solve G x = r for a small symmetric positive definite G by Cholesky; False if not SPD."""
+def _spd_solve(G, r, x, L, y):
+    """Solve G x = r (s × s, symmetric positive definite) by Cholesky; False if not SPD.
+
+    ``L`` (at least s × s) and ``y`` (at least s) are scratch space."""
     s = G.shape[0]
-    L = np.zeros((s, s))
     scale = 0.0
     for i in range(s):
         scale = max(scale, G[i, i])
@@ -109,7 +106,6 @@ def _spd_solve(G, r, x):
                 L[i, i] = np.sqrt(acc)
             else:
                 L[i, j] = acc / L[j, j]
-    y = np.empty(s)
     for i in range(s):
         acc = r[i]
         for t in range(i):
@@ -123,20 +119,65 @@ def _spd_solve(G, r, x):
     return True
 
 
+@njit(cache=True)
+def _workspace(n, k):
+    """Scratch arrays for one arm of n links and k actuated joints (see _arm_terms, _arm_rhs)."""
+    return (np.empty(n), np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty(n), np.empty(n),
+            np.empty((n, n)), np.empty((k, k)), np.empty(k), np.empty(k), np.empty((n, n)), np.empty(n))
+
+
 @njit(cache=True, inline="always")
-def _arm_rhs(lam, q, v, tau, passive, dq, dv):
-    n = q.shape[0]
+def _arm_rhs(lam, q, v, tau, passive, dq, dv, ws):
     k = v.shape[0]
-    M = np.empty((n, n))
-    Mc = np.empty((k, k))
-    Hc = np.empty(k)
-    _arm_terms(lam, q, v, passive, M, Mc, Hc, dq)
-    r = np.empty(k)
+    M, Mc, Hc, r = ws[6], ws[7], ws[8], ws[9]
+    _arm_terms(lam, q, v, passive, M, Mc, Hc, dq, ws)
     for i in range(k):
         r[i] = tau[i] - Hc[i]
-    if not _spd_solve(Mc, r, dv):
+    if not _spd_solve(Mc, r, dv, ws[10], ws[11]):
         for i in range(k):
             dv[i] = np.nan
+
+
+@njit(cache=True, inline="always")
+def _arm_position(lengths, base, phi, q):
+    """End-effector position p = p0 + Σ L_α [sin(θ_α + φ), cos(θ_α + φ)] of one arm."""
+    ang = phi
+    px = base[0]
+    py = base[1]
+    for a in range(q.shape[0]):
+        ang += q[a]
+        px += lengths[a] * np.sin(ang)
+        py += lengths[a] * np.cos(ang)
+    return px, py
+
+
+@njit(cache=True, inline="always")
+def _arm_kinematics(lengths, base, phi, q, M, passive, J, Jbar):
+    """End-effector position (returned) and reduced Jacobian J̄ = J g0 (written to Jbar) of one arm.
+
+    p = p0 + Σ L_α [sin(θ_α + φ), cos(θ_α + φ)], ∂p/∂q_a = Σ_{α≥a} L_α [cos, −sin](θ_α + φ),
+    g0 = [−M_0a / M_00 ; I] for a PA arm (M is the arm's mass matrix), I otherwise."""
+    n = q.shape[0]
+    k = Jbar.shape[1]
+    ang = phi
+    px = base[0]
+    py = base[1]
+    for a in range(n):
+        ang += q[a]
+        J[0, a] = lengths[a] * np.cos(ang)
+        J[1, a] = -lengths[a] * np.sin(ang)
+        px += lengths[a] * np.sin(ang)
+        py += lengths[a] * np.cos(ang)
+    for a in range(n - 2, -1, -1):
+        J[0, a] += J[0, a + 1]
+        J[1, a] += J[1, a + 1]
+    for c in range(2):
+        for t in range(k):
+            if passive:
+                Jbar[c, t] = J[c, t + 1] - J[c, 0] * M[0, t + 1] / M[0, 0]
+            else:
+                Jbar[c, t] = J[c, t]
+    return px, py
 
 
 @njit(cache=True)
@@ -144,59 +185,35 @@ def group_terms(lam, lengths, base, phi, passive, q, v, p, Jbar, Mc, Hc, momentu
     """Per arm: end-effector p (A,2), reduced Jacobian J̄ (A,2,k), M_comb, H_comb, passive momentum."""
     A, n = q.shape
     k = v.shape[1]
-    off = 1 if passive else 0
     M = np.empty((n, n))
     qd = np.empty(n)
     J = np.empty((2, n))
+    ws = _workspace(n, k)
     for i in range(A):
-        _arm_terms(lam[i], q[i], v[i], passive, M, Mc[i], Hc[i], qd)
+        _arm_terms(lam[i], q[i], v[i], passive, M, Mc[i], Hc[i], qd, ws)
         mom = 0.0
         for a in range(n):
             mom += M[0, a] * qd[a]
         momentum[i] = mom if passive else np.nan
-        ang = phi[i]
-        px = base[i, 0]
-        py = base[i, 1]
-        for a in range(n):
-            ang += q[i, a]
-            J[0, a] = lengths[i, a] * np.cos(ang)
-            J[1, a] = -lengths[i, a] * np.sin(ang)
-            px += lengths[i, a] * np.sin(ang)
-            py += lengths[i, a] * np.cos(ang)
-        p[i, 0] = px
-        p[i, 1] = py
-        for a in range(n - 2, -1, -1):  # reverse cumulative sum: ∂p/∂q_a = Σ_{α≥a} …
-            J[0, a] += J[0, a + 1]
-            J[1, a] += J[1, a + 1]
-        if passive:
-            # J̄ = J g0,  g0 = [−M_0a / M_00 ; I]
-            for c in range(2):
-                for j in range(k):
-                    Jbar[i, c, j] = J[c, j + 1] - J[c, 0] * M[0, j + 1] / M[0, 0]
-        else:
-            for c in range(2):
-                for j in range(k):
-                    Jbar[i, c, j] = J[c, j + off]
+        p[i, 0], p[i, 1] = _arm_kinematics(lengths[i], base[i], phi[i], q[i], M, passive, J, Jbar[i])
 
 
 @njit(cache=True)
 def group_end_effectors(lengths, base, phi, q, p):
     """End-effector positions (A, 2) of a group."""
-    A, n = q.shape
-    for i in range(A):
-        ang = phi[i]
-        px = base[i, 0]
-        py = base[i, 1]
-        for a in range(n):
-            ang += q[i, a]
-            px += lengths[i, a] * np.sin(ang)
-            py += lengths[i, a] * np.cos(ang)
-        p[i, 0] = px
-        p[i, 1] = py
+    for i in range(q.shape[0]):
+        p[i, 0], p[i, 1] = _arm_position(lengths[i], base[i], phi[i], q[i])
 
 
 @njit(cache=True)
-def _project_one(v0, A, b, active, v_out):
+def _qp_workspace(m, k):
+    """Scratch arrays for :func:`_project_one` with m rows and k unknowns."""
+    return (np.empty(m, dtype=np.int64), np.empty(max(k, 1), dtype=np.int64), np.empty((k, k)), np.empty(k),
+            np.empty(k), np.empty(k), np.empty((k, k)), np.empty(k))
+
+
+@njit(cache=True)
+def _project_one(v0, A, b, active, v_out, qws):
     """Exact min ½‖v − v0‖² s.t. A_j v ≤ b_j (rows with active_j): returns a status code.
 
     Enumerates linearly independent sets of active rows (sizes 1..k): the optimum is the projection
@@ -216,7 +233,7 @@ def _project_one(v0, A, b, active, v_out):
         for t in range(k):
             v_out[t] = v0[t]
         return STATUS_NOMINAL
-    rows = np.empty(m, dtype=np.int64)
+    rows, idx, G_full, r_full, lam_full, cand, L_scratch, y_scratch = qws
     na = 0
     for j in range(m):
         if active[j]:
@@ -232,16 +249,14 @@ def _project_one(v0, A, b, active, v_out):
                     v_out[t] = 0.0
                 return STATUS_FALLBACK
     best = np.inf
-    cand = np.empty(k)
     smax = min(na, k)
-    idx = np.empty(max(smax, 1), dtype=np.int64)
     for size in range(1, smax + 1):
         # iterate over combinations of `size` rows out of `na` (lexicographic)
         for t in range(size):
             idx[t] = t
         while True:
-            G = np.empty((size, size))
-            r = np.empty(size)
+            G = G_full[:size, :size]
+            r = r_full[:size]
             for x in range(size):
                 jx = rows[idx[x]]
                 acc = 0.0
@@ -254,8 +269,8 @@ def _project_one(v0, A, b, active, v_out):
                     for t in range(k):
                         acc += A[jx, t] * A[jy, t]
                     G[x, y] = acc
-            lam = np.empty(size)
-            if _spd_solve(G, r, lam):
+            lam = lam_full[:size]
+            if _spd_solve(G, r, lam, L_scratch, y_scratch):
                 lmax = 0.0
                 for x in range(size):
                     lmax = max(lmax, abs(lam[x]))
@@ -310,100 +325,50 @@ def _project_one(v0, A, b, active, v_out):
 @njit(cache=True)
 def qp_project(v0, A, b, active, v_out, status):
     """Batched exact safety QP: for each arm i, project v0[i] onto {A[i] v ≤ b[i]}."""
+    qws = _qp_workspace(A.shape[1], A.shape[2])
     for i in range(v0.shape[0]):
-        status[i] = _project_one(v0[i], A[i], b[i], active[i], v_out[i])
+        status[i] = _project_one(v0[i], A[i], b[i], active[i], v_out[i], qws)
 
 
 @njit(cache=True)
-def group_control(p, Jbar, Mc, Hc, v, v_ref, v_prev, has_prev, filter_on, centers, radii, mask,
-                  kappa, epsilon, margin, ke, dt, v_star, tau, status, min_h):
-    """RCBF-QP filter (optional) and backstepping torque for every arm of a group.
-
-    v* = QP(v_ref) with rows −L_g0 h_j v ≤ κ (h_j − margin) − ‖L_g0 h_j‖² / ε (or v* = v_ref);
-    τ_a = M_comb (v̇* − K_e (v − v*)) + H_comb with v̇* = (v* − v*_prev) / dt.
-    """
-    nA, k = v.shape
-    O = radii.shape[0]
-    A = np.zeros((O, k))
-    b = np.empty(O)
-    for i in range(nA):
-        min_h[i] = np.inf
-        status[i] = STATUS_NOMINAL
-        use = False
-        if filter_on:
-            for j in range(O):
-                if mask[i, j]:
-                    use = True
-        if use:
-            for j in range(O):
-                dx = p[i, 0] - centers[j, 0]
-                dy = p[i, 1] - centers[j, 1]
-                h = dx * dx + dy * dy - radii[j] * radii[j]
-                lg2 = 0.0
-                for t in range(k):
-                    lg = 2.0 * (dx * Jbar[i, 0, t] + dy * Jbar[i, 1, t])
-                    A[j, t] = -lg
-                    lg2 += lg * lg
-                b[j] = kappa * (h - margin) - lg2 / epsilon
-                if mask[i, j] and h < min_h[i]:
-                    min_h[i] = h
-            status[i] = _project_one(v_ref[i], A, b, mask[i], v_star[i])
-        else:
-            for t in range(k):
-                v_star[i, t] = v_ref[i, t]
-        acc = np.empty(k)
-        for t in range(k):
-            vdot = (v_star[i, t] - v_prev[i, t]) / dt if has_prev else 0.0
-            acc[t] = vdot - ke * (v[i, t] - v_star[i, t])
-        for r in range(k):
-            s = Hc[i, r]
-            for t in range(k):
-                s += Mc[i, r, t] * acc[t]
-            tau[i, r] = s
+def _rk4_workspace(n, k):
+    """Stage derivatives and trial state for :func:`_rk4_arm`."""
+    return (np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(k), np.empty(k), np.empty(k),
+            np.empty(k), np.empty(n), np.empty(k))
 
 
-@njit(cache=True)
-def group_rk4(lam, passive, q, v, tau, dt, q_out, v_out):
-    """One RK4 step of the cascaded state of every arm, τ held over dt (zero-order hold)."""
-    A, n = q.shape
-    k = v.shape[1]
-    k1q = np.empty(n)
-    k2q = np.empty(n)
-    k3q = np.empty(n)
-    k4q = np.empty(n)
-    k1v = np.empty(k)
-    k2v = np.empty(k)
-    k3v = np.empty(k)
-    k4v = np.empty(k)
-    qt = np.empty(n)
-    vt = np.empty(k)
-    for i in range(A):
-        _arm_rhs(lam[i], q[i], v[i], tau[i], passive, k1q, k1v)
-        for a in range(n):
-            qt[a] = q[i, a] + 0.5 * dt * k1q[a]
-        for a in range(k):
-            vt[a] = v[i, a] + 0.5 * dt * k1v[a]
-        _arm_rhs(lam[i], qt, vt, tau[i], passive, k2q, k2v)
-        for a in range(n):
-            qt[a] = q[i, a] + 0.5 * dt * k2q[a]
-        for a in range(k):
-            vt[a] = v[i, a] + 0.5 * dt * k2v[a]
-        _arm_rhs(lam[i], qt, vt, tau[i], passive, k3q, k3v)
-        for a in range(n):
-            qt[a] = q[i, a] + dt * k3q[a]
-        for a in range(k):
-            vt[a] = v[i, a] + dt * k3v[a]
-        _arm_rhs(lam[i], qt, vt, tau[i], passive, k4q, k4v)
-        for a in range(n):
-            q_out[i, a] = q[i, a] + dt / 6.0 * (k1q[a] + 2.0 * k2q[a] + 2.0 * k3q[a] + k4q[a])
-        for a in range(k):
-            v_out[i, a] = v[i, a] + dt / 6.0 * (k1v[a] + 2.0 * k2v[a] + 2.0 * k3v[a] + k4v[a])
+@njit(cache=True, inline="always")
+def _rk4_arm(lam, q, v, tau, passive, dt, q_out, v_out, rk, ws):
+    """One RK4 step of one arm's cascaded state (q, v) with τ held; writes q_out, v_out."""
+    n = q.shape[0]
+    k = v.shape[0]
+    k1q, k2q, k3q, k4q, k1v, k2v, k3v, k4v, qt, vt = rk
+    _arm_rhs(lam, q, v, tau, passive, k1q, k1v, ws)
+    for a in range(n):
+        qt[a] = q[a] + 0.5 * dt * k1q[a]
+    for a in range(k):
+        vt[a] = v[a] + 0.5 * dt * k1v[a]
+    _arm_rhs(lam, qt, vt, tau, passive, k2q, k2v, ws)
+    for a in range(n):
+        qt[a] = q[a] + 0.5 * dt * k2q[a]
+    for a in range(k):
+        vt[a] = v[a] + 0.5 * dt * k2v[a]
+    _arm_rhs(lam, qt, vt, tau, passive, k3q, k3v, ws)
+    for a in range(n):
+        qt[a] = q[a] + dt * k3q[a]
+    for a in range(k):
+        vt[a] = v[a] + dt * k3v[a]
+    _arm_rhs(lam, qt, vt, tau, passive, k4q, k4v, ws)
+    for a in range(n):
+        q_out[a] = q[a] + dt / 6.0 * (k1q[a] + 2.0 * k2q[a] + 2.0 * k3q[a] + k4q[a])
+    for a in range(k):
+        v_out[a] = v[a] + dt / 6.0 * (k1v[a] + 2.0 * k2v[a] + 2.0 * k3v[a] + k4v[a])
 
 
 @njit(cache=True)
 def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode,
                   filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
-                  v_star_out, tau_out, min_clear, min_h, qp_counts):
+                  v_star_out, tau_out, min_clear, min_h, qp_counts, max_track):
     """Advance every arm of a group by ``n_sub`` physics steps with a held command (in place).
 
     Velocity mode (``torque_mode`` False): ``command`` is the desired active velocity; each
@@ -420,8 +385,9 @@ def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, comm
     Outputs (per arm): ``v_star_out``/``tau_out`` of the last sub-step, ``min_clear`` the smallest
     clearance ‖p − o_j‖ − r_j to any obstacle after every sub-step (running minimum with the value
     passed in), ``min_h`` the smallest filtered barrier seen, ``qp_counts[i, s]`` the number of
-    sub-steps with QP status s. Returns False if the state became non-finite (the arm's state is
-    then left at its last finite value).
+    sub-steps with QP status s, ``max_track`` the largest tracking error ‖v − v*‖ at the start of a
+    sub-step (velocity mode; running maximum with the value passed in). Returns False if the state
+    became non-finite (the arm's state is then left at its last finite value).
     """
     nA, n = q.shape
     k = v.shape[1]
@@ -447,16 +413,13 @@ def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, comm
     vs = np.empty(k)
     tau = np.empty(k)
     acc = np.empty(k)
-    k1q = np.empty(n)
-    k2q = np.empty(n)
-    k3q = np.empty(n)
-    k4q = np.empty(n)
-    k1v = np.empty(k)
-    k2v = np.empty(k)
-    k3v = np.empty(k)
-    k4v = np.empty(k)
-    qt = np.empty(n)
+    rhs = np.empty(k)
     vt = np.empty(k)
+    q_next = np.empty(n)
+    v_next = np.empty(k)
+    ws = _workspace(n, k)
+    rk = _rk4_workspace(n, k)
+    qws = _qp_workspace(rows, k)
     ok_all = True
     for i in range(nA):
         use_filter = filter_on and torque_mode
@@ -468,15 +431,15 @@ def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, comm
         prev_ok = has_prev
         for _s in range(n_sub):
             if use_filter or not torque_mode:
-                _arm_terms(lam[i], q[i], v[i], passive, M, Mc, Hc, qd)
+                _arm_terms(lam[i], q[i], v[i], passive, M, Mc, Hc, qd, ws)
             # the velocity to filter: the command, or the one-step result of the commanded torque
             if torque_mode:
                 for t in range(k):
                     tau[t] = command[i, t]
                 if use_filter:
                     for t in range(k):
-                        acc[t] = tau[t] - Hc[t]
-                    if not _spd_solve(Mc, acc.copy(), acc):
+                        rhs[t] = tau[t] - Hc[t]
+                    if not _spd_solve(Mc, rhs, acc, ws[10], ws[11]):
                         for t in range(k):
                             acc[t] = 0.0
                     for t in range(k):
@@ -486,24 +449,7 @@ def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, comm
                     vt[t] = command[i, t]
             st = STATUS_NOMINAL
             if use_filter:
-                ang = phi[i]
-                px = base[i, 0]
-                py = base[i, 1]
-                for a in range(n):
-                    ang += q[i, a]
-                    J[0, a] = lengths[i, a] * np.cos(ang)
-                    J[1, a] = -lengths[i, a] * np.sin(ang)
-                    px += lengths[i, a] * np.sin(ang)
-                    py += lengths[i, a] * np.cos(ang)
-                for a in range(n - 2, -1, -1):
-                    J[0, a] += J[0, a + 1]
-                    J[1, a] += J[1, a + 1]
-                for c in range(2):
-                    for t in range(k):
-                        if passive:
-                            Jbar[c, t] = J[c, t + 1] - J[c, 0] * M[0, t + 1] / M[0, 0]
-                        else:
-                            Jbar[c, t] = J[c, t]
+                px, py = _arm_kinematics(lengths[i], base[i], phi[i], q[i], M, passive, J, Jbar)
                 for j in range(O):
                     dx = px - centers[j, 0]
                     dy = py - centers[j, 1]
@@ -516,13 +462,19 @@ def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, comm
                     b[j] = kappa * (h - margin) - lg2 / epsilon
                     if mask[i, j] and h < min_h[i]:
                         min_h[i] = h
-                st = _project_one(vt, A, b, active, vs)
+                st = _project_one(vt, A, b, active, vs, qws)
             else:
                 for t in range(k):
                     vs[t] = vt[t]
             qp_counts[i, st] += 1
             if not torque_mode:
                 # backstepping tracker of v* (Eq. 64), v̇* by backward difference
+                err = 0.0
+                for t in range(k):
+                    err += (v[i, t] - vs[t]) ** 2
+                err = np.sqrt(err)
+                if err > max_track[i]:
+                    max_track[i] = err
                 for t in range(k):
                     vdot = (vs[t] - v_prev[i, t]) / dt if prev_ok else 0.0
                     acc[t] = vdot - ke * (v[i, t] - vs[t])
@@ -545,46 +497,23 @@ def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, comm
                 for t in range(k):
                     vs[t] = np.nan
             # RK4 with τ held
-            _arm_rhs(lam[i], q[i], v[i], tau, passive, k1q, k1v)
-            for a in range(n):
-                qt[a] = q[i, a] + 0.5 * dt * k1q[a]
-            for a in range(k):
-                vt[a] = v[i, a] + 0.5 * dt * k1v[a]
-            _arm_rhs(lam[i], qt, vt, tau, passive, k2q, k2v)
-            for a in range(n):
-                qt[a] = q[i, a] + 0.5 * dt * k2q[a]
-            for a in range(k):
-                vt[a] = v[i, a] + 0.5 * dt * k2v[a]
-            _arm_rhs(lam[i], qt, vt, tau, passive, k3q, k3v)
-            for a in range(n):
-                qt[a] = q[i, a] + dt * k3q[a]
-            for a in range(k):
-                vt[a] = v[i, a] + dt * k3v[a]
-            _arm_rhs(lam[i], qt, vt, tau, passive, k4q, k4v)
+            _rk4_arm(lam[i], q[i], v[i], tau, passive, dt, q_next, v_next, rk, ws)
             finite = True
             for a in range(n):
-                qt[a] = q[i, a] + dt / 6.0 * (k1q[a] + 2.0 * k2q[a] + 2.0 * k3q[a] + k4q[a])
-                if not np.isfinite(qt[a]):
+                if not np.isfinite(q_next[a]):
                     finite = False
             for a in range(k):
-                vt[a] = v[i, a] + dt / 6.0 * (k1v[a] + 2.0 * k2v[a] + 2.0 * k3v[a] + k4v[a])
-                if not np.isfinite(vt[a]):
+                if not np.isfinite(v_next[a]):
                     finite = False
             if not finite:
                 ok_all = False
                 break
             for a in range(n):
-                q[i, a] = qt[a]
+                q[i, a] = q_next[a]
             for a in range(k):
-                v[i, a] = vt[a]
+                v[i, a] = v_next[a]
             # clearance after the sub-step
-            ang = phi[i]
-            px = base[i, 0]
-            py = base[i, 1]
-            for a in range(n):
-                ang += q[i, a]
-                px += lengths[i, a] * np.sin(ang)
-                py += lengths[i, a] * np.cos(ang)
+            px, py = _arm_position(lengths[i], base[i], phi[i], q[i])
             for j in range(O):
                 c = np.sqrt((px - centers[j, 0]) ** 2 + (py - centers[j, 1]) ** 2) - radii[j]
                 if c < min_clear[i]:

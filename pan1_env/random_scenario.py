@@ -25,6 +25,7 @@ from .dynamics import ArmParams, end_effector, mass_matrix
 from .formation import Formation, shape_positions
 from .safety import Obstacles, clearance
 from .scenario import Scenario
+from .validation import positive_int, real, whole_ratio
 
 __all__ = ["RandomScenarioOptions", "random_scenario"]
 
@@ -69,29 +70,39 @@ class RandomScenarioOptions:
     horizon: float = 100.0
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.n_arms, (int, np.integer)) and self.n_arms >= 2):
-            raise ValueError(f"n_arms must be an integer ≥ 2, got {self.n_arms!r}")
-        links = (self.links,) * int(self.n_arms) if isinstance(self.links, (int, np.integer)) else tuple(self.links)
-        if len(links) != self.n_arms or any(
-                isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2 for n in links):
-            raise ValueError(f"links must be an integer ≥ 2 or {self.n_arms} of them, got {self.links!r}")
-        object.__setattr__(self, "links", tuple(int(n) for n in links))
-        if not 0.0 <= self.passive_fraction <= 1.0:
-            raise ValueError(f"passive_fraction must lie in [0, 1], got {self.passive_fraction!r}")
-        if not (isinstance(self.n_obstacles, (int, np.integer)) and self.n_obstacles >= 0):
-            raise ValueError(f"n_obstacles must be an integer ≥ 0, got {self.n_obstacles!r}")
+        n_arms = positive_int("RandomScenarioOptions.n_arms", self.n_arms, minimum=2)
+        object.__setattr__(self, "n_arms", n_arms)
+        links = self.links
+        if isinstance(links, (int, np.integer)) and not isinstance(links, bool):
+            links = (links,) * n_arms
+        if not isinstance(links, (tuple, list)) or len(links) != n_arms:
+            raise ValueError(f"RandomScenarioOptions.links must be an integer ≥ 2 or {n_arms} of them, "
+                             f"got {self.links!r}")
+        object.__setattr__(self, "links", tuple(positive_int("RandomScenarioOptions.links", n, minimum=2)
+                                                for n in links))
+        fraction = real("RandomScenarioOptions.passive_fraction", self.passive_fraction, non_negative=True)
+        if fraction > 1:
+            raise ValueError(f"RandomScenarioOptions.passive_fraction must lie in [0, 1], got {fraction!r}")
+        object.__setattr__(self, "passive_fraction", fraction)
+        object.__setattr__(self, "n_obstacles",
+                           positive_int("RandomScenarioOptions.n_obstacles", self.n_obstacles, minimum=0))
         if self.shape not in ("polygon", "square"):
-            raise ValueError(f"shape must be 'polygon' or 'square', got {self.shape!r}")
-        if self.shape == "square" and self.n_arms != 4:
-            raise ValueError("shape 'square' needs n_arms = 4")
+            raise ValueError(f"RandomScenarioOptions.shape must be 'polygon' or 'square', got {self.shape!r}")
+        if self.shape == "square" and n_arms != 4:
+            raise ValueError("RandomScenarioOptions.shape 'square' needs n_arms = 4")
         for name in ("size", "obstacle_radius"):
-            lo, hi = getattr(self, name)
-            if not 0 < lo <= hi:
-                raise ValueError(f"{name} must be a range (low, high) with 0 < low ≤ high, got {(lo, hi)}")
+            value = getattr(self, name)
+            if not isinstance(value, (tuple, list)) or len(value) != 2:
+                raise ValueError(f"RandomScenarioOptions.{name} must be a range (low, high), got {value!r}")
+            lo = real(f"RandomScenarioOptions.{name}[0]", value[0], positive=True)
+            hi = real(f"RandomScenarioOptions.{name}[1]", value[1], positive=True)
+            if lo > hi:
+                raise ValueError(f"RandomScenarioOptions.{name} must have low ≤ high, got {value!r}")
+            object.__setattr__(self, name, (lo, hi))
         for name in ("start_clearance", "min_sigma", "kp", "ke", "kappa", "epsilon", "physics_dt",
                      "control_dt", "horizon"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, real(f"RandomScenarioOptions.{name}", getattr(self, name), positive=True))
+        whole_ratio("RandomScenarioOptions.control_dt", self.control_dt, "physics_dt", self.physics_dt)
 
     @property
     def passive(self) -> tuple[bool, ...]:

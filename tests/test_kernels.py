@@ -7,7 +7,7 @@ from pan1_env import kernels
 from pan1_env.cascade import cascade_rk4_step, cascade_terms, passive_momentum, reduced_jacobian
 from pan1_env.control import backstepping_torque
 from pan1_env.dynamics import ArmBatch, ArmParams, end_effector
-from pan1_env.safety import project_velocity, rcbf_constraints
+from pan1_env.safety import clearance, project_velocity, rcbf_constraints
 
 
 def _group(rng: np.random.Generator, n: int, passive: bool, count: int = 5):
@@ -51,45 +51,100 @@ def test_group_terms_match_reference(n: int, passive: bool) -> None:
         assert np.all(np.isnan(got["mom"]))
 
 
+def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False, centers=None, radii=None,
+             mask=None, kappa=0.5, eps=5.0, margin=0.0, ke=100.0, dt=1e-3, n_sub=1, v_max=np.inf):
+    A, k = v.shape
+    centers = np.zeros((0, 2)) if centers is None else centers
+    radii = np.zeros(0) if radii is None else radii
+    mask = np.zeros((A, len(radii)), bool) if mask is None else mask
+    q, v = q.copy(), v.copy()
+    prev = np.zeros((A, k)) if v_prev is None else v_prev.copy()
+    out = dict(v_star=np.empty((A, k)), tau=np.empty((A, k)), clear=np.full(A, np.inf), min_h=np.full(A, np.inf),
+               counts=np.zeros((A, 3), np.int64), track=np.zeros(A))
+    ok = kernels.group_advance(batch.lam, batch.lengths, batch.base, batch.phi, batch.passive_first_joint, q, v,
+                               prev, v_prev is not None, command, torque, filter_on, centers, radii, mask, kappa,
+                               eps, margin, ke, dt, n_sub, v_max, out["v_star"], out["tau"], out["clear"],
+                               out["min_h"], out["counts"], out["track"])
+    return ok, q, v, prev, out
+
+
 @pytest.mark.parametrize("n", [2, 4])
 @pytest.mark.parametrize("passive", [True, False])
-def test_group_rk4_matches_reference(n: int, passive: bool) -> None:
+def test_advance_velocity_mode_is_backstepping_plus_rk4(n: int, passive: bool) -> None:
     rng = np.random.default_rng(3 * n + passive)
     batch, q, v = _group(rng, n, passive)
-    tau = rng.uniform(-1, 1, v.shape)
-    q_out, v_out = np.empty_like(q), np.empty_like(v)
-    kernels.group_rk4(batch.lam, batch.passive_first_joint, q, v, tau, 1e-3, q_out, v_out)
+    command, v_prev = rng.uniform(-1, 1, v.shape), rng.uniform(-1, 1, v.shape)
+    centers, radii = rng.uniform(-2, 2, (3, 2)), np.full(3, 0.1)
+    ok, q1, v1, prev, out = _advance(batch, q, v, command, v_prev=v_prev, centers=centers, radii=radii)
+    assert ok
+    t = cascade_terms(batch, q, v)
+    tau = backstepping_torque(t.M_comb, t.H_comb, v, command, (command - v_prev) / 1e-3, 100.0)
     q_ref, v_ref = cascade_rk4_step(batch, q, v, tau, 1e-3)
-    np.testing.assert_allclose(q_out, q_ref, atol=1e-12)
-    np.testing.assert_allclose(v_out, v_ref, atol=1e-10)
+    np.testing.assert_allclose(out["tau"], tau, rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(q1, q_ref, atol=1e-12)
+    np.testing.assert_allclose(v1, v_ref, atol=1e-9)
+    np.testing.assert_array_equal(prev, command)
+    np.testing.assert_allclose(out["track"], np.linalg.norm(v - command, axis=-1))
+    np.testing.assert_allclose(out["clear"], clearance(end_effector(batch, q1), centers, radii).min(-1), atol=1e-12)
 
 
-@pytest.mark.parametrize("filter_on", [False, True])
-def test_group_control_matches_reference(filter_on: bool) -> None:
+def test_advance_torque_mode_without_filter_applies_the_torque() -> None:
+    rng = np.random.default_rng(5)
+    batch, q, v = _group(rng, 3, True)
+    tau = rng.uniform(-1, 1, v.shape)
+    ok, q1, v1, _, out = _advance(batch, q, v, tau, torque=True, n_sub=3)
+    q_ref, v_ref = q, v
+    for _ in range(3):
+        q_ref, v_ref = cascade_rk4_step(batch, q_ref, v_ref, tau, 1e-3)
+    np.testing.assert_allclose(out["tau"], tau)
+    np.testing.assert_allclose(q1, q_ref, atol=1e-12)
+    np.testing.assert_allclose(v1, v_ref, atol=1e-9)
+
+
+def _binding_obstacles(rng, batch, q, v):
+    t = _terms(batch, q, v)
+    centers = t["p"][:3] + rng.normal(scale=0.15, size=(3, 2))
+    return t, centers, np.full(3, 0.05)
+
+
+def test_advance_filter_matches_rcbf_rows_and_piqp() -> None:
     rng = np.random.default_rng(11)
     batch, q, v = _group(rng, 4, True, count=6)
-    t = _terms(batch, q, v)
-    A, k = v.shape
-    # obstacles placed near each end-effector so rows bind
-    centers = t["p"][:3] + rng.normal(scale=0.15, size=(3, 2))
-    radii = np.full(3, 0.05)
-    mask = rng.random((A, 3)) < 0.7
-    v_ref = rng.normal(scale=2.0, size=(A, k))
-    v_prev = rng.normal(size=(A, k))
-    kappa, eps, ke, dt = 0.5, 5.0, 100.0, 1e-3
-    v_star, tau = np.empty((A, k)), np.empty((A, k))
-    status, min_h = np.empty(A, dtype=np.int64), np.empty(A)
-    kernels.group_control(t["p"], t["Jbar"], t["Mc"], t["Hc"], v, v_ref, v_prev, True, filter_on,
-                          centers, radii, mask, kappa, eps, 0.0, ke, dt, v_star, tau, status, min_h)
-    if filter_on:
-        A_rows, b_rows, h = rcbf_constraints(t["p"], t["Jbar"], centers, radii, kappa, eps,
-                                             active=mask)
-        expected = project_velocity(v_ref, A_rows, b_rows, solver="piqp")
-        np.testing.assert_allclose(v_star, expected.v, atol=1e-6)
-        np.testing.assert_array_equal(status, expected.status)
-        np.testing.assert_allclose(min_h, np.where(mask, h, np.inf).min(axis=-1))
-        assert np.any(status == 1), "the test should exercise active constraints"
-    else:
-        np.testing.assert_array_equal(v_star, v_ref)
-    tau_ref = backstepping_torque(t["Mc"], t["Hc"], v, v_star, (v_star - v_prev) / dt, ke)
-    np.testing.assert_allclose(tau, tau_ref, rtol=1e-9, atol=1e-9)
+    t, centers, radii = _binding_obstacles(rng, batch, q, v)
+    mask = rng.random((6, 3)) < 0.7
+    command, v_prev = rng.normal(scale=2.0, size=v.shape), rng.normal(size=v.shape)
+    ok, q1, _, _, out = _advance(batch, q, v, command, v_prev=v_prev, filter_on=True, centers=centers,
+                                 radii=radii, mask=mask)
+    A_rows, b_rows, h = rcbf_constraints(t["p"], t["Jbar"], centers, radii, 0.5, 5.0, active=mask)
+    expected = project_velocity(command, A_rows, b_rows, solver="piqp")
+    np.testing.assert_allclose(out["v_star"], expected.v, atol=1e-6)
+    np.testing.assert_array_equal(out["counts"].argmax(-1), expected.status)
+    assert np.any(expected.status == 1), "the test should exercise active constraints"
+    np.testing.assert_allclose(out["min_h"], np.where(mask, h, np.inf).min(axis=-1))
+    ref = cascade_terms(batch, q, v)
+    tau = backstepping_torque(ref.M_comb, ref.H_comb, v, out["v_star"], (out["v_star"] - v_prev) / 1e-3, 100.0)
+    np.testing.assert_allclose(out["tau"], tau, rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(q1, cascade_rk4_step(batch, q, v, tau, 1e-3)[0], atol=1e-12)
+
+
+def test_advance_torque_filter_projects_the_one_step_velocity() -> None:
+    rng = np.random.default_rng(12)
+    batch, q, v = _group(rng, 3, True, count=6)
+    t, centers, radii = _binding_obstacles(rng, batch, q, v)
+    mask = np.ones((6, 3), bool)
+    tau_cmd, dt, v_max = rng.normal(scale=3.0, size=v.shape), 1e-3, 2.5
+    ok, _, _, _, out = _advance(batch, q, v, tau_cmd, torque=True, filter_on=True, centers=centers, radii=radii,
+                                mask=mask, v_max=v_max)
+    ref = cascade_terms(batch, q, v)
+    v_des = v + dt * np.linalg.solve(ref.M_comb, (tau_cmd - ref.H_comb)[..., None])[..., 0]
+    A_rows, b_rows, _ = rcbf_constraints(t["p"], t["Jbar"], centers, radii, 0.5, 5.0, active=mask)
+    k = v.shape[1]
+    box = np.concatenate([np.eye(k), -np.eye(k)])
+    A_all = np.concatenate([A_rows, np.broadcast_to(box, (6, 2 * k, k))], axis=1)
+    b_all = np.concatenate([b_rows, np.full((6, 2 * k), v_max)], axis=1)
+    expected = project_velocity(v_des, A_all, b_all, solver="piqp")
+    changed = expected.status != 0
+    assert changed.any(), "the test should exercise the filter"
+    tau = np.where(changed[:, None],
+                   np.einsum("aij,aj->ai", ref.M_comb, (expected.v - v) / dt) + ref.H_comb, tau_cmd)
+    np.testing.assert_allclose(out["tau"], tau, rtol=1e-5, atol=1e-4)

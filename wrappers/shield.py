@@ -33,6 +33,7 @@ import numpy as np
 from pettingzoo.utils.wrappers import BaseParallelWrapper
 
 from pan1_env.safety import QPStatus, robust_margin
+from pan1_env.validation import real
 
 __all__ = ["SafetyShield", "GymSafetyShield", "shield_parameters"]
 
@@ -42,21 +43,14 @@ _STATUS_NAMES = {int(s): s.name.lower() for s in QPStatus}
 def shield_parameters(scenario, kappa: float | None, epsilon: float | None, margin: float | None,
                       tracking_bound: float | None) -> dict[str, float]:
     """Validated κ, ε and the barrier margin (explicit, or Γ(δ̄) from ``tracking_bound``)."""
-    kappa = scenario.kappa if kappa is None else kappa
-    epsilon = scenario.epsilon if epsilon is None else epsilon
-    for name, value in (("kappa", kappa), ("epsilon", epsilon)):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
-            raise ValueError(f"SafetyShield: {name} must be a positive number, got {value!r}")
+    kappa = real("SafetyShield: kappa", scenario.kappa if kappa is None else kappa, positive=True)
+    epsilon = real("SafetyShield: epsilon", scenario.epsilon if epsilon is None else epsilon, positive=True)
     if margin is not None and tracking_bound is not None:
         raise ValueError("SafetyShield: give margin or tracking_bound, not both")
     if tracking_bound is not None:
-        if not (np.isfinite(tracking_bound) and tracking_bound >= 0):
-            raise ValueError(f"SafetyShield: tracking_bound must be ≥ 0, got {tracking_bound!r}")
-        margin = robust_margin(float(tracking_bound), float(kappa), float(epsilon))
-    margin = scenario.safety_margin if margin is None else margin
-    if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not np.isfinite(margin) or margin < 0:
-        raise ValueError(f"SafetyShield: margin must be a number ≥ 0, got {margin!r}")
-    return {"kappa": float(kappa), "epsilon": float(epsilon), "margin": float(margin)}
+        margin = robust_margin(real("SafetyShield: tracking_bound", tracking_bound, non_negative=True), kappa, epsilon)
+    margin = real("SafetyShield: margin", scenario.safety_margin if margin is None else margin, non_negative=True)
+    return {"kappa": kappa, "epsilon": epsilon, "margin": margin}
 
 
 def _shield_infos(core, actions: dict[str, np.ndarray]) -> dict[str, dict[str, Any]]:
@@ -89,6 +83,9 @@ def _shield_infos(core, actions: dict[str, np.ndarray]) -> dict[str, dict[str, A
 class SafetyShield(BaseParallelWrapper):
     """Shield a :class:`~pan1_env.environment.Pan1ParallelEnv` (or a wrapper of one).
 
+    The filter runs inside the env's physics sub-steps, so wrapping switches it on in the wrapped
+    env itself (a reference to the unwrapped env steps shielded too); an env is shielded once.
+
     Args:
         env: the parallel env.
         kappa, epsilon: RCBF parameters κ and ε (default: the scenario's).
@@ -102,6 +99,8 @@ class SafetyShield(BaseParallelWrapper):
         core = env.unwrapped
         if not hasattr(core, "safety_filter"):
             raise TypeError(f"SafetyShield wraps a pan1_env parallel env, got {type(core).__name__}")
+        if core.safety_filter:
+            raise ValueError("this env is already shielded; wrap it once")
         core.shield_params = shield_parameters(core.scenario, kappa, epsilon, margin, tracking_bound)
         core.safety_filter = True
         core._apply_shield()
@@ -127,6 +126,8 @@ class GymSafetyShield(gymnasium.Wrapper):
         if not hasattr(inner, "parallel"):
             raise TypeError(f"GymSafetyShield wraps a pan1_env Gymnasium env, got {type(inner).__name__}")
         core = inner.parallel
+        if core.safety_filter:
+            raise ValueError("this env is already shielded; wrap it once")
         core.shield_params = shield_parameters(core.scenario, kappa, epsilon, margin, tracking_bound)
         core.safety_filter = True
         core._apply_shield()
