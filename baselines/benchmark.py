@@ -7,10 +7,13 @@ Gymnasium view of the same scenario, run deterministically).
 
 For each scenario × policy × shield setting, episodes ``seed, seed+1, …`` are run to their end
 (``max_steps``). Per row: ``success_rate`` (formation error < 1 cm at the end), ``mean_time_to_formation_s``
-(first time the error is below 1 cm, over successful episodes), ``mean_return`` (sum over steps of
+(over successful episodes, the time after which the error stays below 1 cm, as ``reproduce``'s
+``time_to_edge_error_1cm_s``), ``mean_return`` (sum over steps of
 the mean agent reward), ``total_cost`` (arm-steps inside an obstacle), ``min_clearance_m`` (over every
-sub-step), ``intervention_rate`` (fraction of arm-steps where the shield changed the action) and
-``fallback_steps``. :func:`run_benchmark` returns the rows; :func:`markdown_table` and
+sub-step), ``intervention_rate`` (fraction of arm-steps where the shield changed the action; in torque mode
+this includes speed limiting) and ``fallback_steps``. Models trained with ``--param-sharing`` take
+padded per-arm observations and are not accepted as ``sb3:`` policies here (the benchmark runs
+centralised models). :func:`run_benchmark` returns the rows; :func:`markdown_table` and
 :func:`plot_benchmark` present them.
 """
 
@@ -33,6 +36,8 @@ def make_policy(name: str, env, seed: int) -> Callable[[dict[str, np.ndarray]], 
     from . import AdversarialPolicy, ReferencePolicy
 
     core = env.unwrapped
+    if name == "reference" and core.action_mode != "velocity":
+        raise ValueError("the reference policy outputs velocities: use action_mode='velocity'")
     if name == "reference":
         return ReferencePolicy(core)
     if name == "adversarial":
@@ -85,7 +90,7 @@ def _episode(env, policy, seed: int, shield: bool) -> dict[str, Any]:
     obs, _ = env.reset(seed=seed)
     ret, cost, steps, arm_steps, interventions, fallbacks = 0.0, 0.0, 0, 0, 0, 0
     clearance = math.inf
-    first_success = None
+    last_failure = 0.0  # the last time the formation error was ≥ 1 cm
     infos: dict = {}
     while env.agents:
         obs, rewards, _, _, infos = env.step(policy(obs))
@@ -98,10 +103,11 @@ def _episode(env, policy, seed: int, shield: bool) -> dict[str, Any]:
             if shield:
                 interventions += int(info["shield"]["intervened"])
                 fallbacks += int(info["shield"]["fallback"])
-        if first_success is None and next(iter(infos.values()))["is_success"]:
-            first_success = steps * core.control_dt
+        if not next(iter(infos.values()))["is_success"]:
+            last_failure = steps * core.control_dt
     final = next(iter(infos.values())) if infos else {"is_success": False}
-    return {"success": bool(final["is_success"]), "time_to_formation": first_success, "return": ret,
+    success = bool(final["is_success"])
+    return {"success": success, "time_to_formation": last_failure if success else None, "return": ret,
             "cost": cost, "min_clearance": clearance, "arm_steps": arm_steps, "interventions": interventions,
             "fallbacks": fallbacks}
 
@@ -130,7 +136,7 @@ def run_benchmark(scenarios: Sequence[str], policies: Sequence[str], episodes: i
                 env = SafetyShield(base) if shield else base
                 policy = make_policy(name, env, seed)
                 results = [_episode(env, policy, seed + k, shield) for k in range(episodes)]
-                times = [r["time_to_formation"] for r in results if r["success"] and r["time_to_formation"]]
+                times = [r["time_to_formation"] for r in results if r["success"]]
                 arm_steps = sum(r["arm_steps"] for r in results)
                 row = {
                     "scenario": scenario, "policy": name, "shield": shield, "episodes": episodes,
@@ -138,7 +144,7 @@ def run_benchmark(scenarios: Sequence[str], policies: Sequence[str], episodes: i
                     "mean_time_to_formation_s": float(np.mean(times)) if times else None,
                     "mean_return": float(np.mean([r["return"] for r in results])),
                     "total_cost": float(sum(r["cost"] for r in results)),
-                    "min_clearance_m": float(min(r["min_clearance"] for r in results)),
+                    "min_clearance_m": _finite_or_none(min(r["min_clearance"] for r in results)),
                     "intervention_rate": (sum(r["interventions"] for r in results) / arm_steps) if shield else None,
                     "fallback_steps": sum(r["fallbacks"] for r in results) if shield else None,
                 }
@@ -149,6 +155,10 @@ def run_benchmark(scenarios: Sequence[str], policies: Sequence[str], episodes: i
     return rows
 
 
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
 def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
     """The benchmark rows as a Markdown table."""
     head = ("| scenario | policy | shield | success | time to formation [s] | mean return | cost "
@@ -157,10 +167,11 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
     for r in rows:
         t = r["mean_time_to_formation_s"]
         iv = r["intervention_rate"]
+        clear = r["min_clearance_m"]
         lines.append(
             f"| {r['scenario']} | {r['policy']} | {'on' if r['shield'] else 'off'} | {r['success_rate']:.0%} "
             f"| {'—' if t is None else f'{t:.1f}'} | {r['mean_return']:.1f} | {r['total_cost']:g} "
-            f"| {1000 * r['min_clearance_m']:+.1f} | {'—' if iv is None else f'{iv:.1%}'} |")
+            f"| {'—' if clear is None else f'{1000 * clear:+.1f}'} | {'—' if iv is None else f'{iv:.1%}'} |")
     return "\n".join(lines)
 
 

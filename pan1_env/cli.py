@@ -7,7 +7,8 @@ Commands:
 * ``paper [--out DIR] [--horizon S]``: the paper's whole Section 5 (both scenarios, both
   controllers), the Figure-8 overlays, and a Markdown table of the metrics (``summary.md``).
 * ``scenarios``: list the built-in scenarios.
-* ``animate SCENARIO --policy reference|zero|random --out FILE.gif``: a GIF of one env episode.
+* ``animate SCENARIO --policy reference|zero|random|adversarial|sb3:PATH [--no-shield] --out FILE.gif``:
+  a GIF of one env episode.
 * ``train --algo ppo|sac --scenario S --shield/--no-shield --timesteps T --seed K --out DIR``:
   Stable-Baselines3 training (the ``rl`` extra).
 * ``benchmark --scenarios … --policies reference,zero,random,sb3:PATH --episodes K --seed S``:
@@ -59,8 +60,12 @@ def _parser() -> argparse.ArgumentParser:
 
     anim = sub.add_parser("animate", help="write a GIF of one episode of the environment")
     anim.add_argument("scenario", help="built-in scenario name, path to a .toml file, or 'random'")
-    anim.add_argument("--policy", choices=POLICIES, default="reference",
-                      help="reference: the paper's nominal law on local observations; zero; random")
+    anim.add_argument("--policy", default="reference",
+                      help="reference (the paper's nominal law on local observations), zero, random, adversarial "
+                           "or sb3:PATH")
+    anim.add_argument("--shield", action=argparse.BooleanOptionalAction, default=True,
+                      help="behind the safety shield (default: on; with the reference policy this is the paper's "
+                           "safe controller)")
     anim.add_argument("--out", type=Path, required=True, help="output .gif file")
     anim.add_argument("--steps", type=_positive_int, default=None,
                       help="env steps (default: the env's max_steps)")
@@ -96,8 +101,6 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--out", type=Path, default=Path("runs/benchmark"), help="output directory")
     return parser
 
-
-POLICIES = ("reference", "zero", "random")
 
 
 def _positive_int(text: str) -> int:
@@ -233,21 +236,17 @@ def _cmd_animate(args) -> int:
     if args.out.suffix.lower() != ".gif":
         print(f"pan1-env: error: --out must end in .gif, got {args.out}", file=sys.stderr)
         return 2
+    from .baselines.benchmark import make_policy
+
     env = parallel_env(args.scenario, render_mode="rgb_array")
+    if args.shield:
+        from .wrappers import SafetyShield
+
+        env = SafetyShield(env)
     steps = args.steps or env.max_steps
     every = max(1, int(np.ceil(steps / args.frames)))
     obs, _ = env.reset(seed=args.seed)
-    rng = np.random.default_rng(args.seed)
-    if args.policy == "reference":
-        from .baselines import ReferencePolicy
-
-        policy = ReferencePolicy(env)
-    elif args.policy == "zero":
-        def policy(o):
-            return {a: np.zeros(env.action_space(a).shape, np.float32) for a in o}
-    else:
-        def policy(o):
-            return {a: rng.uniform(-1, 1, env.action_space(a).shape).astype(np.float32) for a in o}
+    policy = make_policy(args.policy, env, args.seed)
     frames = [env.render()]
     cost = 0.0
     for t in range(steps):
@@ -265,7 +264,8 @@ def _cmd_animate(args) -> int:
                                                       append_images=images[1:], duration=1000 // args.fps,
                                                       loop=0))
     err = next(iter(infos.values()))["formation_error"] if infos else float("nan")
-    print(f"{args.out}: {len(frames)} frames of {t + 1} steps; policy {args.policy}; "
+    print(f"{args.out}: {len(frames)} frames of {t + 1} steps; policy {args.policy}, "
+          f"shield {'on' if args.shield else 'off'}; "
           f"final max edge error {err:.4f} m; cost (arm-steps in obstacles) {cost:g}")
     return 0
 

@@ -14,7 +14,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 from pettingzoo import ParallelEnv
-from pettingzoo.utils import parallel_to_aec, wrappers
+from pettingzoo.utils import parallel_to_aec
 
 from .formation import edge_length_errors, edge_vectors
 from .random_scenario import RandomScenarioOptions, random_scenario
@@ -464,9 +464,8 @@ def parallel_env(scenario: str | Path | Scenario = "paper_pa3_square", **kwargs:
 
 
 def env(scenario: str | Path | Scenario = "paper_pa3_square", **kwargs: Any):
-    """PettingZoo's AEC view of :func:`parallel_env`, with the standard order-enforcing wrapper."""
-    aec = parallel_to_aec(parallel_env(scenario, **kwargs))
-    return wrappers.OrderEnforcingWrapper(aec)
+    """PettingZoo's AEC view of :func:`parallel_env` (``parallel_to_aec`` adds order enforcement)."""
+    return parallel_to_aec(parallel_env(scenario, **kwargs))
 
 
 raw_env = Pan1ParallelEnv

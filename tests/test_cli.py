@@ -54,3 +54,12 @@ def test_bad_horizon_is_rejected(capsys) -> None:
     with pytest.raises(SystemExit):
         main(["reproduce", "paper_pa3_square", "--controller", "safe", "--out", "x", "--horizon", "-1"])
     assert "positive" in capsys.readouterr().err
+
+
+def test_animate_writes_a_gif_with_the_shielded_reference(tmp_path, capsys) -> None:
+    out = tmp_path / "episode.gif"
+    assert main(["animate", "paper_pa_mixed_square", "--out", str(out), "--steps", "40", "--frames", "5"]) == 0
+    assert out.read_bytes()[:6] in (b"GIF87a", b"GIF89a")
+    text = capsys.readouterr().out
+    assert "shield on" in text and "cost (arm-steps in obstacles) 0" in text
+    assert main(["animate", "paper_pa3_square", "--out", str(tmp_path / "x.mp4")]) == 2
