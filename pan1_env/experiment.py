@@ -218,11 +218,13 @@ def atomic_write(path: Path, write: Callable[[Any], None], mode: str = "wb") -> 
         raise
 
 
-def write_outputs(result: RunResult, out_dir: str | Path) -> dict[str, Path]:
-    """Write ``metrics.json`` and ``trajectory.npz`` into ``out_dir`` (atomically)."""
+def write_outputs(result: RunResult, out_dir: str | Path, *, trajectory: bool = True) -> dict[str, Path]:
+    """Write ``metrics.json`` and (unless ``trajectory=False``) ``trajectory.npz`` into ``out_dir``,
+    each atomically."""
     out = Path(out_dir)
     paths = {"metrics": out / "metrics.json", "trajectory": out / "trajectory.npz"}
-    atomic_write(paths["trajectory"], lambda fh: np.savez_compressed(fh, **result.trajectory))
+    if trajectory:
+        atomic_write(paths["trajectory"], lambda fh: np.savez_compressed(fh, **result.trajectory))
     atomic_write(paths["metrics"], lambda fh: fh.write(json.dumps(result.metrics, indent=2) + "\n"),
                  mode="w")
     return paths

@@ -123,20 +123,30 @@ def test_gym_shield_reports_and_blocks() -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["paper_pa3_square", "paper_pa_mixed_square"])
 def test_reference_policy_behind_shield_reproduces_safe_run(name: str) -> None:
+    """Same scenario, same time steps (control_dt = physics_dt = 1 ms), no action saturation: the
+    env's trajectory q(t) follows `reproduce --controller safe` (the policy sees float32
+    observations, hence the tolerances), and the per-arm clearances and final error agree."""
     from pan1_env import experiment, scenario
 
     sc = scenario.load(name)
     horizon = 100.0
-    expected = experiment.run(sc, "safe", horizon=horizon).metrics
+    expected = experiment.run(sc, "safe", horizon=horizon, record_dt=1.0)
+    steps_per_s = int(round(1.0 / sc.physics_dt))
     base = parallel_env(name, control_dt=sc.physics_dt, max_steps=int(round(horizon / sc.physics_dt)),
                         max_joint_speed=1e3)
     env = SafetyShield(base)
     policy = ReferencePolicy(base)
     obs, _ = env.reset(seed=0)
     clearance = np.full(4, np.inf)
+    q_env = [base.sim.joint_state()[0]]
     while env.agents:
         obs, _, _, _, infos = env.step(policy(obs))
         clearance = np.minimum(clearance, [infos[a]["min_clearance"] for a in base.possible_agents])
-    got = [a["min_clearance_m"] for a in expected["arms"]]
+        if base.num_steps % steps_per_s == 0:
+            q_env.append(base.sim.joint_state()[0])
+    q_ref = expected.trajectory["q"]
+    np.testing.assert_allclose(expected.trajectory["time"], np.arange(len(q_ref)), atol=1e-9)
+    np.testing.assert_allclose(np.array(q_env), q_ref, atol=2e-3, equal_nan=True)
+    got = [a["min_clearance_m"] for a in expected.metrics["arms"]]
     np.testing.assert_allclose(clearance, got, atol=2e-4)
-    assert infos["arm_0"]["formation_error"] == pytest.approx(expected["final_max_edge_error_m"], abs=1e-4)
+    assert infos["arm_0"]["formation_error"] == pytest.approx(expected.metrics["final_max_edge_error_m"], abs=1e-4)
