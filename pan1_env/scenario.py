@@ -107,18 +107,33 @@ _ANGLE = re.compile(
 )
 
 
+MAX_SUBSTEPS = 1_000_000  # physics sub-steps per control step
+MAX_MAGNITUDE = 1e9  # every number in a scenario file must satisfy |x| ≤ MAX_MAGNITUDE
+
+
+def _float(value: int | float, src: str, key: str) -> float:
+    """A TOML number as a float within ±MAX_MAGNITUDE (TOML integers can be arbitrarily large)."""
+    if isinstance(value, int) and abs(value) > MAX_MAGNITUDE:
+        raise ScenarioError(src, key, f"an integer of {len(str(abs(value)))} digits is out of range: numbers "
+                            f"must lie within ±{MAX_MAGNITUDE:g}")
+    out = float(value)
+    if math.isfinite(out) and abs(out) > MAX_MAGNITUDE:
+        raise ScenarioError(src, key, f"{out:g} is out of range: numbers must lie within ±{MAX_MAGNITUDE:g}")
+    return out
+
+
 def _angle(value: Any, src: str, key: str) -> float:
     if isinstance(value, bool):
         raise ScenarioError(src, key, f"expected an angle, got {value!r}")
     if isinstance(value, (int, float)):
-        out = float(value)
+        out = _float(value, src, key)
     elif isinstance(value, str):
         m = _ANGLE.match(value)
         if not m or not (m.group("num") or m.group("pi")):
             raise ScenarioError(src, key, f"cannot read angle {value!r}; write e.g. 0.5 or '-3*pi/4'")
-        out = float(m.group("num") or 1.0) * (math.pi if m.group("pi") else 1.0)
+        out = _float(float(m.group("num") or 1.0), src, key) * (math.pi if m.group("pi") else 1.0)
         if m.group("den"):
-            den = float(m.group("den"))
+            den = _float(float(m.group("den")), src, key)
             if den == 0:
                 raise ScenarioError(src, key, f"division by zero in angle {value!r}")
             out /= den
@@ -141,7 +156,7 @@ def _number(table: Mapping[str, Any], key: str, src: str, prefix: str, *, positi
     value = table[key]
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ScenarioError(src, full, f"expected a number, got {value!r}")
-    value = float(value)
+    value = _float(value, src, full)
     if not math.isfinite(value):
         raise ScenarioError(src, full, f"must be finite, got {value!r}")
     if positive and value <= 0:
@@ -156,7 +171,7 @@ def _vector(value: Any, src: str, key: str, size: int | None = None) -> np.ndarr
         raise ScenarioError(src, key, f"expected a non-empty list of numbers, got {value!r}")
     if any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in value):
         raise ScenarioError(src, key, f"expected a list of numbers, got {value!r}")
-    arr = np.array(value, dtype=float)
+    arr = np.array([_float(x, src, key) for x in value], dtype=float)
     if not np.all(np.isfinite(arr)):
         raise ScenarioError(src, key, f"values must be finite, got {value!r}")
     if size is not None and arr.size != size:
@@ -246,6 +261,9 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
     control_dt = _number(sim, "control_dt", src, "simulation", default=physics_dt)
     horizon = _number(sim, "horizon", src, "simulation")
     ratio = control_dt / physics_dt
+    if not ratio <= MAX_SUBSTEPS:
+        raise ScenarioError(src, "simulation.control_dt", f"control_dt / physics_dt = {ratio:.3g} sub-steps per "
+                            f"control step is more than {MAX_SUBSTEPS}")
     if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
         raise ScenarioError(src, "simulation.control_dt",
                             f"must be a whole multiple of physics_dt={physics_dt}, got {control_dt}")

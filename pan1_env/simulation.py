@@ -238,6 +238,8 @@ class Simulation:
                                     max_speed, rec)
         self.time += substeps * self.dt
         self.steps += int(substeps)
+        if not rec.finite:  # a faulty arm stopped early: include the (finite) state it was left in
+            np.minimum(rec.min_clearance, self.clearance(), out=rec.min_clearance)
         np.minimum(self.min_clearance, rec.min_clearance, out=self.min_clearance)
         return rec
 

@@ -39,6 +39,8 @@ def positive_int(name: str, value: Any, *, minimum: int = 1) -> int:
 def whole_ratio(name: str, big: float, small_name: str, small: float) -> int:
     """``big / small`` as a whole number ≥ 1 (e.g. physics sub-steps per control step)."""
     ratio = big / small
+    if not math.isfinite(ratio) or ratio > 1e6:
+        raise ValueError(f"{name}={big} / {small_name}={small} = {ratio:.3g} sub-steps is too many (at most 1e6)")
     if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
         raise ValueError(f"{name}={big} must be a whole multiple of {small_name}={small}")
     return int(round(ratio))
