@@ -36,11 +36,16 @@ def _arm_terms(lam, q, v, passive, M, Mc, Hc, qd, ws):
     for a in range(n):
         acc += q[a]
         theta[a] = acc
+    # cos(θ_b − θ_a) and sin(θ_b − θ_a) from n sines and cosines (angle-difference identities)
+    c = thd  # scratch, overwritten below
+    sn = H
+    for a in range(n):
+        c[a] = np.cos(theta[a])
+        sn[a] = np.sin(theta[a])
     for a in range(n):
         for b in range(n):
-            d = theta[b] - theta[a]
-            cosd[a, b] = np.cos(d)
-            sind[a, b] = np.sin(d)
+            cosd[a, b] = c[b] * c[a] + sn[b] * sn[a]
+            sind[a, b] = sn[b] * c[a] - c[b] * sn[a]
     # M = Sᵀ (λ ∘ cos D) S: reverse cumulative sums over both indices.
     for a in range(n):
         acc = 0.0
