@@ -383,9 +383,11 @@ def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, comm
     ``command`` is τ_a. Without the filter it is applied as is; with it, the velocity the torque
     would produce after one sub-step, v + dt·M_comb⁻¹(τ_a − H_comb), is filtered, and if the QP
     changes it the arm is driven to the filtered velocity in one sub-step,
-    τ_a = M_comb (v* − v)/dt + H_comb, instead; in this mode the filter's QP also bounds every
-    actuated speed, |v_t| ≤ ``v_max``, so the one-step motion stays bounded (without it, steady
-    torque would build speeds at which a sub-step jumps over the safe set's boundary).
+    τ_a = M_comb (v* − v)/dt + H_comb, instead. With a finite ``v_max`` the filter's QP also bounds
+    every actuated speed, |v_t| ≤ ``v_max``, in both modes: the filtered velocity stays within the
+    arm's speed limit (without it, steady torque builds speeds at which a sub-step jumps over the
+    safe set's boundary, and a nearly degenerate RCBF row, tiny ‖L_g0 h‖ with b < 0, has a huge
+    exact optimum). A problem the box makes infeasible takes the braking fallback.
 
     Outputs (per arm): ``v_star_out``/``tau_out`` of the last sub-step, ``min_clear`` the smallest
     clearance ‖p − o_j‖ − r_j to any obstacle after every sub-step (running minimum with the value
@@ -407,7 +409,7 @@ def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, comm
     A = np.zeros((rows, k))
     b = np.empty(rows)
     active = np.zeros(rows, dtype=np.bool_)
-    if torque_mode:
+    if v_max < np.inf:
         for t in range(k):  # speed bounds ±v_t ≤ v_max
             A[O + 2 * t, t] = 1.0
             A[O + 2 * t + 1, t] = -1.0
@@ -427,7 +429,7 @@ def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, comm
     qws = _qp_workspace(rows, k)
     ok_all = True
     for i in range(nA):
-        use_filter = filter_on and torque_mode
+        use_filter = filter_on and torque_mode and v_max < np.inf
         if filter_on:
             for j in range(O):
                 active[j] = mask[i, j]

@@ -206,7 +206,8 @@ class Simulation:
                 every sub-step; or, with ``torque=True``, actuated torques (N·m).
             substeps: number of physics steps (a positive integer).
             torque: the command is a torque.
-            max_speed: with ``torque`` and the filter on, the filter also keeps |v_t| ≤ max_speed.
+            max_speed: with the filter on, the filter also keeps every filtered speed |v_t| ≤ max_speed
+                (the environments pass their ``max_joint_speed``; the paper's controller has no bound).
         """
         N = self.n_arms
         command = np.asarray(command, dtype=float)
@@ -229,7 +230,7 @@ class Simulation:
         for g in self.groups:
             if piqp and g.obstacle_mask.any():
                 for _ in range(int(substeps)):
-                    v_star, status, min_h = self._piqp_filter(g, command[g.arm_ids, : g.k])
+                    v_star, status, min_h = self._piqp_filter(g, command[g.arm_ids, : g.k], max_speed)
                     self._advance_group(g, v_star, 1, False, False, max_speed, rec)
                     rec.qp_counts[g.arm_ids] += np.eye(3, dtype=np.int64)[status] - np.eye(3, dtype=np.int64)[0]
                     np.minimum(rec.min_barrier[g.arm_ids], min_h, out=rec.min_barrier[g.arm_ids])
@@ -274,11 +275,16 @@ class Simulation:
         self._positions = None
         self._terms_cache = {}
 
-    def _piqp_filter(self, g: ArmGroup, v_ref: np.ndarray):
+    def _piqp_filter(self, g: ArmGroup, v_ref: np.ndarray, max_speed: float):
         """The RCBF-QP of one sub-step solved by qpsolvers + PIQP (``qp_solver="piqp"``)."""
         p, Jbar, _ = self._group_terms(g)
         A, b, h = rcbf_constraints(p, Jbar, self._centers, self._radii, self.kappa, self.epsilon,
                                    active=g.obstacle_mask, margin=self.margin)
+        if np.isfinite(max_speed):
+            n_arms, k = v_ref.shape
+            box = np.concatenate([np.eye(k), -np.eye(k)])
+            A = np.concatenate([A, np.broadcast_to(box, (n_arms, 2 * k, k))], axis=1)
+            b = np.concatenate([b, np.full((n_arms, 2 * k), float(max_speed))], axis=1)
         result = project_velocity(v_ref, A, b, solver="piqp")
         return result.v, result.status, np.where(g.obstacle_mask, h, np.inf).min(axis=-1)
 

@@ -150,3 +150,20 @@ def test_reference_policy_behind_shield_reproduces_safe_run(name: str) -> None:
     got = [a["min_clearance_m"] for a in expected.metrics["arms"]]
     np.testing.assert_allclose(clearance, got, atol=2e-4)
     assert infos["arm_0"]["formation_error"] == pytest.approx(expected.metrics["final_max_edge_error_m"], abs=1e-4)
+
+
+def test_nearly_degenerate_row_brakes_instead_of_blowing_up() -> None:
+    """Found by the soak test: a nearly degenerate RCBF row (tiny ‖L_g0 h‖, b < 0) has a huge exact
+    optimum; the shield's speed bounds turn it into an infeasible QP and the arm brakes."""
+    team = {"n_arms": 4, "links": (2, 3, 4, 3), "passive_fraction": 0.5}
+    core = parallel_env("random", random_options=team, control_dt=0.01, max_steps=200)
+    env = SafetyShield(core)
+    policy = AdversarialPolicy(core)
+    obs, _ = env.reset(seed=1126)
+    fallbacks = 0
+    while env.agents:
+        obs, _, _, _, infos = env.step(policy(obs))
+        assert all("fault" not in info and info["cost"] == 0.0 for info in infos.values())
+        assert max(np.abs(g.v).max() for g in core.sim.groups) < 3.0 * core.max_joint_speed
+        fallbacks += sum(info["shield"]["fallback"] for info in infos.values())
+    assert fallbacks > 0
