@@ -5,13 +5,20 @@ concatenated observations and actions) or, with ``param_sharing=True``, on the P
 through SuperSuit (one policy shared by every arm; observations and actions padded to the largest
 arm). It writes into ``out``:
 
-* ``checkpoints/model_<steps>_steps.zip`` every ``checkpoint_every`` steps (plus the replay buffer
-  for SAC), and ``run.json`` (the arguments);
+* ``checkpoints/model_<steps>_steps.zip`` and ``state_<steps>_steps.pkl`` at the first update
+  boundary after every ``checkpoint_every`` steps and at the end (plus the replay buffer for SAC),
+  each written atomically, and ``run.json`` (the arguments);
 * ``episodes.csv``: one row per finished episode: ``timesteps, return, length, cost, success``
   (cost: arm-steps inside an obstacle; success: formation error below 1 cm at the end);
 * ``model.zip``: the final model.
 
-``resume=True`` continues from the newest checkpoint in ``out`` up to ``timesteps`` in total.
+``resume=True`` continues from the newest checkpoint in ``out`` up to ``timesteps`` in total. A
+checkpoint holds the model and optimiser, the vector env itself (pickled mid-episode), the last
+observation, the torch/numpy/python random states and the running episode costs, and the episode
+log is cut back to the checkpoint, so for PPO an interrupted run resumed with the same arguments
+ends exactly where the uninterrupted run does (a test checks it). For SAC the replay buffer is kept
+too. With ``param_sharing`` (SuperSuit's vector env does not pickle) the env restarts from a reset,
+so that resume is not exact.
 Needs the ``rl`` extra (torch, stable-baselines3, supersuit); torch runs on one thread.
 """
 
@@ -19,6 +26,8 @@ from __future__ import annotations
 
 import csv
 import json
+import pickle
+import random
 import re
 from pathlib import Path
 from typing import Any
@@ -113,8 +122,12 @@ def latest_checkpoint(out: Path) -> tuple[Path, int] | None:
     return path, steps
 
 
-def _callbacks(out: Path, checkpoint_every: int, n_envs: int, algo: str, total: int, progress: bool):
-    from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback
+def _callbacks(out: Path, checkpoint_every: int, algo: str, total: int, progress: bool,
+               initial_costs: np.ndarray | None):
+    import torch
+    from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+
+    from pan1_env.experiment import atomic_write
 
     class EpisodeLog(BaseCallback):
         """Appends a CSV row per finished episode with its return, length, cost and success."""
@@ -126,7 +139,8 @@ def _callbacks(out: Path, checkpoint_every: int, n_envs: int, algo: str, total: 
             self.writer = csv.writer(self.fh)
             if new:
                 self.writer.writerow(["timesteps", "return", "length", "cost", "success"])
-            self.costs = np.zeros(self.training_env.num_envs)
+            n = self.training_env.num_envs
+            self.costs = np.zeros(n) if initial_costs is None else np.array(initial_costs, dtype=float)
             self.bar = None
             if progress:
                 from tqdm import tqdm
@@ -152,15 +166,83 @@ def _callbacks(out: Path, checkpoint_every: int, n_envs: int, algo: str, total: 
             if self.bar is not None:
                 self.bar.close()
 
-    ckpt = CheckpointCallback(save_freq=max(1, checkpoint_every // n_envs), save_path=str(out / "checkpoints"),
-                              name_prefix="model", save_replay_buffer=(algo == "sac"))
-    return CallbackList([ckpt, EpisodeLog()])
+    log = EpisodeLog()
+
+    class ResumableCheckpoint(BaseCallback):
+        """Saves, between updates, everything needed to continue exactly as if never stopped."""
+
+        def _on_training_start(self) -> None:
+            self.last = self.num_timesteps
+
+        def _on_rollout_start(self) -> None:
+            if self.num_timesteps - self.last >= checkpoint_every:
+                self._save()
+
+        def _on_step(self) -> bool:
+            return True
+
+        def _on_training_end(self) -> None:
+            if self.num_timesteps > self.last:
+                self._save()
+
+        def _save(self) -> None:
+            model, steps = self.model, self.num_timesteps
+            folder = out / "checkpoints"
+            state = {
+                "venv": _venv_state(model.get_env()), "last_obs": model._last_obs,
+                "last_episode_starts": model._last_episode_starts, "episode_num": model._episode_num,
+                # SB3 draws from the legacy global numpy RNG (minibatch shuffling): keep its state
+                "torch_rng": torch.get_rng_state(), "numpy_rng": np.random.get_state(),  # noqa: NPY002
+                "python_rng": random.getstate(), "costs": log.costs.copy(),
+            }
+            if algo == "sac":
+                atomic_write(folder / f"model_replay_buffer_{steps}_steps.pkl",
+                             lambda fh: pickle.dump(model.replay_buffer, fh))
+            atomic_write(folder / f"state_{steps}_steps.pkl", lambda fh: pickle.dump(state, fh))
+            atomic_write(folder / f"model_{steps}_steps.zip", lambda fh: model.save(fh))
+            self.last = steps
+
+    return CallbackList([ResumableCheckpoint(), log])
+
+
+def _venv_state(venv) -> dict[str, Any]:
+    """The picklable state of a ``VecMonitor(DummyVecEnv(...))``: its environments mid-episode and
+    the monitor's running episode statistics (SB3's wrappers themselves do not pickle)."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    inner = venv.venv
+    if not isinstance(inner, DummyVecEnv):
+        return {}  # SuperSuit (parameter sharing): resumed with a fresh reset, not exactly
+    return {"envs": inner.envs, "episode_returns": venv.episode_returns, "episode_lengths": venv.episode_lengths,
+            "episode_count": venv.episode_count}
+
+
+def _restore_venv(venv, state: dict[str, Any]) -> None:
+    if not state:
+        return
+    inner = venv.venv
+    inner.envs = state["envs"]
+    venv.episode_returns = state["episode_returns"]
+    venv.episode_lengths = state["episode_lengths"]
+    venv.episode_count = state["episode_count"]
+
+
+def _truncate_log(path: Path, steps: int) -> None:
+    """Drop the episode rows logged after ``steps`` (an interrupted run's work past its checkpoint)."""
+    if not path.exists():
+        return
+    with path.open(newline="") as fh:
+        rows = list(csv.reader(fh))
+    kept = rows[:1] + [r for r in rows[1:] if int(r[0]) <= steps]
+    with path.open("w", newline="") as fh:
+        csv.writer(fh).writerows(kept)
 
 
 def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool = True, timesteps: int = 100_000,
           seed: int = 0, out: str | Path = "runs/train", resume: bool = False, n_envs: int = 1,
           param_sharing: bool = False, checkpoint_every: int = 10_000, progress: bool = True,
-          env_kwargs: dict[str, Any] | None = None, algo_kwargs: dict[str, Any] | None = None) -> dict[str, Any]:
+          env_kwargs: dict[str, Any] | None = None, algo_kwargs: dict[str, Any] | None = None,
+          extra_callbacks: list | None = None) -> dict[str, Any]:
     """Train and return a summary (see the module docstring). Raises ValueError on bad arguments."""
     if algo not in ALGOS:
         raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
@@ -176,18 +258,31 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     cls = PPO if algo == "ppo" else SAC
-    venv = make_training_env(scenario, shield, seed, n_envs, param_sharing, env_kwargs)
     done_steps = 0
+    initial_costs = None
     previous = latest_checkpoint(out) if resume else None
-    if resume and previous is None and (out / "model.zip").exists():
+    if resume and previous is None:
         raise ValueError(f"nothing to resume in {out}: no checkpoints/model_*_steps.zip")
     if previous is not None:
         path, done_steps = previous
+        with path.with_name(f"state_{done_steps}_steps.pkl").open("rb") as fh:
+            state = pickle.load(fh)
+        venv = make_training_env(scenario, shield, seed, n_envs, param_sharing, env_kwargs)
+        _restore_venv(venv, state["venv"])
         model = cls.load(path, env=venv, device="cpu")
-        buffer = path.with_name(f"model_replay_buffer_{done_steps}_steps.pkl")
-        if algo == "sac" and buffer.exists():
-            model.load_replay_buffer(buffer)
+        model._last_obs = state["last_obs"]
+        model._last_episode_starts = state["last_episode_starts"]
+        model._episode_num = state["episode_num"]
+        if algo == "sac":
+            with path.with_name(f"model_replay_buffer_{done_steps}_steps.pkl").open("rb") as fh:
+                model.replay_buffer = pickle.load(fh)
+        torch.set_rng_state(state["torch_rng"])
+        np.random.set_state(state["numpy_rng"])  # noqa: NPY002 - SB3 uses the global RNG
+        random.setstate(state["python_rng"])
+        initial_costs = state["costs"]
+        _truncate_log(out / "episodes.csv", done_steps)
     else:
+        venv = make_training_env(scenario, shield, seed, n_envs, param_sharing, env_kwargs)
         if (out / "episodes.csv").exists() and not resume:
             (out / "episodes.csv").unlink()
         kwargs = {"seed": seed, "verbose": 0, "device": "cpu", **(algo_kwargs or {})}
@@ -198,7 +293,11 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
     atomic_write(out / "run.json", lambda fh: fh.write(json.dumps(meta, indent=2) + "\n"), mode="w")
     remaining = timesteps - done_steps
     if remaining > 0:
-        callbacks = _callbacks(out, checkpoint_every, venv.num_envs, algo, timesteps, progress)
+        callbacks = _callbacks(out, checkpoint_every, algo, timesteps, progress, initial_costs)
+        if extra_callbacks:
+            from stable_baselines3.common.callbacks import CallbackList
+
+            callbacks = CallbackList([callbacks, *extra_callbacks])
         model.learn(total_timesteps=remaining, callback=callbacks, reset_num_timesteps=(previous is None))
     atomic_write(out / "model.zip", lambda fh: model.save(fh))
     venv.close()

@@ -38,6 +38,42 @@ def test_short_shielded_ppo_run_trains_with_zero_cost(tmp_path) -> None:
     assert len(rows) == 3072 // 128 and int(rows[-1]["timesteps"]) == 3072
 
 
+def _policy_params(path):
+    from stable_baselines3 import PPO
+
+    return PPO.load(path, device="cpu").policy.state_dict()
+
+
+def test_interrupted_run_resumes_to_the_same_result(tmp_path) -> None:
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    kwargs = dict(algo="ppo", scenario="random", shield=True, timesteps=4 * 256, seed=3, checkpoint_every=256,
+                  progress=False, n_envs=2, env_kwargs={"max_steps": 100, "random_options": {"links": (2, 3, 4, 3)}},
+                  algo_kwargs={"n_steps": 128, "batch_size": 64, "n_epochs": 2})
+
+    class Interrupt(BaseCallback):
+        """Kills the run in the middle of its third rollout (after the 512-step checkpoint)."""
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps >= 640:
+                raise KeyboardInterrupt
+            return True
+
+    whole = tmp_path / "whole"
+    train(out=whole, **kwargs)
+    cut = tmp_path / "cut"
+    with pytest.raises(KeyboardInterrupt):
+        train(out=cut, extra_callbacks=[Interrupt()], **kwargs)
+    assert latest_checkpoint(cut)[1] == 512
+    summary = train(out=cut, resume=True, **kwargs)
+    assert summary["resumed_from"] == 512
+    a, b = _policy_params(whole / "model.zip"), _policy_params(cut / "model.zip")
+    assert a.keys() == b.keys()
+    for key in a:
+        assert np.array_equal(a[key].numpy(), b[key].numpy()), key
+    assert _rows(whole / "episodes.csv") == _rows(cut / "episodes.csv")
+
+
 def test_unshielded_training_sees_cost(tmp_path) -> None:
     # SAC's first steps are uniform random actions: without the shield, 5.2's PA arm reaches the obstacle
     summary = train("sac", "paper_pa_mixed_square", shield=False, timesteps=600, seed=0, out=tmp_path,
