@@ -10,6 +10,12 @@ rows and the QP are those of :mod:`pan1_env.safety`, run in the engine's kernels
 * torque mode: the velocity the torque would produce after one sub-step is projected; if the
   projection differs, the arm is driven to it in one sub-step instead of applying the torque.
 
+In both modes the QP also bounds every filtered speed, |v_t| ≤ ``max_joint_speed`` (the actions'
+own limit), so a nearly degenerate row cannot ask for a huge velocity; a problem that these bounds
+make infeasible brakes. The shield's torques are not limited to ``max_torque``: keeping the arm out
+of obstacles takes precedence, and ``applied`` (in units of ``max_torque`` in torque mode) can then
+exceed 1. ``intervened`` counts speed limiting as an intervention too.
+
 Obstacles beyond an arm's reach (farther from its base than its reach plus their radius) cannot be
 hit and are left out of its QP. If the QP is infeasible the fallback is braking (v* = 0: no barrier
 decreases). ``infos[agent]["shield"]`` reports, for the step: ``requested`` (the action sent),
