@@ -59,6 +59,15 @@ def shield_parameters(scenario, kappa: float | None, epsilon: float | None, marg
     return {"kappa": kappa, "epsilon": epsilon, "margin": margin}
 
 
+def _switch_on(core, kappa, epsilon, margin, tracking_bound) -> None:
+    """Turn the filter on in a :class:`~pan1_env.environment.Pan1ParallelEnv` with these parameters."""
+    if core.safety_filter:
+        raise ValueError("this env is already shielded; wrap it once")
+    core.shield_params = shield_parameters(core.scenario, kappa, epsilon, margin, tracking_bound)
+    core.safety_filter = True
+    core._apply_shield()
+
+
 def _shield_infos(core, actions: dict[str, np.ndarray]) -> dict[str, dict[str, Any]]:
     rec = core._last_record
     scale = core.max_joint_speed if core.action_mode == "velocity" else core.max_torque
@@ -105,11 +114,7 @@ class SafetyShield(BaseParallelWrapper):
         core = env.unwrapped
         if not hasattr(core, "safety_filter"):
             raise TypeError(f"SafetyShield wraps a pan1_env parallel env, got {type(core).__name__}")
-        if core.safety_filter:
-            raise ValueError("this env is already shielded; wrap it once")
-        core.shield_params = shield_parameters(core.scenario, kappa, epsilon, margin, tracking_bound)
-        core.safety_filter = True
-        core._apply_shield()
+        _switch_on(core, kappa, epsilon, margin, tracking_bound)
 
     def step(self, actions):
         obs, rewards, terms, truncs, infos = self.env.step(actions)
@@ -131,12 +136,7 @@ class GymSafetyShield(gymnasium.Wrapper):
         inner = env.unwrapped
         if not hasattr(inner, "parallel"):
             raise TypeError(f"GymSafetyShield wraps a pan1_env Gymnasium env, got {type(inner).__name__}")
-        core = inner.parallel
-        if core.safety_filter:
-            raise ValueError("this env is already shielded; wrap it once")
-        core.shield_params = shield_parameters(core.scenario, kappa, epsilon, margin, tracking_bound)
-        core.safety_filter = True
-        core._apply_shield()
+        _switch_on(inner.parallel, kappa, epsilon, margin, tracking_bound)
 
     def step(self, action):
         obs, reward, terminated, truncated, info = self.env.step(action)
