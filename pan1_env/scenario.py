@@ -185,24 +185,22 @@ def _table(data: Mapping[str, Any], key: str, src: str, allowed: set[str],
         if required:
             raise ScenarioError(src, key, "missing table")
         return {}
-    table = data[key]
+    return _known_keys(data[key], key, src, allowed)
+
+
+def _known_keys(table: Any, key: str, src: str, allowed: set[str]) -> dict[str, Any]:
+    """``table`` checked to be a TOML table whose keys are all in ``allowed``."""
     if not isinstance(table, dict):
         raise ScenarioError(src, key, f"expected a table, got {type(table).__name__}")
     unknown = set(table) - allowed
     if unknown:
-        raise ScenarioError(src, f"{key}.{sorted(unknown)[0]}",
-                            f"unknown key; allowed keys are {sorted(allowed)}")
+        raise ScenarioError(src, f"{key}.{sorted(unknown)[0]}", f"unknown key; allowed keys are {sorted(allowed)}")
     return table
 
 
 def _arm(entry: Any, defaults: Mapping[str, Any], src: str, index: int) -> tuple[ArmParams, np.ndarray]:
     prefix = f"arms[{index}]"
-    if not isinstance(entry, dict):
-        raise ScenarioError(src, prefix, f"expected a table, got {type(entry).__name__}")
-    unknown = set(entry) - _ARM_KEYS
-    if unknown:
-        raise ScenarioError(src, f"{prefix}.{sorted(unknown)[0]}",
-                            f"unknown key; allowed keys are {sorted(_ARM_KEYS)}")
+    _known_keys(entry, prefix, src, _ARM_KEYS)
     merged = {**defaults, **entry}
     vectors = {}
     for key in ("masses", "lengths", "com", "inertias"):
@@ -317,12 +315,7 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
     centers, radii = [], []
     for j, entry in enumerate(obs_raw):
         key = f"obstacles[{j}]"
-        if not isinstance(entry, dict):
-            raise ScenarioError(src, key, f"expected a table, got {type(entry).__name__}")
-        unknown = set(entry) - {"center", "radius"}
-        if unknown:
-            raise ScenarioError(src, f"{key}.{sorted(unknown)[0]}",
-                                "unknown key; allowed keys are ['center', 'radius']")
+        _known_keys(entry, key, src, {"center", "radius"})
         if "center" not in entry:
             raise ScenarioError(src, f"{key}.center", "missing")
         centers.append(_vector(entry["center"], src, f"{key}.center", size=2))
