@@ -144,6 +144,16 @@ def cascade_rhs(
     return t.qd, vdot
 
 
+def _rk4(rhs, x: np.ndarray, y: np.ndarray, dt: float, first=None) -> tuple[np.ndarray, np.ndarray]:
+    """Classical RK4 of a state in two parts (x, y) with derivatives ``rhs(x, y)``."""
+    k1x, k1y = rhs(x, y) if first is None else first
+    k2x, k2y = rhs(x + 0.5 * dt * k1x, y + 0.5 * dt * k1y)
+    k3x, k3y = rhs(x + 0.5 * dt * k2x, y + 0.5 * dt * k2y)
+    k4x, k4y = rhs(x + dt * k3x, y + dt * k3y)
+    return (x + dt / 6.0 * (k1x + 2.0 * k2x + 2.0 * k3x + k4x),
+            y + dt / 6.0 * (k1y + 2.0 * k2y + 2.0 * k3y + k4y))
+
+
 def cascade_rk4_step(
     arm: Arm,
     q: np.ndarray,
@@ -156,17 +166,10 @@ def cascade_rk4_step(
 
     ``terms`` may pass :func:`cascade_terms` at (q, v) when the caller has it already.
     """
-    if terms is None:
-        k1q, k1v = cascade_rhs(arm, q, v, tau_a)
-    else:
-        k1q = terms.qd
-        k1v = np.linalg.solve(terms.M_comb, (tau_a - terms.H_comb)[..., None])[..., 0]
-    k2q, k2v = cascade_rhs(arm, q + 0.5 * dt * k1q, v + 0.5 * dt * k1v, tau_a)
-    k3q, k3v = cascade_rhs(arm, q + 0.5 * dt * k2q, v + 0.5 * dt * k2v, tau_a)
-    k4q, k4v = cascade_rhs(arm, q + dt * k3q, v + dt * k3v, tau_a)
-    q_next = q + dt / 6.0 * (k1q + 2.0 * k2q + 2.0 * k3q + k4q)
-    v_next = v + dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
-    return q_next, v_next
+    first = None
+    if terms is not None:
+        first = (terms.qd, np.linalg.solve(terms.M_comb, (tau_a - terms.H_comb)[..., None])[..., 0])
+    return _rk4(lambda x, y: cascade_rhs(arm, x, y, tau_a), q, v, dt, first)
 
 
 def full_torque(arm: Arm, tau_a: np.ndarray) -> np.ndarray:
@@ -190,10 +193,4 @@ def full_order_rk4_step(
     arm: Arm, q: np.ndarray, qd: np.ndarray, tau: np.ndarray, dt: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """One RK4 step of the full-order state (q, q̇) with τ held over ``dt``."""
-    k1q, k1v = full_order_rhs(arm, q, qd, tau)
-    k2q, k2v = full_order_rhs(arm, q + 0.5 * dt * k1q, qd + 0.5 * dt * k1v, tau)
-    k3q, k3v = full_order_rhs(arm, q + 0.5 * dt * k2q, qd + 0.5 * dt * k2v, tau)
-    k4q, k4v = full_order_rhs(arm, q + dt * k3q, qd + dt * k3v, tau)
-    q_next = q + dt / 6.0 * (k1q + 2.0 * k2q + 2.0 * k3q + k4q)
-    qd_next = qd + dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
-    return q_next, qd_next
+    return _rk4(lambda x, y: full_order_rhs(arm, x, y, tau), q, qd, dt)
