@@ -25,7 +25,7 @@ demo: $(VENV)/.core
 
 test: $(VENV)/.dev
 	$(PY) -m ruff check .
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q --durations=15 tests
 
 lint: $(VENV)/.dev
 	$(PY) -m ruff check .
