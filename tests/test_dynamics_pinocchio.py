@@ -2,21 +2,11 @@
 
 import numpy as np
 import pytest
+from arms import random_arm
 
 from pan1_env.dynamics import ArmParams, coriolis_matrix, coriolis_vector, mass_matrix
 
 pin = pytest.importorskip("pinocchio")
-
-
-def _random_arm(rng: np.random.Generator, n: int) -> ArmParams:
-    lengths = rng.uniform(0.1, 1.0, n)
-    return ArmParams(
-        masses=rng.uniform(0.05, 2.0, n),
-        lengths=lengths,
-        com=lengths * rng.uniform(0.05, 1.0, n),
-        inertias=rng.uniform(1e-4, 0.05, n),
-        passive_first_joint=bool(rng.integers(2)),
-    )
 
 
 def _pinocchio_chain(arm: ArmParams):
@@ -41,7 +31,7 @@ def _pinocchio_chain(arm: ArmParams):
 def test_mass_matrix_and_coriolis_match_pinocchio(n: int) -> None:
     rng = np.random.default_rng(100 + n)
     for _ in range(20):
-        arm = _random_arm(rng, n)
+        arm = random_arm(rng, n)
         model, data = _pinocchio_chain(arm)
         q = rng.uniform(-np.pi, np.pi, n)
         qd = rng.uniform(-3.0, 3.0, n)
@@ -58,7 +48,7 @@ def test_mass_matrix_and_coriolis_match_pinocchio(n: int) -> None:
 
 def test_batched_matches_single() -> None:
     rng = np.random.default_rng(7)
-    arm = _random_arm(rng, 4)
+    arm = random_arm(rng, 4)
     q = rng.uniform(-np.pi, np.pi, (5, 4))
     qd = rng.uniform(-2, 2, (5, 4))
     Mb = mass_matrix(arm, q)

@@ -8,6 +8,7 @@ to the first joint angle and the base added.
 
 import numpy as np
 import pytest
+from arms import random_arm
 
 from pan1_env.dynamics import (
     ArmBatch,
@@ -21,16 +22,7 @@ from pan1_env.dynamics import (
 
 
 def _random_arm(rng: np.random.Generator, n: int, passive: bool | None = None) -> ArmParams:
-    lengths = rng.uniform(0.1, 1.0, n)
-    return ArmParams(
-        masses=rng.uniform(0.05, 2.0, n),
-        lengths=lengths,
-        com=lengths * rng.uniform(0.05, 1.0, n),
-        inertias=rng.uniform(1e-4, 0.05, n),
-        base=rng.uniform(-3.0, 3.0, 2),
-        phi=float(rng.uniform(-np.pi, np.pi)),
-        passive_first_joint=bool(rng.integers(2)) if passive is None else passive,
-    )
+    return random_arm(rng, n, passive, placed=True)
 
 
 def _reference_end_effector(arm: ArmParams, q: np.ndarray) -> np.ndarray:
