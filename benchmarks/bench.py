@@ -1,0 +1,185 @@
+"""Speed of pan1-env against peers, measured in one process and one run (issue 5's benchmark).
+
+    python benchmarks/bench.py [--quick] [--out benchmarks/results.md]
+
+Prints a Markdown table of medians (each over several repeats) and the ratios that matter:
+
+* the shielded ``paper_pa3_square`` parallel step (default time steps: 0.05 s control, 1 ms physics)
+  against PettingZoo MPE ``simple_spread_v3``'s parallel step (package ``mpe2``, skipped if absent);
+* the exact compiled QP against qpsolvers + PIQP, per solve, on the same random filter problems;
+* the shielded step for teams of 4, 16 and 64 arms (random polygons of PA3 arms), and 64 against 4;
+* ``pan1-env reproduce`` of each paper scenario (the simulation loop, nominal and safe);
+* ``import pan1_env`` in a fresh interpreter.
+
+Absolute times on shared machines are noise; read the ratios. Not measured yet (no such API): the
+one-arm PA env against ``Acrobot-v1`` (scenarios need two arms for a formation) and the vector env.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _median_time(fn, repeats: int, inner: int) -> float:
+    """Median over ``repeats`` of the mean time of ``inner`` calls, in seconds."""
+    samples = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(inner):
+            fn()
+        samples.append((time.perf_counter() - t0) / inner)
+    return statistics.median(samples)
+
+
+def _env_stepper(env, seed: int = 0):
+    env.reset(seed=seed)
+    for a in env.possible_agents:
+        env.action_space(a).seed(seed)
+    actions = [{a: env.action_space(a).sample() for a in env.possible_agents} for _ in range(64)]
+    state = {"i": 0}
+
+    def step():
+        if not env.agents:
+            env.reset(seed=seed)
+        env.step({a: actions[state["i"] % 64][a] for a in env.agents})
+        state["i"] += 1
+
+    for _ in range(20):
+        step()
+    return step
+
+
+def bench_env_vs_mpe(repeats: int, inner: int) -> list[tuple[str, float, str]]:
+    from pan1_env.environment import parallel_env
+    from pan1_env.wrappers import SafetyShield
+
+    ours = _median_time(_env_stepper(SafetyShield(parallel_env("paper_pa3_square"))), repeats, inner)
+    rows = [("paper_pa3_square parallel step, shielded (4 PA3 arms, 50 × 1 ms sub-steps)", ours, "")]
+    try:
+        from mpe2 import simple_spread_v3
+    except ImportError:
+        rows.append(("MPE simple_spread_v3 parallel step", float("nan"), "mpe2 not installed"))
+        return rows
+    mpe = _median_time(_env_stepper(simple_spread_v3.parallel_env()), repeats, inner)
+    rows.append(("MPE simple_spread_v3 parallel step (3 agents)", mpe, ""))
+    rows.append(("ratio: MPE step / our step (target ≥ 5)", mpe / ours, "ratio"))
+    return rows
+
+
+def bench_qp(n_problems: int) -> list[tuple[str, float, str]]:
+    from pan1_env.safety import project_velocity
+
+    rng = np.random.default_rng(0)
+    problems = []
+    for _ in range(n_problems):
+        k, m = 3, 3
+        d = rng.normal(size=(m, 2))
+        Jbar = rng.normal(size=(2, k))
+        A = -2.0 * d @ Jbar  # rank ≤ 2, like the real rows
+        v0 = rng.normal(size=k) * 2.0
+        b = A @ v0 - rng.uniform(0.1, 1.0, m)  # v0 violates every row: a real solve
+        problems.append((v0[None], A[None], b[None]))
+
+    def solve_all(solver):
+        return lambda: [project_velocity(v0, A, b, solver=solver) for v0, A, b in problems]
+
+    v0s, As, bs = (np.concatenate([p[i] for p in problems]) for i in range(3))
+    batched_fast = _median_time(lambda: project_velocity(v0s, As, bs, solver="active_set"), 5, 1) / n_problems
+    batched_piqp = _median_time(lambda: project_velocity(v0s, As, bs, solver="piqp"), 5, 1) / n_problems
+    fast = _median_time(solve_all("active_set"), 5, 1) / n_problems
+    piqp = _median_time(solve_all("piqp"), 5, 1) / n_problems
+    worst = max(np.abs(project_velocity(*p, solver="active_set").v - project_velocity(*p, solver="piqp").v).max()
+                for p in problems)
+    return [("safety QP per solve, exact active set (via project_velocity)", fast, ""),
+            ("safety QP per solve, qpsolvers + PIQP (via project_velocity)", piqp, ""),
+            ("ratio: PIQP / active set, one call per problem", piqp / fast, "ratio"),
+            ("safety QP per solve, exact active set, all problems in one batched call", batched_fast, ""),
+            ("safety QP per solve, qpsolvers + PIQP, all problems in one batched call", batched_piqp, ""),
+            ("ratio: PIQP / active set, batched (target ≥ 10)", batched_piqp / batched_fast, "ratio"),
+            ("largest difference between the two answers", worst, "value")]
+
+
+def bench_team_scaling(repeats: int, inner: int) -> list[tuple[str, float, str]]:
+    from pan1_env.environment import parallel_env
+    from pan1_env.wrappers import SafetyShield
+
+    times = {}
+    for n in (4, 16, 64):
+        # min_sigma relaxed: the generator redraws the whole team when one arm starts near a singularity
+        options = {"n_arms": n, "links": 4, "passive_fraction": 1.0, "n_obstacles": 3, "min_sigma": 1e-3}
+        env = SafetyShield(parallel_env("random", random_options=options))
+        times[n] = _median_time(_env_stepper(env), repeats, max(1, inner * 4 // n))
+    rows = [(f"shielded step, team of {n} PA3 arms", t, "") for n, t in times.items()]
+    rows.append(("ratio: 64 arms / 4 arms (target ≤ 20)", times[64] / times[4], "ratio"))
+    return rows
+
+
+def bench_reproduce(horizon: float) -> list[tuple[str, float, str]]:
+    from pan1_env import experiment, scenario
+
+    rows = []
+    for name in ("paper_pa3_square", "paper_pa_mixed_square"):
+        for controller in ("nominal", "safe"):
+            m = experiment.run(scenario.load(name), controller, horizon=horizon).metrics
+            rows.append((f"reproduce {name} --controller {controller} ({horizon:g} s), simulation loop",
+                         m["wall_time_s"], ""))
+    return rows
+
+
+def bench_import() -> list[tuple[str, float, str]]:
+    code = "import time; t = time.perf_counter(); import pan1_env; print(time.perf_counter() - t)"
+    samples = [float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                                    check=True).stdout) for _ in range(5)]
+    heavy = subprocess.run([sys.executable, "-c", "import sys, pan1_env; print(sorted(m for m in "
+                            "('torch', 'matplotlib', 'stable_baselines3', 'numba') if m in sys.modules))"],
+                           capture_output=True, text=True, check=True).stdout.strip()
+    return [("import pan1_env, fresh interpreter (target < 0.5 s)", statistics.median(samples), ""),
+            (f"heavy modules imported by it: {heavy}", float("nan"), "note")]
+
+
+def _format(rows: list[tuple[str, float, str]]) -> str:
+    lines = ["| measurement | median |", "|---|---|"]
+    for label, value, kind in rows:
+        if kind == "ratio":
+            text = f"**{value:.2f}×**"
+        elif kind == "value":
+            text = f"{value:.1e}"
+        elif kind in ("note",) or not np.isfinite(value):
+            text = kind if kind != "note" else ""
+        elif value < 1e-3:
+            text = f"{value * 1e6:.1f} µs"
+        elif value < 1.0:
+            text = f"{value * 1e3:.2f} ms"
+        else:
+            text = f"{value:.2f} s"
+        lines.append(f"| {label} | {text} |")
+    return "\n".join(lines)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="fewer repeats and a 10 s reproduce horizon")
+    parser.add_argument("--out", type=Path, default=None, help="also write the table to this file")
+    args = parser.parse_args()
+    repeats, inner = (3, 50) if args.quick else (7, 200)
+    rows = bench_import()
+    rows += bench_env_vs_mpe(repeats, inner)
+    rows += bench_qp(300 if args.quick else 2000)
+    rows += bench_team_scaling(repeats, inner)
+    rows += bench_reproduce(10.0 if args.quick else 100.0)
+    table = _format(rows)
+    print(table)
+    if args.out is not None:
+        args.out.write_text(table + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
