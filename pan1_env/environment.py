@@ -317,20 +317,18 @@ class Pan1ParallelEnv(ParallelEnv):
         self.num_steps = 0
         self._needs_reset = False
         self._last_record = None
-        self._last_command = None
-        P = self.sim.positions()
-        err = self._edge_errors(P)
+        err = self._edge_errors(self.sim.positions())
+        max_err = float(np.max(np.abs(err)))
         clear = self.sim.clearance()
-        infos = {agent: self._info(i, 0.0, clear[i], err) for i, agent in enumerate(self.agents)}
+        infos = {agent: self._info(0.0, clear[i], max_err) for i, agent in enumerate(self.agents)}
         if self.render_mode == "human":
             self.render()
-        return self._observations(), infos
+        return self._observations(err), infos
 
     def step(self, actions: Mapping[str, np.ndarray]):
         if self._needs_reset or not self.agents:
             raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
-        command = self._command(actions)
-        self._last_command = command
+        command, effort = self._command(actions)
         rec = self.sim.step(command, self.substeps, torque=(self.action_mode == "torque"),
                             max_speed=self.max_joint_speed)
         self.num_steps += 1
@@ -345,16 +343,14 @@ class Pan1ParallelEnv(ParallelEnv):
         truncated = self.num_steps >= self.max_steps or fault is not None
         rewards, infos = {}, {}
         for i, agent in enumerate(self.agents):
-            a = np.clip(np.asarray(actions[agent], dtype=float), -1.0, 1.0)
-            effort = float(a @ a) / max(a.size, 1)
-            rewards[agent] = shared - self.effort_weight * effort - self.collision_penalty * cost[i]
-            infos[agent] = self._info(i, cost[i], rec.min_clearance[i], err)
+            rewards[agent] = shared - self.effort_weight * effort[i] - self.collision_penalty * cost[i]
+            infos[agent] = self._info(cost[i], rec.min_clearance[i], max_err)
             if self.safety_filter:
                 infos[agent]["qp_counts"] = rec.qp_counts[i].copy()
             if fault:
                 infos[agent]["fault"] = fault
         self._last_record = rec
-        obs = self._observations()
+        obs = self._observations(err)
         terminations = {agent: terminated for agent in self.agents}
         truncations = {agent: truncated for agent in self.agents}
         if terminated or truncated:
@@ -397,7 +393,8 @@ class Pan1ParallelEnv(ParallelEnv):
         self.sim.epsilon = params.get("epsilon", self.scenario.epsilon)
         self.sim.margin = params.get("margin", self.scenario.safety_margin)
 
-    def _command(self, actions: Mapping[str, np.ndarray]) -> np.ndarray:
+    def _command(self, actions: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """The padded physical command ``(N, k_max)`` and each agent's effort ‖clip(a)‖² / k."""
         if not isinstance(actions, Mapping):
             raise ValueError(f"actions must be a dict keyed by agent, got {type(actions).__name__}")
         if set(actions) != set(self.agents):
@@ -406,21 +403,23 @@ class Pan1ParallelEnv(ParallelEnv):
             raise ValueError(f"actions must have one entry per live agent; missing {missing}, unexpected {extra}")
         scale = self.max_joint_speed if self.action_mode == "velocity" else self.max_torque
         command = np.zeros((self.scenario.n_arms, self.sim.k_max))
+        effort = np.zeros(self.scenario.n_arms)
         for i, agent in enumerate(self.possible_agents):
             a = np.asarray(actions[agent], dtype=float)
             if a.shape != (self._k[i],):
                 raise ValueError(f"action for {agent} must have shape ({self._k[i]},), got {a.shape}")
             if not np.all(np.isfinite(a)):
                 raise ValueError(f"action for {agent} contains NaN or inf: {a.tolist()}")
-            command[i, : self._k[i]] = np.clip(a, -1.0, 1.0) * scale
-        return command
+            a = np.clip(a, -1.0, 1.0)
+            effort[i] = float(a @ a) / max(a.size, 1)
+            command[i, : self._k[i]] = a * scale
+        return command, effort
 
     def _edge_errors(self, P: np.ndarray) -> np.ndarray:
         f = self.scenario.formation
         return edge_length_errors(edge_vectors(self._incidence, P), f.distances)
 
-    def _info(self, i: int, cost: float, min_clearance: float, err: np.ndarray) -> dict[str, Any]:
-        max_err = float(np.max(np.abs(err)))
+    def _info(self, cost: float, min_clearance: float, max_err: float) -> dict[str, Any]:
         return {
             "cost": float(cost),
             "min_clearance": float(min_clearance),
@@ -428,7 +427,8 @@ class Pan1ParallelEnv(ParallelEnv):
             "is_success": bool(max_err < self.success_tolerance),
         }
 
-    def _observations(self) -> dict[str, np.ndarray]:
+    def _observations(self, err: np.ndarray) -> dict[str, np.ndarray]:
+        """Every live agent's observation; ``err`` holds the edges' length errors ‖z_k‖ − d_k."""
         sc = self.scenario
         q, qd = self.sim.joint_state()
         P = self.sim.positions()
@@ -445,7 +445,7 @@ class Pan1ParallelEnv(ParallelEnv):
             for s, j in enumerate(self._neighbours[i]):
                 d = P[j] - P[i]
                 k = self._edge_of[(i, j)]
-                o[base + 4 * s : base + 4 * s + 4] = (1.0, d[0], d[1], np.linalg.norm(d) - sc.formation.distances[k])
+                o[base + 4 * s : base + 4 * s + 4] = (1.0, d[0], d[1], err[k])
             base += _NEIGHBOUR_FEATURES * self._slots
             if self.n_obstacle_obs and len(radii):
                 rel = centers - P[i]
