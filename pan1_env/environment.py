@@ -17,6 +17,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec
 
 from .formation import edge_length_errors, edge_vectors
+from .observation import OBS_BOUND, ObservationLayout
 from .random_scenario import RandomScenarioOptions, random_scenario
 from .registration import RENDER_FPS, RENDER_MODES
 from .safety import QP_SOLVERS
@@ -26,10 +27,11 @@ from .validation import positive_int, real, whole_ratio
 __all__ = ["Pan1ParallelEnv", "parallel_env", "env", "raw_env", "ACTION_MODES"]
 
 ACTION_MODES = ("velocity", "torque")
-_NEIGHBOUR_FEATURES = 4  # present, dx, dy, edge error
-_OBSTACLE_FEATURES = 5  # present, dx, dy, radius, barrier h
-MAX_KE_DT = 0.5  # largest K_e · physics_dt accepted (the tracker's error shrinks by ~(1 − K_e dt) a step)
-OBS_BOUND = 1e6  # observation entries other than cos/sin and flags are clipped to ±OBS_BOUND
+# Largest K_e · physics_dt accepted. RK4 on the tracker's error, ė = −K_e e, is stable up to 2.78;
+# at 1.0 it still shrinks the error by 0.375 a step against the exact e⁻¹ = 0.368.
+MAX_KE_DT = 1.0
+DEFAULT_CONTROL_DT = 0.05  # s per env step
+DEFAULT_PHYSICS_DT = 0.01  # s per RK4 sub-step: 5 sub-steps per env step, like Gymnasium's MuJoCo tasks
 
 
 class Pan1ParallelEnv(ParallelEnv):
@@ -122,7 +124,12 @@ class Pan1ParallelEnv(ParallelEnv):
       to a TOML file, a :class:`~pan1_env.scenario.Scenario`, or ``"random"``.
     * ``action_mode``: ``"velocity"`` or ``"torque"``.
     * ``control_dt``: seconds per env step (default 0.05); a whole multiple of ``physics_dt``.
-    * ``physics_dt``: RK4 step in seconds (default: the scenario's, 1 ms for the paper's).
+    * ``physics_dt``: RK4 step in seconds. Default in velocity mode 0.01 (5 sub-steps per control
+      step, as in Gymnasium's MuJoCo tasks), in torque mode 0.002 (open-loop torques can spin the
+      light links to hundreds of rad/s); or the next shorter of 5, 2, 1 ms that divides
+      ``control_dt`` and keeps K_e·``physics_dt`` ≤ 1 for the scenario's tracker gain. The paper's runs use 1 ms
+      (``physics_dt=scenario.physics_dt``, or ``pan1-env reproduce``); the safety filter is
+      re-solved at every sub-step either way.
     * ``max_steps``: steps before truncation.
     * ``render_mode``: ``None``, ``"rgb_array"`` or ``"human"``.
     * ``terminate_on_collision``, ``terminate_on_success``, ``success_tolerance`` (m, default 0.01).
@@ -168,7 +175,7 @@ class Pan1ParallelEnv(ParallelEnv):
         self,
         scenario: str | Path | Scenario,
         action_mode: str = "velocity",
-        control_dt: float = 0.05,
+        control_dt: float = DEFAULT_CONTROL_DT,
         physics_dt: float | None = None,
         max_steps: int | None = None,
         render_mode: str | None = None,
@@ -216,7 +223,9 @@ class Pan1ParallelEnv(ParallelEnv):
             if random_options is not None:
                 raise ValueError("random_options is only for scenario='random'")
             template = load(scenario)
-        physics_dt = real("physics_dt", template.physics_dt if physics_dt is None else physics_dt, positive=True)
+        if physics_dt is None:
+            physics_dt = default_physics_dt(control_dt, template.ke, template.physics_dt, action_mode)
+        physics_dt = real("physics_dt", physics_dt, positive=True)
         if template.ke * physics_dt > MAX_KE_DT:
             raise ValueError(f"physics_dt={physics_dt} is too long for the tracker gain K_e={template.ke}: "
                              f"K_e·physics_dt must be ≤ {MAX_KE_DT} for the backstepping loop to stay stable")
@@ -245,13 +254,16 @@ class Pan1ParallelEnv(ParallelEnv):
         self.agents: list[str] = []
         self._n = [a.n_links for a in template.arms]
         self._k = [a.n_actuated for a in template.arms]
+        self._k_array = np.array(self._k)
+        self._uniform_k = len(set(self._k)) == 1
         edges = template.formation.edges
         degrees = np.bincount(edges.ravel(), minlength=template.n_arms)
         self._slots = template.n_arms - 1 if self._random else int(degrees.max())
         self._n_obstacles = len(template.obstacles)
         self._n_max = max(self._n)
+        self._layout = ObservationLayout.from_scenario(template, self._slots, self.n_obstacle_obs)
         self.observation_spaces = {
-            agent: gymnasium.spaces.Box(*self._obs_bounds(i), dtype=np.float32)
+            agent: gymnasium.spaces.Box(*self._layout.bounds(self._n[i]), dtype=np.float32)
             for i, agent in enumerate(self.possible_agents)
         }
         self.action_spaces = {
@@ -266,22 +278,6 @@ class Pan1ParallelEnv(ParallelEnv):
         self._needs_reset = True
 
     # ----------------------------------------------------------------- spaces
-    def _obs_size(self, i: int) -> int:
-        return 3 * self._n[i] + 2 + _NEIGHBOUR_FEATURES * self._slots + _OBSTACLE_FEATURES * self.n_obstacle_obs
-
-    def _obs_bounds(self, i: int) -> tuple[np.ndarray, np.ndarray]:
-        """cos/sin in [−1, 1], presence flags in [0, 1], everything else in ±OBS_BOUND."""
-        n = self._n[i]
-        low = np.full(self._obs_size(i), -OBS_BOUND, dtype=np.float32)
-        high = np.full(self._obs_size(i), OBS_BOUND, dtype=np.float32)
-        low[: 2 * n], high[: 2 * n] = -1.0, 1.0
-        base = 3 * n + 2
-        flags = [base + _NEIGHBOUR_FEATURES * s for s in range(self._slots)]
-        base += _NEIGHBOUR_FEATURES * self._slots
-        flags += [base + _OBSTACLE_FEATURES * s for s in range(self.n_obstacle_obs)]
-        low[flags], high[flags] = 0.0, 1.0
-        return low, high
-
     def observation_space(self, agent: str) -> gymnasium.spaces.Box:
         return self.observation_spaces[agent]
 
@@ -297,12 +293,10 @@ class Pan1ParallelEnv(ParallelEnv):
         self.scenario = scenario
         self.sim = Simulation(scenario, safety_filter=self.safety_filter, physics_dt=self.physics_dt,
                               qp_solver=self.qp_solver)
-        f = scenario.formation
-        self._incidence = f.incidence
-        self._neighbours = [f.neighbours(i) for i in range(scenario.n_arms)]
-        self._edge_of = {}
-        for k, (a, b) in enumerate(f.edges):
-            self._edge_of[(int(a), int(b))] = self._edge_of[(int(b), int(a))] = k
+        self._incidence = scenario.formation.incidence
+        self._bases = np.array([a.base for a in scenario.arms])[None]
+        self._centers = scenario.obstacles.centers[None]
+        self._radii = scenario.obstacles.radii[None]
 
     # ------------------------------------------------------------------- API
     def reset(self, seed: int | None = None, options: dict | None = None):
@@ -332,27 +326,31 @@ class Pan1ParallelEnv(ParallelEnv):
         rec = self.sim.step(command, self.substeps, torque=(self.action_mode == "torque"),
                             max_speed=self.max_joint_speed)
         self.num_steps += 1
-        P = self.sim.positions()
-        err = self._edge_errors(P)
-        cost = (rec.min_clearance < 0).astype(float)
-        shared = -self.formation_weight * float(np.mean(np.abs(err)))
-        max_err = float(np.max(np.abs(err)))
+        err = self._edge_errors(self.sim.positions())
+        abs_err = np.abs(err)
+        shared = -self.formation_weight * float(abs_err.mean())
+        max_err = float(abs_err.max())
         success = max_err < self.success_tolerance
+        cost = (rec.min_clearance < 0).tolist()
+        clearances = rec.min_clearance.tolist()
+        penalties = (self.effort_weight * effort + self.collision_penalty * (rec.min_clearance < 0)).tolist()
         fault = None if rec.finite else "non-finite state in the physics step; episode truncated"
-        terminated = bool((self.terminate_on_collision and cost.any()) or (self.terminate_on_success and success))
+        terminated = bool((self.terminate_on_collision and any(cost)) or (self.terminate_on_success and success))
         truncated = self.num_steps >= self.max_steps or fault is not None
         rewards, infos = {}, {}
         for i, agent in enumerate(self.agents):
-            rewards[agent] = shared - self.effort_weight * effort[i] - self.collision_penalty * cost[i]
-            infos[agent] = self._info(cost[i], rec.min_clearance[i], max_err)
+            rewards[agent] = shared - penalties[i]
+            info = {"cost": float(cost[i]), "min_clearance": clearances[i], "formation_error": max_err,
+                    "is_success": success}
             if self.safety_filter:
-                infos[agent]["qp_counts"] = rec.qp_counts[i].copy()
+                info["qp_counts"] = rec.qp_counts[i]  # a row of this step's fresh record
             if fault:
-                infos[agent]["fault"] = fault
+                info["fault"] = fault
+            infos[agent] = info
         self._last_record = rec
         obs = self._observations(err)
-        terminations = {agent: terminated for agent in self.agents}
-        truncations = {agent: truncated for agent in self.agents}
+        terminations = dict.fromkeys(self.agents, terminated)
+        truncations = dict.fromkeys(self.agents, truncated)
         if terminated or truncated:
             self.agents = []
             self._needs_reset = True
@@ -402,17 +400,27 @@ class Pan1ParallelEnv(ParallelEnv):
             extra = sorted(set(actions) - set(self.agents))
             raise ValueError(f"actions must have one entry per live agent; missing {missing}, unexpected {extra}")
         scale = self.max_joint_speed if self.action_mode == "velocity" else self.max_torque
-        command = np.zeros((self.scenario.n_arms, self.sim.k_max))
-        effort = np.zeros(self.scenario.n_arms)
-        for i, agent in enumerate(self.possible_agents):
-            a = np.asarray(actions[agent], dtype=float)
-            if a.shape != (self._k[i],):
-                raise ValueError(f"action for {agent} must have shape ({self._k[i]},), got {a.shape}")
-            if not np.all(np.isfinite(a)):
-                raise ValueError(f"action for {agent} contains NaN or inf: {a.tolist()}")
-            a = np.clip(a, -1.0, 1.0)
-            effort[i] = float(a @ a) / max(a.size, 1)
-            command[i, : self._k[i]] = a * scale
+        command = None
+        if self._uniform_k:  # one array call when every agent has the same action size
+            try:
+                command = np.array([actions[a] for a in self.possible_agents], dtype=float)
+            except (ValueError, TypeError):
+                command = None
+            if command is not None and command.shape != (self.scenario.n_arms, self.sim.k_max):
+                command = None
+        if command is None:  # mixed sizes, or a bad action: per agent, with a specific error
+            command = np.zeros((self.scenario.n_arms, self.sim.k_max))
+            for i, agent in enumerate(self.possible_agents):
+                a = np.asarray(actions[agent], dtype=float)
+                if a.shape != (self._k[i],):
+                    raise ValueError(f"action for {agent} must have shape ({self._k[i]},), got {a.shape}")
+                command[i, : self._k[i]] = a
+        if not np.isfinite(command).all():
+            bad = next(a for i, a in enumerate(self.possible_agents) if not np.isfinite(command[i]).all())
+            raise ValueError(f"action for {bad} contains NaN or inf: {np.asarray(actions[bad]).tolist()}")
+        np.clip(command, -1.0, 1.0, out=command)
+        effort = np.einsum("ij,ij->i", command, command) / np.maximum(self._k_array, 1)
+        command *= scale
         return command, effort
 
     def _edge_errors(self, P: np.ndarray) -> np.ndarray:
@@ -429,33 +437,36 @@ class Pan1ParallelEnv(ParallelEnv):
 
     def _observations(self, err: np.ndarray) -> dict[str, np.ndarray]:
         """Every live agent's observation; ``err`` holds the edges' length errors ‖z_k‖ − d_k."""
-        sc = self.scenario
-        q, qd = self.sim.joint_state()
-        P = self.sim.positions()
-        centers, radii = sc.obstacles.centers, sc.obstacles.radii
+        sim = self.sim
+        if len(sim.groups) == 1 and sim.groups[0].whole_team:  # no padding or gathering needed
+            q, qd = sim.groups[0].q, sim.groups[0].qd
+        else:
+            q, qd = sim.joint_state()
+        mats = self._layout.build(q[None], qd[None], sim.positions()[None], self._bases, err[None],
+                                  self._centers, self._radii, self.max_joint_speed)
+        if len(mats) == 1 and len(self.agents) == len(self.possible_agents):
+            return dict(zip(self.possible_agents, mats[0][0], strict=True))
         out = {}
-        for i, agent in enumerate(self.agents):
-            n = self._n[i]
-            o = np.zeros(self._obs_size(i), dtype=np.float64)
-            o[:n] = np.cos(q[i, :n])
-            o[n : 2 * n] = np.sin(q[i, :n])
-            o[2 * n : 3 * n] = qd[i, :n] / self.max_joint_speed
-            o[3 * n : 3 * n + 2] = P[i] - sc.arms[i].base
-            base = 3 * n + 2
-            for s, j in enumerate(self._neighbours[i]):
-                d = P[j] - P[i]
-                k = self._edge_of[(i, j)]
-                o[base + 4 * s : base + 4 * s + 4] = (1.0, d[0], d[1], err[k])
-            base += _NEIGHBOUR_FEATURES * self._slots
-            if self.n_obstacle_obs and len(radii):
-                rel = centers - P[i]
-                dist = np.linalg.norm(rel, axis=-1)
-                order = np.argsort(dist - radii, kind="stable")[: self.n_obstacle_obs]
-                for s, j in enumerate(order):
-                    h = dist[j] ** 2 - radii[j] ** 2
-                    o[base + 5 * s : base + 5 * s + 5] = (1.0, rel[j, 0], rel[j, 1], radii[j], h)
-            out[agent] = np.clip(o, -OBS_BOUND, OBS_BOUND).astype(np.float32)
-        return out
+        for (_, ids), mat in zip(self._layout.groups, mats, strict=True):
+            for row, i in enumerate(ids):
+                out[self.possible_agents[i]] = mat[0, row]
+        return out if len(out) == len(self.agents) else {a: out[a] for a in self.agents}
+
+
+def default_physics_dt(control_dt: float, ke: float, scenario_dt: float, action_mode: str = "velocity") -> float:
+    """The env's default RK4 step: the longest candidate that divides ``control_dt`` and keeps
+    K_e·dt ≤ :data:`MAX_KE_DT`, or the scenario's own step if none does.
+
+    Candidates: 10, 5, 2, 1 ms in velocity mode, where the tracker holds speeds near the command;
+    2, 1 ms in torque mode, where open-loop torques can spin light links to hundreds of rad/s and a
+    10 ms RK4 step diverges.
+    """
+    candidates = (0.01, 0.005, 0.002, 0.001) if action_mode == "velocity" else (0.002, 0.001)
+    for dt in candidates:
+        ratio = control_dt / dt
+        if ke * dt <= MAX_KE_DT and round(ratio) >= 1 and abs(ratio - round(ratio)) < 1e-9 * max(ratio, 1.0):
+            return dt
+    return scenario_dt
 
 
 def parallel_env(scenario: str | Path | Scenario = "paper_pa3_square", **kwargs: Any) -> Pan1ParallelEnv:

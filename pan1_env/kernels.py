@@ -13,19 +13,24 @@ Importing this module imports numba (about half a second); :mod:`pan1_env` itsel
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 __all__ = [
     "group_terms",
     "group_advance",
+    "group_advance_parallel",
     "group_end_effectors",
+    "group_observations",
     "qp_project",
 ]
 
 STATUS_NOMINAL, STATUS_SOLVED, STATUS_FALLBACK = 0, 1, 2
+# numpy error model: no zero-division checks in the hot loops (a zero pivot gives inf/NaN, caught by the
+# finiteness checks); fast-math without nnan/ninf, so NaN and inf tests keep working.
+_JIT = {"cache": True, "error_model": "numpy", "fastmath": {"nsz", "arcp", "contract", "afn", "reassoc"}}
 
 
-@njit(cache=True, inline="always")
+@njit(**_JIT, inline="always")
 def _arm_terms(lam, q, v, passive, M, Mc, Hc, qd, ws):
     """Mass matrix M, q̇ = g0 v, M_comb and H_comb of one arm (writes the output arrays).
 
@@ -91,7 +96,7 @@ def _arm_terms(lam, q, v, passive, M, Mc, Hc, qd, ws):
                 Mc[i, j] = M[i, j]
 
 
-@njit(cache=True, inline="always")
+@njit(**_JIT, inline="always")
 def _spd_solve(G, r, x, L, y):
     """Solve G x = r (s × s, symmetric positive definite) by Cholesky; False if not SPD.
 
@@ -124,14 +129,14 @@ def _spd_solve(G, r, x, L, y):
     return True
 
 
-@njit(cache=True)
+@njit(**_JIT)
 def _workspace(n, k):
     """Scratch arrays for one arm of n links and k actuated joints (see _arm_terms, _arm_rhs)."""
     return (np.empty(n), np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty(n), np.empty(n),
             np.empty((n, n)), np.empty((k, k)), np.empty(k), np.empty(k), np.empty((n, n)), np.empty(n))
 
 
-@njit(cache=True, inline="always")
+@njit(**_JIT, inline="always")
 def _arm_rhs(lam, q, v, tau, passive, dq, dv, ws):
     k = v.shape[0]
     M, Mc, Hc, r = ws[6], ws[7], ws[8], ws[9]
@@ -143,7 +148,7 @@ def _arm_rhs(lam, q, v, tau, passive, dq, dv, ws):
             dv[i] = np.nan
 
 
-@njit(cache=True, inline="always")
+@njit(**_JIT, inline="always")
 def _arm_position(lengths, base, phi, q):
     """End-effector position p = p0 + Σ L_α [sin(θ_α + φ), cos(θ_α + φ)] of one arm."""
     ang = phi
@@ -156,7 +161,7 @@ def _arm_position(lengths, base, phi, q):
     return px, py
 
 
-@njit(cache=True, inline="always")
+@njit(**_JIT, inline="always")
 def _arm_kinematics(lengths, base, phi, q, M, passive, J, Jbar):
     """End-effector position (returned) and reduced Jacobian J̄ = J g0 (written to Jbar) of one arm.
 
@@ -185,7 +190,7 @@ def _arm_kinematics(lengths, base, phi, q, M, passive, J, Jbar):
     return px, py
 
 
-@njit(cache=True)
+@njit(**_JIT)
 def group_terms(lam, lengths, base, phi, passive, q, v, p, Jbar, Mc, Hc, momentum):
     """Per arm: end-effector p (A,2), reduced Jacobian J̄ (A,2,k), M_comb, H_comb, passive momentum."""
     A, n = q.shape
@@ -203,26 +208,96 @@ def group_terms(lam, lengths, base, phi, passive, q, v, p, Jbar, Mc, Hc, momentu
         p[i, 0], p[i, 1] = _arm_kinematics(lengths[i], base[i], phi[i], q[i], M, passive, J, Jbar[i])
 
 
-@njit(cache=True)
+@njit(**_JIT)
 def group_end_effectors(lengths, base, phi, q, p):
     """End-effector positions (A, 2) of a group."""
     for i in range(q.shape[0]):
         p[i, 0], p[i, 1] = _arm_position(lengths[i], base[i], phi[i], q[i])
 
 
-@njit(cache=True)
+@njit(**_JIT)
+def group_observations(q, qd, P, base, err, centers, radii, ids, neighbour, neighbour_edge, present, K, inv_vmax,
+                       bound, out):
+    """Local observations of the arms ``ids`` (all with n links) of B teams, written to ``out (B, A, size)``.
+
+    Layout and inputs as :meth:`pan1_env.observation.ObservationLayout.build`; the K obstacle slots
+    hold the K obstacles of smallest clearance ‖p − o‖ − r (ties: lower index first); entries are
+    clipped to ±``bound``; absent slots are zeros.
+    """
+    Bsz = q.shape[0]
+    D = neighbour.shape[1]
+    O = radii.shape[1]
+    size = out.shape[2]
+    n = (size - 2 - 4 * D - 5 * K) // 3
+    clear = np.empty(O)
+    taken = np.empty(O, dtype=np.bool_)
+    for bi in range(Bsz):
+        for r in range(ids.shape[0]):
+            i = ids[r]
+            o = out[bi, r]
+            for a in range(n):
+                o[a] = np.cos(q[bi, i, a])
+                o[n + a] = np.sin(q[bi, i, a])
+                o[2 * n + a] = min(max(qd[bi, i, a] * inv_vmax, -bound), bound)
+            px = P[bi, i, 0]
+            py = P[bi, i, 1]
+            o[3 * n] = min(max(px - base[bi, i, 0], -bound), bound)
+            o[3 * n + 1] = min(max(py - base[bi, i, 1], -bound), bound)
+            c = 3 * n + 2
+            for s in range(D):
+                if present[i, s]:
+                    j = neighbour[i, s]
+                    o[c] = 1.0
+                    o[c + 1] = min(max(P[bi, j, 0] - px, -bound), bound)
+                    o[c + 2] = min(max(P[bi, j, 1] - py, -bound), bound)
+                    o[c + 3] = min(max(err[bi, neighbour_edge[i, s]], -bound), bound)
+                else:
+                    o[c] = 0.0
+                    o[c + 1] = 0.0
+                    o[c + 2] = 0.0
+                    o[c + 3] = 0.0
+                c += 4
+            for j in range(O):
+                dx = centers[bi, j, 0] - px
+                dy = centers[bi, j, 1] - py
+                clear[j] = np.sqrt(dx * dx + dy * dy) - radii[bi, j]
+                taken[j] = False
+            for _slot in range(K):
+                best = -1
+                for j in range(O):
+                    if not taken[j] and (best < 0 or clear[j] < clear[best]):
+                        best = j
+                if best < 0:
+                    for f in range(5):
+                        o[c + f] = 0.0
+                else:
+                    taken[best] = True
+                    dx = centers[bi, best, 0] - px
+                    dy = centers[bi, best, 1] - py
+                    rad = radii[bi, best]
+                    o[c] = 1.0
+                    o[c + 1] = min(max(dx, -bound), bound)
+                    o[c + 2] = min(max(dy, -bound), bound)
+                    o[c + 3] = min(max(rad, -bound), bound)
+                    o[c + 4] = min(max(dx * dx + dy * dy - rad * rad, -bound), bound)
+                c += 5
+
+
+@njit(**_JIT)
 def _qp_workspace(m, k):
     """Scratch arrays for :func:`_project_one` with m rows and k unknowns."""
     return (np.empty(m, dtype=np.int64), np.empty(max(k, 1), dtype=np.int64), np.empty((k, k)), np.empty(k),
-            np.empty(k), np.empty(k), np.empty((k, k)), np.empty(k))
+            np.empty(k), np.empty(k), np.empty((k, k)), np.empty(k), np.empty(m))
 
 
-@njit(cache=True)
+@njit(**_JIT)
 def _project_one(v0, A, b, active, v_out, qws):
     """Exact min ½‖v − v0‖² s.t. A_j v ≤ b_j (rows with active_j): returns a status code.
 
-    Enumerates linearly independent sets of active rows (sizes 1..k): the optimum is the projection
-    of v0 onto one of them, the closest feasible candidate (see :mod:`pan1_env.safety`).
+    Enumerates sets of active rows (sizes 1..k, rows in order of decreasing violation at v0): the
+    projection of v0 onto the rows of a set, with non-negative multipliers and feasible for every
+    row, satisfies the KKT conditions of this strictly convex QP, so it is the unique optimum and
+    the search stops there (see :mod:`pan1_env.safety`). No such set: infeasible, brake (v = 0).
     """
     m, k = A.shape
     feasible = True
@@ -238,22 +313,31 @@ def _project_one(v0, A, b, active, v_out, qws):
         for t in range(k):
             v_out[t] = v0[t]
         return STATUS_NOMINAL
-    rows, idx, G_full, r_full, lam_full, cand, L_scratch, y_scratch = qws
+    rows, idx, G_full, r_full, lam_full, cand, L_scratch, y_scratch, viol = qws
     na = 0
     for j in range(m):
         if active[j]:
             nrm = 0.0
+            s = 0.0
             for t in range(k):
                 nrm += A[j, t] * A[j, t]
+                s += A[j, t] * v0[t]
             if nrm > 0.0:
-                rows[na] = j
+                # insertion by decreasing violation A_j v0 − b_j (most violated rows are tried first)
+                w = (s - b[j]) / np.sqrt(nrm)
+                x = na
+                while x > 0 and viol[x - 1] < w:
+                    rows[x] = rows[x - 1]
+                    viol[x] = viol[x - 1]
+                    x -= 1
+                rows[x] = j
+                viol[x] = w
                 na += 1
             elif b[j] < -1e-12:
                 # 0·v ≤ b < 0 can never hold: the QP is infeasible
                 for t in range(k):
                     v_out[t] = 0.0
                 return STATUS_FALLBACK
-    best = np.inf
     smax = min(na, k)
     for size in range(1, smax + 1):
         # iterate over combinations of `size` rows out of `na` (lexicographic)
@@ -303,14 +387,10 @@ def _project_one(v0, A, b, active, v_out, qws):
                         if s > b[j] + 1e-9 * (1.0 + abs(b[j]) + np.sqrt(an) * (1.0 + cn)):
                             ok = False
                             break
-                    if ok:
-                        d = 0.0
+                    if ok:  # a KKT point: the optimum
                         for t in range(k):
-                            d += (cand[t] - v0[t]) ** 2
-                        if d < best:
-                            best = d
-                            for t in range(k):
-                                v_out[t] = cand[t]
+                            v_out[t] = cand[t]
+                        return STATUS_SOLVED
             # next combination
             x = size - 1
             while x >= 0 and idx[x] == na - size + x:
@@ -320,14 +400,12 @@ def _project_one(v0, A, b, active, v_out, qws):
             idx[x] += 1
             for y in range(x + 1, size):
                 idx[y] = idx[y - 1] + 1
-    if best < np.inf:
-        return STATUS_SOLVED
     for t in range(k):
         v_out[t] = 0.0
     return STATUS_FALLBACK
 
 
-@njit(cache=True)
+@njit(**_JIT)
 def qp_project(v0, A, b, active, v_out, status):
     """Batched exact safety QP: for each arm i, project v0[i] onto {A[i] v ≤ b[i]}."""
     qws = _qp_workspace(A.shape[1], A.shape[2])
@@ -335,20 +413,32 @@ def qp_project(v0, A, b, active, v_out, status):
         status[i] = _project_one(v0[i], A[i], b[i], active[i], v_out[i], qws)
 
 
-@njit(cache=True)
+@njit(**_JIT)
 def _rk4_workspace(n, k):
     """Stage derivatives and trial state for :func:`_rk4_arm`."""
     return (np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(k), np.empty(k), np.empty(k),
             np.empty(k), np.empty(n), np.empty(k))
 
 
-@njit(cache=True, inline="always")
-def _rk4_arm(lam, q, v, tau, passive, dt, q_out, v_out, rk, ws):
-    """One RK4 step of one arm's cascaded state (q, v) with τ held; writes q_out, v_out."""
+@njit(**_JIT, inline="always")
+def _rk4_arm(lam, q, v, tau, passive, dt, q_out, v_out, rk, ws, have_terms, Mc1, Hc1, qd1):
+    """One RK4 step of one arm's cascaded state (q, v) with τ held; writes q_out, v_out.
+
+    With ``have_terms`` the first stage reuses M_comb, H_comb and q̇ already computed at (q, v)."""
     n = q.shape[0]
     k = v.shape[0]
     k1q, k2q, k3q, k4q, k1v, k2v, k3v, k4v, qt, vt = rk
-    _arm_rhs(lam, q, v, tau, passive, k1q, k1v, ws)
+    if have_terms:
+        for a in range(n):
+            k1q[a] = qd1[a]
+        r = ws[9]
+        for i in range(k):
+            r[i] = tau[i] - Hc1[i]
+        if not _spd_solve(Mc1, r, k1v, ws[10], ws[11]):
+            for i in range(k):
+                k1v[i] = np.nan
+    else:
+        _arm_rhs(lam, q, v, tau, passive, k1q, k1v, ws)
     for a in range(n):
         qt[a] = q[a] + 0.5 * dt * k1q[a]
     for a in range(k):
@@ -370,35 +460,14 @@ def _rk4_arm(lam, q, v, tau, passive, dt, q_out, v_out, rk, ws):
         v_out[a] = v[a] + dt / 6.0 * (k1v[a] + 2.0 * k2v[a] + 2.0 * k3v[a] + k4v[a])
 
 
-@njit(cache=True)
-def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode,
+@njit(**_JIT)
+def _advance_arms(lo, hi, lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode,
                   filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
-                  v_star_out, tau_out, min_clear, min_h, qp_counts, max_track):
-    """Advance every arm of a group by ``n_sub`` physics steps with a held command (in place).
-
-    Velocity mode (``torque_mode`` False): ``command`` is the desired active velocity; each
-    sub-step filters it through the RCBF-QP when ``filter_on`` (against the obstacles of ``mask``)
-    and tracks v* with the backstepping torque, v̇* by backward difference (``v_prev``/``has_prev``
-    hold the previous sub-step's v*; on return ``v_prev`` holds the last v*). Torque mode:
-    ``command`` is τ_a. Without the filter it is applied as is; with it, the velocity the torque
-    would produce after one sub-step, v + dt·M_comb⁻¹(τ_a − H_comb), is filtered, and if the QP
-    changes it the arm is driven to the filtered velocity in one sub-step,
-    τ_a = M_comb (v* − v)/dt + H_comb, instead. With a finite ``v_max`` the filter's QP also bounds
-    every actuated speed, |v_t| ≤ ``v_max``, in both modes: the filtered velocity stays within the
-    arm's speed limit (without it, steady torque builds speeds at which a sub-step jumps over the
-    safe set's boundary, and a nearly degenerate RCBF row, tiny ‖L_g0 h‖ with b < 0, has a huge
-    exact optimum). A problem the box makes infeasible takes the braking fallback.
-
-    Outputs (per arm): ``v_star_out``/``tau_out`` of the last sub-step, ``min_clear`` the smallest
-    clearance ‖p − o_j‖ − r_j to any obstacle after every sub-step (running minimum with the value
-    passed in), ``min_h`` the smallest filtered barrier seen, ``qp_counts[i, s]`` the number of
-    sub-steps with QP status s, ``max_track`` the largest tracking error ‖v − v*‖ at the start of a
-    sub-step (velocity mode; running maximum with the value passed in). Returns False if the state
-    became non-finite (the arm's state is then left at its last finite value).
-    """
-    nA, n = q.shape
+                  v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out):
+    """Arms ``lo … hi−1`` of :func:`group_advance` (the loop body, with its own scratch space)."""
+    n = q.shape[1]
     k = v.shape[1]
-    O = radii.shape[0]
+    O = radii.shape[1]
     M = np.empty((n, n))
     Mc = np.empty((k, k))
     Hc = np.empty(k)
@@ -427,17 +496,21 @@ def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, comm
     ws = _workspace(n, k)
     rk = _rk4_workspace(n, k)
     qws = _qp_workspace(rows, k)
-    ok_all = True
-    for i in range(nA):
+    for i in range(lo, hi):
+        finite_out[i] = True
         use_filter = filter_on and torque_mode and v_max < np.inf
         if filter_on:
             for j in range(O):
                 active[j] = mask[i, j]
                 if mask[i, j]:
                     use_filter = True
-        prev_ok = has_prev
+        prev_ok = has_prev[i]
+        for t in range(k):
+            vs[t] = np.nan
+            tau[t] = np.nan
         for _s in range(n_sub):
-            if use_filter or not torque_mode:
+            have_terms = use_filter or not torque_mode
+            if have_terms:
                 _arm_terms(lam[i], q[i], v[i], passive, M, Mc, Hc, qd, ws)
             # the velocity to filter: the command, or the one-step result of the commanded torque
             if torque_mode:
@@ -458,9 +531,9 @@ def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, comm
             if use_filter:
                 px, py = _arm_kinematics(lengths[i], base[i], phi[i], q[i], M, passive, J, Jbar)
                 for j in range(O):
-                    dx = px - centers[j, 0]
-                    dy = py - centers[j, 1]
-                    h = dx * dx + dy * dy - radii[j] * radii[j]
+                    dx = px - centers[i, j, 0]
+                    dy = py - centers[i, j, 1]
+                    h = dx * dx + dy * dy - radii[i, j] * radii[i, j]
                     lg2 = 0.0
                     for t in range(k):
                         lg = 2.0 * (dx * Jbar[0, t] + dy * Jbar[1, t])
@@ -503,8 +576,8 @@ def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, comm
             if torque_mode and not use_filter:
                 for t in range(k):
                     vs[t] = np.nan
-            # RK4 with τ held
-            _rk4_arm(lam[i], q[i], v[i], tau, passive, dt, q_next, v_next, rk, ws)
+            # RK4 with τ held (the first stage reuses the terms at the current state)
+            _rk4_arm(lam[i], q[i], v[i], tau, passive, dt, q_next, v_next, rk, ws, have_terms, Mc, Hc, qd)
             finite = True
             for a in range(n):
                 if not np.isfinite(q_next[a]):
@@ -513,7 +586,7 @@ def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, comm
                 if not np.isfinite(v_next[a]):
                     finite = False
             if not finite:
-                ok_all = False
+                finite_out[i] = False
                 break
             for a in range(n):
                 q[i, a] = q_next[a]
@@ -522,10 +595,75 @@ def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, comm
             # clearance after the sub-step
             px, py = _arm_position(lengths[i], base[i], phi[i], q[i])
             for j in range(O):
-                c = np.sqrt((px - centers[j, 0]) ** 2 + (py - centers[j, 1]) ** 2) - radii[j]
+                c = np.sqrt((px - centers[i, j, 0]) ** 2 + (py - centers[i, j, 1]) ** 2) - radii[i, j]
                 if c < min_clear[i]:
                     min_clear[i] = c
+        has_prev[i] = prev_ok
         for t in range(k):
             v_star_out[i, t] = vs[t]
             tau_out[i, t] = tau[t]
-    return ok_all
+        # joint velocities and end-effector at the (last finite) state
+        _arm_terms(lam[i], q[i], v[i], passive, M, Mc, Hc, qd, ws)
+        for a in range(n):
+            qd_out[i, a] = qd[a]
+        p_out[i, 0], p_out[i, 1] = _arm_position(lengths[i], base[i], phi[i], q[i])
+
+
+_ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a held command (in place).
+
+    Arrays are per arm (leading axis A): parameters ``lam, lengths, base, phi`` (see
+    :class:`~pan1_env.dynamics.ArmBatch`), state ``q (A, n)``, ``v (A, k)``, obstacles
+    ``centers (A, O, 2)``, ``radii (A, O)`` and ``mask (A, O)`` (the obstacles each arm's filter
+    sees; a team's obstacles are broadcast to every arm).
+
+    Velocity mode (``torque_mode`` False): ``command`` is the desired active velocity; each
+    sub-step filters it through the RCBF-QP when ``filter_on`` (against the obstacles of ``mask``)
+    and tracks v* with the backstepping torque, v̇* by backward difference (``v_prev``/``has_prev``
+    hold the previous sub-step's v* per arm; on return they hold the last v*). Torque mode:
+    ``command`` is τ_a. Without the filter it is applied as is; with it, the velocity the torque
+    would produce after one sub-step, v + dt·M_comb⁻¹(τ_a − H_comb), is filtered, and if the QP
+    changes it the arm is driven to the filtered velocity in one sub-step,
+    τ_a = M_comb (v* − v)/dt + H_comb, instead. With a finite ``v_max`` the filter's QP also bounds
+    every actuated speed, |v_t| ≤ ``v_max``, in both modes: the filtered velocity stays within the
+    arm's speed limit (without it, steady torque builds speeds at which a sub-step jumps over the
+    safe set's boundary, and a nearly degenerate RCBF row, tiny ‖L_g0 h‖ with b < 0, has a huge
+    exact optimum). A problem the box makes infeasible takes the braking fallback.
+
+    Outputs (per arm): ``v_star_out``/``tau_out`` of the last sub-step, ``qd_out`` the joint
+    velocities q̇ = g0 v and ``p_out`` the end-effector at the final state, ``min_clear`` the
+    smallest clearance ‖p − o_j‖ − r_j to any obstacle after every sub-step (running minimum with
+    the value passed in), ``min_h`` the smallest filtered barrier seen, ``qp_counts[i, s]`` the
+    number of sub-steps with QP status s, ``max_track`` the largest tracking error ‖v − v*‖ at the
+    start of a sub-step (velocity mode; running maximum with the value passed in), ``finite_out``
+    False for an arm whose state went non-finite (left at its last finite value). The first stage
+    of each RK4 step reuses the terms the filter and tracker computed at the same state.
+    """
+
+
+@njit(**_JIT)
+def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode,
+                  filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
+                  v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out):
+    _advance_arms(0, q.shape[0], lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode,
+                  filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
+                  v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out)
+
+
+@njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
+def group_advance_parallel(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode,
+                           filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
+                           v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track,
+                           finite_out, n_chunks):
+    A = q.shape[0]
+    for c in prange(n_chunks):
+        _advance_arms(c * A // n_chunks, (c + 1) * A // n_chunks, lam, lengths, base, phi, passive, q, v, v_prev,
+                      has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke,
+                      dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts,
+                      max_track, finite_out)
+
+
+group_advance.__doc__ = _ADVANCE_DOC
+group_advance_parallel.__doc__ = _ADVANCE_DOC + """
+    The same, with the arms split into ``n_chunks`` chunks run on numba's thread pool (for large
+    batches; a call costs a few microseconds more than :func:`group_advance`).
+    """

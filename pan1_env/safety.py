@@ -168,6 +168,12 @@ def _solve_active_set(v0: np.ndarray, A: np.ndarray, b: np.ndarray) -> tuple[np.
     return v, status != STATUS_FALLBACK
 
 
+#: PIQP's settings for the filter's QP: tolerances near machine precision and regularisation floors
+#: low enough that the interior-point answer matches the exact optimum to ~1e-12 on degenerate rows.
+PIQP_SETTINGS = {"eps_abs": 1e-14, "eps_rel": 1e-14, "eps_duality_gap_abs": 1e-14, "eps_duality_gap_rel": 1e-14,
+                 "max_iter": 1000, "reg_lower_limit": 1e-16, "reg_finetune_lower_limit": 1e-16}
+
+
 def _solve_piqp(v0: np.ndarray, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     import qpsolvers
 
@@ -179,8 +185,7 @@ def _solve_piqp(v0: np.ndarray, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarra
         keep = np.isfinite(b[i])
         problem = qpsolvers.Problem(P, -v0[i], A[i, keep], b[i, keep])
         try:
-            sol = qpsolvers.solve_problem(problem, solver="piqp", eps_abs=1e-12, eps_rel=1e-12,
-                                          eps_duality_gap_abs=1e-12, eps_duality_gap_rel=1e-12)
+            sol = qpsolvers.solve_problem(problem, solver="piqp", **PIQP_SETTINGS)
         except Exception:  # noqa: BLE001 - any solver failure takes the documented fallback
             continue
         if sol.found and sol.x is not None and np.all(np.isfinite(sol.x)):

@@ -33,7 +33,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import kernels
-from .cascade import cascade_terms
 from .control import nominal_velocity
 from .dynamics import ArmBatch
 from .formation import edge_errors, edge_vectors, formation_gradient
@@ -49,10 +48,16 @@ class ArmGroup:
 
     arm_ids: np.ndarray  # (A,) indices in team order
     batch: ArmBatch
-    obstacle_mask: np.ndarray  # (A, O)
+    centers: np.ndarray  # (A, O, 2) the team's obstacles, seen by every arm of the group
+    radii: np.ndarray  # (A, O)
+    obstacle_mask: np.ndarray  # (A, O) obstacles in each arm's filter
     q: np.ndarray  # (A, n)
     v: np.ndarray  # (A, k)
-    v_star_prev: np.ndarray | None = None
+    v_star_prev: np.ndarray  # (A, k) v* of the last velocity-mode sub-step (valid where has_prev)
+    has_prev: np.ndarray  # (A,) bool
+    qd: np.ndarray  # (A, n) q̇ at the current state
+    p: np.ndarray  # (A, 2) end-effector at the current state
+    whole_team: bool = False  # the group is the whole team in team order (no gather/scatter needed)
 
     @property
     def n(self) -> int:
@@ -109,12 +114,22 @@ class Simulation:
         kinds: dict[tuple[int, bool], list[int]] = {}
         for i, arm in enumerate(scenario.arms):
             kinds.setdefault((arm.n_links, arm.passive_first_joint), []).append(i)
+        N = self.n_arms
+        self._record_template = StepRecord(  # a StepRecord's initial values
+            v_star=np.full((N, self.k_max), np.nan), tau=np.full((N, self.n_max), np.nan),
+            min_clearance=np.full(N, np.inf), min_barrier=np.full(N, np.inf),
+            qp_counts=np.zeros((N, 3), dtype=np.int64), max_tracking_error=np.zeros(N), finite=True)
         self.groups: list[ArmGroup] = []
         for (n, _passive), ids in sorted(kinds.items()):
             batch = ArmBatch.stack([scenario.arms[i] for i in ids])
-            self.groups.append(ArmGroup(arm_ids=np.array(ids), batch=batch,
-                                        obstacle_mask=np.ascontiguousarray(mask[ids]),
-                                        q=np.zeros((len(ids), n)), v=np.zeros((len(ids), batch.n_actuated))))
+            A, k = len(ids), batch.n_actuated
+            self.groups.append(ArmGroup(
+                arm_ids=np.array(ids), batch=batch,
+                centers=np.ascontiguousarray(np.broadcast_to(self._centers, (A, *self._centers.shape))),
+                radii=np.ascontiguousarray(np.broadcast_to(self._radii, (A, len(self._radii)))),
+                obstacle_mask=np.ascontiguousarray(mask[ids]), q=np.zeros((A, n)), v=np.zeros((A, k)),
+                v_star_prev=np.zeros((A, k)), has_prev=np.zeros(A, dtype=bool), qd=np.zeros((A, n)),
+                p=np.zeros((A, 2)), whole_team=(A == self.n_arms)))
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -130,7 +145,11 @@ class Simulation:
                     raise ValueError(f"q0[{i}] must be {g.n} finite joint angles, got {row.tolist()}")
             g.q = np.array(rows)
             g.v = np.zeros_like(g.v)
-            g.v_star_prev = None
+            g.v_star_prev = np.zeros_like(g.v)
+            g.has_prev = np.zeros(len(g.arm_ids), dtype=bool)
+            g.qd = np.zeros_like(g.q)
+            g.p = np.empty((len(g.arm_ids), 2))
+            kernels.group_end_effectors(g.batch.lengths, g.batch.base, g.batch.phi, g.q, g.p)
         self.time = 0.0
         self.steps = 0
         self._positions = None
@@ -140,11 +159,12 @@ class Simulation:
     def positions(self) -> np.ndarray:
         """End-effector positions of every arm, ``(N, 2)`` (a read-only view, cached per state)."""
         if self._positions is None:
-            P = np.empty((self.n_arms, 2))
-            for g in self.groups:
-                p = np.empty((len(g.arm_ids), 2))
-                kernels.group_end_effectors(g.batch.lengths, g.batch.base, g.batch.phi, g.q, p)
-                P[g.arm_ids] = p
+            if len(self.groups) == 1 and self.groups[0].whole_team:
+                P = self.groups[0].p.copy()
+            else:
+                P = np.empty((self.n_arms, 2))
+                for g in self.groups:
+                    P[g.arm_ids] = g.p
             P.setflags(write=False)
             self._positions = P
         return self._positions
@@ -161,7 +181,7 @@ class Simulation:
         qd = np.full((self.n_arms, self.n_max), np.nan)
         for g in self.groups:
             q[g.arm_ids, : g.n] = g.q
-            qd[g.arm_ids, : g.n] = cascade_terms(g.batch, g.q, g.v).qd
+            qd[g.arm_ids, : g.n] = g.qd
         return q, qd
 
     def _group_terms(self, g: ArmGroup):
@@ -215,15 +235,11 @@ class Simulation:
             raise ValueError(f"command must have shape {(N, self.k_max)}, got {command.shape}")
         if isinstance(substeps, bool) or not isinstance(substeps, (int, np.integer)) or substeps < 1:
             raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
-        rec = StepRecord(
-            v_star=np.full((N, self.k_max), np.nan),
-            tau=np.full((N, self.n_max), np.nan),
-            min_clearance=np.full(N, np.inf),
-            min_barrier=np.full(N, np.inf),
-            qp_counts=np.zeros((N, 3), dtype=np.int64),
-            max_tracking_error=np.zeros(N),
-            finite=True,
-        )
+        # fresh arrays every step (records handed out are never overwritten), copied from templates
+        t = self._record_template
+        rec = StepRecord(v_star=t.v_star.copy(), tau=t.tau.copy(), min_clearance=t.min_clearance.copy(),
+                         min_barrier=t.min_barrier.copy(), qp_counts=t.qp_counts.copy(),
+                         max_tracking_error=t.max_tracking_error.copy(), finite=True)
         piqp = self.safety_filter and self.qp_solver == "piqp"
         if piqp and torque:
             raise ValueError("the torque-mode filter needs qp_solver='active_set'")
@@ -235,8 +251,8 @@ class Simulation:
                     rec.qp_counts[g.arm_ids] += np.eye(3, dtype=np.int64)[status] - np.eye(3, dtype=np.int64)[0]
                     np.minimum(rec.min_barrier[g.arm_ids], min_h, out=rec.min_barrier[g.arm_ids])
             else:
-                self._advance_group(g, command[g.arm_ids, : g.k], int(substeps), torque, self.safety_filter,
-                                    max_speed, rec)
+                self._advance_group(g, command[:, : g.k] if g.whole_team else command[g.arm_ids, : g.k],
+                                    int(substeps), torque, self.safety_filter, max_speed, rec)
         self.time += substeps * self.dt
         self.steps += int(substeps)
         if not rec.finite:  # a faulty arm stopped early: include the (finite) state it was left in
@@ -246,34 +262,41 @@ class Simulation:
 
     def _advance_group(self, g: ArmGroup, command: np.ndarray, substeps: int, torque: bool, filter_on: bool,
                        max_speed: float, rec: StepRecord) -> None:
-        sc = self.scenario
-        A, k = g.v.shape
-        ids = g.arm_ids
         b = g.batch
-        has_prev = g.v_star_prev is not None
-        v_prev = g.v_star_prev.copy() if has_prev else np.zeros((A, k))
-        v_star, tau_a = np.empty((A, k)), np.empty((A, k))
-        min_clear, min_h = rec.min_clearance[ids].copy(), rec.min_barrier[ids].copy()
-        counts = np.zeros((A, 3), dtype=np.int64)
-        track = rec.max_tracking_error[ids].copy()
-        q, v = g.q.copy(), g.v.copy()
-        ok = kernels.group_advance(
-            b.lam, b.lengths, b.base, b.phi, b.passive_first_joint, q, v, v_prev, has_prev,
-            np.ascontiguousarray(command, dtype=float), torque, filter_on, self._centers, self._radii,
-            g.obstacle_mask, self.kappa, self.epsilon, self.margin, sc.ke, self.dt, substeps, float(max_speed),
-            v_star, tau_a, min_clear, min_h, counts, track)
-        g.q, g.v = q, v
-        g.v_star_prev = None if torque else v_prev
-        rec.finite &= bool(ok)
-        rec.v_star[ids, :k] = v_star
-        rec.tau[ids, : g.n] = 0.0
-        rec.tau[ids, g.n - k : g.n] = tau_a
-        rec.min_clearance[ids] = min_clear
-        rec.min_barrier[ids] = min_h
-        rec.qp_counts[ids] += counts
-        rec.max_tracking_error[ids] = track
+        k = g.k
+        A = len(g.arm_ids)
+        finite = np.empty(A, dtype=bool)
+        if g.whole_team:  # the kernel writes straight into the record (it accumulates minima and counts)
+            v_star, tau_a = (rec.v_star if k == self.k_max else np.empty((A, k))), np.empty((A, k))
+            min_clear, min_h, counts, track = rec.min_clearance, rec.min_barrier, rec.qp_counts, rec.max_tracking_error
+        else:
+            ids = g.arm_ids
+            v_star, tau_a = np.empty((A, k)), np.empty((A, k))
+            min_clear, min_h = rec.min_clearance[ids], rec.min_barrier[ids]
+            counts, track = np.zeros((A, 3), dtype=np.int64), rec.max_tracking_error[ids]
+        kernels.group_advance(
+            b.lam, b.lengths, b.base, b.phi, b.passive_first_joint, g.q, g.v, g.v_star_prev, g.has_prev,
+            np.ascontiguousarray(command, dtype=float), torque, filter_on, g.centers, g.radii, g.obstacle_mask,
+            self.kappa, self.epsilon, self.margin, self.scenario.ke, self.dt, substeps, float(max_speed),
+            v_star, tau_a, g.qd, g.p, min_clear, min_h, counts, track, finite)
+        if torque:
+            g.has_prev[:] = False
         self._positions = None
         self._terms_cache = {}
+        rec.finite &= bool(finite.all())
+        if g.whole_team:
+            rec.tau[:, : g.n - k] = 0.0
+            rec.tau[:, g.n - k : g.n] = tau_a
+            if v_star is not rec.v_star:
+                rec.v_star[:, :k] = v_star
+        else:
+            rec.v_star[ids, :k] = v_star
+            rec.tau[ids, : g.n] = 0.0
+            rec.tau[ids, g.n - k : g.n] = tau_a
+            rec.min_clearance[ids] = min_clear
+            rec.min_barrier[ids] = min_h
+            rec.qp_counts[ids] += counts
+            rec.max_tracking_error[ids] = track
 
     def _piqp_filter(self, g: ArmGroup, v_ref: np.ndarray, max_speed: float):
         """The RCBF-QP of one sub-step solved by qpsolvers + PIQP (``qp_solver="piqp"``)."""

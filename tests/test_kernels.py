@@ -52,20 +52,27 @@ def test_group_terms_match_reference(n: int, passive: bool) -> None:
 
 
 def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False, centers=None, radii=None,
-             mask=None, kappa=0.5, eps=5.0, margin=0.0, ke=100.0, dt=1e-3, n_sub=1, v_max=np.inf):
+             mask=None, kappa=0.5, eps=5.0, margin=0.0, ke=100.0, dt=1e-3, n_sub=1, v_max=np.inf, parallel=False):
     A, k = v.shape
     centers = np.zeros((0, 2)) if centers is None else centers
     radii = np.zeros(0) if radii is None else radii
     mask = np.zeros((A, len(radii)), bool) if mask is None else mask
     q, v = q.copy(), v.copy()
     prev = np.zeros((A, k)) if v_prev is None else v_prev.copy()
-    out = dict(v_star=np.empty((A, k)), tau=np.empty((A, k)), clear=np.full(A, np.inf), min_h=np.full(A, np.inf),
-               counts=np.zeros((A, 3), np.int64), track=np.zeros(A))
-    ok = kernels.group_advance(batch.lam, batch.lengths, batch.base, batch.phi, batch.passive_first_joint, q, v,
-                               prev, v_prev is not None, command, torque, filter_on, centers, radii, mask, kappa,
-                               eps, margin, ke, dt, n_sub, v_max, out["v_star"], out["tau"], out["clear"],
-                               out["min_h"], out["counts"], out["track"])
-    return ok, q, v, prev, out
+    has_prev = np.full(A, v_prev is not None)
+    out = dict(v_star=np.empty((A, k)), tau=np.empty((A, k)), qd=np.empty_like(q), p=np.empty((A, 2)),
+               clear=np.full(A, np.inf), min_h=np.full(A, np.inf), counts=np.zeros((A, 3), np.int64),
+               track=np.zeros(A), finite=np.zeros(A, bool))
+    args = (batch.lam, batch.lengths, batch.base, batch.phi, batch.passive_first_joint, q, v, prev, has_prev,
+            command, torque, filter_on, np.ascontiguousarray(np.broadcast_to(centers, (A, *centers.shape))),
+            np.ascontiguousarray(np.broadcast_to(radii, (A, len(radii)))), mask, kappa, eps, margin, ke, dt, n_sub,
+            v_max, out["v_star"], out["tau"], out["qd"], out["p"], out["clear"], out["min_h"], out["counts"],
+            out["track"], out["finite"])
+    if parallel:
+        kernels.group_advance_parallel(*args, 2)
+    else:
+        kernels.group_advance(*args)
+    return bool(out["finite"].all()), q, v, prev, out
 
 
 @pytest.mark.parametrize("n", [2, 4])
@@ -148,3 +155,50 @@ def test_advance_torque_filter_projects_the_one_step_velocity() -> None:
     tau = np.where(changed[:, None],
                    np.einsum("aij,aj->ai", ref.M_comb, (expected.v - v) / dt) + ref.H_comb, tau_cmd)
     np.testing.assert_allclose(out["tau"], tau, rtol=1e-5, atol=1e-4)
+
+
+@pytest.mark.parametrize("torque", [False, True])
+def test_parallel_kernel_equals_serial_and_reports_state(torque: bool) -> None:
+    rng = np.random.default_rng(21 + torque)
+    batch, q, v = _group(rng, 4, True, count=9)
+    t, centers, radii = _binding_obstacles(rng, batch, q, v)
+    command = rng.normal(scale=2.0, size=v.shape)
+    kw = dict(torque=torque, filter_on=True, centers=centers, radii=radii, mask=np.ones((9, 3), bool), n_sub=5,
+              v_max=2.0)
+    ok_s, q_s, v_s, _, out_s = _advance(batch, q, v, command, **kw)
+    ok_p, q_p, v_p, _, out_p = _advance(batch, q, v, command, parallel=True, **kw)
+    assert ok_s and ok_p
+    np.testing.assert_array_equal(q_p, q_s)
+    np.testing.assert_array_equal(v_p, v_s)
+    for key in out_s:
+        np.testing.assert_array_equal(out_p[key], out_s[key])
+    # the reported q̇ and end-effector are those of the final state
+    np.testing.assert_allclose(out_s["qd"], cascade_terms(batch, q_s, v_s).qd, atol=1e-12)
+    np.testing.assert_allclose(out_s["p"], end_effector(batch, q_s), atol=1e-12)
+
+
+def test_per_arm_obstacles_equal_one_arm_at_a_time() -> None:
+    """Each arm's filter sees its own obstacle rows (the vector env gives every copy its own)."""
+    rng = np.random.default_rng(31)
+    batch, q, v = _group(rng, 3, True, count=4)
+    t = _terms(batch, q, v)
+    centers = t["p"][:, None, :] + rng.normal(scale=0.15, size=(4, 2, 2))
+    radii = rng.uniform(0.03, 0.08, (4, 2))
+    command = rng.normal(scale=2.0, size=v.shape)
+    A, k = v.shape
+    args = dict(v_star=np.empty((A, k)), tau=np.empty((A, k)), qd=np.empty_like(q), p=np.empty((A, 2)),
+                clear=np.full(A, np.inf), min_h=np.full(A, np.inf), counts=np.zeros((A, 3), np.int64),
+                track=np.zeros(A), finite=np.zeros(A, bool))
+    q_all, v_all = q.copy(), v.copy()
+    kernels.group_advance(batch.lam, batch.lengths, batch.base, batch.phi, True, q_all, v_all, np.zeros((A, k)),
+                          np.zeros(A, bool), command, False, True, centers, radii, np.ones((A, 2), bool), 0.5, 5.0,
+                          0.0, 100.0, 1e-3, 3, 2.0, *args.values())
+    for i in range(A):
+        one = ArmBatch(lam=batch.lam[i : i + 1], lengths=batch.lengths[i : i + 1], base=batch.base[i : i + 1],
+                       phi=batch.phi[i : i + 1], passive_first_joint=True)
+        ok, q1, v1, _, out = _advance(one, q[i : i + 1], v[i : i + 1], command[i : i + 1], filter_on=True,
+                                      centers=centers[i], radii=radii[i], mask=np.ones((1, 2), bool), n_sub=3,
+                                      v_max=2.0)
+        np.testing.assert_array_equal(q1[0], q_all[i])
+        np.testing.assert_array_equal(out["v_star"][0], args["v_star"][i])
+        np.testing.assert_array_equal(out["clear"][0], args["clear"][i])

@@ -156,7 +156,7 @@ def test_nearly_degenerate_row_brakes_instead_of_blowing_up() -> None:
     """Found by the soak test: a nearly degenerate RCBF row (tiny ‖L_g0 h‖, b < 0) has a huge exact
     optimum; the shield's speed bounds turn it into an infeasible QP and the arm brakes."""
     team = {"n_arms": 4, "links": (2, 3, 4, 3), "passive_fraction": 0.5}
-    core = parallel_env("random", random_options=team, control_dt=0.01, max_steps=200)
+    core = parallel_env("random", random_options=team, control_dt=0.01, physics_dt=0.001, max_steps=200)
     env = SafetyShield(core)
     policy = AdversarialPolicy(core)
     obs, _ = env.reset(seed=1126)

@@ -70,27 +70,32 @@ def _switch_on(core, kappa, epsilon, margin, tracking_bound) -> None:
 
 def _shield_infos(core, actions: dict[str, np.ndarray]) -> dict[str, dict[str, Any]]:
     rec = core._last_record
+    if rec is None:
+        return {}
     scale = core.max_joint_speed if core.action_mode == "velocity" else core.max_torque
+    counts = rec.qp_counts
+    if core.action_mode == "velocity":
+        applied = (rec.v_star / scale).astype(np.float32)
+    else:
+        applied = (rec.tau / scale).astype(np.float32)
+    intervened = (counts[:, 1] + counts[:, 2] > 0).tolist()
+    fallback = (counts[:, 2] > 0).tolist()
+    worst = np.where(counts[:, 2] > 0, 2, np.where(counts[:, 1] > 0, 1, 0)).tolist()
+    min_barrier = rec.min_barrier.tolist()
     out = {}
     for i, agent in enumerate(core.possible_agents):
-        if agent not in actions or rec is None:
+        if agent not in actions:
             continue
         k = core._k[i]
-        counts = rec.qp_counts[i]
-        if core.action_mode == "velocity":
-            applied = rec.v_star[i, :k] / scale
-        else:
-            n = core._n[i]
-            applied = rec.tau[i, n - k : n] / scale
-        worst = 2 if counts[2] else (1 if counts[1] else 0)
+        n = core._n[i]
         out[agent] = {
-            "requested": np.asarray(actions[agent], dtype=np.float32).copy(),
-            "applied": applied.astype(np.float32),
-            "intervened": bool(counts[1] + counts[2] > 0),
-            "min_barrier": float(rec.min_barrier[i]),
-            "status": _STATUS_NAMES[worst],
-            "fallback": bool(counts[2] > 0),
-            "qp_counts": counts.copy(),
+            "requested": np.array(actions[agent], dtype=np.float32),
+            "applied": applied[i, :k] if core.action_mode == "velocity" else applied[i, n - k : n],
+            "intervened": intervened[i],
+            "min_barrier": min_barrier[i],
+            "status": _STATUS_NAMES[worst[i]],
+            "fallback": fallback[i],
+            "qp_counts": counts[i],
         }
     return out
 

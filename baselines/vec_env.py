@@ -1,0 +1,109 @@
+"""Stable-Baselines3 ``VecEnv`` adapter for :class:`~pan1_env.vector.Pan1VectorEnv` (needs the ``rl`` extra).
+
+SB3 algorithms step a ``VecEnv``; :class:`SB3VecEnv` presents the batched Gymnasium vector env as
+one, so B copies advance in one compiled call instead of B Python envs::
+
+    from stable_baselines3 import PPO
+    from pan1_env.baselines.vec_env import SB3VecEnv
+    venv = SB3VecEnv("paper_pa3_square", num_envs=64)   # shielded by default
+    PPO("MlpPolicy", venv).learn(100_000)
+
+It follows SB3's conventions: ``reset()`` returns observations only (per-copy infos in
+``reset_infos``), ``seed(s)`` seeds the next reset (copy b gets ``s + b``), an ended copy is reset
+in the same step with its last observation in ``infos[b]["terminal_observation"]`` and
+``infos[b]["TimeLimit.truncated"]`` set on truncation, and each per-copy info carries ``cost``,
+``min_clearance``, ``formation_error``, ``is_success`` (and the shield flags).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
+
+from pan1_env.vector import Pan1VectorEnv
+
+__all__ = ["SB3VecEnv"]
+
+
+class SB3VecEnv(VecEnv):
+    """SB3's ``VecEnv`` interface over a :class:`~pan1_env.vector.Pan1VectorEnv`.
+
+    Args:
+        scenario: as :class:`~pan1_env.vector.Pan1VectorEnv`, or an existing ``Pan1VectorEnv`` (then
+            ``num_envs`` and ``kwargs`` must be left out).
+        num_envs: number of copies.
+        kwargs: passed to :class:`~pan1_env.vector.Pan1VectorEnv` (``shield``, ``max_steps``, …).
+    """
+
+    def __init__(self, scenario: Any = "paper_pa3_square", num_envs: int = 1, **kwargs: Any) -> None:
+        if isinstance(scenario, Pan1VectorEnv):
+            if kwargs or num_envs not in (1, scenario.num_envs):
+                raise ValueError("pass either a Pan1VectorEnv or the arguments to build one, not both")
+            self.venv = scenario
+        else:
+            self.venv = Pan1VectorEnv(scenario, num_envs, **kwargs)
+        super().__init__(self.venv.num_envs, self.venv.single_observation_space, self.venv.single_action_space)
+        self._actions: np.ndarray | None = None
+
+    def reset(self) -> np.ndarray:
+        seeds = self._seeds if any(s is not None for s in self._seeds) else None
+        obs, infos = self.venv.reset(seed=seeds)
+        self._reset_seeds()
+        self._reset_options()
+        self.reset_infos = self._split_infos(infos)
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions)
+
+    def step_wait(self) -> VecEnvStepReturn:
+        if self._actions is None:
+            raise RuntimeError("step_wait() called without step_async()")
+        obs, rewards, terminated, truncated, infos = self.venv.step(self._actions)
+        self._actions = None
+        dones = terminated | truncated
+        per_env = self._split_infos(infos)
+        if dones.any():
+            final = infos["final_obs"]
+            for b in np.flatnonzero(dones):
+                per_env[b]["terminal_observation"] = final[b]
+                per_env[b]["TimeLimit.truncated"] = bool(truncated[b] and not terminated[b])
+        return obs, rewards.astype(np.float32), dones, per_env
+
+    def close(self) -> None:
+        self.venv.close()
+
+    # copies share one engine: attributes and methods are those of the vector env
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        return [getattr(self.venv, attr_name) for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        raise AttributeError("SB3VecEnv copies share one batched engine; attributes cannot be set per copy")
+
+    def env_method(self, method_name: str, *method_args: Any, indices: VecEnvIndices = None,
+                   **method_kwargs: Any) -> list[Any]:
+        raise AttributeError("SB3VecEnv copies share one batched engine; use .venv to call its methods")
+
+    def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
+
+    def _split_infos(self, infos: dict[str, Any]) -> list[dict[str, Any]]:
+        keys = [k for k in infos if not k.startswith("_") and k not in ("final_obs", "final_info")]
+        out: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+        for key in keys:
+            values, mask = infos[key], infos.get("_" + key)
+            for b in range(self.num_envs):
+                if mask is None or mask[b]:
+                    v = values[b]
+                    out[b][key] = v.item() if isinstance(v, np.generic) else v
+        return out
+
+    def _get_indices(self, indices: VecEnvIndices) -> Sequence[int]:
+        if indices is None:
+            return range(self.num_envs)
+        if isinstance(indices, int):
+            return [indices]
+        return list(indices)

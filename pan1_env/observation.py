@@ -1,0 +1,108 @@
+"""The agents' local observations, built for a whole team (or a batch of teams) in a few array ops.
+
+:class:`ObservationLayout` fixes, from a scenario's structure, what each agent sees and where
+(the table in :class:`~pan1_env.environment.Pan1ParallelEnv`'s docstring):
+``[cos q, sin q, q̇ / v_max, p − p0, D neighbour slots (present, dx, dy, err), K obstacle slots
+(present, dx, dy, r, h)]``. :meth:`ObservationLayout.build` computes every agent's observation
+from batched state arrays with a leading batch axis B (the parallel env passes B = 1, the vector
+env B copies), one compiled call (:func:`pan1_env.kernels.group_observations`) per group of
+equal-sized agents, with no per-agent Python loop.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .scenario import Scenario
+
+__all__ = ["ObservationLayout", "NEIGHBOUR_FEATURES", "OBSTACLE_FEATURES", "OBS_BOUND"]
+
+NEIGHBOUR_FEATURES = 4  # present, dx, dy, edge error
+OBSTACLE_FEATURES = 5  # present, dx, dy, radius, barrier h
+OBS_BOUND = 1e6  # observation entries other than cos/sin and flags are clipped to ±OBS_BOUND
+
+
+@dataclass(frozen=True)
+class ObservationLayout:
+    """Where each agent's observation entries come from (fixed by the team's structure).
+
+    Attributes:
+        n: links per arm, ``(N,)``.
+        slots: D, neighbour slots per agent.
+        n_obstacle_obs: K, obstacle slots per agent.
+        neighbour: ``(N, D)`` neighbour index per slot (own index in absent slots).
+        neighbour_edge: ``(N, D)`` edge index per slot (0 in absent slots).
+        neighbour_present: ``(N, D)`` 1.0 where the slot is used.
+        groups: ``(n, arm indices)`` for each distinct n, in increasing n.
+    """
+
+    n: np.ndarray
+    slots: int
+    n_obstacle_obs: int
+    neighbour: np.ndarray
+    neighbour_edge: np.ndarray
+    neighbour_present: np.ndarray
+    groups: tuple[tuple[int, np.ndarray], ...]
+
+    @classmethod
+    def from_scenario(cls, scenario: Scenario, slots: int, n_obstacle_obs: int) -> ObservationLayout:
+        """The layout of ``scenario``'s team with D = ``slots`` and K = ``n_obstacle_obs``."""
+        N = scenario.n_arms
+        f = scenario.formation
+        edge_of = {}
+        for k, (a, b) in enumerate(f.edges):
+            edge_of[(int(a), int(b))] = edge_of[(int(b), int(a))] = k
+        neighbour = np.tile(np.arange(N)[:, None], (1, slots))
+        edge = np.zeros((N, slots), dtype=np.int64)
+        present = np.zeros((N, slots))
+        for i in range(N):
+            nbrs = f.neighbours(i)
+            if len(nbrs) > slots:
+                raise ValueError(f"arm {i} has {len(nbrs)} neighbours, more than the {slots} slots")
+            for s, j in enumerate(nbrs):
+                neighbour[i, s], edge[i, s], present[i, s] = j, edge_of[(i, j)], 1.0
+        n = np.array([a.n_links for a in scenario.arms])
+        groups = tuple((int(m), np.flatnonzero(n == m)) for m in np.unique(n))
+        return cls(n=n, slots=int(slots), n_obstacle_obs=int(n_obstacle_obs), neighbour=neighbour,
+                   neighbour_edge=edge, neighbour_present=present, groups=groups)
+
+    def size(self, n: int) -> int:
+        """Observation length of an agent with n links."""
+        return 3 * n + 2 + NEIGHBOUR_FEATURES * self.slots + OBSTACLE_FEATURES * self.n_obstacle_obs
+
+    def bounds(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """cos/sin in [−1, 1], presence flags in [0, 1], everything else in ±OBS_BOUND."""
+        size = self.size(n)
+        low = np.full(size, -OBS_BOUND, dtype=np.float32)
+        high = np.full(size, OBS_BOUND, dtype=np.float32)
+        low[: 2 * n], high[: 2 * n] = -1.0, 1.0
+        base = 3 * n + 2
+        flags = [base + NEIGHBOUR_FEATURES * s for s in range(self.slots)]
+        base += NEIGHBOUR_FEATURES * self.slots
+        flags += [base + OBSTACLE_FEATURES * s for s in range(self.n_obstacle_obs)]
+        low[flags], high[flags] = 0.0, 1.0
+        return low, high
+
+    def build(self, q: np.ndarray, qd: np.ndarray, P: np.ndarray, base: np.ndarray, edge_errors: np.ndarray,
+              centers: np.ndarray, radii: np.ndarray, max_joint_speed: float) -> list[np.ndarray]:
+        """Every agent's observation, one float32 array ``(B, A, size(n))`` per group of :attr:`groups`.
+
+        Args:
+            q, qd: ``(B, N, n_max)`` joint angles and velocities (padding ignored).
+            P: ``(B, N, 2)`` end-effectors; base: ``(B, N, 2)`` arm bases.
+            edge_errors: ``(B, E)`` ‖z_k‖ − d_k.
+            centers: ``(B, O, 2)``, radii: ``(B, O)``: each team's obstacles.
+            max_joint_speed: scale of q̇.
+        """
+        from .kernels import group_observations
+
+        Bsz = P.shape[0]
+        out = []
+        for n, ids in self.groups:
+            obs = np.empty((Bsz, len(ids), self.size(n)), dtype=np.float32)
+            group_observations(q, qd, P, base, edge_errors, centers, radii, ids, self.neighbour, self.neighbour_edge,
+                               self.neighbour_present > 0, self.n_obstacle_obs, 1.0 / max_joint_speed, OBS_BOUND, obs)
+            out.append(obs)
+        return out

@@ -1,0 +1,122 @@
+"""The batched vector env against independent copies of the single env it vectorises."""
+
+import gymnasium
+import numpy as np
+import pytest
+
+from pan1_env.registration import CentralizedEnv
+from pan1_env.vector import Pan1VectorEnv
+from pan1_env.wrappers import GymSafetyShield
+
+
+def _singles(scenario, B, shield=True, **kw):
+    envs = [CentralizedEnv(scenario, **kw) for _ in range(B)]
+    return [GymSafetyShield(e) for e in envs] if shield else envs
+
+
+@pytest.mark.parametrize("scenario,threads", [("paper_pa3_square", False), ("paper_pa_mixed_square", False),
+                                              ("paper_pa3_square", True)])
+@pytest.mark.parametrize("mode", ["velocity", "torque"])
+def test_vector_env_equals_independent_copies(scenario: str, threads: bool, mode: str) -> None:
+    B, kw = 3, dict(max_steps=7, action_mode=mode)
+    venv = Pan1VectorEnv(scenario, B, threads=threads, **kw)
+    singles = _singles(scenario, B, **kw)
+    obs, info = venv.reset(seed=5)
+    assert isinstance(venv, gymnasium.vector.VectorEnv)
+    assert venv.observation_space.contains(obs)
+    for b, e in enumerate(singles):
+        o, _ = e.reset(seed=5 + b)
+        np.testing.assert_array_equal(obs[b], o)
+    rng = np.random.default_rng(1)
+    for t in range(10):  # crosses the end of the 7-step episodes: autoreset in the same step
+        actions = rng.uniform(-1.2, 1.2, venv.action_space.shape)
+        obs, rew, term, trunc, info = venv.step(actions)
+        assert obs.dtype == np.float32 and obs.shape == venv.observation_space.shape
+        for b, e in enumerate(singles):
+            o, r, te, tr, i = e.step(actions[b])
+            assert (te, tr) == (term[b], trunc[b])
+            assert rew[b] == pytest.approx(r, rel=1e-12, abs=1e-12)
+            assert info["cost"][b] == i["cost"]
+            assert info["min_clearance"][b] == pytest.approx(i["min_clearance"], abs=1e-12)
+            assert info["shield_intervened"][b] == i["shield_intervened"]
+            if te or tr:
+                np.testing.assert_array_equal(info["final_obs"][b], o)
+                assert info["_final_obs"][b] and info["final_info"]["cost"][b] == i["cost"]
+                o, _ = e.reset()
+            else:
+                assert not info.get("_final_obs", np.zeros(B, bool))[b]
+            np.testing.assert_allclose(obs[b], o, rtol=1e-6, atol=1e-6, err_msg=f"copy {b} step {t}")
+        assert (t == 6) == bool(trunc.all())
+
+
+def test_random_teams_follow_per_copy_seeds_and_redraw_on_autoreset() -> None:
+    B = 4
+    venv = Pan1VectorEnv("random", B, max_steps=3)
+    obs, _ = venv.reset(seed=[10, 11, None, 13])
+    for b in (0, 1, 3):
+        single = CentralizedEnv("random")
+        o, _ = single.reset(seed=[10, 11, None, 13][b])
+        np.testing.assert_array_equal(obs[b], o)
+    first = obs.copy()
+    for _ in range(3):
+        obs, *_ = venv.step(np.zeros(venv.action_space.shape))
+    # every copy ended at step 3 and drew a new team from its own generator
+    assert not np.allclose(obs[[0, 1, 3]], first[[0, 1, 3]])
+    again, _ = Pan1VectorEnv("random", B, max_steps=3).reset(seed=[10, 11, None, 13])
+    np.testing.assert_array_equal(again[[0, 1, 3]], first[[0, 1, 3]])
+
+
+def test_shielded_vector_env_stays_out_of_obstacles() -> None:
+    venv = Pan1VectorEnv("paper_pa3_square", 16, max_steps=200)
+    venv.reset(seed=0)
+    venv.action_space.seed(0)
+    total_cost, intervened = 0.0, 0
+    for _ in range(200):
+        _, _, _, _, info = venv.step(venv.action_space.sample())
+        total_cost += info["cost"].sum()
+        intervened += info["shield_intervened"].sum()
+        assert np.all(info["min_clearance"] >= 0)
+    assert total_cost == 0 and intervened > 0
+
+
+@pytest.mark.parametrize("bad,error", [
+    (np.zeros((2, 5)), "shape"),
+    (np.full((2, 12), np.nan), "NaN"),
+])
+def test_bad_actions_are_refused(bad, error) -> None:
+    venv = Pan1VectorEnv("paper_pa3_square", 2)
+    with pytest.raises(RuntimeError, match="reset"):
+        venv.step(np.zeros((2, 12)))
+    venv.reset()
+    with pytest.raises(ValueError, match=error):
+        venv.step(bad)
+
+
+@pytest.mark.parametrize("kwargs,error", [
+    (dict(num_envs=0), "num_envs"),
+    (dict(num_envs=2, render_mode="rgb_array"), "render_mode"),
+    (dict(num_envs=2, threads="sometimes"), "threads"),
+    (dict(num_envs=2, control_dt=-1.0), "control_dt"),
+])
+def test_bad_arguments_are_refused(kwargs, error) -> None:
+    with pytest.raises((ValueError, TypeError), match=error):
+        Pan1VectorEnv("paper_pa3_square", **kwargs)
+
+
+def test_sb3_adapter_runs_ppo_and_reports_terminal_observations() -> None:
+    pytest.importorskip("stable_baselines3")
+    from stable_baselines3 import PPO
+
+    from pan1_env.baselines.vec_env import SB3VecEnv
+
+    venv = SB3VecEnv("paper_pa3_square", num_envs=4, max_steps=5)
+    venv.seed(3)
+    obs = venv.reset()
+    assert obs.shape == (4, venv.observation_space.shape[0])
+    for _ in range(5):
+        obs, rewards, dones, infos = venv.step(np.zeros((4, 12)))
+    assert dones.all() and all(i["TimeLimit.truncated"] and "terminal_observation" in i for i in infos)
+    assert all(i["cost"] == 0.0 for i in infos)
+    model = PPO("MlpPolicy", venv, n_steps=16, batch_size=32, n_epochs=1, seed=0)
+    model.learn(64)
+    assert model.num_timesteps >= 64
