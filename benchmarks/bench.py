@@ -4,15 +4,19 @@
 
 Prints a Markdown table of medians (each over several repeats) and the ratios that matter:
 
-* the shielded ``paper_pa3_square`` parallel step (default time steps: 0.05 s control, 1 ms physics)
-  against PettingZoo MPE ``simple_spread_v3``'s parallel step (package ``mpe2``, skipped if absent);
+* the shielded ``paper_pa3_square`` parallel step (default time steps: 0.05 s control, 5 RK4
+  sub-steps of 10 ms, the QP re-solved at each) against PettingZoo MPE ``simple_spread_v3``'s
+  parallel step (package ``mpe2``, skipped if absent), and ``Acrobot-v1``'s step for scale;
+* the vector env (:class:`pan1_env.vector.Pan1VectorEnv`, shielded) at B = 1, 64, 1024, 16384:
+  arm-steps per second (one arm advanced one env step = 5 physics sub-steps, each with its QP) and
+  physics arm-steps per second, against B separate shielded Gymnasium envs stepped in a loop;
 * the exact compiled QP against qpsolvers + PIQP, per solve, on the same random filter problems;
 * the shielded step for teams of 4, 16 and 64 arms (random polygons of PA3 arms), and 64 against 4;
 * ``pan1-env reproduce`` of each paper scenario (the simulation loop, nominal and safe);
 * ``import pan1_env`` in a fresh interpreter.
 
-Absolute times on shared machines are noise; read the ratios. Not measured yet (no such API): the
-one-arm PA env against ``Acrobot-v1`` (scenarios need two arms for a formation) and the vector env.
+Absolute times on shared machines are noise; read the ratios. Not measured (no such env yet): a
+one-arm PA env against ``Acrobot-v1`` (scenarios need two arms for a formation).
 """
 
 from __future__ import annotations
@@ -61,7 +65,7 @@ def bench_env_vs_mpe(repeats: int, inner: int) -> list[tuple[str, float, str]]:
     from pan1_env.wrappers import SafetyShield
 
     ours = _median_time(_env_stepper(SafetyShield(parallel_env("paper_pa3_square"))), repeats, inner)
-    rows = [("paper_pa3_square parallel step, shielded (4 PA3 arms, 50 × 1 ms sub-steps)", ours, "")]
+    rows = [("paper_pa3_square parallel step, shielded (4 PA3 arms, 5 × 10 ms sub-steps)", ours, "")]
     try:
         from mpe2 import simple_spread_v3
     except ImportError:
@@ -70,6 +74,66 @@ def bench_env_vs_mpe(repeats: int, inner: int) -> list[tuple[str, float, str]]:
     mpe = _median_time(_env_stepper(simple_spread_v3.parallel_env()), repeats, inner)
     rows.append(("MPE simple_spread_v3 parallel step (3 agents)", mpe, ""))
     rows.append(("ratio: MPE step / our step (target ≥ 5)", mpe / ours, "ratio"))
+    import gymnasium
+
+    acrobot = gymnasium.make("Acrobot-v1")
+    acrobot.reset(seed=0)
+
+    def acro_step():
+        _, _, term, trunc, _ = acrobot.step(1)
+        if term or trunc:
+            acrobot.reset()
+
+    acro = _median_time(acro_step, repeats, inner * 5)
+    rows.append(("Gymnasium Acrobot-v1 step (one 2-link arm, for scale)", acro, ""))
+    return rows
+
+
+def bench_vector(repeats: int, sizes: tuple[int, ...]) -> list[tuple[str, float, str]]:
+    from pan1_env.registration import CentralizedEnv
+    from pan1_env.vector import Pan1VectorEnv
+    from pan1_env.wrappers import GymSafetyShield
+
+    rows = []
+    per_arm = {}
+    for B in sizes:
+        venv = Pan1VectorEnv("paper_pa3_square", B)
+        venv.reset(seed=0)
+        venv.action_space.seed(0)
+        actions = [venv.action_space.sample() for _ in range(4)]
+        state = {"i": 0}
+
+        def step(venv=venv, actions=actions, state=state):
+            venv.step(actions[state["i"] % 4])
+            state["i"] += 1
+
+        step()
+        inner = max(1, 2048 // B)
+        t = _median_time(step, repeats if B < 16384 else 3, inner)
+        arms = B * 4
+        per_arm[B] = t / arms
+        rows.append((f"vector env step, B = {B} (× 4 arms)", t, ""))
+        rows.append((f"  arm-steps per second at B = {B} (×{venv.template.substeps} physics sub-steps each)",
+                     arms / t, "rate"))
+    single = GymSafetyShield(CentralizedEnv("paper_pa3_square"))
+    single.reset(seed=0)
+    single.action_space.seed(0)
+    acts = [single.action_space.sample() for _ in range(64)]
+    state = {"i": 0}
+
+    def single_step():
+        _, _, term, trunc, _ = single.step(acts[state["i"] % 64])
+        state["i"] += 1
+        if term or trunc:
+            single.reset()
+
+    t_single = _median_time(single_step, repeats, 200)
+    rows.append(("one shielded Gymnasium env (CentralizedEnv) step, for the loop of B envs", t_single, ""))
+    for B in sizes:
+        if B >= 64:
+            rows.append((f"ratio: B separate env steps / vector step at B = {B}", t_single / (per_arm[B] * 4), "ratio"))
+    if 1024 in per_arm:
+        rows.append(("arm-steps per second at B = 1024 (target ≥ 1,000,000)", 1.0 / per_arm[1024], "rate"))
     return rows
 
 
@@ -151,6 +215,8 @@ def _format(rows: list[tuple[str, float, str]]) -> str:
             text = f"**{value:.2f}×**"
         elif kind == "value":
             text = f"{value:.1e}"
+        elif kind == "rate":
+            text = f"{value:,.0f} /s"
         elif kind in ("note",) or not np.isfinite(value):
             text = kind if kind != "note" else ""
         elif value < 1e-3:
@@ -171,6 +237,7 @@ def main() -> int:
     repeats, inner = (3, 50) if args.quick else (7, 200)
     rows = bench_import()
     rows += bench_env_vs_mpe(repeats, inner)
+    rows += bench_vector(repeats, (1, 64, 1024) if args.quick else (1, 64, 1024, 16384))
     rows += bench_qp(300 if args.quick else 2000)
     rows += bench_team_scaling(repeats, inner)
     rows += bench_reproduce(10.0 if args.quick else 100.0)

@@ -162,7 +162,7 @@ def test_piqp_answers_are_feasible_and_nearly_optimal(problems, piqp_answers) ->
 
 def test_solvers_agree(problems, active_set_answers, piqp_answers) -> None:
     """Same status and v within 1e-8 on every problem (issue 5's bar; with PIQP_SETTINGS the
-    measured largest gap on this set is 8.6e-13)."""
+    measured largest gap on these 1000 problems is 5.0e-11)."""
     for (v0, A, b, kind), (va, sa), (vp, sp) in zip(
         problems, active_set_answers, piqp_answers, strict=True
     ):
