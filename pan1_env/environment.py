@@ -340,8 +340,7 @@ class Pan1ParallelEnv(ParallelEnv):
         rewards, infos = {}, {}
         for i, agent in enumerate(self.agents):
             rewards[agent] = shared - penalties[i]
-            info = {"cost": float(cost[i]), "min_clearance": clearances[i], "formation_error": max_err,
-                    "is_success": success}
+            info = self._info(cost[i], clearances[i], max_err)
             if self.safety_filter:
                 info["qp_counts"] = rec.qp_counts[i]  # a row of this step's fresh record
             if fault:
@@ -461,7 +460,7 @@ def default_physics_dt(control_dt: float, ke: float, scenario_dt: float, action_
     2, 1 ms in torque mode, where open-loop torques can spin light links to hundreds of rad/s and a
     10 ms RK4 step diverges.
     """
-    candidates = (0.01, 0.005, 0.002, 0.001) if action_mode == "velocity" else (0.002, 0.001)
+    candidates = (DEFAULT_PHYSICS_DT, 0.005, 0.002, 0.001) if action_mode == "velocity" else (0.002, 0.001)
     for dt in candidates:
         ratio = control_dt / dt
         if ke * dt <= MAX_KE_DT and round(ratio) >= 1 and abs(ratio - round(ratio)) < 1e-9 * max(ratio, 1.0):

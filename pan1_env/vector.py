@@ -20,6 +20,7 @@ from gymnasium.vector.utils import batch_space
 
 from .dynamics import ArmBatch
 from .random_scenario import random_scenario
+from .safety import clearance
 from .scenario import Scenario
 from .validation import positive_int
 
@@ -322,8 +323,7 @@ class Pan1VectorEnv(VectorEnv):
     def _clearance(self) -> np.ndarray:
         if self._radii.shape[1] == 0:
             return np.full(self.num_envs, np.inf)
-        rel = self._positions()[:, :, None, :] - self._centers[:, None, :, :]
-        return (np.linalg.norm(rel, axis=-1) - self._radii[:, None, :]).min(axis=(1, 2))
+        return clearance(self._positions(), self._centers[:, None], self._radii[:, None]).min(axis=(1, 2))
 
     def _observations(self, err: np.ndarray | None = None) -> np.ndarray:
         B, N = self.num_envs, self._n_arms

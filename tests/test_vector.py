@@ -79,6 +79,17 @@ def test_shielded_vector_env_stays_out_of_obstacles() -> None:
     assert total_cost == 0 and intervened > 0
 
 
+def test_a_numerical_fault_truncates_only_its_copy() -> None:
+    venv = Pan1VectorEnv("paper_pa3_square", 2, action_mode="torque", max_torque=1e300, shield=False)
+    venv.reset(seed=0)
+    actions = np.zeros((2, 12))
+    actions[1] = 1.0
+    obs, _, term, trunc, info = venv.step(actions)
+    assert list(trunc) == [False, True] and not term.any()
+    assert list(info["_fault"]) == [False, True] and info["fault"][1].startswith("non-finite state")
+    assert info["_final_obs"][1] and np.isfinite(obs).all()  # copy 1 was reset in the same step
+
+
 @pytest.mark.parametrize("bad,error", [
     (np.zeros((2, 5)), "shape"),
     (np.full((2, 12), np.nan), "NaN"),
