@@ -30,32 +30,32 @@ STATUS_NOMINAL, STATUS_SOLVED, STATUS_FALLBACK = 0, 1, 2
 _JIT = {"cache": True, "error_model": "numpy", "fastmath": {"nsz", "arcp", "contract", "afn", "reassoc"}}
 
 
-@njit(**_JIT, inline="always")
-def _arm_terms(lam, q, v, passive, M, Mc, Hc, qd, ws):
-    """Mass matrix M, q̇ = g0 v, M_comb and H_comb of one arm (writes the output arrays).
+# ---------------------------------------------------------------------------------------------------
+# Per-arm building blocks. They work on small local arrays (one arm's state and scratch space) with
+# sizes passed explicitly and no array views, slices or tuples of arrays: in numba each view costs
+# an atomic reference-count update, which used to dominate the sub-step.
 
-    ``ws`` is the scratch space of :func:`_workspace` (no allocation in the hot loop)."""
-    n = q.shape[0]
-    theta, cosd, sind, R, thd, H = ws[0], ws[1], ws[2], ws[3], ws[4], ws[5]
-    acc = 0.0
+
+@njit(**_JIT, inline="always")
+def _angles(q, phi, n, c, s):
+    """c_α, s_α = cos, sin of the absolute link angle θ_α + φ (θ_α = q_1 + … + q_α)."""
+    ang = phi
     for a in range(n):
-        acc += q[a]
-        theta[a] = acc
-    # cos(θ_b − θ_a) and sin(θ_b − θ_a) from n sines and cosines (angle-difference identities)
-    c = thd  # scratch, overwritten below
-    sn = H
-    for a in range(n):
-        c[a] = np.cos(theta[a])
-        sn[a] = np.sin(theta[a])
-    for a in range(n):
-        for b in range(n):
-            cosd[a, b] = c[b] * c[a] + sn[b] * sn[a]
-            sind[a, b] = sn[b] * c[a] - c[b] * sn[a]
-    # M = Sᵀ (λ ∘ cos D) S: reverse cumulative sums over both indices.
+        ang += q[a]
+        c[a] = np.cos(ang)
+        s[a] = np.sin(ang)
+
+
+@njit(**_JIT, inline="always")
+def _mass_terms(lam, c, s, v, passive, n, k, M, R, Mc, Hc, qd, thd, H):
+    """M, q̇ = g0 v, M_comb and H_comb of one arm from its link angles' c, s (written to the arrays).
+
+    M = Sᵀ (λ ∘ cos(θ_b − θ_a)) S and H = Sᵀ h, h_a = −Σ_b λ_ab sin(θ_b − θ_a) θ̇_b² (MODEL.md §1, §3);
+    the differences θ_b − θ_a do not depend on φ, so c, s may include it."""
     for a in range(n):
         acc = 0.0
         for b in range(n - 1, -1, -1):
-            acc += lam[a, b] * cosd[a, b]
+            acc += lam[a, b] * (c[b] * c[a] + s[b] * s[a])
             R[a, b] = acc
     for b in range(n):
         acc = 0.0
@@ -63,15 +63,13 @@ def _arm_terms(lam, q, v, passive, M, Mc, Hc, qd, ws):
             acc += R[a, b]
             M[a, b] = acc
     off = 1 if passive else 0
-    k = n - off
     if passive:
-        s = 0.0
+        acc = 0.0
         for j in range(k):
-            s += M[0, j + 1] * v[j]
-        qd[0] = -s / M[0, 0]
+            acc += M[0, j + 1] * v[j]
+        qd[0] = -acc / M[0, 0]
     for j in range(k):
         qd[j + off] = v[j]
-    # H = Sᵀ h,  h_a = −Σ_b λ_ab sin(θ_b − θ_a) θ̇_b²
     acc = 0.0
     for a in range(n):
         acc += qd[a]
@@ -80,7 +78,7 @@ def _arm_terms(lam, q, v, passive, M, Mc, Hc, qd, ws):
     for a in range(n - 1, -1, -1):
         h = 0.0
         for b in range(n):
-            h -= lam[a, b] * sind[a, b] * thd[b] * thd[b]
+            h -= lam[a, b] * (s[b] * c[a] - c[b] * s[a]) * thd[b] * thd[b]
         acc += h
         H[a] = acc
     if passive:
@@ -97,15 +95,13 @@ def _arm_terms(lam, q, v, passive, M, Mc, Hc, qd, ws):
 
 
 @njit(**_JIT, inline="always")
-def _spd_solve(G, r, x, L, y):
-    """Solve G x = r (s × s, symmetric positive definite) by Cholesky; False if not SPD.
-
-    ``L`` (at least s × s) and ``y`` (at least s) are scratch space."""
-    s = G.shape[0]
+def _spd_solve(G, r, x, size, L, y):
+    """Solve G x = r (the leading ``size`` × ``size`` block, symmetric positive definite) by
+    Cholesky; False if it is not SPD. ``L`` and ``y`` are scratch space."""
     scale = 0.0
-    for i in range(s):
+    for i in range(size):
         scale = max(scale, G[i, i])
-    for i in range(s):
+    for i in range(size):
         for j in range(i + 1):
             acc = G[i, j]
             for t in range(j):
@@ -116,78 +112,58 @@ def _spd_solve(G, r, x, L, y):
                 L[i, i] = np.sqrt(acc)
             else:
                 L[i, j] = acc / L[j, j]
-    for i in range(s):
+    for i in range(size):
         acc = r[i]
         for t in range(i):
             acc -= L[i, t] * y[t]
         y[i] = acc / L[i, i]
-    for i in range(s - 1, -1, -1):
+    for i in range(size - 1, -1, -1):
         acc = y[i]
-        for t in range(i + 1, s):
+        for t in range(i + 1, size):
             acc -= L[t, i] * x[t]
         x[i] = acc / L[i, i]
     return True
 
 
-@njit(**_JIT)
-def _workspace(n, k):
-    """Scratch arrays for one arm of n links and k actuated joints (see _arm_terms, _arm_rhs)."""
-    return (np.empty(n), np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty(n), np.empty(n),
-            np.empty((n, n)), np.empty((k, k)), np.empty(k), np.empty(k), np.empty((n, n)), np.empty(n))
-
-
 @njit(**_JIT, inline="always")
-def _arm_rhs(lam, q, v, tau, passive, dq, dv, ws):
-    k = v.shape[0]
-    M, Mc, Hc, r = ws[6], ws[7], ws[8], ws[9]
-    _arm_terms(lam, q, v, passive, M, Mc, Hc, dq, ws)
-    for i in range(k):
-        r[i] = tau[i] - Hc[i]
-    if not _spd_solve(Mc, r, dv, ws[10], ws[11]):
-        for i in range(k):
-            dv[i] = np.nan
-
-
-@njit(**_JIT, inline="always")
-def _arm_position(lengths, base, phi, q):
-    """End-effector position p = p0 + Σ L_α [sin(θ_α + φ), cos(θ_α + φ)] of one arm."""
-    ang = phi
-    px = base[0]
-    py = base[1]
-    for a in range(q.shape[0]):
-        ang += q[a]
-        px += lengths[a] * np.sin(ang)
-        py += lengths[a] * np.cos(ang)
+def _position(lengths, bx, by, c, s, n):
+    """End-effector p = p0 + Σ L_α [sin(θ_α + φ), cos(θ_α + φ)] from the link angles' c, s."""
+    px = bx
+    py = by
+    for a in range(n):
+        px += lengths[a] * s[a]
+        py += lengths[a] * c[a]
     return px, py
 
 
 @njit(**_JIT, inline="always")
-def _arm_kinematics(lengths, base, phi, q, M, passive, J, Jbar):
-    """End-effector position (returned) and reduced Jacobian J̄ = J g0 (written to Jbar) of one arm.
+def _reduced_jacobian(lengths, c, s, M, passive, n, k, J, Jbar):
+    """J̄ = J g0 (2 × k) from the link angles' c, s and the mass matrix (g0 = [−M_0a / M_00 ; I]).
 
-    p = p0 + Σ L_α [sin(θ_α + φ), cos(θ_α + φ)], ∂p/∂q_a = Σ_{α≥a} L_α [cos, −sin](θ_α + φ),
-    g0 = [−M_0a / M_00 ; I] for a PA arm (M is the arm's mass matrix), I otherwise."""
-    n = q.shape[0]
-    k = Jbar.shape[1]
-    ang = phi
-    px = base[0]
-    py = base[1]
-    for a in range(n):
-        ang += q[a]
-        J[0, a] = lengths[a] * np.cos(ang)
-        J[1, a] = -lengths[a] * np.sin(ang)
-        px += lengths[a] * np.sin(ang)
-        py += lengths[a] * np.cos(ang)
-    for a in range(n - 2, -1, -1):
-        J[0, a] += J[0, a + 1]
-        J[1, a] += J[1, a + 1]
-    for c in range(2):
+    ∂p/∂q_a = Σ_{α≥a} L_α [cos, −sin](θ_α + φ)."""
+    accx = 0.0
+    accy = 0.0
+    for a in range(n - 1, -1, -1):
+        accx += lengths[a] * c[a]
+        accy -= lengths[a] * s[a]
+        J[0, a] = accx
+        J[1, a] = accy
+    for r in range(2):
         for t in range(k):
             if passive:
-                Jbar[c, t] = J[c, t + 1] - J[c, 0] * M[0, t + 1] / M[0, 0]
+                Jbar[r, t] = J[r, t + 1] - J[r, 0] * M[0, t + 1] / M[0, 0]
             else:
-                Jbar[c, t] = J[c, t]
-    return px, py
+                Jbar[r, t] = J[r, t]
+
+
+@njit(**_JIT, inline="always")
+def _acceleration(Mc, Hc, tau, k, dv, r, L, y):
+    """v̇ = M_comb⁻¹ (τ_a − H_comb) (NaN if M_comb is not positive definite)."""
+    for i in range(k):
+        r[i] = tau[i] - Hc[i]
+    if not _spd_solve(Mc, r, dv, k, L, y):
+        for i in range(k):
+            dv[i] = np.nan
 
 
 @njit(**_JIT)
@@ -195,24 +171,35 @@ def group_terms(lam, lengths, base, phi, passive, q, v, p, Jbar, Mc, Hc, momentu
     """Per arm: end-effector p (A,2), reduced Jacobian J̄ (A,2,k), M_comb, H_comb, passive momentum."""
     A, n = q.shape
     k = v.shape[1]
-    M = np.empty((n, n))
-    qd = np.empty(n)
-    J = np.empty((2, n))
-    ws = _workspace(n, k)
+    c, s, qd, thd, H = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    M, R, J = np.empty((n, n)), np.empty((n, n)), np.empty((2, n))
+    Mc1, Hc1, Jb = np.empty((k, k)), np.empty(k), np.empty((2, k))
     for i in range(A):
-        _arm_terms(lam[i], q[i], v[i], passive, M, Mc[i], Hc[i], qd, ws)
+        _angles(q[i], phi[i], n, c, s)
+        _mass_terms(lam[i], c, s, v[i], passive, n, k, M, R, Mc1, Hc1, qd, thd, H)
         mom = 0.0
         for a in range(n):
             mom += M[0, a] * qd[a]
         momentum[i] = mom if passive else np.nan
-        p[i, 0], p[i, 1] = _arm_kinematics(lengths[i], base[i], phi[i], q[i], M, passive, J, Jbar[i])
+        p[i, 0], p[i, 1] = _position(lengths[i], base[i, 0], base[i, 1], c, s, n)
+        _reduced_jacobian(lengths[i], c, s, M, passive, n, k, J, Jb)
+        for r in range(2):
+            for t in range(k):
+                Jbar[i, r, t] = Jb[r, t]
+        for a in range(k):
+            Hc[i, a] = Hc1[a]
+            for b in range(k):
+                Mc[i, a, b] = Mc1[a, b]
 
 
 @njit(**_JIT)
 def group_end_effectors(lengths, base, phi, q, p):
     """End-effector positions (A, 2) of a group."""
+    n = q.shape[1]
+    c, s = np.empty(n), np.empty(n)
     for i in range(q.shape[0]):
-        p[i, 0], p[i, 1] = _arm_position(lengths[i], base[i], phi[i], q[i])
+        _angles(q[i], phi[i], n, c, s)
+        p[i, 0], p[i, 1] = _position(lengths[i], base[i, 0], base[i, 1], c, s, n)
 
 
 @njit(**_JIT)
@@ -283,48 +270,41 @@ def group_observations(q, qd, P, base, err, centers, radii, ids, neighbour, neig
                 c += 5
 
 
-@njit(**_JIT)
-def _qp_workspace(m, k):
-    """Scratch arrays for :func:`_project_one` with m rows and k unknowns."""
-    return (np.empty(m, dtype=np.int64), np.empty(max(k, 1), dtype=np.int64), np.empty((k, k)), np.empty(k),
-            np.empty(k), np.empty(k), np.empty((k, k)), np.empty(k), np.empty(m))
-
-
-@njit(**_JIT)
-def _project_one(v0, A, b, active, v_out, qws):
-    """Exact min ½‖v − v0‖² s.t. A_j v ≤ b_j (rows with active_j): returns a status code.
+@njit(**_JIT, inline="always")
+def _project_one(v0, A, b, active, m, k, v_out, rows, idx, G, r, lam, cand, L, y, viol):
+    """Exact min ½‖v − v0‖² s.t. A_j v ≤ b_j (rows j < m with active_j): returns a status code.
 
     Enumerates sets of active rows (sizes 1..k, rows in order of decreasing violation at v0): the
     projection of v0 onto the rows of a set, with non-negative multipliers and feasible for every
     row, satisfies the KKT conditions of this strictly convex QP, so it is the unique optimum and
     the search stops there (see :mod:`pan1_env.safety`). No such set: infeasible, brake (v = 0).
+    The remaining arguments are scratch space: ``rows``, ``viol`` (m), ``idx``, ``r``, ``lam``,
+    ``cand``, ``y`` (k) and ``G``, ``L`` (k × k).
     """
-    m, k = A.shape
     feasible = True
     for j in range(m):
         if active[j]:
-            s = 0.0
+            acc = 0.0
             for t in range(k):
-                s += A[j, t] * v0[t]
-            if s > b[j] + 1e-12 * (1.0 + abs(b[j])):
+                acc += A[j, t] * v0[t]
+            if acc > b[j] + 1e-12 * (1.0 + abs(b[j])):
                 feasible = False
                 break
     if feasible:
         for t in range(k):
             v_out[t] = v0[t]
         return STATUS_NOMINAL
-    rows, idx, G_full, r_full, lam_full, cand, L_scratch, y_scratch, viol = qws
     na = 0
     for j in range(m):
         if active[j]:
             nrm = 0.0
-            s = 0.0
+            acc = 0.0
             for t in range(k):
                 nrm += A[j, t] * A[j, t]
-                s += A[j, t] * v0[t]
+                acc += A[j, t] * v0[t]
             if nrm > 0.0:
                 # insertion by decreasing violation A_j v0 − b_j (most violated rows are tried first)
-                w = (s - b[j]) / np.sqrt(nrm)
+                w = (acc - b[j]) / np.sqrt(nrm)
                 x = na
                 while x > 0 and viol[x - 1] < w:
                     rows[x] = rows[x - 1]
@@ -344,22 +324,19 @@ def _project_one(v0, A, b, active, v_out, qws):
         for t in range(size):
             idx[t] = t
         while True:
-            G = G_full[:size, :size]
-            r = r_full[:size]
             for x in range(size):
                 jx = rows[idx[x]]
                 acc = 0.0
                 for t in range(k):
                     acc += A[jx, t] * v0[t]
                 r[x] = acc - b[jx]
-                for y in range(size):
-                    jy = rows[idx[y]]
+                for z in range(size):
+                    jz = rows[idx[z]]
                     acc = 0.0
                     for t in range(k):
-                        acc += A[jx, t] * A[jy, t]
-                    G[x, y] = acc
-            lam = lam_full[:size]
-            if _spd_solve(G, r, lam, L_scratch, y_scratch):
+                        acc += A[jx, t] * A[jz, t]
+                    G[x, z] = acc
+            if _spd_solve(G, r, lam, size, L, y):
                 lmax = 0.0
                 for x in range(size):
                     lmax = max(lmax, abs(lam[x]))
@@ -379,12 +356,12 @@ def _project_one(v0, A, b, active, v_out, qws):
                     cn = np.sqrt(cn)
                     for jj in range(na):
                         j = rows[jj]
-                        s = 0.0
+                        acc = 0.0
                         an = 0.0
                         for t in range(k):
-                            s += A[j, t] * cand[t]
+                            acc += A[j, t] * cand[t]
                             an += A[j, t] * A[j, t]
-                        if s > b[j] + 1e-9 * (1.0 + abs(b[j]) + np.sqrt(an) * (1.0 + cn)):
+                        if acc > b[j] + 1e-9 * (1.0 + abs(b[j]) + np.sqrt(an) * (1.0 + cn)):
                             ok = False
                             break
                     if ok:  # a KKT point: the optimum
@@ -398,8 +375,8 @@ def _project_one(v0, A, b, active, v_out, qws):
             if x < 0:
                 break
             idx[x] += 1
-            for y in range(x + 1, size):
-                idx[y] = idx[y - 1] + 1
+            for z in range(x + 1, size):
+                idx[z] = idx[z - 1] + 1
     for t in range(k):
         v_out[t] = 0.0
     return STATUS_FALLBACK
@@ -408,95 +385,67 @@ def _project_one(v0, A, b, active, v_out, qws):
 @njit(**_JIT)
 def qp_project(v0, A, b, active, v_out, status):
     """Batched exact safety QP: for each arm i, project v0[i] onto {A[i] v ≤ b[i]}."""
-    qws = _qp_workspace(A.shape[1], A.shape[2])
+    m, k = A.shape[1], A.shape[2]
+    kk = max(k, 1)
+    rows, viol = np.empty(m, dtype=np.int64), np.empty(m)
+    idx = np.empty(kk, dtype=np.int64)
+    r, lam, cand, y = np.empty(kk), np.empty(kk), np.empty(kk), np.empty(kk)
+    G, L = np.empty((kk, kk)), np.empty((kk, kk))
     for i in range(v0.shape[0]):
-        status[i] = _project_one(v0[i], A[i], b[i], active[i], v_out[i], qws)
-
-
-@njit(**_JIT)
-def _rk4_workspace(n, k):
-    """Stage derivatives and trial state for :func:`_rk4_arm`."""
-    return (np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(k), np.empty(k), np.empty(k),
-            np.empty(k), np.empty(n), np.empty(k))
-
-
-@njit(**_JIT, inline="always")
-def _rk4_arm(lam, q, v, tau, passive, dt, q_out, v_out, rk, ws, have_terms, Mc1, Hc1, qd1):
-    """One RK4 step of one arm's cascaded state (q, v) with τ held; writes q_out, v_out.
-
-    With ``have_terms`` the first stage reuses M_comb, H_comb and q̇ already computed at (q, v)."""
-    n = q.shape[0]
-    k = v.shape[0]
-    k1q, k2q, k3q, k4q, k1v, k2v, k3v, k4v, qt, vt = rk
-    if have_terms:
-        for a in range(n):
-            k1q[a] = qd1[a]
-        r = ws[9]
-        for i in range(k):
-            r[i] = tau[i] - Hc1[i]
-        if not _spd_solve(Mc1, r, k1v, ws[10], ws[11]):
-            for i in range(k):
-                k1v[i] = np.nan
-    else:
-        _arm_rhs(lam, q, v, tau, passive, k1q, k1v, ws)
-    for a in range(n):
-        qt[a] = q[a] + 0.5 * dt * k1q[a]
-    for a in range(k):
-        vt[a] = v[a] + 0.5 * dt * k1v[a]
-    _arm_rhs(lam, qt, vt, tau, passive, k2q, k2v, ws)
-    for a in range(n):
-        qt[a] = q[a] + 0.5 * dt * k2q[a]
-    for a in range(k):
-        vt[a] = v[a] + 0.5 * dt * k2v[a]
-    _arm_rhs(lam, qt, vt, tau, passive, k3q, k3v, ws)
-    for a in range(n):
-        qt[a] = q[a] + dt * k3q[a]
-    for a in range(k):
-        vt[a] = v[a] + dt * k3v[a]
-    _arm_rhs(lam, qt, vt, tau, passive, k4q, k4v, ws)
-    for a in range(n):
-        q_out[a] = q[a] + dt / 6.0 * (k1q[a] + 2.0 * k2q[a] + 2.0 * k3q[a] + k4q[a])
-    for a in range(k):
-        v_out[a] = v[a] + dt / 6.0 * (k1v[a] + 2.0 * k2v[a] + 2.0 * k3v[a] + k4v[a])
+        status[i] = _project_one(v0[i], A[i], b[i], active[i], m, k, v_out[i], rows, idx, G, r, lam, cand, L, y,
+                                 viol)
 
 
 @njit(**_JIT)
 def _advance_arms(lo, hi, lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode,
                   filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
                   v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out):
-    """Arms ``lo … hi−1`` of :func:`group_advance` (the loop body, with its own scratch space)."""
+    """Arms ``lo … hi−1`` of :func:`group_advance` (the loop body, with its own scratch space).
+
+    Each arm's parameters and state are copied into small local arrays, advanced through the
+    sub-steps there and written back: the hot loop makes no array view. The link angles' sines and
+    cosines at the state reached by a sub-step serve its clearance and the next sub-step's filter,
+    tracker and first RK4 stage."""
     n = q.shape[1]
     k = v.shape[1]
+    kk = max(k, 1)
     O = radii.shape[1]
-    M = np.empty((n, n))
-    Mc = np.empty((k, k))
-    Hc = np.empty(k)
-    qd = np.empty(n)
-    J = np.empty((2, n))
-    Jbar = np.empty((2, k))
-    rows = O + 2 * k
-    A = np.zeros((rows, k))
-    b = np.empty(rows)
-    active = np.zeros(rows, dtype=np.bool_)
+    m = O + 2 * k
+    # one arm's parameters and state
+    lm, ln, qi, vi, vp = np.empty((n, n)), np.empty(n), np.empty(n), np.empty(k), np.empty(k)
+    # kinematics and dynamics at a state
+    c, s, qd, thd, H = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    M, R, J = np.empty((n, n)), np.empty((n, n)), np.empty((2, n))
+    Mc, Hc, Jbar, Lc, yc, rhs = np.empty((k, k)), np.empty(k), np.empty((2, k)), np.empty((kk, kk)), np.empty(kk), \
+        np.empty(kk)
+    # command, filter and tracker
+    vdes, vs, tau, acc = np.empty(k), np.empty(k), np.empty(k), np.empty(k)
+    Arows, brows, active = np.zeros((m, kk)), np.zeros(m), np.zeros(m, dtype=np.bool_)
+    qrows, qviol, qidx = np.empty(m, dtype=np.int64), np.empty(m), np.empty(kk, dtype=np.int64)
+    qG, qL, qr, qlam, qcand, qy = np.empty((kk, kk)), np.empty((kk, kk)), np.empty(kk), np.empty(kk), np.empty(kk), \
+        np.empty(kk)
+    # RK4: trial state, stage derivative, weighted sums
+    qt, vt, dv, sq, sv = np.empty(n), np.empty(k), np.empty(k), np.empty(n), np.empty(k)
     if v_max < np.inf:
         for t in range(k):  # speed bounds ±v_t ≤ v_max
-            A[O + 2 * t, t] = 1.0
-            A[O + 2 * t + 1, t] = -1.0
-            b[O + 2 * t] = v_max
-            b[O + 2 * t + 1] = v_max
+            Arows[O + 2 * t, t] = 1.0
+            Arows[O + 2 * t + 1, t] = -1.0
+            brows[O + 2 * t] = v_max
+            brows[O + 2 * t + 1] = v_max
             active[O + 2 * t] = True
             active[O + 2 * t + 1] = True
-    vs = np.empty(k)
-    tau = np.empty(k)
-    acc = np.empty(k)
-    rhs = np.empty(k)
-    vt = np.empty(k)
-    q_next = np.empty(n)
-    v_next = np.empty(k)
-    ws = _workspace(n, k)
-    rk = _rk4_workspace(n, k)
-    qws = _qp_workspace(rows, k)
     for i in range(lo, hi):
+        for a in range(n):
+            qi[a] = q[i, a]
+            ln[a] = lengths[i, a]
+            for b in range(n):
+                lm[a, b] = lam[i, a, b]
+        for t in range(k):
+            vi[t] = v[i, t]
+            vp[t] = v_prev[i, t]
+            vs[t] = np.nan
+            tau[t] = np.nan
+        bx, by, ph = base[i, 0], base[i, 1], phi[i]
         finite_out[i] = True
         use_filter = filter_on and torque_mode and v_max < np.inf
         if filter_on:
@@ -505,13 +454,13 @@ def _advance_arms(lo, hi, lam, lengths, base, phi, passive, q, v, v_prev, has_pr
                 if mask[i, j]:
                     use_filter = True
         prev_ok = has_prev[i]
-        for t in range(k):
-            vs[t] = np.nan
-            tau[t] = np.nan
+        arm_clear = min_clear[i]
+        arm_h = min_h[i]
+        arm_track = max_track[i]
+        cs_ok = True  # c, s hold the angles of (qi, φ)
+        _angles(qi, ph, n, c, s)
         for _s in range(n_sub):
-            have_terms = use_filter or not torque_mode
-            if have_terms:
-                _arm_terms(lam[i], q[i], v[i], passive, M, Mc, Hc, qd, ws)
+            _mass_terms(lm, c, s, vi, passive, n, k, M, R, Mc, Hc, qd, thd, H)
             # the velocity to filter: the command, or the one-step result of the commanded torque
             if torque_mode:
                 for t in range(k):
@@ -519,17 +468,18 @@ def _advance_arms(lo, hi, lam, lengths, base, phi, passive, q, v, v_prev, has_pr
                 if use_filter:
                     for t in range(k):
                         rhs[t] = tau[t] - Hc[t]
-                    if not _spd_solve(Mc, rhs, acc, ws[10], ws[11]):
+                    if not _spd_solve(Mc, rhs, acc, k, Lc, yc):
                         for t in range(k):
                             acc[t] = 0.0
                     for t in range(k):
-                        vt[t] = v[i, t] + dt * acc[t]
+                        vdes[t] = vi[t] + dt * acc[t]
             else:
                 for t in range(k):
-                    vt[t] = command[i, t]
+                    vdes[t] = command[i, t]
             st = STATUS_NOMINAL
             if use_filter:
-                px, py = _arm_kinematics(lengths[i], base[i], phi[i], q[i], M, passive, J, Jbar)
+                px, py = _position(ln, bx, by, c, s, n)
+                _reduced_jacobian(ln, c, s, M, passive, n, k, J, Jbar)
                 for j in range(O):
                     dx = px - centers[i, j, 0]
                     dy = py - centers[i, j, 1]
@@ -537,76 +487,109 @@ def _advance_arms(lo, hi, lam, lengths, base, phi, passive, q, v, v_prev, has_pr
                     lg2 = 0.0
                     for t in range(k):
                         lg = 2.0 * (dx * Jbar[0, t] + dy * Jbar[1, t])
-                        A[j, t] = -lg
+                        Arows[j, t] = -lg
                         lg2 += lg * lg
-                    b[j] = kappa * (h - margin) - lg2 / epsilon
-                    if mask[i, j] and h < min_h[i]:
-                        min_h[i] = h
-                st = _project_one(vt, A, b, active, vs, qws)
+                    brows[j] = kappa * (h - margin) - lg2 / epsilon
+                    if active[j] and h < arm_h:
+                        arm_h = h
+                st = _project_one(vdes, Arows, brows, active, m, k, vs, qrows, qidx, qG, qr, qlam, qcand, qL, qy,
+                                  qviol)
             else:
                 for t in range(k):
-                    vs[t] = vt[t]
+                    vs[t] = vdes[t]
             qp_counts[i, st] += 1
             if not torque_mode:
                 # backstepping tracker of v* (Eq. 64), v̇* by backward difference
                 err = 0.0
                 for t in range(k):
-                    err += (v[i, t] - vs[t]) ** 2
+                    err += (vi[t] - vs[t]) ** 2
                 err = np.sqrt(err)
-                if err > max_track[i]:
-                    max_track[i] = err
+                if err > arm_track:
+                    arm_track = err
                 for t in range(k):
-                    vdot = (vs[t] - v_prev[i, t]) / dt if prev_ok else 0.0
-                    acc[t] = vdot - ke * (v[i, t] - vs[t])
+                    vdot = (vs[t] - vp[t]) / dt if prev_ok else 0.0
+                    acc[t] = vdot - ke * (vi[t] - vs[t])
                 for r in range(k):
-                    s = Hc[r]
+                    tr = Hc[r]
                     for t in range(k):
-                        s += Mc[r, t] * acc[t]
-                    tau[r] = s
+                        tr += Mc[r, t] * acc[t]
+                    tau[r] = tr
                 for t in range(k):
-                    v_prev[i, t] = vs[t]
+                    vp[t] = vs[t]
                 prev_ok = True
             elif st != STATUS_NOMINAL:
                 # the torque's velocity was unsafe: reach the projected velocity in one step
                 for r in range(k):
-                    s = Hc[r]
+                    tr = Hc[r]
                     for t in range(k):
-                        s += Mc[r, t] * (vs[t] - v[i, t]) / dt
-                    tau[r] = s
+                        tr += Mc[r, t] * (vs[t] - vi[t]) / dt
+                    tau[r] = tr
             if torque_mode and not use_filter:
                 for t in range(k):
                     vs[t] = np.nan
-            # RK4 with τ held (the first stage reuses the terms at the current state)
-            _rk4_arm(lam[i], q[i], v[i], tau, passive, dt, q_next, v_next, rk, ws, have_terms, Mc, Hc, qd)
+            # RK4 with τ held; the first stage uses the terms at the current state
+            _acceleration(Mc, Hc, tau, k, dv, rhs, Lc, yc)
+            for a in range(n):
+                sq[a] = qd[a]
+            for t in range(k):
+                sv[t] = dv[t]
+            for stage in range(3):
+                hs = 0.5 * dt if stage < 2 else dt
+                w = 2.0 if stage < 2 else 1.0
+                for a in range(n):
+                    qt[a] = qi[a] + hs * qd[a]
+                for t in range(k):
+                    vt[t] = vi[t] + hs * dv[t]
+                _angles(qt, ph, n, c, s)
+                _mass_terms(lm, c, s, vt, passive, n, k, M, R, Mc, Hc, qd, thd, H)
+                _acceleration(Mc, Hc, tau, k, dv, rhs, Lc, yc)
+                for a in range(n):
+                    sq[a] += w * qd[a]
+                for t in range(k):
+                    sv[t] += w * dv[t]
             finite = True
             for a in range(n):
-                if not np.isfinite(q_next[a]):
+                qt[a] = qi[a] + dt / 6.0 * sq[a]
+                if not np.isfinite(qt[a]):
                     finite = False
-            for a in range(k):
-                if not np.isfinite(v_next[a]):
+            for t in range(k):
+                vt[t] = vi[t] + dt / 6.0 * sv[t]
+                if not np.isfinite(vt[t]):
                     finite = False
             if not finite:
                 finite_out[i] = False
+                cs_ok = False
                 break
             for a in range(n):
-                q[i, a] = q_next[a]
-            for a in range(k):
-                v[i, a] = v_next[a]
+                qi[a] = qt[a]
+            for t in range(k):
+                vi[t] = vt[t]
             # clearance after the sub-step
-            px, py = _arm_position(lengths[i], base[i], phi[i], q[i])
+            _angles(qi, ph, n, c, s)
+            px, py = _position(ln, bx, by, c, s, n)
             for j in range(O):
-                c = np.sqrt((px - centers[i, j, 0]) ** 2 + (py - centers[i, j, 1]) ** 2) - radii[i, j]
-                if c < min_clear[i]:
-                    min_clear[i] = c
+                dx = px - centers[i, j, 0]
+                dy = py - centers[i, j, 1]
+                cl = np.sqrt(dx * dx + dy * dy) - radii[i, j]
+                if cl < arm_clear:
+                    arm_clear = cl
         has_prev[i] = prev_ok
+        min_clear[i] = arm_clear
+        min_h[i] = arm_h
+        max_track[i] = arm_track
         for t in range(k):
             v_star_out[i, t] = vs[t]
             tau_out[i, t] = tau[t]
+            v[i, t] = vi[t]
+            v_prev[i, t] = vp[t]
         # joint velocities and end-effector at the (last finite) state
-        _arm_terms(lam[i], q[i], v[i], passive, M, Mc, Hc, qd, ws)
+        if not cs_ok:
+            _angles(qi, ph, n, c, s)
+        _mass_terms(lm, c, s, vi, passive, n, k, M, R, Mc, Hc, qd, thd, H)
         for a in range(n):
+            q[i, a] = qi[a]
             qd_out[i, a] = qd[a]
-        p_out[i, 0], p_out[i, 1] = _arm_position(lengths[i], base[i], phi[i], q[i])
+        p_out[i, 0], p_out[i, 1] = _position(ln, bx, by, c, s, n)
 
 
 _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a held command (in place).
