@@ -16,7 +16,6 @@ import numpy as np
 from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec
 
-from .formation import edge_length_errors, edge_vectors
 from .observation import OBS_BOUND, ObservationLayout
 from .random_scenario import RandomScenarioOptions, random_scenario
 from .registration import RENDER_FPS, RENDER_MODES
@@ -237,6 +236,7 @@ class Pan1ParallelEnv(ParallelEnv):
         self.max_steps = positive_int("max_steps", max_steps)
         self.qp_solver = qp_solver
         self.action_mode = action_mode
+        self._torque_mode = action_mode == "torque"
         self.render_mode = render_mode
         self.terminate_on_collision = bool(terminate_on_collision)
         self.terminate_on_success = bool(terminate_on_success)
@@ -293,7 +293,8 @@ class Pan1ParallelEnv(ParallelEnv):
         self.scenario = scenario
         self.sim = Simulation(scenario, safety_filter=self.safety_filter, physics_dt=self.physics_dt,
                               qp_solver=self.qp_solver)
-        self._incidence = scenario.formation.incidence
+        self._edges = np.ascontiguousarray(scenario.formation.edges, dtype=np.int64)
+        self._distances = np.ascontiguousarray(scenario.formation.distances, dtype=float)[None]
         self._bases = np.array([a.base for a in scenario.arms])[None]
         self._centers = scenario.obstacles.centers[None]
         self._radii = scenario.obstacles.radii[None]
@@ -323,23 +324,26 @@ class Pan1ParallelEnv(ParallelEnv):
         if self._needs_reset or not self.agents:
             raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
         command, effort = self._command(actions)
-        rec = self.sim.step(command, self.substeps, torque=(self.action_mode == "torque"),
-                            max_speed=self.max_joint_speed)
+        rec = self.sim.step(command, self.substeps, torque=self._torque_mode, max_speed=self.max_joint_speed)
         self.num_steps += 1
         err = self._edge_errors(self.sim.positions())
-        abs_err = np.abs(err)
-        shared = -self.formation_weight * float(abs_err.mean())
-        max_err = float(abs_err.max())
+        # per-step scalars in plain Python: a handful of edges and arms is cheaper there than in numpy calls
+        abs_err = [abs(x) for x in err.tolist()]
+        shared = -self.formation_weight * (sum(abs_err) / len(abs_err))
+        max_err = max(abs_err)
         success = max_err < self.success_tolerance
-        cost = (rec.min_clearance < 0).tolist()
         clearances = rec.min_clearance.tolist()
-        penalties = (self.effort_weight * effort + self.collision_penalty * (rec.min_clearance < 0)).tolist()
+        cost = [1.0 if c < 0 else 0.0 for c in clearances]
+        if self.effort_weight or self.collision_penalty:
+            rewards = {agent: shared - self.effort_weight * e - self.collision_penalty * c
+                       for agent, e, c in zip(self.agents, effort.tolist(), cost, strict=True)}
+        else:
+            rewards = dict.fromkeys(self.agents, shared)
         fault = None if rec.finite else "non-finite state in the physics step; episode truncated"
         terminated = bool((self.terminate_on_collision and any(cost)) or (self.terminate_on_success and success))
         truncated = self.num_steps >= self.max_steps or fault is not None
-        rewards, infos = {}, {}
+        infos = {}
         for i, agent in enumerate(self.agents):
-            rewards[agent] = shared - penalties[i]
             info = self._info(cost[i], clearances[i], max_err)
             if self.safety_filter:
                 info["qp_counts"] = rec.qp_counts[i]  # a row of this step's fresh record
@@ -414,17 +418,22 @@ class Pan1ParallelEnv(ParallelEnv):
                 if a.shape != (self._k[i],):
                     raise ValueError(f"action for {agent} must have shape ({self._k[i]},), got {a.shape}")
                 command[i, : self._k[i]] = a
-        if not np.isfinite(command).all():
-            bad = next(a for i, a in enumerate(self.possible_agents) if not np.isfinite(command[i]).all())
-            raise ValueError(f"action for {bad} contains NaN or inf: {np.asarray(actions[bad]).tolist()}")
-        np.clip(command, -1.0, 1.0, out=command)
-        effort = np.einsum("ij,ij->i", command, command) / np.maximum(self._k_array, 1)
-        command *= scale
+        from .kernels import scale_command  # numba is loaded with the first Simulation, not at import
+
+        effort = np.empty(len(command))
+        bad = scale_command(command, self._k_array, scale, effort)  # clip, effort, scale in place
+        if bad >= 0:
+            agent = self.possible_agents[bad]
+            raise ValueError(f"action for {agent} contains NaN or inf: {np.asarray(actions[agent]).tolist()}")
         return command, effort
 
     def _edge_errors(self, P: np.ndarray) -> np.ndarray:
-        f = self.scenario.formation
-        return edge_length_errors(edge_vectors(self._incidence, P), f.distances)
+        """‖z_k‖ − d_k for every edge of the formation (m)."""
+        from .kernels import edge_length_errors
+
+        err = np.empty((1, len(self._edges)))
+        edge_length_errors(P[None], self._edges, self._distances, err)
+        return err[0]
 
     def _info(self, cost: float, min_clearance: float, max_err: float) -> dict[str, Any]:
         return {

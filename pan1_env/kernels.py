@@ -22,6 +22,8 @@ __all__ = [
     "group_end_effectors",
     "group_observations",
     "qp_project",
+    "scale_command",
+    "edge_length_errors",
 ]
 
 STATUS_NOMINAL, STATUS_SOLVED, STATUS_FALLBACK = 0, 1, 2
@@ -651,3 +653,32 @@ group_advance_parallel.__doc__ = _ADVANCE_DOC + """
     The same, with the arms split into ``n_chunks`` chunks run on numba's thread pool (for large
     batches; a call costs a few microseconds more than :func:`group_advance`).
     """
+
+
+@njit(**_JIT)
+def scale_command(command, k, scale, effort):
+    """Actions to a physical command, in place: clip each row's first ``k[i]`` entries to [−1, 1],
+    write ``effort[i] = ‖clipped row‖² / k[i]`` and multiply by ``scale``. Returns the first row
+    holding NaN or inf (left untouched), or −1."""
+    for i in range(command.shape[0]):
+        for t in range(k[i]):
+            if not np.isfinite(command[i, t]):
+                return i
+    for i in range(command.shape[0]):
+        e = 0.0
+        for t in range(k[i]):
+            a = min(max(command[i, t], -1.0), 1.0)
+            e += a * a
+            command[i, t] = a * scale
+        effort[i] = e / max(k[i], 1)
+    return -1
+
+
+@njit(**_JIT)
+def edge_length_errors(P, edges, distances, out):
+    """‖p_i − p_j‖ − d_k for every edge k = (i, j) of B teams: P (B, N, 2), distances and out (B, E)."""
+    for b in range(P.shape[0]):
+        for e in range(edges.shape[0]):
+            dx = P[b, edges[e, 0], 0] - P[b, edges[e, 1], 0]
+            dy = P[b, edges[e, 0], 1] - P[b, edges[e, 1], 1]
+            out[b, e] = np.sqrt(dx * dx + dy * dy) - distances[b, e]

@@ -235,6 +235,7 @@ class Simulation:
             raise ValueError(f"command must have shape {(N, self.k_max)}, got {command.shape}")
         if isinstance(substeps, bool) or not isinstance(substeps, (int, np.integer)) or substeps < 1:
             raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
+        substeps = int(substeps)
         # fresh arrays every step (records handed out are never overwritten), copied from templates
         t = self._record_template
         rec = StepRecord(v_star=t.v_star.copy(), tau=t.tau.copy(), min_clearance=t.min_clearance.copy(),
@@ -245,16 +246,16 @@ class Simulation:
             raise ValueError("the torque-mode filter needs qp_solver='active_set'")
         for g in self.groups:
             if piqp and g.obstacle_mask.any():
-                for _ in range(int(substeps)):
+                for _ in range(substeps):
                     v_star, status, min_h = self._piqp_filter(g, command[g.arm_ids, : g.k], max_speed)
                     self._advance_group(g, v_star, 1, False, False, max_speed, rec)
                     rec.qp_counts[g.arm_ids] += np.eye(3, dtype=np.int64)[status] - np.eye(3, dtype=np.int64)[0]
                     np.minimum(rec.min_barrier[g.arm_ids], min_h, out=rec.min_barrier[g.arm_ids])
             else:
-                self._advance_group(g, command[:, : g.k] if g.whole_team else command[g.arm_ids, : g.k],
-                                    int(substeps), torque, self.safety_filter, max_speed, rec)
+                self._advance_group(g, command if g.whole_team else command[g.arm_ids, : g.k], substeps, torque,
+                                    self.safety_filter, max_speed, rec)
         self.time += substeps * self.dt
-        self.steps += int(substeps)
+        self.steps += substeps
         if not rec.finite:  # a faulty arm stopped early: include the (finite) state it was left in
             np.minimum(rec.min_clearance, self.clearance(), out=rec.min_clearance)
         np.minimum(self.min_clearance, rec.min_clearance, out=self.min_clearance)
@@ -266,29 +267,31 @@ class Simulation:
         k = g.k
         A = len(g.arm_ids)
         finite = np.empty(A, dtype=bool)
-        if g.whole_team:  # the kernel writes straight into the record (it accumulates minima and counts)
-            v_star, tau_a = (rec.v_star if k == self.k_max else np.empty((A, k))), np.empty((A, k))
+        whole = g.whole_team  # then n = n_max and k = k_max
+        if whole:  # the kernel writes straight into the record (it accumulates minima and counts)
+            v_star, tau_a = rec.v_star, (rec.tau if k == g.n else np.empty((A, k)))
             min_clear, min_h, counts, track = rec.min_clearance, rec.min_barrier, rec.qp_counts, rec.max_tracking_error
         else:
             ids = g.arm_ids
             v_star, tau_a = np.empty((A, k)), np.empty((A, k))
             min_clear, min_h = rec.min_clearance[ids], rec.min_barrier[ids]
             counts, track = np.zeros((A, 3), dtype=np.int64), rec.max_tracking_error[ids]
+            command = command[:, :k]
         kernels.group_advance(
             b.lam, b.lengths, b.base, b.phi, b.passive_first_joint, g.q, g.v, g.v_star_prev, g.has_prev,
-            np.ascontiguousarray(command, dtype=float), torque, filter_on, g.centers, g.radii, g.obstacle_mask,
-            self.kappa, self.epsilon, self.margin, self.scenario.ke, self.dt, substeps, float(max_speed),
-            v_star, tau_a, g.qd, g.p, min_clear, min_h, counts, track, finite)
+            command if command.flags.c_contiguous else np.ascontiguousarray(command), torque, filter_on, g.centers,
+            g.radii, g.obstacle_mask, self.kappa, self.epsilon, self.margin, self.scenario.ke, self.dt, substeps,
+            float(max_speed), v_star, tau_a, g.qd, g.p, min_clear, min_h, counts, track, finite)
         if torque:
             g.has_prev[:] = False
         self._positions = None
         self._terms_cache = {}
-        rec.finite &= bool(finite.all())
-        if g.whole_team:
-            rec.tau[:, : g.n - k] = 0.0
-            rec.tau[:, g.n - k : g.n] = tau_a
-            if v_star is not rec.v_star:
-                rec.v_star[:, :k] = v_star
+        if not finite.all():
+            rec.finite = False
+        if whole:
+            if tau_a is not rec.tau:  # a PA arm: the passive joint's torque is 0
+                rec.tau[:, 0] = 0.0
+                rec.tau[:, 1:] = tau_a
         else:
             rec.v_star[ids, :k] = v_star
             rec.tau[ids, : g.n] = 0.0

@@ -43,7 +43,7 @@ from pan1_env.validation import real
 
 __all__ = ["SafetyShield", "GymSafetyShield", "shield_parameters"]
 
-_STATUS_NAMES = {int(s): s.name.lower() for s in QPStatus}
+_STATUS_NAMES = {s: s.name.lower() for s in QPStatus}
 
 
 def shield_parameters(scenario, kappa: float | None, epsilon: float | None, margin: float | None,
@@ -72,29 +72,28 @@ def _shield_infos(core, actions: dict[str, np.ndarray]) -> dict[str, dict[str, A
     rec = core._last_record
     if rec is None:
         return {}
-    scale = core.max_joint_speed if core.action_mode == "velocity" else core.max_torque
-    counts = rec.qp_counts
-    if core.action_mode == "velocity":
-        applied = (rec.v_star / scale).astype(np.float32)
+    velocity = core.action_mode == "velocity"
+    if velocity:
+        applied = rec.v_star * (1.0 / core.max_joint_speed)
     else:
-        applied = (rec.tau / scale).astype(np.float32)
-    intervened = (counts[:, 1] + counts[:, 2] > 0).tolist()
-    fallback = (counts[:, 2] > 0).tolist()
-    worst = np.where(counts[:, 2] > 0, 2, np.where(counts[:, 1] > 0, 1, 0)).tolist()
+        applied = rec.tau * (1.0 / core.max_torque)
+    applied = applied.astype(np.float32)
+    counts = rec.qp_counts
     min_barrier = rec.min_barrier.tolist()
     out = {}
-    for i, agent in enumerate(core.possible_agents):
+    for i, (agent, (_, solved, fallback)) in enumerate(zip(core.possible_agents, counts.tolist(), strict=True)):
         if agent not in actions:
             continue
         k = core._k[i]
         n = core._n[i]
+        worst = QPStatus.FALLBACK if fallback else (QPStatus.SOLVED if solved else QPStatus.NOMINAL)
         out[agent] = {
             "requested": np.array(actions[agent], dtype=np.float32),
-            "applied": applied[i, :k] if core.action_mode == "velocity" else applied[i, n - k : n],
-            "intervened": intervened[i],
+            "applied": applied[i, :k] if velocity else applied[i, n - k : n],
+            "intervened": solved + fallback > 0,
             "min_barrier": min_barrier[i],
-            "status": _STATUS_NAMES[worst[i]],
-            "fallback": fallback[i],
+            "status": _STATUS_NAMES[worst],
+            "fallback": fallback > 0,
             "qp_counts": counts[i],
         }
     return out
