@@ -6,7 +6,9 @@ Prints a Markdown table of medians (each over several repeats) and the ratios th
 
 * the shielded ``paper_pa3_square`` parallel step (default time steps: 0.05 s control, 5 RK4
   sub-steps of 10 ms, the QP re-solved at each) against PettingZoo MPE ``simple_spread_v3``'s
-  parallel step (package ``mpe2``, skipped if absent), and ``Acrobot-v1``'s step for scale;
+  parallel step (package ``mpe2``, skipped if absent);
+* the one-arm task ``pan1_env/PAReach-v0`` (one PA3 arm, filter on, same time steps) against
+  ``Acrobot-v1`` (one underactuated 2-link arm), both made by ``gymnasium.make``;
 * the vector env (:class:`pan1_env.vector.Pan1VectorEnv`, shielded) at B = 1, 64, 1024, 16384:
   arm-steps per second (one arm advanced one env step = 5 physics sub-steps, each with its QP) and
   physics arm-steps per second, against B separate shielded Gymnasium envs stepped in a loop;
@@ -15,8 +17,8 @@ Prints a Markdown table of medians (each over several repeats) and the ratios th
 * ``pan1-env reproduce`` of each paper scenario (the simulation loop, nominal and safe);
 * ``import pan1_env`` in a fresh interpreter.
 
-Absolute times on shared machines are noise; read the ratios. Not measured (no such env yet): a
-one-arm PA env against ``Acrobot-v1`` (scenarios need two arms for a formation).
+Absolute times on shared machines are noise; read the ratios. The pairs compared are measured in
+alternation (one batch of steps each, repeated), so a slow spell of the machine hits both.
 """
 
 from __future__ import annotations
@@ -64,29 +66,60 @@ def bench_env_vs_mpe(repeats: int, inner: int) -> list[tuple[str, float, str]]:
     from pan1_env.environment import parallel_env
     from pan1_env.wrappers import SafetyShield
 
-    ours = _median_time(_env_stepper(SafetyShield(parallel_env("paper_pa3_square"))), repeats, inner)
-    rows = [("paper_pa3_square parallel step, shielded (4 PA3 arms, 5 × 10 ms sub-steps)", ours, "")]
+    ours_step = _env_stepper(SafetyShield(parallel_env("paper_pa3_square")))
+    label = "paper_pa3_square parallel step, shielded (4 PA3 arms, 5 × 10 ms sub-steps)"
     try:
         from mpe2 import simple_spread_v3
     except ImportError:
-        rows.append(("MPE simple_spread_v3 parallel step", float("nan"), "mpe2 not installed"))
-        return rows
-    mpe = _median_time(_env_stepper(simple_spread_v3.parallel_env()), repeats, inner)
-    rows.append(("MPE simple_spread_v3 parallel step (3 agents)", mpe, ""))
-    rows.append(("ratio: MPE step / our step (target ≥ 5)", mpe / ours, "ratio"))
+        return [(label, _median_time(ours_step, repeats, inner), ""),
+                ("MPE simple_spread_v3 parallel step", float("nan"), "mpe2 not installed")]
+    mpe_step = _env_stepper(simple_spread_v3.parallel_env())
+    ours, mpe = [], []
+    for _ in range(repeats):  # interleaved, so both see the same machine
+        ours.append(_median_time(ours_step, 1, inner))
+        mpe.append(_median_time(mpe_step, 1, inner))
+    ours_t, mpe_t = statistics.median(ours), statistics.median(mpe)
+    return [(label, ours_t, ""), ("MPE simple_spread_v3 parallel step (3 agents)", mpe_t, ""),
+            ("ratio: MPE step / our step (target ≥ 5)", mpe_t / ours_t, "ratio")]
+
+
+def _gym_stepper(env, seed: int = 0):
+    """A step function of a Gymnasium env on 64 fixed random actions, resetting when an episode ends."""
+    env.reset(seed=seed)
+    env.action_space.seed(seed)
+    actions = [env.action_space.sample() for _ in range(64)]
+    state = {"i": 0, "done": False}
+
+    def step():
+        if state["done"]:
+            env.reset()
+        _, _, term, trunc, _ = env.step(actions[state["i"] % 64])
+        state["i"] += 1
+        state["done"] = term or trunc
+
+    for _ in range(20):
+        step()
+    return step
+
+
+def bench_one_arm_vs_acrobot(repeats: int, inner: int) -> list[tuple[str, float, str]]:
+    """``pan1_env/PAReach-v0`` (one PA3 arm, filter on) against ``Acrobot-v1``, both from ``gymnasium.make``."""
     import gymnasium
 
-    acrobot = gymnasium.make("Acrobot-v1")
-    acrobot.reset(seed=0)
+    import pan1_env  # noqa: F401  (registers the ids)
 
-    def acro_step():
-        _, _, term, trunc, _ = acrobot.step(1)
-        if term or trunc:
-            acrobot.reset()
-
-    acro = _median_time(acro_step, repeats, inner * 5)
-    rows.append(("Gymnasium Acrobot-v1 step (one 2-link arm, for scale)", acro, ""))
-    return rows
+    reach = _gym_stepper(gymnasium.make("pan1_env/PAReach-v0"))
+    acrobot = _gym_stepper(gymnasium.make("Acrobot-v1"))
+    ours, acro = [], []
+    for _ in range(repeats):  # interleaved, so both see the same machine
+        ours.append(_median_time(reach, 1, inner * 5))
+        acro.append(_median_time(acrobot, 1, inner * 5))
+    ours_t, acro_t = statistics.median(ours), statistics.median(acro)
+    return [
+        ("PAReach-v0 step, filtered (one PA3 arm, 5 × 10 ms sub-steps)", ours_t, ""),
+        ("Gymnasium Acrobot-v1 step (one 2-link arm, RK4)", acro_t, ""),
+        ("ratio: Acrobot step / our one-arm step (target ≥ 1)", acro_t / ours_t, "ratio"),
+    ]
 
 
 def bench_vector(repeats: int, sizes: tuple[int, ...]) -> list[tuple[str, float, str]]:
@@ -237,6 +270,7 @@ def main() -> int:
     repeats, inner = (3, 50) if args.quick else (7, 200)
     rows = bench_import()
     rows += bench_env_vs_mpe(repeats, inner)
+    rows += bench_one_arm_vs_acrobot(repeats, inner)
     rows += bench_vector(repeats, (1, 64, 1024) if args.quick else (1, 64, 1024, 16384))
     rows += bench_qp(300 if args.quick else 2000)
     rows += bench_team_scaling(repeats, inner)

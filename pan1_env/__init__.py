@@ -1,9 +1,10 @@
 """pan1-env: multi-arm PAn−1 formation control with robust-CBF safety.
 
 Importing the package registers the Gymnasium ids ``pan1_env/PaperPA3Square-v0``,
-``pan1_env/PaperMixedPA-v0`` and ``pan1_env/RandomFormation-v0`` (see
-:mod:`pan1_env.registration`). The PettingZoo constructors :func:`parallel_env`, :func:`env` and
-:data:`raw_env` are imported on first use, so ``import pan1_env`` stays fast.
+``pan1_env/PaperMixedPA-v0``, ``pan1_env/RandomFormation-v0`` and the one-arm
+``pan1_env/PAReach-v0`` (see :mod:`pan1_env.registration`). The PettingZoo constructors
+:func:`parallel_env`, :func:`env` and :data:`raw_env` are imported on first use, so
+``import pan1_env`` stays fast.
 """
 
 from __future__ import annotations

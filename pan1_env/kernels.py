@@ -24,6 +24,7 @@ __all__ = [
     "qp_project",
     "scale_command",
     "edge_length_errors",
+    "reach_observations",
 ]
 
 STATUS_NOMINAL, STATUS_SOLVED, STATUS_FALLBACK = 0, 1, 2
@@ -206,6 +207,37 @@ def group_end_effectors(lengths, base, phi, q, p):
 
 
 @njit(**_JIT)
+def _obstacle_slots(o, c, px, py, centers, radii, K, bound, clear, taken):
+    """Write K obstacle slots (present, dx, dy, r, h) at ``o[c:]`` for an end-effector at (px, py): the
+    K obstacles of smallest clearance ‖p − o‖ − r (ties: lower index first), zeros where absent."""
+    O = radii.shape[0]
+    for j in range(O):
+        dx = centers[j, 0] - px
+        dy = centers[j, 1] - py
+        clear[j] = np.sqrt(dx * dx + dy * dy) - radii[j]
+        taken[j] = False
+    for _slot in range(K):
+        best = -1
+        for j in range(O):
+            if not taken[j] and (best < 0 or clear[j] < clear[best]):
+                best = j
+        if best < 0:
+            for f in range(5):
+                o[c + f] = 0.0
+        else:
+            taken[best] = True
+            dx = centers[best, 0] - px
+            dy = centers[best, 1] - py
+            rad = radii[best]
+            o[c] = 1.0
+            o[c + 1] = min(max(dx, -bound), bound)
+            o[c + 2] = min(max(dy, -bound), bound)
+            o[c + 3] = min(max(rad, -bound), bound)
+            o[c + 4] = min(max(dx * dx + dy * dy - rad * rad, -bound), bound)
+        c += 5
+
+
+@njit(**_JIT)
 def group_observations(q, qd, P, base, err, centers, radii, ids, neighbour, neighbour_edge, present, K, inv_vmax,
                        bound, out):
     """Local observations of the arms ``ids`` (all with n links) of B teams, written to ``out (B, A, size)``.
@@ -247,30 +279,7 @@ def group_observations(q, qd, P, base, err, centers, radii, ids, neighbour, neig
                     o[c + 2] = 0.0
                     o[c + 3] = 0.0
                 c += 4
-            for j in range(O):
-                dx = centers[bi, j, 0] - px
-                dy = centers[bi, j, 1] - py
-                clear[j] = np.sqrt(dx * dx + dy * dy) - radii[bi, j]
-                taken[j] = False
-            for _slot in range(K):
-                best = -1
-                for j in range(O):
-                    if not taken[j] and (best < 0 or clear[j] < clear[best]):
-                        best = j
-                if best < 0:
-                    for f in range(5):
-                        o[c + f] = 0.0
-                else:
-                    taken[best] = True
-                    dx = centers[bi, best, 0] - px
-                    dy = centers[bi, best, 1] - py
-                    rad = radii[bi, best]
-                    o[c] = 1.0
-                    o[c + 1] = min(max(dx, -bound), bound)
-                    o[c + 2] = min(max(dy, -bound), bound)
-                    o[c + 3] = min(max(rad, -bound), bound)
-                    o[c + 4] = min(max(dx * dx + dy * dy - rad * rad, -bound), bound)
-                c += 5
+            _obstacle_slots(o, c, px, py, centers[bi], radii[bi], K, bound, clear, taken)
 
 
 @njit(**_JIT, inline="always")
@@ -682,3 +691,28 @@ def edge_length_errors(P, edges, distances, out):
             dx = P[b, edges[e, 0], 0] - P[b, edges[e, 1], 0]
             dy = P[b, edges[e, 0], 1] - P[b, edges[e, 1], 1]
             out[b, e] = np.sqrt(dx * dx + dy * dy) - distances[b, e]
+
+
+@njit(**_JIT)
+def reach_observations(q, qd, p, base, goal, centers, radii, K, inv_vmax, bound, out):
+    """Observations of A one-arm reaching tasks, written to ``out (A, 3n + 4 + 5K)`` (float32):
+    ``[cos q, sin q, q̇·inv_vmax, p − base, goal − p, K obstacle slots]``, each arm with its own
+    goal ``(A, 2)`` and obstacles ``centers (A, O, 2)``, ``radii (A, O)``; entries other than
+    cos/sin and flags clipped to ±``bound``."""
+    n = q.shape[1]
+    O = radii.shape[1]
+    clear = np.empty(O)
+    taken = np.empty(O, dtype=np.bool_)
+    for i in range(q.shape[0]):
+        o = out[i]
+        for a in range(n):
+            o[a] = np.cos(q[i, a])
+            o[n + a] = np.sin(q[i, a])
+            o[2 * n + a] = min(max(qd[i, a] * inv_vmax, -bound), bound)
+        px = p[i, 0]
+        py = p[i, 1]
+        o[3 * n] = min(max(px - base[i, 0], -bound), bound)
+        o[3 * n + 1] = min(max(py - base[i, 1], -bound), bound)
+        o[3 * n + 2] = min(max(goal[i, 0] - px, -bound), bound)
+        o[3 * n + 3] = min(max(goal[i, 1] - py, -bound), bound)
+        _obstacle_slots(o, 3 * n + 4, px, py, centers[i], radii[i], K, bound, clear, taken)

@@ -10,7 +10,8 @@ concatenation of every agent's action, its reward the mean of the agents' reward
 * ``pan1_env/PaperMixedPA-v0`` (Section 5.2),
 * ``pan1_env/RandomFormation-v0`` (a new random team every reset),
 
-each with ``max_episode_steps`` equal to the env's ``max_steps`` at default arguments.
+each with ``max_episode_steps`` equal to the env's ``max_steps`` at default arguments, and the
+one-arm task ``pan1_env/PAReach-v0`` (:class:`~pan1_env.reach.PAReachEnv`, 200 steps).
 """
 
 from __future__ import annotations
@@ -20,13 +21,14 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-__all__ = ["CentralizedEnv", "register_envs", "ENV_IDS"]
+__all__ = ["CentralizedEnv", "register_envs", "ENV_IDS", "REACH_ENV_ID"]
 
 ENV_IDS = {
     "pan1_env/PaperPA3Square-v0": {"scenario": "paper_pa3_square"},
     "pan1_env/PaperMixedPA-v0": {"scenario": "paper_pa_mixed_square"},
     "pan1_env/RandomFormation-v0": {"scenario": "random"},
 }
+REACH_ENV_ID = "pan1_env/PAReach-v0"
 DEFAULT_MAX_EPISODE_STEPS = 2000  # 100 s at the default control_dt of 0.05 s
 RENDER_MODES = ["human", "rgb_array"]
 RENDER_FPS = 20
@@ -100,3 +102,5 @@ def register_envs() -> None:
             kwargs=kwargs,
             max_episode_steps=DEFAULT_MAX_EPISODE_STEPS,
         )
+    if REACH_ENV_ID not in gymnasium.registry:
+        gymnasium.register(id=REACH_ENV_ID, entry_point="pan1_env.reach:PAReachEnv", max_episode_steps=200)

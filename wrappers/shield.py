@@ -139,7 +139,8 @@ class GymSafetyShield(gymnasium.Wrapper):
         super().__init__(env)
         inner = env.unwrapped
         if not hasattr(inner, "parallel"):
-            raise TypeError(f"GymSafetyShield wraps a pan1_env Gymnasium env, got {type(inner).__name__}")
+            hint = " (PAReachEnv has the filter built in: safety_filter=True)" if hasattr(inner, "arm_index") else ""
+            raise TypeError(f"GymSafetyShield wraps a pan1_env team Gymnasium env, got {type(inner).__name__}{hint}")
         _switch_on(inner.parallel, kappa, epsilon, margin, tracking_bound)
 
     def step(self, action):
