@@ -16,6 +16,7 @@ import numpy as np
 from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec
 
+from .compiled import kernels
 from .observation import OBS_BOUND, ObservationLayout
 from .random_scenario import RandomScenarioOptions, random_scenario
 from .registration import RENDER_FPS, RENDER_MODES
@@ -26,6 +27,7 @@ from .validation import positive_int, real, whole_ratio
 __all__ = ["Pan1ParallelEnv", "parallel_env", "env", "raw_env", "ACTION_MODES"]
 
 ACTION_MODES = ("velocity", "torque")
+
 # Largest K_e · physics_dt accepted. RK4 on the tracker's error, ė = −K_e e, is stable up to 2.78;
 # at 1.0 it still shrinks the error by 0.375 a step against the exact e⁻¹ = 0.368.
 MAX_KE_DT = 1.0
@@ -237,6 +239,7 @@ class Pan1ParallelEnv(ParallelEnv):
         self.qp_solver = qp_solver
         self.action_mode = action_mode
         self._torque_mode = action_mode == "torque"
+        self._action_scale = float(max_torque if self._torque_mode else max_joint_speed)
         self.render_mode = render_mode
         self.terminate_on_collision = bool(terminate_on_collision)
         self.terminate_on_success = bool(terminate_on_success)
@@ -255,6 +258,7 @@ class Pan1ParallelEnv(ParallelEnv):
         self._n = [a.n_links for a in template.arms]
         self._k = [a.n_actuated for a in template.arms]
         self._k_array = np.array(self._k)
+        self._command_shape = (template.n_arms, max(self._k))
         self._uniform_k = len(set(self._k)) == 1
         edges = template.formation.edges
         degrees = np.bincount(edges.ravel(), minlength=template.n_arms)
@@ -298,6 +302,22 @@ class Pan1ParallelEnv(ParallelEnv):
         self._bases = np.array([a.base for a in scenario.arms])[None]
         self._centers = scenario.obstacles.centers[None]
         self._radii = scenario.obstacles.radii[None]
+        self._single_group = len(self.sim.groups) == 1 and self.sim.groups[0].whole_team
+        self._bind_state_views()
+
+    def _bind_state_views(self) -> None:
+        """(1, N, ·) views of the state arrays, which the Simulation updates in place (one-group teams)."""
+        g = self.sim.groups[0]
+        self._state_views = (g.q[None], g.qd[None], g.p[None]) if self._single_group else None
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state.pop("_state_views", None)  # pickling and copying would turn the views into separate arrays
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._bind_state_views()
 
     # ------------------------------------------------------------------- API
     def reset(self, seed: int | None = None, options: dict | None = None):
@@ -312,13 +332,13 @@ class Pan1ParallelEnv(ParallelEnv):
         self.num_steps = 0
         self._needs_reset = False
         self._last_record = None
-        err = self._edge_errors(self.sim.positions())
+        err, obs = self._observations()
         max_err = float(np.max(np.abs(err)))
         clear = self.sim.clearance()
         infos = {agent: self._info(0.0, clear[i], max_err) for i, agent in enumerate(self.agents)}
         if self.render_mode == "human":
             self.render()
-        return self._observations(err), infos
+        return obs, infos
 
     def step(self, actions: Mapping[str, np.ndarray]):
         if self._needs_reset or not self.agents:
@@ -326,9 +346,9 @@ class Pan1ParallelEnv(ParallelEnv):
         command, effort = self._command(actions)
         rec = self.sim.step(command, self.substeps, torque=self._torque_mode, max_speed=self.max_joint_speed)
         self.num_steps += 1
-        err = self._edge_errors(self.sim.positions())
+        err, obs = self._observations()
         # per-step scalars in plain Python: a handful of edges and arms is cheaper there than in numpy calls
-        abs_err = [abs(x) for x in err.tolist()]
+        abs_err = [abs(x) for x in err[0].tolist()]
         shared = -self.formation_weight * (sum(abs_err) / len(abs_err))
         max_err = max(abs_err)
         success = max_err < self.success_tolerance
@@ -344,14 +364,13 @@ class Pan1ParallelEnv(ParallelEnv):
         truncated = self.num_steps >= self.max_steps or fault is not None
         infos = {}
         for i, agent in enumerate(self.agents):
-            info = self._info(cost[i], clearances[i], max_err)
+            info = {"cost": cost[i], "min_clearance": clearances[i], "formation_error": max_err, "is_success": success}
             if self.safety_filter:
                 info["qp_counts"] = rec.qp_counts[i]  # a row of this step's fresh record
             if fault:
                 info["fault"] = fault
             infos[agent] = info
         self._last_record = rec
-        obs = self._observations(err)
         terminations = dict.fromkeys(self.agents, terminated)
         truncations = dict.fromkeys(self.agents, truncated)
         if terminated or truncated:
@@ -396,44 +415,33 @@ class Pan1ParallelEnv(ParallelEnv):
 
     def _command(self, actions: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """The padded physical command ``(N, k_max)`` and each agent's effort ‖clip(a)‖² / k."""
-        if not isinstance(actions, Mapping):
+        if type(actions) is not dict and not isinstance(actions, Mapping):
             raise ValueError(f"actions must be a dict keyed by agent, got {type(actions).__name__}")
-        if set(actions) != set(self.agents):
+        if len(actions) != len(self.agents) or set(actions) != set(self.agents):
             missing = sorted(set(self.agents) - set(actions))
             extra = sorted(set(actions) - set(self.agents))
             raise ValueError(f"actions must have one entry per live agent; missing {missing}, unexpected {extra}")
-        scale = self.max_joint_speed if self.action_mode == "velocity" else self.max_torque
         command = None
         if self._uniform_k:  # one array call when every agent has the same action size
             try:
                 command = np.array([actions[a] for a in self.possible_agents], dtype=float)
             except (ValueError, TypeError):
                 command = None
-            if command is not None and command.shape != (self.scenario.n_arms, self.sim.k_max):
+            if command is not None and command.shape != self._command_shape:
                 command = None
         if command is None:  # mixed sizes, or a bad action: per agent, with a specific error
-            command = np.zeros((self.scenario.n_arms, self.sim.k_max))
+            command = np.zeros(self._command_shape)
             for i, agent in enumerate(self.possible_agents):
                 a = np.asarray(actions[agent], dtype=float)
                 if a.shape != (self._k[i],):
                     raise ValueError(f"action for {agent} must have shape ({self._k[i]},), got {a.shape}")
                 command[i, : self._k[i]] = a
-        from .kernels import scale_command  # numba is loaded with the first Simulation, not at import
-
         effort = np.empty(len(command))
-        bad = scale_command(command, self._k_array, scale, effort)  # clip, effort, scale in place
+        bad = kernels().scale_command(command, self._k_array, self._action_scale, effort)  # clip, effort, scale
         if bad >= 0:
             agent = self.possible_agents[bad]
             raise ValueError(f"action for {agent} contains NaN or inf: {np.asarray(actions[agent]).tolist()}")
         return command, effort
-
-    def _edge_errors(self, P: np.ndarray) -> np.ndarray:
-        """‖z_k‖ − d_k for every edge of the formation (m)."""
-        from .kernels import edge_length_errors
-
-        err = np.empty((1, len(self._edges)))
-        edge_length_errors(P[None], self._edges, self._distances, err)
-        return err[0]
 
     def _info(self, cost: float, min_clearance: float, max_err: float) -> dict[str, Any]:
         return {
@@ -443,22 +451,22 @@ class Pan1ParallelEnv(ParallelEnv):
             "is_success": bool(max_err < self.success_tolerance),
         }
 
-    def _observations(self, err: np.ndarray) -> dict[str, np.ndarray]:
-        """Every live agent's observation; ``err`` holds the edges' length errors ‖z_k‖ − d_k."""
-        sim = self.sim
-        if len(sim.groups) == 1 and sim.groups[0].whole_team:  # no padding or gathering needed
-            q, qd = sim.groups[0].q, sim.groups[0].qd
+    def _observations(self) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """The edges' length errors ‖z_k‖ − d_k ``(1, E)`` and every live agent's observation."""
+        if self._single_group:  # one group in team order: no padding or gathering needed
+            q, qd, P = self._state_views
         else:
-            q, qd = sim.joint_state()
-        mats = self._layout.build(q[None], qd[None], sim.positions()[None], self._bases, err[None],
-                                  self._centers, self._radii, self.max_joint_speed)
-        if len(mats) == 1 and len(self.agents) == len(self.possible_agents):
-            return dict(zip(self.possible_agents, mats[0][0], strict=True))
+            q, qd = self.sim.joint_state()
+            q, qd, P = q[None], qd[None], self.sim.positions()[None]
+        err, mats = self._layout.build_with_errors(q, qd, P, self._bases, self._edges, self._distances,
+                                                   self._centers, self._radii, self.max_joint_speed)
+        if self._single_group and len(self.agents) == len(self.possible_agents):
+            return err, dict(zip(self.possible_agents, mats[0][0], strict=True))
         out = {}
         for (_, ids), mat in zip(self._layout.groups, mats, strict=True):
             for row, i in enumerate(ids):
                 out[self.possible_agents[i]] = mat[0, row]
-        return out if len(out) == len(self.agents) else {a: out[a] for a in self.agents}
+        return err, (out if len(out) == len(self.agents) else {a: out[a] for a in self.agents})
 
 
 def default_physics_dt(control_dt: float, ke: float, scenario_dt: float, action_mode: str = "velocity") -> float:

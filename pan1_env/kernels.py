@@ -24,6 +24,7 @@ __all__ = [
     "qp_project",
     "scale_command",
     "edge_length_errors",
+    "formation_observations",
     "reach_observations",
 ]
 
@@ -423,6 +424,7 @@ def _advance_arms(lo, hi, lam, lengths, base, phi, passive, q, v, v_prev, has_pr
     kk = max(k, 1)
     O = radii.shape[1]
     m = O + 2 * k
+    tau_off = tau_out.shape[1] - k  # 0 for (A, k) torques; n − k for full (A, n) rows (passive entries untouched)
     # one arm's parameters and state
     lm, ln, qi, vi, vp = np.empty((n, n)), np.empty(n), np.empty(n), np.empty(k), np.empty(k)
     # kinematics and dynamics at a state
@@ -591,7 +593,7 @@ def _advance_arms(lo, hi, lam, lengths, base, phi, passive, q, v, v_prev, has_pr
         max_track[i] = arm_track
         for t in range(k):
             v_star_out[i, t] = vs[t]
-            tau_out[i, t] = tau[t]
+            tau_out[i, tau_off + t] = tau[t]
             v[i, t] = vi[t]
             v_prev[i, t] = vp[t]
         # joint velocities and end-effector at the (last finite) state
@@ -624,7 +626,8 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     safe set's boundary, and a nearly degenerate RCBF row, tiny ‖L_g0 h‖ with b < 0, has a huge
     exact optimum). A problem the box makes infeasible takes the braking fallback.
 
-    Outputs (per arm): ``v_star_out``/``tau_out`` of the last sub-step, ``qd_out`` the joint
+    Outputs (per arm): ``v_star_out``/``tau_out`` of the last sub-step (``tau_out`` either
+    ``(A, k)`` actuated torques or full ``(A, n)`` rows, whose passive entry is left as passed in), ``qd_out`` the joint
     velocities q̇ = g0 v and ``p_out`` the end-effector at the final state, ``min_clear`` the
     smallest clearance ‖p − o_j‖ − r_j to any obstacle after every sub-step (running minimum with
     the value passed in), ``min_h`` the smallest filtered barrier seen, ``qp_counts[i, s]`` the
@@ -716,3 +719,12 @@ def reach_observations(q, qd, p, base, goal, centers, radii, K, inv_vmax, bound,
         o[3 * n + 2] = min(max(goal[i, 0] - px, -bound), bound)
         o[3 * n + 3] = min(max(goal[i, 1] - py, -bound), bound)
         _obstacle_slots(o, 3 * n + 4, px, py, centers[i], radii[i], K, bound, clear, taken)
+
+
+@njit(**_JIT)
+def formation_observations(P, edges, distances, err, q, qd, base, centers, radii, ids, neighbour, neighbour_edge,
+                           present, K, inv_vmax, bound, out):
+    """:func:`edge_length_errors` into ``err (B, E)``, then :func:`group_observations` from them, in one call."""
+    edge_length_errors(P, edges, distances, err)
+    group_observations(q, qd, P, base, err, centers, radii, ids, neighbour, neighbour_edge, present, K, inv_vmax,
+                       bound, out)

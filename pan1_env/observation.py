@@ -12,9 +12,11 @@ equal-sized agents, with no per-agent Python loop.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
+from .compiled import kernels
 from .scenario import Scenario
 
 __all__ = ["ObservationLayout", "NEIGHBOUR_FEATURES", "OBSTACLE_FEATURES", "OBS_BOUND"]
@@ -68,6 +70,14 @@ class ObservationLayout:
         return cls(n=n, slots=int(slots), n_obstacle_obs=int(n_obstacle_obs), neighbour=neighbour,
                    neighbour_edge=edge, neighbour_present=present, groups=groups)
 
+    @cached_property
+    def _neighbour_mask(self) -> np.ndarray:
+        return self.neighbour_present > 0
+
+    @cached_property
+    def _group_sizes(self) -> tuple[tuple[np.ndarray, int], ...]:
+        return tuple((ids, self.size(n)) for n, ids in self.groups)
+
     def size(self, n: int) -> int:
         """Observation length of an agent with n links."""
         return 3 * n + 2 + NEIGHBOUR_FEATURES * self.slots + OBSTACLE_FEATURES * self.n_obstacle_obs
@@ -85,6 +95,28 @@ class ObservationLayout:
         low[flags], high[flags] = 0.0, 1.0
         return low, high
 
+    def build_with_errors(self, q: np.ndarray, qd: np.ndarray, P: np.ndarray, base: np.ndarray, edges: np.ndarray,
+                          distances: np.ndarray, centers: np.ndarray, radii: np.ndarray,
+                          max_joint_speed: float) -> tuple[np.ndarray, list[np.ndarray]]:
+        """The edges' length errors ‖z_k‖ − d_k ``(B, E)`` and :meth:`build`'s observations, computed
+        together (``edges (E, 2)`` int64, ``distances (B, E)``; other arguments as :meth:`build`)."""
+        kern = kernels()
+        Bsz = P.shape[0]
+        err = np.empty(distances.shape)
+        out = []
+        for r, (ids, size) in enumerate(self._group_sizes):
+            obs = np.empty((Bsz, len(ids), size), dtype=np.float32)
+            if r == 0:
+                kern.formation_observations(P, edges, distances, err, q, qd, base, centers, radii, ids, self.neighbour,
+                                            self.neighbour_edge, self._neighbour_mask, self.n_obstacle_obs,
+                                            1.0 / max_joint_speed, OBS_BOUND, obs)
+            else:
+                kern.group_observations(q, qd, P, base, err, centers, radii, ids, self.neighbour, self.neighbour_edge,
+                                        self._neighbour_mask, self.n_obstacle_obs, 1.0 / max_joint_speed, OBS_BOUND,
+                                        obs)
+            out.append(obs)
+        return err, out
+
     def build(self, q: np.ndarray, qd: np.ndarray, P: np.ndarray, base: np.ndarray, edge_errors: np.ndarray,
               centers: np.ndarray, radii: np.ndarray, max_joint_speed: float) -> list[np.ndarray]:
         """Every agent's observation, one float32 array ``(B, A, size(n))`` per group of :attr:`groups`.
@@ -96,13 +128,12 @@ class ObservationLayout:
             centers: ``(B, O, 2)``, radii: ``(B, O)``: each team's obstacles.
             max_joint_speed: scale of q̇.
         """
-        from .kernels import group_observations
-
+        kernel = kernels().group_observations
         Bsz = P.shape[0]
         out = []
-        for n, ids in self.groups:
-            obs = np.empty((Bsz, len(ids), self.size(n)), dtype=np.float32)
-            group_observations(q, qd, P, base, edge_errors, centers, radii, ids, self.neighbour, self.neighbour_edge,
-                               self.neighbour_present > 0, self.n_obstacle_obs, 1.0 / max_joint_speed, OBS_BOUND, obs)
+        for ids, size in self._group_sizes:
+            obs = np.empty((Bsz, len(ids), size), dtype=np.float32)
+            kernel(q, qd, P, base, edge_errors, centers, radii, ids, self.neighbour, self.neighbour_edge,
+                   self._neighbour_mask, self.n_obstacle_obs, 1.0 / max_joint_speed, OBS_BOUND, obs)
             out.append(obs)
         return out

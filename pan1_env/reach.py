@@ -21,6 +21,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
+from .compiled import kernels
 from .dynamics import ArmBatch, joint_positions
 from .environment import DEFAULT_CONTROL_DT, MAX_KE_DT, default_physics_dt
 from .observation import OBS_BOUND, OBSTACLE_FEATURES
@@ -205,8 +206,6 @@ class PAReachEnv(gymnasium.Env):
         goal = options.pop("goal", None)
         if options:
             raise ValueError(f"unknown reset option {sorted(options)[0]!r}; the only option is 'goal'")
-        from .kernels import group_end_effectors
-
         q0 = np.asarray(self.scenario.q0[self.arm_index], dtype=float)
         self._q[0] = q0
         self._v[:] = 0.0
@@ -214,7 +213,7 @@ class PAReachEnv(gymnasium.Env):
         self._has_prev[:] = False
         self._qd[:] = 0.0
         b = self._batch
-        group_end_effectors(b.lengths, b.base, b.phi, self._q, self._p)
+        kernels().group_end_effectors(b.lengths, b.base, b.phi, self._q, self._p)
         if goal is None:
             self._goal[0] = self._draw_goal(q0)
         else:
@@ -233,13 +232,12 @@ class PAReachEnv(gymnasium.Env):
     def step(self, action: np.ndarray):
         if self._needs_reset:
             raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
-        from .kernels import group_advance, scale_command
-
+        kern = kernels()
         a = np.asarray(action, dtype=float)
         if a.shape != self.action_space.shape:
             raise ValueError(f"action must have shape {self.action_space.shape}, got {a.shape}")
         self._command[0] = a
-        if scale_command(self._command, self._k_array, self.max_joint_speed, self._effort) >= 0:
+        if kern.scale_command(self._command, self._k_array, self.max_joint_speed, self._effort) >= 0:
             raise ValueError(f"action contains NaN or inf: {a.tolist()}")
         self._min_clear[0] = np.inf
         self._min_h[0] = np.inf
@@ -247,7 +245,7 @@ class PAReachEnv(gymnasium.Env):
         self._track[0] = 0.0
         self._finite[0] = True
         b, sc = self._batch, self.scenario
-        group_advance(b.lam, b.lengths, b.base, b.phi, b.passive_first_joint, self._q, self._v, self._v_prev,
+        kern.group_advance(b.lam, b.lengths, b.base, b.phi, b.passive_first_joint, self._q, self._v, self._v_prev,
                       self._has_prev, self._command, False, self.safety_filter, self._centers, self._radii,
                       self._mask, sc.kappa, sc.epsilon, sc.safety_margin, sc.ke, self.physics_dt, self.substeps,
                       self.max_joint_speed, self._v_star, self._tau, self._qd, self._p, self._min_clear,
@@ -276,10 +274,8 @@ class PAReachEnv(gymnasium.Env):
 
     # ------------------------------------------------------------- internals
     def _observation(self) -> np.ndarray:
-        from .kernels import reach_observations
-
         out = np.empty((1, self.observation_space.shape[0]), dtype=np.float32)
-        reach_observations(self._q, self._qd, self._p, self._base, self._goal, self._centers, self._radii,
+        kernels().reach_observations(self._q, self._qd, self._p, self._base, self._goal, self._centers, self._radii,
                            self.n_obstacle_obs, 1.0 / self.max_joint_speed, OBS_BOUND, out)
         return out[0]
 

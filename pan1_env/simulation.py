@@ -51,7 +51,7 @@ class ArmGroup:
     centers: np.ndarray  # (A, O, 2) the team's obstacles, seen by every arm of the group
     radii: np.ndarray  # (A, O)
     obstacle_mask: np.ndarray  # (A, O) obstacles in each arm's filter
-    q: np.ndarray  # (A, n)
+    q: np.ndarray  # (A, n); this and the other state arrays are updated in place, never replaced
     v: np.ndarray  # (A, k)
     v_star_prev: np.ndarray  # (A, k) v* of the last velocity-mode sub-step (valid where has_prev)
     has_prev: np.ndarray  # (A,) bool
@@ -119,7 +119,7 @@ class Simulation:
             v_star=np.full((N, self.k_max), np.nan), tau=np.full((N, self.n_max), np.nan),
             min_clearance=np.full(N, np.inf), min_barrier=np.full(N, np.inf),
             qp_counts=np.zeros((N, 3), dtype=np.int64), max_tracking_error=np.zeros(N), finite=True)
-        self.groups: list[ArmGroup] = []
+        self.groups: list[ArmGroup] = []  # (the template's τ is 0 at every passive joint, NaN where unset)
         for (n, _passive), ids in sorted(kinds.items()):
             batch = ArmBatch.stack([scenario.arms[i] for i in ids])
             A, k = len(ids), batch.n_actuated
@@ -130,6 +130,8 @@ class Simulation:
                 obstacle_mask=np.ascontiguousarray(mask[ids]), q=np.zeros((A, n)), v=np.zeros((A, k)),
                 v_star_prev=np.zeros((A, k)), has_prev=np.zeros(A, dtype=bool), qd=np.zeros((A, n)),
                 p=np.zeros((A, 2)), whole_team=(A == self.n_arms)))
+            if _passive:
+                self._record_template.tau[ids, 0] = 0.0
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -143,12 +145,12 @@ class Simulation:
             for i, row in zip(g.arm_ids, rows, strict=True):
                 if row.shape != (g.n,) or not np.all(np.isfinite(row)):
                     raise ValueError(f"q0[{i}] must be {g.n} finite joint angles, got {row.tolist()}")
-            g.q = np.array(rows)
-            g.v = np.zeros_like(g.v)
-            g.v_star_prev = np.zeros_like(g.v)
-            g.has_prev = np.zeros(len(g.arm_ids), dtype=bool)
-            g.qd = np.zeros_like(g.q)
-            g.p = np.empty((len(g.arm_ids), 2))
+            # in place: a group's state arrays live as long as the Simulation (views of them stay valid)
+            g.q[...] = rows
+            g.v[...] = 0.0
+            g.v_star_prev[...] = 0.0
+            g.has_prev[...] = False
+            g.qd[...] = 0.0
             kernels.group_end_effectors(g.batch.lengths, g.batch.base, g.batch.phi, g.q, g.p)
         self.time = 0.0
         self.steps = 0
@@ -236,6 +238,7 @@ class Simulation:
         if isinstance(substeps, bool) or not isinstance(substeps, (int, np.integer)) or substeps < 1:
             raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
         substeps = int(substeps)
+        max_speed = float(max_speed)
         # fresh arrays every step (records handed out are never overwritten), copied from templates
         t = self._record_template
         rec = StepRecord(v_star=t.v_star.copy(), tau=t.tau.copy(), min_clearance=t.min_clearance.copy(),
@@ -263,39 +266,34 @@ class Simulation:
 
     def _advance_group(self, g: ArmGroup, command: np.ndarray, substeps: int, torque: bool, filter_on: bool,
                        max_speed: float, rec: StepRecord) -> None:
-        b = g.batch
-        k = g.k
+        k, n = g.v.shape[1], g.q.shape[1]
         A = len(g.arm_ids)
         finite = np.empty(A, dtype=bool)
         whole = g.whole_team  # then n = n_max and k = k_max
         if whole:  # the kernel writes straight into the record (it accumulates minima and counts)
-            v_star, tau_a = rec.v_star, (rec.tau if k == g.n else np.empty((A, k)))
+            v_star, tau_a = rec.v_star, rec.tau  # full rows: the passive entries keep the template's 0
             min_clear, min_h, counts, track = rec.min_clearance, rec.min_barrier, rec.qp_counts, rec.max_tracking_error
         else:
             ids = g.arm_ids
-            v_star, tau_a = np.empty((A, k)), np.empty((A, k))
+            v_star, tau_a = np.empty((A, k)), np.zeros((A, n))  # full rows, passive entries 0
             min_clear, min_h = rec.min_clearance[ids], rec.min_barrier[ids]
             counts, track = np.zeros((A, 3), dtype=np.int64), rec.max_tracking_error[ids]
             command = command[:, :k]
+        b = g.batch
         kernels.group_advance(
             b.lam, b.lengths, b.base, b.phi, b.passive_first_joint, g.q, g.v, g.v_star_prev, g.has_prev,
             command if command.flags.c_contiguous else np.ascontiguousarray(command), torque, filter_on, g.centers,
             g.radii, g.obstacle_mask, self.kappa, self.epsilon, self.margin, self.scenario.ke, self.dt, substeps,
-            float(max_speed), v_star, tau_a, g.qd, g.p, min_clear, min_h, counts, track, finite)
+            max_speed, v_star, tau_a, g.qd, g.p, min_clear, min_h, counts, track, finite)
         if torque:
             g.has_prev[:] = False
         self._positions = None
         self._terms_cache = {}
-        if not finite.all():
+        if False in finite.tolist():
             rec.finite = False
-        if whole:
-            if tau_a is not rec.tau:  # a PA arm: the passive joint's torque is 0
-                rec.tau[:, 0] = 0.0
-                rec.tau[:, 1:] = tau_a
-        else:
+        if not whole:
             rec.v_star[ids, :k] = v_star
-            rec.tau[ids, : g.n] = 0.0
-            rec.tau[ids, g.n - k : g.n] = tau_a
+            rec.tau[ids, :n] = tau_a
             rec.min_clearance[ids] = min_clear
             rec.min_barrier[ids] = min_h
             rec.qp_counts[ids] += counts

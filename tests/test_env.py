@@ -14,6 +14,7 @@ import pan1_env
 from pan1_env.baselines import ReferencePolicy
 from pan1_env.environment import env as aec_env
 from pan1_env.environment import parallel_env
+from pan1_env.formation import edge_length_errors, edge_vectors
 
 MIXED = {"links": (2, 3, 4, 3), "passive_fraction": 0.5}
 
@@ -162,9 +163,11 @@ def test_gym_view_cost_and_info() -> None:
     # reward = −mean_k |‖z_k‖ − d_k| (5 edges); formation_error is the max over the same edges
     err = info["formation_error"]
     assert err / 5 <= -reward <= err
-    env.unwrapped.parallel.sim.positions()
-    z = env.unwrapped.parallel._edge_errors(env.unwrapped.parallel.sim.positions())
+    core = env.unwrapped.parallel
+    f = core.scenario.formation  # the numpy reference formulas, not the env's compiled ones
+    z = edge_length_errors(edge_vectors(f.incidence, core.sim.positions()), f.distances)
     assert reward == pytest.approx(-np.mean(np.abs(z)))
+    assert info["formation_error"] == pytest.approx(np.abs(z).max())
 
 
 # ---------------------------------------------------------------- bad input

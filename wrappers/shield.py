@@ -43,7 +43,7 @@ from pan1_env.validation import real
 
 __all__ = ["SafetyShield", "GymSafetyShield", "shield_parameters"]
 
-_STATUS_NAMES = {s: s.name.lower() for s in QPStatus}
+_NOMINAL, _SOLVED, _FALLBACK = (s.name.lower() for s in (QPStatus.NOMINAL, QPStatus.SOLVED, QPStatus.FALLBACK))
 
 
 def shield_parameters(scenario, kappa: float | None, epsilon: float | None, margin: float | None,
@@ -72,12 +72,8 @@ def _shield_infos(core, actions: dict[str, np.ndarray]) -> dict[str, dict[str, A
     rec = core._last_record
     if rec is None:
         return {}
-    velocity = core.action_mode == "velocity"
-    if velocity:
-        applied = rec.v_star * (1.0 / core.max_joint_speed)
-    else:
-        applied = rec.tau * (1.0 / core.max_torque)
-    applied = applied.astype(np.float32)
+    velocity = not core._torque_mode
+    applied = ((rec.v_star if velocity else rec.tau) * (1.0 / core._action_scale)).astype(np.float32)
     counts = rec.qp_counts
     min_barrier = rec.min_barrier.tolist()
     out = {}
@@ -85,14 +81,12 @@ def _shield_infos(core, actions: dict[str, np.ndarray]) -> dict[str, dict[str, A
         if agent not in actions:
             continue
         k = core._k[i]
-        n = core._n[i]
-        worst = QPStatus.FALLBACK if fallback else (QPStatus.SOLVED if solved else QPStatus.NOMINAL)
         out[agent] = {
             "requested": np.array(actions[agent], dtype=np.float32),
-            "applied": applied[i, :k] if velocity else applied[i, n - k : n],
+            "applied": applied[i, :k] if velocity else applied[i, core._n[i] - k : core._n[i]],
             "intervened": solved + fallback > 0,
             "min_barrier": min_barrier[i],
-            "status": _STATUS_NAMES[worst],
+            "status": _FALLBACK if fallback else (_SOLVED if solved else _NOMINAL),
             "fallback": fallback > 0,
             "qp_counts": counts[i],
         }
