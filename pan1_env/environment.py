@@ -356,14 +356,14 @@ class Pan1ParallelEnv(ParallelEnv):
         cost = [1.0 if c < 0 else 0.0 for c in clearances]
         if self.effort_weight or self.collision_penalty:
             rewards = {agent: shared - self.effort_weight * e - self.collision_penalty * c
-                       for agent, e, c in zip(self.agents, effort.tolist(), cost, strict=True)}
+                       for agent, e, c in zip(self.possible_agents, effort.tolist(), cost, strict=True)}
         else:
-            rewards = dict.fromkeys(self.agents, shared)
+            rewards = dict.fromkeys(self.possible_agents, shared)
         fault = None if rec.finite else "non-finite state in the physics step; episode truncated"
         terminated = bool((self.terminate_on_collision and any(cost)) or (self.terminate_on_success and success))
         truncated = self.num_steps >= self.max_steps or fault is not None
-        infos = {}
-        for i, agent in enumerate(self.agents):
+        infos = {}  # every arm is live in a step (agents leave together), so team index = position
+        for i, agent in enumerate(self.possible_agents):
             info = {"cost": cost[i], "min_clearance": clearances[i], "formation_error": max_err, "is_success": success}
             if self.safety_filter:
                 info["qp_counts"] = rec.qp_counts[i]  # a row of this step's fresh record

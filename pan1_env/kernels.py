@@ -2,9 +2,11 @@
 
 The formulas are those of :mod:`pan1_env.dynamics`, :mod:`pan1_env.cascade`,
 :mod:`pan1_env.safety` and :mod:`pan1_env.control` (the documented, vectorised numpy reference);
-the tests check every kernel against them. The kernels loop over the arms of one group (arms with
-the same number of links n and actuation, k actuated joints) so that a sub-step costs a handful of
-calls whatever the team size.
+the tests check the physics, filter and observation kernels against them (the small helpers
+:func:`scale_command`, :func:`edge_length_errors`, :func:`formation_observations` and
+:func:`reach_observations` through the environments' tests). The kernels loop over the arms of one
+group (arms with the same number of links n and actuation, k actuated joints) so that a sub-step
+costs a handful of calls whatever the team size.
 
 Importing this module imports numba (about half a second); :mod:`pan1_env` itself does not, so
 ``import pan1_env`` stays fast. Compiled code is cached on disk (``cache=True``).

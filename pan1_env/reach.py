@@ -55,7 +55,9 @@ class PAReachEnv(gymnasium.Env):
 
     With ``safety_filter=True`` (default) every sub-step first projects the command through the
     paper's RCBF-QP (Eq. 61) with the scenario's κ, ε and margin, and bounds the filtered speeds by
-    ``max_joint_speed``: the end-effector stays outside every obstacle whatever the action.
+    ``max_joint_speed``: the end-effector stays outside every obstacle the arm's filter sees (all but
+    those out of its reach, with the scenario's ``ignore_unreachable_obstacles``), whatever the
+    action, up to the RK4 sub-step's discretisation.
 
     ## Observation Space
 
@@ -201,11 +203,19 @@ class PAReachEnv(gymnasium.Env):
         return self._p[0].copy()
 
     def reset(self, *, seed: int | None = None, options: Mapping[str, Any] | None = None):
-        super().reset(seed=seed)
         options = dict(options or {})
         goal = options.pop("goal", None)
         if options:
             raise ValueError(f"unknown reset option {sorted(options)[0]!r}; the only option is 'goal'")
+        if goal is not None:  # checked before anything changes
+            try:
+                point = np.asarray(goal, dtype=float)
+            except (TypeError, ValueError):
+                point = None
+            if point is None or point.shape != (2,) or not np.isfinite(point).all():
+                raise ValueError(f"options['goal'] must be 2 finite numbers (x, y), got {goal!r}")
+            goal = point
+        super().reset(seed=seed)
         q0 = np.asarray(self.scenario.q0[self.arm_index], dtype=float)
         self._q[0] = q0
         self._v[:] = 0.0
@@ -214,13 +224,7 @@ class PAReachEnv(gymnasium.Env):
         self._qd[:] = 0.0
         b = self._batch
         kernels().group_end_effectors(b.lengths, b.base, b.phi, self._q, self._p)
-        if goal is None:
-            self._goal[0] = self._draw_goal(q0)
-        else:
-            g = np.asarray(goal, dtype=float)
-            if g.shape != (2,) or not np.isfinite(g).all():
-                raise ValueError(f"options['goal'] must be 2 finite numbers (x, y), got {goal!r}")
-            self._goal[0] = g
+        self._goal[0] = self._draw_goal(q0) if goal is None else goal
         self.num_steps = 0
         self._needs_reset = False
         distance = float(np.hypot(*(self._goal[0] - self._p[0])))

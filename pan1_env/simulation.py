@@ -253,7 +253,7 @@ class Simulation:
                     v_star, status, min_h = self._piqp_filter(g, command[g.arm_ids, : g.k], max_speed)
                     self._advance_group(g, v_star, 1, False, False, max_speed, rec)
                     rec.qp_counts[g.arm_ids] += np.eye(3, dtype=np.int64)[status] - np.eye(3, dtype=np.int64)[0]
-                    np.minimum(rec.min_barrier[g.arm_ids], min_h, out=rec.min_barrier[g.arm_ids])
+                    rec.min_barrier[g.arm_ids] = np.minimum(rec.min_barrier[g.arm_ids], min_h)
             else:
                 self._advance_group(g, command if g.whole_team else command[g.arm_ids, : g.k], substeps, torque,
                                     self.safety_filter, max_speed, rec)

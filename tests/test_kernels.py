@@ -202,3 +202,18 @@ def test_per_arm_obstacles_equal_one_arm_at_a_time() -> None:
         np.testing.assert_array_equal(q1[0], q_all[i])
         np.testing.assert_array_equal(out["v_star"][0], args["v_star"][i])
         np.testing.assert_array_equal(out["clear"][0], args["clear"][i])
+
+
+def test_piqp_and_active_set_records_agree_on_barriers() -> None:
+    """Both QP paths report the smallest filtered barrier h of each arm (the PIQP path once lost it)."""
+    from pan1_env.scenario import load
+    from pan1_env.simulation import Simulation
+
+    scenario = load("paper_pa3_square")
+    sims = {s: Simulation(scenario, qp_solver=s, physics_dt=0.01) for s in ("active_set", "piqp")}
+    command = np.random.default_rng(0).uniform(-2, 2, (scenario.n_arms, 3))
+    recs = {s: sim.step(command, 3, max_speed=2.0) for s, sim in sims.items()}
+    mask = scenario.obstacle_mask().any(axis=1)
+    assert mask.any() and np.isfinite(recs["active_set"].min_barrier[mask]).all()
+    np.testing.assert_allclose(recs["piqp"].min_barrier, recs["active_set"].min_barrier, rtol=1e-9, atol=1e-9)
+    np.testing.assert_array_equal(recs["piqp"].qp_counts.sum(axis=1), [3] * scenario.n_arms)
