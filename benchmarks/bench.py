@@ -44,6 +44,16 @@ def _median_time(fn, repeats: int, inner: int) -> float:
     return statistics.median(samples)
 
 
+def _alternating_medians(first, second, repeats: int, inner: int) -> tuple[float, float]:
+    """Medians of two step functions timed in alternation (``inner`` calls each, ``repeats`` rounds),
+    so that a slow spell of the machine hits both."""
+    a, b = [], []
+    for _ in range(repeats):
+        a.append(_median_time(first, 1, inner))
+        b.append(_median_time(second, 1, inner))
+    return statistics.median(a), statistics.median(b)
+
+
 def _env_stepper(env, seed: int = 0):
     env.reset(seed=seed)
     for a in env.possible_agents:
@@ -74,11 +84,7 @@ def bench_env_vs_mpe(repeats: int, inner: int) -> list[tuple[str, float, str]]:
         return [(label, _median_time(ours_step, repeats, inner), ""),
                 ("MPE simple_spread_v3 parallel step", float("nan"), "mpe2 not installed")]
     mpe_step = _env_stepper(simple_spread_v3.parallel_env())
-    ours, mpe = [], []
-    for _ in range(repeats):  # interleaved, so both see the same machine
-        ours.append(_median_time(ours_step, 1, inner))
-        mpe.append(_median_time(mpe_step, 1, inner))
-    ours_t, mpe_t = statistics.median(ours), statistics.median(mpe)
+    ours_t, mpe_t = _alternating_medians(ours_step, mpe_step, repeats, inner)
     return [(label, ours_t, ""), ("MPE simple_spread_v3 parallel step (3 agents)", mpe_t, ""),
             ("ratio: MPE step / our step (target ≥ 5)", mpe_t / ours_t, "ratio")]
 
@@ -110,11 +116,7 @@ def bench_one_arm_vs_acrobot(repeats: int, inner: int) -> list[tuple[str, float,
 
     reach = _gym_stepper(gymnasium.make("pan1_env/PAReach-v0"))
     acrobot = _gym_stepper(gymnasium.make("Acrobot-v1"))
-    ours, acro = [], []
-    for _ in range(repeats):  # interleaved, so both see the same machine
-        ours.append(_median_time(reach, 1, inner * 5))
-        acro.append(_median_time(acrobot, 1, inner * 5))
-    ours_t, acro_t = statistics.median(ours), statistics.median(acro)
+    ours_t, acro_t = _alternating_medians(reach, acrobot, repeats, inner * 5)
     return [
         ("PAReach-v0 step, filtered (one PA3 arm, 5 × 10 ms sub-steps)", ours_t, ""),
         ("Gymnasium Acrobot-v1 step (one 2-link arm, RK4)", acro_t, ""),
@@ -148,18 +150,7 @@ def bench_vector(repeats: int, sizes: tuple[int, ...]) -> list[tuple[str, float,
         rows.append((f"vector env step, B = {B} (× 4 arms)", t, ""))
         rows.append((f"  arm-steps per second at B = {B} (×{venv.template.substeps} physics sub-steps each)",
                      arms / t, "rate"))
-    single = GymSafetyShield(CentralizedEnv("paper_pa3_square"))
-    single.reset(seed=0)
-    single.action_space.seed(0)
-    acts = [single.action_space.sample() for _ in range(64)]
-    state = {"i": 0}
-
-    def single_step():
-        _, _, term, trunc, _ = single.step(acts[state["i"] % 64])
-        state["i"] += 1
-        if term or trunc:
-            single.reset()
-
+    single_step = _gym_stepper(GymSafetyShield(CentralizedEnv("paper_pa3_square")))
     t_single = _median_time(single_step, repeats, 200)
     rows.append(("one shielded Gymnasium env (CentralizedEnv) step, for the loop of B envs", t_single, ""))
     for B in sizes:

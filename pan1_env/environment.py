@@ -27,7 +27,6 @@ from .validation import positive_int, real, whole_ratio
 __all__ = ["Pan1ParallelEnv", "parallel_env", "env", "raw_env", "ACTION_MODES"]
 
 ACTION_MODES = ("velocity", "torque")
-
 # Largest K_e · physics_dt accepted. RK4 on the tracker's error, ė = −K_e e, is stable up to 2.78;
 # at 1.0 it still shrinks the error by 0.375 a step against the exact e⁻¹ = 0.368.
 MAX_KE_DT = 1.0

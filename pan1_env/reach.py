@@ -22,16 +22,17 @@ import gymnasium
 import numpy as np
 
 from .compiled import kernels
-from .dynamics import ArmBatch, joint_positions
+from .dynamics import ArmBatch, end_effector
 from .environment import DEFAULT_CONTROL_DT, MAX_KE_DT, default_physics_dt
 from .observation import OBS_BOUND, OBSTACLE_FEATURES
 from .random_scenario import _passive_path
+from .registration import DEFAULT_REACH_STEPS
+from .safety import clearance
 from .scenario import Scenario, load
 from .validation import positive_int, real, whole_ratio
 
-__all__ = ["PAReachEnv", "DEFAULT_REACH_STEPS"]
+__all__ = ["PAReachEnv"]
 
-DEFAULT_REACH_STEPS = 200  # 10 s at the default control_dt of 0.05 s
 _GOAL_DRAWS = 1000  # attempts at a goal clear of the obstacles before giving up
 
 
@@ -284,9 +285,8 @@ class PAReachEnv(gymnasium.Env):
         return out[0]
 
     def _clearance(self, p: np.ndarray) -> float:
-        if self._radii.shape[1] == 0:
-            return float("inf")
-        return float((np.linalg.norm(self._centers[0] - p, axis=-1) - self._radii[0]).min())
+        """Smallest clearance ‖p − o_j‖ − r_j of a point to the obstacles (inf with none)."""
+        return float(clearance(p, self._centers[0], self._radii[0]).min(initial=np.inf))
 
     def _draw_goal(self, q0: np.ndarray) -> np.ndarray:
         """An end-effector reachable from ``q0`` at rest, ``goal_clearance`` clear of every obstacle."""
@@ -294,7 +294,7 @@ class PAReachEnv(gymnasium.Env):
         for _ in range(_GOAL_DRAWS):
             qa = q0[-k:] + self.np_random.uniform(-self.goal_spread, self.goal_spread, k)
             q = _passive_path(arm, q0, qa)  # zero passive momentum along the straight path
-            goal = joint_positions(arm, q)[-1]
+            goal = end_effector(arm, q)
             if self._clearance(goal) >= self.goal_clearance:
                 return goal
         raise RuntimeError(f"no goal {self.goal_clearance} m clear of the obstacles in {_GOAL_DRAWS} draws; "

@@ -21,7 +21,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-__all__ = ["CentralizedEnv", "register_envs", "ENV_IDS", "REACH_ENV_ID"]
+__all__ = ["CentralizedEnv", "register_envs", "ENV_IDS", "REACH_ENV_ID", "DEFAULT_REACH_STEPS"]
 
 ENV_IDS = {
     "pan1_env/PaperPA3Square-v0": {"scenario": "paper_pa3_square"},
@@ -30,6 +30,7 @@ ENV_IDS = {
 }
 REACH_ENV_ID = "pan1_env/PAReach-v0"
 DEFAULT_MAX_EPISODE_STEPS = 2000  # 100 s at the default control_dt of 0.05 s
+DEFAULT_REACH_STEPS = 200  # PAReach-v0: 10 s at the default control_dt of 0.05 s
 RENDER_MODES = ["human", "rgb_array"]
 RENDER_FPS = 20
 
@@ -103,4 +104,5 @@ def register_envs() -> None:
             max_episode_steps=DEFAULT_MAX_EPISODE_STEPS,
         )
     if REACH_ENV_ID not in gymnasium.registry:
-        gymnasium.register(id=REACH_ENV_ID, entry_point="pan1_env.reach:PAReachEnv", max_episode_steps=200)
+        gymnasium.register(id=REACH_ENV_ID, entry_point="pan1_env.reach:PAReachEnv",
+                           max_episode_steps=DEFAULT_REACH_STEPS)

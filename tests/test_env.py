@@ -15,6 +15,7 @@ from pan1_env.baselines import ReferencePolicy
 from pan1_env.environment import env as aec_env
 from pan1_env.environment import parallel_env
 from pan1_env.formation import edge_length_errors, edge_vectors
+from pan1_env.registration import REACH_ENV_ID
 
 MIXED = {"links": (2, 3, 4, 3), "passive_fraction": 0.5}
 
@@ -37,14 +38,14 @@ def test_aec_api(scenario: str) -> None:
         api_test(aec_env(scenario), num_cycles=50)
 
 
-@pytest.mark.parametrize("env_id", sorted(pan1_env.ENV_IDS))
-def test_gymnasium_check_env_no_warnings(env_id: str) -> None:
+@pytest.mark.parametrize("env_id,max_steps", [(i, 2000) for i in sorted(pan1_env.ENV_IDS)] + [(REACH_ENV_ID, 200)])
+def test_gymnasium_check_env_no_warnings(env_id: str, max_steps: int) -> None:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         env = gymnasium.make(env_id)
         check_env(env.unwrapped)
     assert [str(w.message) for w in caught] == []
-    assert env.spec.max_episode_steps == 2000
+    assert env.spec.max_episode_steps == max_steps
 
 
 def test_make_in_fresh_interpreter(tmp_path) -> None:
