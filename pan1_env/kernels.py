@@ -17,7 +17,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from .compiled import kernel_sizes  # noqa: F401  (the first two arguments of group_advance)
+
 __all__ = [
+    "kernel_sizes",
     "group_terms",
     "group_advance",
     "group_advance_parallel",
@@ -51,6 +54,31 @@ def _angles(q, phi, n, c, s):
         ang += q[a]
         c[a] = np.cos(ang)
         s[a] = np.sin(ang)
+
+
+# Largest angle increment |δ| for which :func:`_rotate_angles` uses its series (the first omitted term,
+# δ¹²/12! for the cosine, is then below 1e-19); larger increments take np.cos/np.sin.
+_SERIES_MAX = 0.125
+
+
+@njit(**_JIT, inline="always")
+def _rotate_angles(c0, s0, thd, h, n, c, s):
+    """c, s of the link angles θ_α + h θ̇_α from those of θ_α (``c0``, ``s0``) and the absolute angular
+    speeds θ̇_α (``thd``): the angle-sum formulas, with cos δ and sin δ of the small increment
+    δ = h θ̇_α from their Taylor series to δ¹⁰ and δ¹¹ (exact to rounding for |δ| ≤ ``_SERIES_MAX``).
+    An RK4 step's stages and end state are reached this way from the state at its start, so a
+    sub-step evaluates no sine or cosine (the series is a handful of multiplications)."""
+    for a in range(n):
+        d = h * thd[a]
+        if abs(d) <= _SERIES_MAX:
+            d2 = d * d
+            cd = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0 * (1.0 - d2 / 56.0 * (1.0 - d2 / 90.0))))
+            sd = d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0 * (1.0 - d2 / 72.0 * (1.0 - d2 / 110.0)))))
+        else:
+            cd = np.cos(d)
+            sd = np.sin(d)
+        c[a] = c0[a] * cd - s0[a] * sd
+        s[a] = s0[a] * cd + c0[a] * sd
 
 
 @njit(**_JIT, inline="always")
@@ -412,17 +440,20 @@ def qp_project(v0, A, b, active, v_out, status):
 
 
 @njit(**_JIT)
-def _advance_arms(lo, hi, lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode,
-                  filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
+def _advance_arms(links, actuated, lo, hi, lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command,
+                  torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
                   v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out):
     """Arms ``lo … hi−1`` of :func:`group_advance` (the loop body, with its own scratch space).
 
+    ``n`` and ``k`` are compile-time constants (the lengths of the tuples ``links``, ``actuated``): with the
+    loops over links and joints of known length, LLVM unrolls and interleaves them, which halves
+    the sub-step's cost.
     Each arm's parameters and state are copied into small local arrays, advanced through the
     sub-steps there and written back: the hot loop makes no array view. The link angles' sines and
     cosines at the state reached by a sub-step serve its clearance and the next sub-step's filter,
     tracker and first RK4 stage."""
-    n = q.shape[1]
-    k = v.shape[1]
+    n = len(links)
+    k = len(actuated)
     kk = max(k, 1)
     O = radii.shape[1]
     m = O + 2 * k
@@ -431,6 +462,7 @@ def _advance_arms(lo, hi, lam, lengths, base, phi, passive, q, v, v_prev, has_pr
     lm, ln, qi, vi, vp = np.empty((n, n)), np.empty(n), np.empty(n), np.empty(k), np.empty(k)
     # kinematics and dynamics at a state
     c, s, qd, thd, H = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    c0, s0 = np.empty(n), np.empty(n)
     M, R, J = np.empty((n, n)), np.empty((n, n)), np.empty((2, n))
     Mc, Hc, Jbar, Lc, yc, rhs = np.empty((k, k)), np.empty(k), np.empty((2, k)), np.empty((kk, kk)), np.empty(kk), \
         np.empty(kk)
@@ -543,7 +575,11 @@ def _advance_arms(lo, hi, lam, lengths, base, phi, passive, q, v, v_prev, has_pr
             if torque_mode and not use_filter:
                 for t in range(k):
                     vs[t] = np.nan
-            # RK4 with τ held; the first stage uses the terms at the current state
+            # RK4 with τ held; the first stage uses the terms at the current state, and every stage's
+            # link angles come from the current ones (c0, s0) by a small rotation
+            for a in range(n):
+                c0[a] = c[a]
+                s0[a] = s[a]
             _acceleration(Mc, Hc, tau, k, dv, rhs, Lc, yc)
             for a in range(n):
                 sq[a] = qd[a]
@@ -556,7 +592,7 @@ def _advance_arms(lo, hi, lam, lengths, base, phi, passive, q, v, v_prev, has_pr
                     qt[a] = qi[a] + hs * qd[a]
                 for t in range(k):
                     vt[t] = vi[t] + hs * dv[t]
-                _angles(qt, ph, n, c, s)
+                _rotate_angles(c0, s0, thd, hs, n, c, s)
                 _mass_terms(lm, c, s, vt, passive, n, k, M, R, Mc, Hc, qd, thd, H)
                 _acceleration(Mc, Hc, tau, k, dv, rhs, Lc, yc)
                 for a in range(n):
@@ -564,8 +600,11 @@ def _advance_arms(lo, hi, lam, lengths, base, phi, passive, q, v, v_prev, has_pr
                 for t in range(k):
                     sv[t] += w * dv[t]
             finite = True
+            acc_th = 0.0
             for a in range(n):
                 qt[a] = qi[a] + dt / 6.0 * sq[a]
+                acc_th += sq[a]
+                thd[a] = acc_th  # absolute angle increments of the step, over dt / 6
                 if not np.isfinite(qt[a]):
                     finite = False
             for t in range(k):
@@ -581,7 +620,7 @@ def _advance_arms(lo, hi, lam, lengths, base, phi, passive, q, v, v_prev, has_pr
             for t in range(k):
                 vi[t] = vt[t]
             # clearance after the sub-step
-            _angles(qi, ph, n, c, s)
+            _rotate_angles(c0, s0, thd, dt / 6.0, n, c, s)
             px, py = _position(ln, bx, by, c, s, n)
             for j in range(O):
                 dx = px - centers[i, j, 0]
@@ -609,6 +648,11 @@ def _advance_arms(lo, hi, lam, lengths, base, phi, passive, q, v, v_prev, has_pr
 
 
 _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a held command (in place).
+
+    ``links, actuated = kernel_sizes(n, k)`` are tuples of length n and k, the arms' numbers of
+    links and actuated joints (``q.shape[1]`` and ``v.shape[1]``, else ValueError): numba types a
+    tuple by its length, so n and k are compile-time constants and the kernel is compiled once per
+    (n, k) pair, on its first use, and cached on disk.
 
     Arrays are per arm (leading axis A): parameters ``lam, lengths, base, phi`` (see
     :class:`~pan1_env.dynamics.ArmBatch`), state ``q (A, n)``, ``v (A, k)``, obstacles
@@ -641,24 +685,32 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
 
 
 @njit(**_JIT)
-def group_advance(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode,
+def _check_sizes(links, actuated, q, v):
+    if q.shape[1] != len(links) or v.shape[1] != len(actuated):
+        raise ValueError("group_advance: links, actuated must be kernel_sizes(q.shape[1], v.shape[1])")
+
+
+@njit(**_JIT)
+def group_advance(links, actuated, lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode,
                   filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
                   v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out):
-    _advance_arms(0, q.shape[0], lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode,
-                  filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
+    _check_sizes(links, actuated, q, v)
+    _advance_arms(links, actuated, 0, q.shape[0], lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command,
+                  torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
                   v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out)
 
 
 @njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
-def group_advance_parallel(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode,
-                           filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
+def group_advance_parallel(links, actuated, lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command,
+                           torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
                            v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track,
                            finite_out, n_chunks):
+    _check_sizes(links, actuated, q, v)
     A = q.shape[0]
     for c in prange(n_chunks):
-        _advance_arms(c * A // n_chunks, (c + 1) * A // n_chunks, lam, lengths, base, phi, passive, q, v, v_prev,
-                      has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke,
-                      dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts,
+        _advance_arms(links, actuated, c * A // n_chunks, (c + 1) * A // n_chunks, lam, lengths, base, phi, passive,
+                      q, v, v_prev, has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon,
+                      margin, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts,
                       max_track, finite_out)
 
 

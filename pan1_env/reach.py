@@ -21,7 +21,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from .compiled import kernels
+from .compiled import kernel_sizes, kernels
 from .dynamics import ArmBatch, end_effector
 from .environment import DEFAULT_CONTROL_DT, MAX_KE_DT, default_physics_dt
 from .observation import OBS_BOUND, OBSTACLE_FEATURES
@@ -166,6 +166,7 @@ class PAReachEnv(gymnasium.Env):
         self._centers = np.ascontiguousarray(obstacles.centers[None], dtype=float)
         self._radii = np.ascontiguousarray(obstacles.radii[None], dtype=float)
         self._mask = np.ascontiguousarray(self.scenario.obstacle_mask()[self.arm_index][None])
+        self._sizes = kernel_sizes(n, k)
         self._q = np.zeros((1, n))
         self._v = np.zeros((1, k))
         self._v_prev = np.zeros((1, k))
@@ -250,11 +251,11 @@ class PAReachEnv(gymnasium.Env):
         self._track[0] = 0.0
         self._finite[0] = True
         b, sc = self._batch, self.scenario
-        kern.group_advance(b.lam, b.lengths, b.base, b.phi, b.passive_first_joint, self._q, self._v, self._v_prev,
-                      self._has_prev, self._command, False, self.safety_filter, self._centers, self._radii,
-                      self._mask, sc.kappa, sc.epsilon, sc.safety_margin, sc.ke, self.physics_dt, self.substeps,
-                      self.max_joint_speed, self._v_star, self._tau, self._qd, self._p, self._min_clear,
-                      self._min_h, self._counts, self._track, self._finite)
+        kern.group_advance(*self._sizes, b.lam, b.lengths, b.base, b.phi, b.passive_first_joint, self._q,
+                           self._v, self._v_prev, self._has_prev, self._command, False, self.safety_filter,
+                           self._centers, self._radii, self._mask, sc.kappa, sc.epsilon, sc.safety_margin, sc.ke,
+                           self.physics_dt, self.substeps, self.max_joint_speed, self._v_star, self._tau, self._qd,
+                           self._p, self._min_clear, self._min_h, self._counts, self._track, self._finite)
         self.num_steps += 1
         px, py = self._p[0].tolist()
         gx, gy = self._goal[0].tolist()

@@ -58,6 +58,10 @@ class ArmGroup:
     qd: np.ndarray  # (A, n) q̇ at the current state
     p: np.ndarray  # (A, 2) end-effector at the current state
     whole_team: bool = False  # the group is the whole team in team order (no gather/scatter needed)
+    sizes: tuple = ()  # kernel_sizes(n, k), the kernel's compile-time sizes (set by __post_init__)
+
+    def __post_init__(self) -> None:
+        self.sizes = kernels.kernel_sizes(self.q.shape[1], self.v.shape[1])
 
     @property
     def n(self) -> int:
@@ -281,7 +285,7 @@ class Simulation:
             command = command[:, :k]
         b = g.batch
         kernels.group_advance(
-            b.lam, b.lengths, b.base, b.phi, b.passive_first_joint, g.q, g.v, g.v_star_prev, g.has_prev,
+            *g.sizes, b.lam, b.lengths, b.base, b.phi, b.passive_first_joint, g.q, g.v, g.v_star_prev, g.has_prev,
             command if command.flags.c_contiguous else np.ascontiguousarray(command), torque, filter_on, g.centers,
             g.radii, g.obstacle_mask, self.kappa, self.epsilon, self.margin, self.scenario.ke, self.dt, substeps,
             max_speed, v_star, tau_a, g.qd, g.p, min_clear, min_h, counts, track, finite)

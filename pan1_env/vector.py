@@ -18,6 +18,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from .compiled import kernel_sizes
 from .dynamics import ArmBatch
 from .random_scenario import random_scenario
 from .safety import clearance
@@ -143,7 +144,8 @@ class Pan1VectorEnv(VectorEnv):
             b = g.batch
             cols = np.array([np.arange(self._act_offsets[i], self._act_offsets[i] + g.k) for i in g.arm_ids])
             self._groups.append({
-                "ids": g.arm_ids, "n": g.n, "k": g.k, "A": A, "passive": b.passive_first_joint, "cols": cols,
+                "ids": g.arm_ids, "n": g.n, "k": g.k, "sizes": kernel_sizes(g.n, g.k), "A": A,
+                "passive": b.passive_first_joint, "cols": cols,
                 "lam": rep(b.lam), "lengths": rep(b.lengths), "base": rep(b.base), "phi": rep(b.phi),
                 "centers": rep(g.centers), "radii": rep(g.radii), "mask": rep(g.obstacle_mask),
                 "q0": rep(np.array([sc.q0[i] for i in g.arm_ids])),
@@ -247,11 +249,11 @@ class Pan1VectorEnv(VectorEnv):
             command = (a[:, g["cols"]] * self._scale).reshape(B * A, g["k"])
             clear = np.full(B * A, np.inf)
             g["counts"][:] = 0
-            args = (g["lam"], g["lengths"], g["base"], g["phi"], g["passive"], g["q"], g["v"], g["v_prev"],
-                    g["has_prev"], command, self._torque, self.shield, g["centers"], g["radii"], g["mask"], kappa,
-                    eps, margin, ke, t.physics_dt, t.substeps, t.max_joint_speed if self.shield else np.inf,
-                    g["v_star"], g["tau"], g["qd"], g["p"], clear, np.full(B * A, np.inf), g["counts"],
-                    np.zeros(B * A), g["finite"])
+            args = (*g["sizes"], g["lam"], g["lengths"], g["base"], g["phi"], g["passive"], g["q"], g["v"],
+                    g["v_prev"], g["has_prev"], command, self._torque, self.shield, g["centers"], g["radii"],
+                    g["mask"], kappa, eps, margin, ke, t.physics_dt, t.substeps,
+                    t.max_joint_speed if self.shield else np.inf, g["v_star"], g["tau"], g["qd"], g["p"], clear,
+                    np.full(B * A, np.inf), g["counts"], np.zeros(B * A), g["finite"])
             parallel = self.threads is True or (self.threads == "auto" and B * A >= PARALLEL_THRESHOLD)
             if parallel:
                 kernels.group_advance_parallel(*args, 4 * get_num_threads())

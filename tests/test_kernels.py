@@ -52,7 +52,8 @@ def test_group_terms_match_reference(n: int, passive: bool) -> None:
 
 
 def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False, centers=None, radii=None,
-             mask=None, kappa=0.5, eps=5.0, margin=0.0, ke=100.0, dt=1e-3, n_sub=1, v_max=np.inf, parallel=False):
+             mask=None, kappa=0.5, eps=5.0, margin=0.0, ke=100.0, dt=1e-3, n_sub=1, v_max=np.inf, parallel=False,
+             sizes=None):
     A, k = v.shape
     centers = np.zeros((0, 2)) if centers is None else centers
     radii = np.zeros(0) if radii is None else radii
@@ -63,7 +64,9 @@ def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False
     out = dict(v_star=np.empty((A, k)), tau=np.empty((A, k)), qd=np.empty_like(q), p=np.empty((A, 2)),
                clear=np.full(A, np.inf), min_h=np.full(A, np.inf), counts=np.zeros((A, 3), np.int64),
                track=np.zeros(A), finite=np.zeros(A, bool))
-    args = (batch.lam, batch.lengths, batch.base, batch.phi, batch.passive_first_joint, q, v, prev, has_prev,
+    sizes = kernels.kernel_sizes(q.shape[1], k) if sizes is None else sizes
+    args = (*sizes, batch.lam, batch.lengths, batch.base, batch.phi,
+            batch.passive_first_joint, q, v, prev, has_prev,
             command, torque, filter_on, np.ascontiguousarray(np.broadcast_to(centers, (A, *centers.shape))),
             np.ascontiguousarray(np.broadcast_to(radii, (A, len(radii)))), mask, kappa, eps, margin, ke, dt, n_sub,
             v_max, out["v_star"], out["tau"], out["qd"], out["p"], out["clear"], out["min_h"], out["counts"],
@@ -106,6 +109,43 @@ def test_advance_torque_mode_without_filter_applies_the_torque() -> None:
     np.testing.assert_allclose(out["tau"], tau)
     np.testing.assert_allclose(q1, q_ref, atol=1e-12)
     np.testing.assert_allclose(v1, v_ref, atol=1e-9)
+
+
+def test_rotated_angles_match_cos_and_sin() -> None:
+    # the RK4 stages' link angles come from the step's start by a small rotation (series for
+    # |δ| ≤ 0.125, np.cos/np.sin beyond): both branches against cos and sin of the summed angle
+    rng = np.random.default_rng(11)
+    n = 6
+    for h in (1e-3, 5e-3, 0.05, 0.5):
+        theta = rng.uniform(-np.pi, np.pi, n)
+        thd = rng.uniform(-20.0, 20.0, n)
+        c, s = np.empty(n), np.empty(n)
+        kernels._rotate_angles(np.cos(theta), np.sin(theta), thd, h, n, c, s)
+        np.testing.assert_allclose(c, np.cos(theta + h * thd), rtol=0, atol=2e-15)
+        np.testing.assert_allclose(s, np.sin(theta + h * thd), rtol=0, atol=2e-15)
+
+
+def test_advance_fast_joints_match_rk4() -> None:
+    # joints fast enough that the rotation of an RK4 stage leaves the series' range
+    rng = np.random.default_rng(12)
+    batch, q, v = _group(rng, 4, True)
+    v = v * 10.0
+    tau = rng.uniform(-1, 1, v.shape)
+    ok, q1, v1, _, out = _advance(batch, q, v, tau, torque=True, dt=1e-2, n_sub=2)
+    q_ref, v_ref = q, v
+    for _ in range(2):
+        q_ref, v_ref = cascade_rk4_step(batch, q_ref, v_ref, tau, 1e-2)
+    assert ok
+    np.testing.assert_allclose(q1, q_ref, atol=1e-11)
+    np.testing.assert_allclose(v1, v_ref, atol=1e-8)
+    np.testing.assert_allclose(out["p"], end_effector(batch, q1), atol=1e-12)
+
+
+def test_advance_rejects_sizes_that_do_not_match_the_arrays() -> None:
+    rng = np.random.default_rng(13)
+    batch, q, v = _group(rng, 3, True)
+    with pytest.raises(ValueError, match="kernel_sizes"):
+        _advance(batch, q, v, np.zeros_like(v), sizes=kernels.kernel_sizes(4, 2))
 
 
 def _binding_obstacles(rng, batch, q, v):
@@ -190,9 +230,9 @@ def test_per_arm_obstacles_equal_one_arm_at_a_time() -> None:
                 clear=np.full(A, np.inf), min_h=np.full(A, np.inf), counts=np.zeros((A, 3), np.int64),
                 track=np.zeros(A), finite=np.zeros(A, bool))
     q_all, v_all = q.copy(), v.copy()
-    kernels.group_advance(batch.lam, batch.lengths, batch.base, batch.phi, True, q_all, v_all, np.zeros((A, k)),
-                          np.zeros(A, bool), command, False, True, centers, radii, np.ones((A, 2), bool), 0.5, 5.0,
-                          0.0, 100.0, 1e-3, 3, 2.0, *args.values())
+    kernels.group_advance(*kernels.kernel_sizes(q.shape[1], k), batch.lam, batch.lengths, batch.base, batch.phi, True,
+                          q_all, v_all, np.zeros((A, k)), np.zeros(A, bool), command, False, True, centers, radii,
+                          np.ones((A, 2), bool), 0.5, 5.0, 0.0, 100.0, 1e-3, 3, 2.0, *args.values())
     for i in range(A):
         one = ArmBatch(lam=batch.lam[i : i + 1], lengths=batch.lengths[i : i + 1], base=batch.base[i : i + 1],
                        phi=batch.phi[i : i + 1], passive_first_joint=True)
