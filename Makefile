@@ -36,7 +36,7 @@ demo: $(VENV)/.core
 
 test: $(VENV)/.dev $(RAYVENV)/.ray
 	$(PY) -m ruff check .
-	$(PY) -m pytest -q --durations=15 tests
+	$(PY) -m pytest -q -n 2 --durations=15 tests
 	PAN1_REQUIRE_RAY=1 $(RAYPY) -m pytest -q -p no:cacheprovider tests/test_rllib.py
 
 lint: $(VENV)/.dev

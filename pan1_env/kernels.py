@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from .compiled import kernel_sizes  # noqa: F401  (the first two arguments of group_advance)
+from .compiled import kernel_sizes  # the first two arguments of group_advance
 
 __all__ = [
     "kernel_sizes",
@@ -450,8 +450,10 @@ def _advance_arms(links, actuated, lo, hi, lam, lengths, base, phi, passive, q, 
     the sub-step's cost.
     Each arm's parameters and state are copied into small local arrays, advanced through the
     sub-steps there and written back: the hot loop makes no array view. The link angles' sines and
-    cosines at the state reached by a sub-step serve its clearance and the next sub-step's filter,
-    tracker and first RK4 stage."""
+    cosines are computed from q (``_angles``) once per arm at the start of a call (and again after a
+    non-finite state); RK4 stages and the state a sub-step reaches get theirs by rotating those at
+    the sub-step's start (``_rotate_angles``, exact to rounding). Those at the state reached serve
+    its clearance and the next sub-step's filter, tracker and first RK4 stage."""
     n = len(links)
     k = len(actuated)
     kk = max(k, 1)
@@ -588,10 +590,9 @@ def _advance_arms(links, actuated, lo, hi, lam, lengths, base, phi, passive, q, 
             for stage in range(3):
                 hs = 0.5 * dt if stage < 2 else dt
                 w = 2.0 if stage < 2 else 1.0
-                for a in range(n):
-                    qt[a] = qi[a] + hs * qd[a]
                 for t in range(k):
                     vt[t] = vi[t] + hs * dv[t]
+                # the stage's state q + hs q̇: its link angles θ + hs θ̇ (θ̇ = thd of the previous stage)
                 _rotate_angles(c0, s0, thd, hs, n, c, s)
                 _mass_terms(lm, c, s, vt, passive, n, k, M, R, Mc, Hc, qd, thd, H)
                 _acceleration(Mc, Hc, tau, k, dv, rhs, Lc, yc)
@@ -604,7 +605,7 @@ def _advance_arms(links, actuated, lo, hi, lam, lengths, base, phi, passive, q, 
             for a in range(n):
                 qt[a] = qi[a] + dt / 6.0 * sq[a]
                 acc_th += sq[a]
-                thd[a] = acc_th  # absolute angle increments of the step, over dt / 6
+                thd[a] = acc_th  # Σ of the weighted stage speeds: the step moves link angle a by dt/6 · thd[a]
                 if not np.isfinite(qt[a]):
                     finite = False
             for t in range(k):

@@ -28,7 +28,7 @@ team arrays use NaN beyond an arm's size.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -58,7 +58,7 @@ class ArmGroup:
     qd: np.ndarray  # (A, n) q̇ at the current state
     p: np.ndarray  # (A, 2) end-effector at the current state
     whole_team: bool = False  # the group is the whole team in team order (no gather/scatter needed)
-    sizes: tuple = ()  # kernel_sizes(n, k), the kernel's compile-time sizes (set by __post_init__)
+    sizes: tuple = field(init=False)  # kernel_sizes(n, k): the kernel's compile-time sizes
 
     def __post_init__(self) -> None:
         self.sizes = kernels.kernel_sizes(self.q.shape[1], self.v.shape[1])

@@ -142,10 +142,16 @@ def test_advance_fast_joints_match_rk4() -> None:
 
 
 def test_advance_rejects_sizes_that_do_not_match_the_arrays() -> None:
+    # sizes of arm kinds the other tests compile anyway (each new kind costs a compilation)
     rng = np.random.default_rng(13)
-    batch, q, v = _group(rng, 3, True)
-    with pytest.raises(ValueError, match="kernel_sizes"):
-        _advance(batch, q, v, np.zeros_like(v), sizes=kernels.kernel_sizes(4, 2))
+    three, q3, v3 = _group(rng, 3, True)  # (n, k) = (3, 2)
+    four, q4, v4 = _group(rng, 4, True)  # (4, 3)
+    with pytest.raises(ValueError, match="kernel_sizes"):  # wrong n
+        _advance(three, q3, v3, np.zeros_like(v3), sizes=kernels.kernel_sizes(2, 1))
+    with pytest.raises(ValueError, match="kernel_sizes"):  # wrong k
+        _advance(four, q4, v4, np.zeros_like(v4), sizes=kernels.kernel_sizes(4, 4))
+    with pytest.raises(ValueError, match="kernel_sizes"):  # the multi-threaded kernel checks too
+        _advance(three, q3, v3, np.zeros_like(v3), sizes=kernels.kernel_sizes(4, 3), parallel=True)
 
 
 def _binding_obstacles(rng, batch, q, v):
