@@ -163,8 +163,8 @@ class PAReachEnv(gymnasium.Env):
         # the one-arm group the kernel steps, and every array it reads or writes, allocated once
         obstacles = self.scenario.obstacles
         self._batch = ArmBatch.stack([self.arm])
-        self._centers = np.ascontiguousarray(obstacles.centers[None], dtype=float)
-        self._radii = np.ascontiguousarray(obstacles.radii[None], dtype=float)
+        self._centers = np.array(obstacles.centers[None], dtype=float)  # writable copies: the kernel is
+        self._radii = np.array(obstacles.radii[None], dtype=float)  # compiled for writable arrays
         self._mask = np.ascontiguousarray(self.scenario.obstacle_mask()[self.arm_index][None])
         self._sizes = kernel_sizes(n, k)
         self._q = np.zeros((1, n))

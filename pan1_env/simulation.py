@@ -129,8 +129,9 @@ class Simulation:
             A, k = len(ids), batch.n_actuated
             self.groups.append(ArmGroup(
                 arm_ids=np.array(ids), batch=batch,
-                centers=np.ascontiguousarray(np.broadcast_to(self._centers, (A, *self._centers.shape))),
-                radii=np.ascontiguousarray(np.broadcast_to(self._radii, (A, len(self._radii)))),
+                # writable copies (a one-arm broadcast would stay a read-only view, another kernel type)
+                centers=np.broadcast_to(self._centers, (A, *self._centers.shape)).copy(),
+                radii=np.broadcast_to(self._radii, (A, len(self._radii))).copy(),
                 obstacle_mask=np.ascontiguousarray(mask[ids]), q=np.zeros((A, n)), v=np.zeros((A, k)),
                 v_star_prev=np.zeros((A, k)), has_prev=np.zeros(A, dtype=bool), qd=np.zeros((A, n)),
                 p=np.zeros((A, 2)), whole_team=(A == self.n_arms)))
