@@ -161,6 +161,43 @@ def bench_vector(repeats: int, sizes: tuple[int, ...]) -> list[tuple[str, float,
     return rows
 
 
+def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
+    """The compiled sub-step kernel alone, one thread, per arm-sub-step: 4096 PA3 arms (the vector
+    env's state at B = 1024 after a few random steps) advanced 5 sub-steps of 10 ms, from the same state
+    each time; in velocity mode with the filter (the shielded env's case) and in torque mode
+    without it (RK4's four dynamics evaluations and little else)."""
+    from pan1_env import kernels
+    from pan1_env.vector import Pan1VectorEnv
+
+    venv = Pan1VectorEnv("paper_pa3_square", 1024)
+    venv.reset(seed=0)
+    venv.action_space.seed(0)
+    for _ in range(20):
+        venv.step(venv.action_space.sample())
+    g, t = venv._groups[0], venv.template
+    A, k, n = g["q"].shape[0], g["k"], g["n"]
+    kappa, epsilon, margin, ke = venv._sim_params
+    command = np.random.default_rng(0).uniform(-1.0, 1.0, (A, k))
+
+    def advance(torque: bool):
+        state = {name: g[name].copy() for name in ("q", "v", "v_prev", "has_prev")}
+
+        def run():
+            q, v, v_prev, has_prev = (state[name].copy() for name in ("q", "v", "v_prev", "has_prev"))
+            kernels.group_advance(*g["sizes"], g["lam"], g["lengths"], g["base"], g["phi"], g["passive"], q, v,
+                                  v_prev, has_prev, command * (0.3 if torque else t.max_joint_speed), torque,
+                                  not torque, g["centers"], g["radii"], g["mask"], kappa, epsilon, margin, ke,
+                                  t.physics_dt, t.substeps, np.inf if torque else t.max_joint_speed,
+                                  np.empty((A, k)), np.empty((A, k)), np.empty((A, n)), np.empty((A, 2)),
+                                  np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64), np.zeros(A),
+                                  np.ones(A, bool))
+        run()
+        return _median_time(run, repeats, 1) / (A * t.substeps)
+
+    return [("sub-step kernel per PA3 arm-sub-step, one thread: velocity mode, filter on", advance(False), ""),
+            ("sub-step kernel per PA3 arm-sub-step, one thread: torque mode, filter off (RK4)", advance(True), "")]
+
+
 def bench_qp(n_problems: int) -> list[tuple[str, float, str]]:
     from pan1_env.safety import project_velocity
 
@@ -243,6 +280,8 @@ def _format(rows: list[tuple[str, float, str]]) -> str:
             text = f"{value:,.0f} /s"
         elif kind in ("note",) or not np.isfinite(value):
             text = kind if kind != "note" else ""
+        elif value < 1e-6:
+            text = f"{value * 1e9:.0f} ns"
         elif value < 1e-3:
             text = f"{value * 1e6:.1f} µs"
         elif value < 1.0:
@@ -263,6 +302,7 @@ def main() -> int:
     rows += bench_env_vs_mpe(repeats, inner)
     rows += bench_one_arm_vs_acrobot(repeats, inner)
     rows += bench_vector(repeats, (1, 64, 1024) if args.quick else (1, 64, 1024, 16384))
+    rows += bench_kernel(repeats)
     rows += bench_qp(300 if args.quick else 2000)
     rows += bench_team_scaling(repeats, inner)
     rows += bench_reproduce(10.0 if args.quick else 100.0)

@@ -445,9 +445,10 @@ def _advance_arms(links, actuated, lo, hi, lam, lengths, base, phi, passive, q, 
                   v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out):
     """Arms ``lo … hi−1`` of :func:`group_advance` (the loop body, with its own scratch space).
 
-    ``n`` and ``k`` are compile-time constants (the lengths of the tuples ``links``, ``actuated``): with the
-    loops over links and joints of known length, LLVM unrolls and interleaves them, which halves
-    the sub-step's cost.
+    ``n`` and ``k`` are compile-time constants (the lengths of the tuples ``links`` and
+    ``actuated``): with the loops over links and joints of known length, LLVM unrolls and
+    interleaves them, which halves the sub-step's cost.
+
     Each arm's parameters and state are copied into small local arrays, advanced through the
     sub-steps there and written back: the hot loop makes no array view. The link angles' sines and
     cosines are computed from q (``_angles``) once per arm at the start of a call (and again after a

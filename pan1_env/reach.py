@@ -282,7 +282,7 @@ class PAReachEnv(gymnasium.Env):
     def _observation(self) -> np.ndarray:
         out = np.empty((1, self.observation_space.shape[0]), dtype=np.float32)
         kernels().reach_observations(self._q, self._qd, self._p, self._base, self._goal, self._centers, self._radii,
-                           self.n_obstacle_obs, 1.0 / self.max_joint_speed, OBS_BOUND, out)
+                                     self.n_obstacle_obs, 1.0 / self.max_joint_speed, OBS_BOUND, out)
         return out[0]
 
     def _clearance(self, p: np.ndarray) -> float:

@@ -18,7 +18,6 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from .compiled import kernel_sizes
 from .dynamics import ArmBatch
 from .random_scenario import random_scenario
 from .safety import clearance
@@ -145,7 +144,7 @@ class Pan1VectorEnv(VectorEnv):
             b = g.batch
             cols = np.array([np.arange(self._act_offsets[i], self._act_offsets[i] + g.k) for i in g.arm_ids])
             self._groups.append({
-                "ids": g.arm_ids, "n": g.n, "k": g.k, "sizes": kernel_sizes(g.n, g.k), "A": A,
+                "ids": g.arm_ids, "n": g.n, "k": g.k, "sizes": g.sizes, "A": A,
                 "passive": b.passive_first_joint, "cols": cols,
                 "lam": rep(b.lam), "lengths": rep(b.lengths), "base": rep(b.base), "phi": rep(b.phi),
                 "centers": rep(g.centers), "radii": rep(g.radii), "mask": rep(g.obstacle_mask),
