@@ -15,7 +15,11 @@ Importing this module imports numba (about half a second); :mod:`pan1_env` itsel
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from llvmlite import ir
+from numba import njit, prange, types
+from numba.core import cgutils
+from numba.extending import intrinsic
+from numba.np.arrayobj import make_array, populate_array
 
 from .compiled import kernel_sizes  # the first two arguments of group_advance
 
@@ -26,6 +30,7 @@ __all__ = [
     "group_advance_parallel",
     "group_end_effectors",
     "group_observations",
+    "group_observations_parallel",
     "qp_project",
     "scale_command",
     "edge_length_errors",
@@ -38,6 +43,38 @@ STATUS_NOMINAL, STATUS_SOLVED, STATUS_FALLBACK = 0, 1, 2
 # finiteness checks); fast-math without nnan/ninf, so NaN and inf tests keep working, and without reassoc
 # (with it LLVM let a NaN state through the RK4 step's finiteness check: tests/test_robustness.py).
 _JIT = {"cache": True, "error_model": "numpy", "fastmath": {"nsz", "arcp", "contract", "afn"}}
+
+
+@intrinsic
+def _local(typingctx, shape, dtype):
+    """``_local((t_1, …, t_d), dtype)``: an uninitialised C-contiguous array of shape
+    (len(t_1), …, len(t_d)) in the calling function's stack frame (one ``alloca`` in its entry block).
+
+    The t_i are tuples (such as the ``kernel_sizes`` tuples), so the shape is part of their type and
+    fixed at compile time; with the loops over it unrolled, LLVM promotes the array's entries to
+    registers, which heap scratch arrays (that may alias any other array) do not allow. The array is
+    valid until the calling function returns and must not be returned or stored: use it only for
+    scratch space inside one kernel. (Numba has no public stack array: numba issues #2108, #5084.)"""
+    if not (isinstance(shape, types.BaseTuple) and all(isinstance(t, types.BaseTuple) for t in shape.types)
+            and isinstance(dtype, (types.NumberClass, types.DType))):
+        return None
+    dims = tuple(len(t) for t in shape.types)
+    item = dtype.dtype
+    array_type = types.Array(item, len(dims), "C")
+
+    def codegen(context, builder, signature, args):
+        data_type = context.get_data_type(item)
+        count = int(np.prod(dims))
+        data = cgutils.alloca_once(builder, data_type, size=ir.Constant(ir.IntType(64), max(count, 1)))
+        itemsize = context.get_abi_sizeof(data_type)
+        strides = [itemsize * int(np.prod(dims[a + 1:])) for a in range(len(dims))]
+        array = make_array(array_type)(context, builder)
+        intp = lambda value: context.get_constant(types.intp, value)  # noqa: E731
+        populate_array(array, data=data, shape=[intp(d) for d in dims], strides=[intp(x) for x in strides],
+                       itemsize=intp(itemsize), meminfo=None)
+        return array._getvalue()
+
+    return array_type(shape, dtype), codegen
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -82,27 +119,41 @@ def _rotate_angles(c0, s0, thd, h, n, c, s):
 
 
 @njit(**_JIT, inline="always")
-def _mass_terms(lam, c, s, v, passive, n, k, M, R, Mc, Hc, qd, thd, H):
+def _mass_terms(lam, c, s, v, passive, n, k, M, R, S, Mc, Hc, qd, thd, H):
     """M, q̇ = g0 v, M_comb and H_comb of one arm from its link angles' c, s (written to the arrays).
 
     M = Sᵀ (λ ∘ cos(θ_b − θ_a)) S and H = Sᵀ h, h_a = −Σ_b λ_ab sin(θ_b − θ_a) θ̇_b² (MODEL.md §1, §3);
-    the differences θ_b − θ_a do not depend on φ, so c, s may include it."""
+    the differences θ_b − θ_a do not depend on φ, so c, s may include it. λ is symmetric, so each
+    pair of links is visited once: ``R`` gets λ_ab cos(θ_b − θ_a) (symmetric), ``S`` gets
+    λ_ab sin(θ_b − θ_a) (antisymmetric)."""
     for a in range(n):
-        acc = 0.0
-        for b in range(n - 1, -1, -1):
-            acc += lam[a, b] * (c[b] * c[a] + s[b] * s[a])
-            R[a, b] = acc
+        R[a, a] = lam[a, a]
+        S[a, a] = 0.0
+        for b in range(a + 1, n):
+            rab = lam[a, b] * (c[b] * c[a] + s[b] * s[a])
+            sab = lam[a, b] * (s[b] * c[a] - c[b] * s[a])
+            R[a, b] = rab
+            R[b, a] = rab
+            S[a, b] = sab
+            S[b, a] = -sab
+    # M[a, b] = Σ_{α ≥ a} Σ_{β ≥ b} R[α, β]: suffix sums down the columns, then along the rows
     for b in range(n):
         acc = 0.0
         for a in range(n - 1, -1, -1):
             acc += R[a, b]
+            R[a, b] = acc
+    for a in range(n):
+        acc = 0.0
+        for b in range(n - 1, -1, -1):
+            acc += R[a, b]
             M[a, b] = acc
     off = 1 if passive else 0
+    inv = 1.0 / M[0, 0] if passive else 1.0
     if passive:
         acc = 0.0
         for j in range(k):
             acc += M[0, j + 1] * v[j]
-        qd[0] = -acc / M[0, 0]
+        qd[0] = -acc * inv
     for j in range(k):
         qd[j + off] = v[j]
     acc = 0.0
@@ -113,15 +164,15 @@ def _mass_terms(lam, c, s, v, passive, n, k, M, R, Mc, Hc, qd, thd, H):
     for a in range(n - 1, -1, -1):
         h = 0.0
         for b in range(n):
-            h -= lam[a, b] * (s[b] * c[a] - c[b] * s[a]) * thd[b] * thd[b]
+            h -= S[a, b] * thd[b] * thd[b]
         acc += h
         H[a] = acc
     if passive:
-        inv = 1.0 / M[0, 0]
         for i in range(k):
-            Hc[i] = H[i + 1] - M[i + 1, 0] * H[0] * inv
+            w = M[i + 1, 0] * inv
+            Hc[i] = H[i + 1] - w * H[0]
             for j in range(k):
-                Mc[i, j] = M[i + 1, j + 1] - M[i + 1, 0] * M[0, j + 1] * inv
+                Mc[i, j] = M[i + 1, j + 1] - w * M[0, j + 1]
     else:
         for i in range(n):
             Hc[i] = H[i]
@@ -131,32 +182,38 @@ def _mass_terms(lam, c, s, v, passive, n, k, M, R, Mc, Hc, qd, thd, H):
 
 @njit(**_JIT, inline="always")
 def _spd_solve(G, r, x, size, L, y):
-    """Solve G x = r (the leading ``size`` × ``size`` block, symmetric positive definite) by
-    Cholesky; False if it is not SPD. ``L`` and ``y`` are scratch space."""
+    """Solve G x = r (the leading ``size`` × ``size`` block, symmetric positive definite) by the
+    square-root-free Cholesky factorisation G = L D Lᵀ; False if it is not SPD (a pivot D_i at or
+    below 1e-12 × the largest diagonal entry: the same test as on the squared pivots of Cholesky).
+    ``L`` (its diagonal holds 1 / D_i, its upper triangle L_ij D_j) and ``y`` are scratch space.
+    One division per row and no square root: in the RK4 stages this chain of dependent operations
+    sets much of the sub-step's cost."""
     scale = 0.0
     for i in range(size):
         scale = max(scale, G[i, i])
     for i in range(size):
-        for j in range(i + 1):
+        for j in range(i):
             acc = G[i, j]
             for t in range(j):
-                acc -= L[i, t] * L[j, t]
-            if i == j:
-                if acc <= 1e-12 * scale:
-                    return False
-                L[i, i] = np.sqrt(acc)
-            else:
-                L[i, j] = acc / L[j, j]
+                acc -= L[i, t] * L[t, j]
+            L[j, i] = acc  # L_ij D_j, kept in the upper triangle
+            L[i, j] = acc * L[j, j]
+        acc = G[i, i]
+        for t in range(i):
+            acc -= L[i, t] * L[t, i]
+        if acc <= 1e-12 * scale:
+            return False
+        L[i, i] = 1.0 / acc
     for i in range(size):
         acc = r[i]
         for t in range(i):
             acc -= L[i, t] * y[t]
-        y[i] = acc / L[i, i]
+        y[i] = acc
     for i in range(size - 1, -1, -1):
-        acc = y[i]
+        acc = y[i] * L[i, i]
         for t in range(i + 1, size):
             acc -= L[t, i] * x[t]
-        x[i] = acc / L[i, i]
+        x[i] = acc
     return True
 
 
@@ -207,11 +264,11 @@ def group_terms(lam, lengths, base, phi, passive, q, v, p, Jbar, Mc, Hc, momentu
     A, n = q.shape
     k = v.shape[1]
     c, s, qd, thd, H = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-    M, R, J = np.empty((n, n)), np.empty((n, n)), np.empty((2, n))
+    M, R, Sn, J = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((2, n))
     Mc1, Hc1, Jb = np.empty((k, k)), np.empty(k), np.empty((2, k))
     for i in range(A):
         _angles(q[i], phi[i], n, c, s)
-        _mass_terms(lam[i], c, s, v[i], passive, n, k, M, R, Mc1, Hc1, qd, thd, H)
+        _mass_terms(lam[i], c, s, v[i], passive, n, k, M, R, Sn, Mc1, Hc1, qd, thd, H)
         mom = 0.0
         for a in range(n):
             mom += M[0, a] * qd[a]
@@ -269,22 +326,16 @@ def _obstacle_slots(o, c, px, py, centers, radii, K, bound, clear, taken):
 
 
 @njit(**_JIT)
-def group_observations(q, qd, P, base, err, centers, radii, ids, neighbour, neighbour_edge, present, K, inv_vmax,
-                       bound, out):
-    """Local observations of the arms ``ids`` (all with n links) of B teams, written to ``out (B, A, size)``.
-
-    Layout and inputs as :meth:`pan1_env.observation.ObservationLayout.build`; the K obstacle slots
-    hold the K obstacles of smallest clearance ‖p − o‖ − r (ties: lower index first); entries are
-    clipped to ±``bound``; absent slots are zeros.
-    """
-    Bsz = q.shape[0]
+def _observation_rows(lo, hi, q, qd, P, base, err, centers, radii, ids, neighbour, neighbour_edge, present, K,
+                      inv_vmax, bound, out):
+    """Teams ``lo … hi−1`` of :func:`group_observations` (the loop body, with its own scratch space)."""
     D = neighbour.shape[1]
     O = radii.shape[1]
     size = out.shape[2]
     n = (size - 2 - 4 * D - 5 * K) // 3
     clear = np.empty(O)
     taken = np.empty(O, dtype=np.bool_)
-    for bi in range(Bsz):
+    for bi in range(lo, hi):
         for r in range(ids.shape[0]):
             i = ids[r]
             o = out[bi, r]
@@ -311,6 +362,39 @@ def group_observations(q, qd, P, base, err, centers, radii, ids, neighbour, neig
                     o[c + 3] = 0.0
                 c += 4
             _obstacle_slots(o, c, px, py, centers[bi], radii[bi], K, bound, clear, taken)
+
+
+_OBSERVATIONS_DOC = """Local observations of the arms ``ids`` (all with n links) of B teams, written to
+    ``out (B, A, size)``.
+
+    Layout and inputs as :meth:`pan1_env.observation.ObservationLayout.build`; the K obstacle slots
+    hold the K obstacles of smallest clearance ‖p − o‖ − r (ties: lower index first); entries are
+    clipped to ±``bound``; absent slots are zeros.
+    """
+
+
+@njit(**_JIT)
+def group_observations(q, qd, P, base, err, centers, radii, ids, neighbour, neighbour_edge, present, K, inv_vmax,
+                       bound, out):
+    lo = q.shape[0] * 0  # an int64 like the parallel twin's chunk bounds: both run one compiled _observation_rows
+    _observation_rows(lo, q.shape[0], q, qd, P, base, err, centers, radii, ids, neighbour, neighbour_edge, present,
+                      K, inv_vmax, bound, out)
+
+
+@njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
+def group_observations_parallel(q, qd, P, base, err, centers, radii, ids, neighbour, neighbour_edge, present, K,
+                                inv_vmax, bound, out, n_chunks):
+    B = q.shape[0]
+    for c in prange(n_chunks):
+        _observation_rows(c * B // n_chunks, (c + 1) * B // n_chunks, q, qd, P, base, err, centers, radii, ids,
+                          neighbour, neighbour_edge, present, K, inv_vmax, bound, out)
+
+
+group_observations.__doc__ = _OBSERVATIONS_DOC
+group_observations_parallel.__doc__ = _OBSERVATIONS_DOC + """
+    The same, with the teams split into ``n_chunks`` chunks run on numba's thread pool (for large
+    batches). Both run the same compiled per-team loop.
+    """
 
 
 @njit(**_JIT, inline="always")
@@ -440,7 +524,7 @@ def qp_project(v0, A, b, active, v_out, status):
 
 
 @njit(**_JIT)
-def _advance_arms(links, actuated, lo, hi, lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command,
+def _advance_arms(links, actuated, lo, hi, lam, lengths, base, phi, _passive, q, v, v_prev, has_prev, command,
                   torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
                   v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out):
     """Arms ``lo … hi−1`` of :func:`group_advance` (the loop body, with its own scratch space).
@@ -457,26 +541,33 @@ def _advance_arms(links, actuated, lo, hi, lam, lengths, base, phi, passive, q, 
     its clearance and the next sub-step's filter, tracker and first RK4 stage."""
     n = len(links)
     k = len(actuated)
+    passive = k < n  # a compile-time constant (the argument, checked by the callers, is the same)
     kk = max(k, 1)
     O = radii.shape[1]
     m = O + 2 * k
     tau_off = tau_out.shape[1] - k  # 0 for (A, k) torques; n − k for full (A, n) rows (passive entries untouched)
+    # Scratch space in this function's stack frame (shapes from the size tuples, so fixed at compile
+    # time): LLVM keeps most of it in registers. Only the filter's rows, whose number depends on the
+    # obstacles, live on the heap.
+    f8 = np.float64
+    nn, kx, NN, KK = (links,), (actuated,), (links, links), (actuated, actuated)
+    two_n, two_k = ((0, 0), links), ((0, 0), actuated)
     # one arm's parameters and state
-    lm, ln, qi, vi, vp = np.empty((n, n)), np.empty(n), np.empty(n), np.empty(k), np.empty(k)
+    lm, ln, qi, vi, vp = _local(NN, f8), _local(nn, f8), _local(nn, f8), _local(kx, f8), _local(kx, f8)
     # kinematics and dynamics at a state
-    c, s, qd, thd, H = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-    c0, s0 = np.empty(n), np.empty(n)
-    M, R, J = np.empty((n, n)), np.empty((n, n)), np.empty((2, n))
-    Mc, Hc, Jbar, Lc, yc, rhs = np.empty((k, k)), np.empty(k), np.empty((2, k)), np.empty((kk, kk)), np.empty(kk), \
-        np.empty(kk)
+    c, s, qd, thd, H = _local(nn, f8), _local(nn, f8), _local(nn, f8), _local(nn, f8), _local(nn, f8)
+    c0, s0 = _local(nn, f8), _local(nn, f8)
+    M, R, Sn, J = _local(NN, f8), _local(NN, f8), _local(NN, f8), _local(two_n, f8)
+    Mc, Hc, Jbar, Lc, yc, rhs = _local(KK, f8), _local(kx, f8), _local(two_k, f8), _local(KK, f8), _local(kx, f8), \
+        _local(kx, f8)
     # command, filter and tracker
-    vdes, vs, tau, acc = np.empty(k), np.empty(k), np.empty(k), np.empty(k)
+    vdes, vs, tau, acc = _local(kx, f8), _local(kx, f8), _local(kx, f8), _local(kx, f8)
     Arows, brows, active = np.zeros((m, kk)), np.zeros(m), np.zeros(m, dtype=np.bool_)
-    qrows, qviol, qidx = np.empty(m, dtype=np.int64), np.empty(m), np.empty(kk, dtype=np.int64)
-    qG, qL, qr, qlam, qcand, qy = np.empty((kk, kk)), np.empty((kk, kk)), np.empty(kk), np.empty(kk), np.empty(kk), \
-        np.empty(kk)
+    qrows, qviol, qidx = np.empty(m, dtype=np.int64), np.empty(m), _local(kx, np.int64)
+    qG, qL, qr, qlam, qcand, qy = _local(KK, f8), _local(KK, f8), _local(kx, f8), _local(kx, f8), _local(kx, f8), \
+        _local(kx, f8)
     # RK4: trial state, stage derivative, weighted sums
-    qt, vt, dv, sq, sv = np.empty(n), np.empty(k), np.empty(k), np.empty(n), np.empty(k)
+    qt, vt, dv, sq, sv = _local(nn, f8), _local(kx, f8), _local(kx, f8), _local(nn, f8), _local(kx, f8)
     if v_max < np.inf:
         for t in range(k):  # speed bounds ±v_t ≤ v_max
             Arows[O + 2 * t, t] = 1.0
@@ -511,7 +602,7 @@ def _advance_arms(links, actuated, lo, hi, lam, lengths, base, phi, passive, q, 
         cs_ok = True  # c, s hold the angles of (qi, φ)
         _angles(qi, ph, n, c, s)
         for _s in range(n_sub):
-            _mass_terms(lm, c, s, vi, passive, n, k, M, R, Mc, Hc, qd, thd, H)
+            _mass_terms(lm, c, s, vi, passive, n, k, M, R, Sn, Mc, Hc, qd, thd, H)
             # the velocity to filter: the command, or the one-step result of the commanded torque
             if torque_mode:
                 for t in range(k):
@@ -595,7 +686,7 @@ def _advance_arms(links, actuated, lo, hi, lam, lengths, base, phi, passive, q, 
                     vt[t] = vi[t] + hs * dv[t]
                 # the stage's state q + hs q̇: its link angles θ + hs θ̇ (θ̇ = thd of the previous stage)
                 _rotate_angles(c0, s0, thd, hs, n, c, s)
-                _mass_terms(lm, c, s, vt, passive, n, k, M, R, Mc, Hc, qd, thd, H)
+                _mass_terms(lm, c, s, vt, passive, n, k, M, R, Sn, Mc, Hc, qd, thd, H)
                 _acceleration(Mc, Hc, tau, k, dv, rhs, Lc, yc)
                 for a in range(n):
                     sq[a] += w * qd[a]
@@ -642,7 +733,7 @@ def _advance_arms(links, actuated, lo, hi, lam, lengths, base, phi, passive, q, 
         # joint velocities and end-effector at the (last finite) state
         if not cs_ok:
             _angles(qi, ph, n, c, s)
-        _mass_terms(lm, c, s, vi, passive, n, k, M, R, Mc, Hc, qd, thd, H)
+        _mass_terms(lm, c, s, vi, passive, n, k, M, R, Sn, Mc, Hc, qd, thd, H)
         for a in range(n):
             q[i, a] = qi[a]
             qd_out[i, a] = qd[a]
@@ -654,7 +745,9 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     ``links, actuated = kernel_sizes(n, k)`` are tuples of length n and k, the arms' numbers of
     links and actuated joints (``q.shape[1]`` and ``v.shape[1]``, else ValueError): numba types a
     tuple by its length, so n and k are compile-time constants and the kernel is compiled once per
-    (n, k) pair, on its first use, and cached on disk.
+    (n, k) pair, on its first use, and cached on disk. ``passive`` must agree with them (k = n − 1
+    for a PAn−1 arm, k = n for a fully actuated one, else ValueError): the kernel takes it from k < n,
+    a compile-time constant too.
 
     Arrays are per arm (leading axis A): parameters ``lam, lengths, base, phi`` (see
     :class:`~pan1_env.dynamics.ArmBatch`), state ``q (A, n)``, ``v (A, k)``, obstacles
@@ -687,16 +780,18 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
 
 
 @njit(**_JIT)
-def _check_sizes(links, actuated, q, v):
+def _check_sizes(links, actuated, passive, q, v):
     if q.shape[1] != len(links) or v.shape[1] != len(actuated):
         raise ValueError("group_advance: links, actuated must be kernel_sizes(q.shape[1], v.shape[1])")
+    if len(actuated) != len(links) - (1 if passive else 0):
+        raise ValueError("group_advance: a PAn-1 arm (passive) has k = n - 1 actuated joints, a full one k = n")
 
 
 @njit(**_JIT)
 def group_advance(links, actuated, lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode,
                   filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
                   v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out):
-    _check_sizes(links, actuated, q, v)
+    _check_sizes(links, actuated, passive, q, v)
     lo = q.shape[0] * 0  # an int64 like the parallel kernel's chunk bounds: both run one compiled _advance_arms
     _advance_arms(links, actuated, lo, q.shape[0], lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command,
                   torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
@@ -708,7 +803,7 @@ def group_advance_parallel(links, actuated, lam, lengths, base, phi, passive, q,
                            torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
                            v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track,
                            finite_out, n_chunks):
-    _check_sizes(links, actuated, q, v)
+    _check_sizes(links, actuated, passive, q, v)
     A = q.shape[0]
     for c in prange(n_chunks):
         _advance_arms(links, actuated, c * A // n_chunks, (c + 1) * A // n_chunks, lam, lengths, base, phi, passive,

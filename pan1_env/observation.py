@@ -97,15 +97,17 @@ class ObservationLayout:
 
     def build_with_errors(self, q: np.ndarray, qd: np.ndarray, P: np.ndarray, base: np.ndarray, edges: np.ndarray,
                           distances: np.ndarray, centers: np.ndarray, radii: np.ndarray,
-                          max_joint_speed: float) -> tuple[np.ndarray, list[np.ndarray]]:
+                          max_joint_speed: float, n_chunks: int = 0) -> tuple[np.ndarray, list[np.ndarray]]:
         """The edges' length errors ‖z_k‖ − d_k ``(B, E)`` and :meth:`build`'s observations, computed
         together (``edges (E, 2)`` int64, ``distances (B, E)``; other arguments as :meth:`build`)."""
         kern = kernels()
-        Bsz = P.shape[0]
         err = np.empty(distances.shape)
+        if n_chunks:
+            kern.edge_length_errors(P, edges, distances, err)
+            return err, self.build(q, qd, P, base, err, centers, radii, max_joint_speed, n_chunks)
         out = []
         for r, (ids, size) in enumerate(self._group_sizes):
-            obs = np.empty((Bsz, len(ids), size), dtype=np.float32)
+            obs = np.empty((P.shape[0], len(ids), size), dtype=np.float32)
             if r == 0:
                 kern.formation_observations(P, edges, distances, err, q, qd, base, centers, radii, ids, self.neighbour,
                                             self.neighbour_edge, self._neighbour_mask, self.n_obstacle_obs,
@@ -118,7 +120,7 @@ class ObservationLayout:
         return err, out
 
     def build(self, q: np.ndarray, qd: np.ndarray, P: np.ndarray, base: np.ndarray, edge_errors: np.ndarray,
-              centers: np.ndarray, radii: np.ndarray, max_joint_speed: float) -> list[np.ndarray]:
+              centers: np.ndarray, radii: np.ndarray, max_joint_speed: float, n_chunks: int = 0) -> list[np.ndarray]:
         """Every agent's observation, one float32 array ``(B, A, size(n))`` per group of :attr:`groups`.
 
         Args:
@@ -127,13 +129,18 @@ class ObservationLayout:
             edge_errors: ``(B, E)`` ‖z_k‖ − d_k.
             centers: ``(B, O, 2)``, radii: ``(B, O)``: each team's obstacles.
             max_joint_speed: scale of q̇.
+            n_chunks: 0 for the single-threaded kernel; otherwise the teams are split into this
+                many chunks on numba's thread pool (for large B).
         """
-        kernel = kernels().group_observations
-        Bsz = P.shape[0]
+        kern = kernels()
         out = []
         for ids, size in self._group_sizes:
-            obs = np.empty((Bsz, len(ids), size), dtype=np.float32)
-            kernel(q, qd, P, base, edge_errors, centers, radii, ids, self.neighbour, self.neighbour_edge,
-                   self._neighbour_mask, self.n_obstacle_obs, 1.0 / max_joint_speed, OBS_BOUND, obs)
+            obs = np.empty((P.shape[0], len(ids), size), dtype=np.float32)
+            args = (q, qd, P, base, edge_errors, centers, radii, ids, self.neighbour, self.neighbour_edge,
+                    self._neighbour_mask, self.n_obstacle_obs, 1.0 / max_joint_speed, OBS_BOUND, obs)
+            if n_chunks:
+                kern.group_observations_parallel(*args, n_chunks)
+            else:
+                kern.group_observations(*args)
             out.append(obs)
         return out

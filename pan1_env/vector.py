@@ -127,7 +127,12 @@ class Pan1VectorEnv(VectorEnv):
         self._scale = t.max_joint_speed if t.action_mode == "velocity" else t.max_torque
         self._torque = t.action_mode == "torque"
         self._k = np.array(act_sizes)
+        # effort = Σ_i ‖a_i‖² / k_i: one weight per action column
+        self._effort_weights = np.concatenate([np.full(k, 1.0 / max(k, 1)) for k in act_sizes])
         self._build_batches(t.scenario)
+        # observations on numba's thread pool from PARALLEL_THRESHOLD arms on (a chunk per team range)
+        parallel_obs = threads is True or (threads == "auto" and self.num_envs * self._n_arms >= PARALLEL_THRESHOLD)
+        self._obs_chunks = 4 if parallel_obs else 0
         self._rngs = [np.random.default_rng() for _ in range(self.num_envs)]
         self._steps = np.zeros(self.num_envs, dtype=np.int64)
         self._needs_reset = True
@@ -159,7 +164,7 @@ class Pan1VectorEnv(VectorEnv):
         self._bases = np.tile(np.array([a.base for a in sc.arms])[None], (B, 1, 1))
         self._centers = np.tile(sc.obstacles.centers[None], (B, 1, 1))
         self._radii = np.tile(sc.obstacles.radii[None], (B, 1))
-        self._edges = sc.formation.edges
+        self._edges = np.ascontiguousarray(sc.formation.edges, dtype=np.int64)
         self._distances = np.tile(sc.formation.distances[None], (B, 1))
         self._sim_params = (sc.kappa, sc.epsilon, sc.safety_margin, sc.ke)
         if self.shield and t.shield_params:
@@ -219,8 +224,8 @@ class Pan1VectorEnv(VectorEnv):
                     self._rngs[b] = np.random.default_rng(s)
         self._reset_copies(np.arange(B))
         self._needs_reset = False
-        obs = self._observations()
-        info = self._infos(np.zeros(B), self._clearance(), self._formation_error(), None)
+        err, obs = self._observations()
+        info = self._infos(np.zeros(B), self._clearance(), np.abs(err).max(axis=1), None)
         return obs, info
 
     def step(self, actions: np.ndarray):
@@ -263,19 +268,15 @@ class Pan1VectorEnv(VectorEnv):
                 g["has_prev"][:] = False
             min_clear[:, g["ids"]] = clear.reshape(B, A)
             counts = g["counts"].reshape(B, A, 3)
-            intervened |= (counts[..., 1] + counts[..., 2] > 0).any(axis=1)
-            fallback |= (counts[..., 2] > 0).any(axis=1)
+            intervened |= counts[..., 1:].any(axis=(1, 2))
+            fallback |= counts[..., 2].any(axis=1)
             finite &= g["finite"].reshape(B, A).all(axis=1)
         self._steps += 1
-        arm_cost = min_clear < 0
-        cost = arm_cost.sum(axis=1).astype(float)
-        err = self._edge_errors()
+        cost = (min_clear < 0).sum(axis=1).astype(float)
+        err, obs = self._observations()
         abs_err = np.abs(err)
         formation_error = abs_err.max(axis=1)
-        effort = np.zeros(B)
-        for i in range(self._n_arms):
-            ai = a[:, self._act_offsets[i] : self._act_offsets[i + 1]]
-            effort += np.einsum("bj,bj->b", ai, ai) / max(self._k[i], 1)
+        effort = (a * a) @ self._effort_weights
         reward = (-t.formation_weight * abs_err.mean(axis=1) - t.effort_weight * effort / self._n_arms
                   - t.collision_penalty * cost / self._n_arms)
         success = formation_error < t.success_tolerance
@@ -285,7 +286,6 @@ class Pan1VectorEnv(VectorEnv):
         if t.terminate_on_success:
             terminated |= success
         truncated = (self._steps >= t.max_steps) | ~finite
-        obs = self._observations(err)
         infos = self._infos(cost, min_clear.min(axis=1), formation_error, (intervened, fallback))
         if not finite.all():
             infos["fault"] = np.where(finite, "", "non-finite state in the physics step; episode truncated")
@@ -300,8 +300,7 @@ class Pan1VectorEnv(VectorEnv):
             infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
             infos["final_info"], infos["_final_info"] = final_info, done.copy()
             self._reset_copies(which)
-            fresh = self._observations()
-            obs[which] = fresh[which]
+            obs[which] = self._observations()[1][which]
         return obs, reward, terminated, truncated, infos
 
     def close_extras(self, **kwargs: Any) -> None:
@@ -314,37 +313,34 @@ class Pan1VectorEnv(VectorEnv):
             P[:, g["ids"]] = g["p"].reshape(self.num_envs, g["A"], 2)
         return P
 
-    def _edge_errors(self, P: np.ndarray | None = None) -> np.ndarray:
-        P = self._positions() if P is None else P
-        z = P[:, self._edges[:, 1]] - P[:, self._edges[:, 0]]
-        return np.sqrt(np.einsum("bec,bec->be", z, z)) - self._distances
-
-    def _formation_error(self) -> np.ndarray:
-        return np.abs(self._edge_errors()).max(axis=1)
-
     def _clearance(self) -> np.ndarray:
         if self._radii.shape[1] == 0:
             return np.full(self.num_envs, np.inf)
         return clearance(self._positions(), self._centers[:, None], self._radii[:, None]).min(axis=(1, 2))
 
-    def _observations(self, err: np.ndarray | None = None) -> np.ndarray:
+    def _observations(self) -> tuple[np.ndarray, np.ndarray]:
+        """The edge-length errors ``(B, E)`` and the observations ``(B, Σ obs_i)`` of the current state."""
         B, N = self.num_envs, self._n_arms
-        P = self._positions()
-        err = self._edge_errors(P) if err is None else err
-        q = np.zeros((B, N, self._n_max))
-        qd = np.zeros((B, N, self._n_max))
-        for g in self._groups:
-            q[:, g["ids"], : g["n"]] = g["q"].reshape(B, g["A"], g["n"])
-            qd[:, g["ids"], : g["n"]] = g["qd"].reshape(B, g["A"], g["n"])
-        mats = self.template._layout.build(q, qd, P, self._bases, err, self._centers, self._radii,
-                                           self.template.max_joint_speed)
+        g = self._groups[0]
+        if len(self._groups) == 1 and list(g["ids"]) == list(range(N)):  # one kind in team order: views
+            q, qd, P = (g[key].reshape(B, N, -1) for key in ("q", "qd", "p"))
+        else:
+            P = self._positions()
+            q = np.zeros((B, N, self._n_max))
+            qd = np.zeros((B, N, self._n_max))
+            for g in self._groups:
+                q[:, g["ids"], : g["n"]] = g["q"].reshape(B, g["A"], g["n"])
+                qd[:, g["ids"], : g["n"]] = g["qd"].reshape(B, g["A"], g["n"])
+        err, mats = self.template._layout.build_with_errors(q, qd, P, self._bases, self._edges, self._distances,
+                                                            self._centers, self._radii, self.template.max_joint_speed,
+                                                            self._obs_chunks)
         if len(mats) == 1 and len(self._groups[0]["ids"]) == N:
-            return mats[0].reshape(B, -1)
+            return err, mats[0].reshape(B, -1)
         out = np.empty((B, self._obs_offsets[-1]), dtype=np.float32)
         for (_, ids), mat in zip(self.template._layout.groups, mats, strict=True):
             for r, i in enumerate(ids):
                 out[:, self._obs_offsets[i] : self._obs_offsets[i + 1]] = mat[:, r]
-        return out
+        return err, out
 
     def _infos(self, cost, min_clearance, formation_error, shield) -> dict[str, Any]:
         B = self.num_envs

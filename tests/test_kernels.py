@@ -1,7 +1,10 @@
 """The compiled engine (pan1_env.kernels) against the numpy reference formulas."""
 
+import dataclasses
+
 import numpy as np
 import pytest
+from numba import njit
 
 from pan1_env import kernels
 from pan1_env.cascade import cascade_rk4_step, cascade_terms, passive_momentum, reduced_jacobian
@@ -152,6 +155,65 @@ def test_advance_rejects_sizes_that_do_not_match_the_arrays() -> None:
         _advance(four, q4, v4, np.zeros_like(v4), sizes=kernels.kernel_sizes(4, 4))
     with pytest.raises(ValueError, match="kernel_sizes"):  # the multi-threaded kernel checks too
         _advance(three, q3, v3, np.zeros_like(v3), sizes=kernels.kernel_sizes(4, 3), parallel=True)
+    # the kernel takes `passive` from k < n: a flag that disagrees is refused
+    full = dataclasses.replace(four, passive_first_joint=False)
+    for parallel in (False, True):
+        with pytest.raises(ValueError, match="PAn-1"):
+            _advance(full, q4, v4, np.zeros_like(v4), parallel=parallel)
+
+
+@njit(cache=True)
+def _spd_solve_all(G, r):
+    size = G.shape[1]
+    x, L, y = np.zeros((G.shape[0], size)), np.empty((size, size)), np.empty(size)
+    ok = np.zeros(G.shape[0], dtype=np.bool_)
+    for i in range(G.shape[0]):
+        ok[i] = kernels._spd_solve(G[i], r[i], x[i], size, L, y)
+    return ok, x
+
+
+@pytest.mark.parametrize("size", [1, 2, 3, 5])
+def test_spd_solve_matches_numpy_and_refuses_matrices_that_are_not_positive_definite(size: int) -> None:
+    rng = np.random.default_rng(size)
+    F = rng.normal(size=(200, size, size))
+    G = F @ F.transpose(0, 2, 1) + 1e-3 * np.eye(size)  # SPD, some badly conditioned
+    r = rng.normal(size=(200, size))
+    ok, x = _spd_solve_all(G, r)
+    assert ok.all()
+    np.testing.assert_allclose(G @ x[..., None], r[..., None], rtol=0, atol=1e-9 * (1 + np.abs(r).max()))
+    np.testing.assert_allclose(x, np.linalg.solve(G, r[..., None])[..., 0], rtol=1e-6, atol=1e-9)
+    # indefinite (one negative eigenvalue) and singular matrices are refused
+    w, V = np.linalg.eigh(G)
+    for bad in (-1.0, 0.0):
+        w2 = w.copy()
+        w2[:, 0] = bad * w[:, -1]
+        ok, _ = _spd_solve_all(V @ (w2[..., None] * V.transpose(0, 2, 1)), r)
+        assert not ok.any()
+
+
+@njit(cache=True)
+def _local_arrays(links, actuated):
+    a = kernels._local((links, actuated), np.float64)
+    b = kernels._local((actuated,), np.int64)
+    c = kernels._local(((0, 0), links), np.bool_)
+    for i in range(a.shape[0]):
+        for j in range(a.shape[1]):
+            a[i, j] = 10 * i + j
+    for j in range(b.shape[0]):
+        b[j] = -j
+    for i in range(2):
+        for j in range(c.shape[1]):
+            c[i, j] = (i + j) % 2 == 0
+    return a.copy(), b.copy(), c.copy(), a.flags.c_contiguous
+
+
+def test_local_arrays_have_the_shape_of_their_size_tuples() -> None:
+    a, b, c, contiguous = _local_arrays(*kernels.kernel_sizes(4, 3))
+    assert a.shape == (4, 3) and a.dtype == np.float64 and contiguous
+    np.testing.assert_array_equal(a, 10 * np.arange(4)[:, None] + np.arange(3)[None])
+    np.testing.assert_array_equal(b, -np.arange(3))
+    assert c.dtype == np.bool_
+    np.testing.assert_array_equal(c, (np.arange(2)[:, None] + np.arange(4)[None]) % 2 == 0)
 
 
 def _binding_obstacles(rng, batch, q, v):
