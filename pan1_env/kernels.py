@@ -8,6 +8,9 @@ the tests check the physics, filter and observation kernels against them (the sm
 group (arms with the same number of links n and actuation, k actuated joints) so that a sub-step
 costs a handful of calls whatever the team size.
 
+The sub-step kernel keeps its per-arm scratch space in its own stack frame (:func:`_local`, fixed
+shapes from the ``kernel_sizes`` tuples), where LLVM can keep it in registers.
+
 Importing this module imports numba (about half a second); :mod:`pan1_env` itself does not, so
 ``import pan1_env`` stays fast. Compiled code is cached on disk (``cache=True``).
 """
@@ -533,8 +536,9 @@ def _advance_arms(links, actuated, lo, hi, lam, lengths, base, phi, _passive, q,
     ``actuated``): with the loops over links and joints of known length, LLVM unrolls and
     interleaves them, which halves the sub-step's cost.
 
-    Each arm's parameters and state are copied into small local arrays, advanced through the
-    sub-steps there and written back: the hot loop makes no array view. The link angles' sines and
+    Each arm's parameters and state are copied into small stack arrays (:func:`_local`), advanced
+    through the sub-steps there and written back: the hot loop makes no array view and, but for the
+    filter's rows, touches no heap scratch. The link angles' sines and
     cosines are computed from q (``_angles``) once per arm at the start of a call (and again after a
     non-finite state); RK4 stages and the state a sub-step reaches get theirs by rotating those at
     the sub-step's start (``_rotate_angles``, exact to rounding). Those at the state reached serve
