@@ -165,7 +165,9 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
     """The compiled sub-step kernel alone, one thread, per arm-sub-step: 4096 PA3 arms (the vector
     env's state at B = 1024 after a few random steps) advanced 5 sub-steps of 10 ms, from the same state
     each time; in velocity mode with the filter (the shielded env's case) and in torque mode
-    without it (RK4's four dynamics evaluations and little else)."""
+    without it (RK4's four dynamics evaluations and little else). Last, the multi-threaded kernel on
+    the same state, as core time (threads × wall time) per arm-sub-step: against the one-thread row it
+    shows what the threads lose."""
     from pan1_env import kernels
     from pan1_env.vector import Pan1VectorEnv
 
@@ -179,23 +181,31 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
     kappa, epsilon, margin, ke = venv._sim_params
     command = np.random.default_rng(0).uniform(-1.0, 1.0, (A, k))
 
-    def advance(torque: bool):
+    def advance(torque: bool, threads: int = 1):
         state = {name: g[name].copy() for name in ("q", "v", "v_prev", "has_prev")}
 
         def run():
             q, v, v_prev, has_prev = (state[name].copy() for name in ("q", "v", "v_prev", "has_prev"))
-            kernels.group_advance(*g["sizes"], g["lam"], g["lengths"], g["base"], g["phi"], g["passive"], q, v,
-                                  v_prev, has_prev, command * (0.3 if torque else t.max_joint_speed), torque,
-                                  not torque, g["centers"], g["radii"], g["mask"], kappa, epsilon, margin, ke,
-                                  t.physics_dt, t.substeps, np.inf if torque else t.max_joint_speed,
-                                  np.empty((A, k)), np.empty((A, k)), np.empty((A, n)), np.empty((A, 2)),
-                                  np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64), np.zeros(A),
-                                  np.ones(A, bool))
+            args = (*g["sizes"], g["lam"], g["lengths"], g["base"], g["phi"], g["passive"], q, v, v_prev, has_prev,
+                    command * (0.3 if torque else t.max_joint_speed), torque, not torque, g["centers"], g["radii"],
+                    g["mask"], kappa, epsilon, margin, ke, t.physics_dt, t.substeps,
+                    np.inf if torque else t.max_joint_speed, np.empty((A, k)), np.empty((A, k)), np.empty((A, n)),
+                    np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64),
+                    np.zeros(A), np.ones(A, bool))
+            if threads > 1:
+                kernels.group_advance_parallel(*args, 4 * threads)
+            else:
+                kernels.group_advance(*args)
         run()
-        return _median_time(run, repeats, 1) / (A * t.substeps)
+        return threads * _median_time(run, repeats, 1) / (A * t.substeps)
 
+    from numba import get_num_threads
+
+    threads = get_num_threads()
     return [("sub-step kernel per PA3 arm-sub-step, one thread: velocity mode, filter on", advance(False), ""),
-            ("sub-step kernel per PA3 arm-sub-step, one thread: torque mode, filter off (RK4)", advance(True), "")]
+            ("sub-step kernel per PA3 arm-sub-step, one thread: torque mode, filter off (RK4)", advance(True), ""),
+            (f"the same, velocity mode, multi-threaded as the vector env runs it: core time ({threads} threads × wall)",
+             advance(False, threads), "")]
 
 
 def bench_qp(n_problems: int) -> list[tuple[str, float, str]]:

@@ -18,7 +18,6 @@ Importing this module imports numba (about half a second); :mod:`pan1_env` itsel
 from __future__ import annotations
 
 import numpy as np
-from llvmlite import ir
 from numba import njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
@@ -68,7 +67,7 @@ def _local(typingctx, shape, dtype):
     def codegen(context, builder, signature, args):
         data_type = context.get_data_type(item)
         count = int(np.prod(dims))
-        data = cgutils.alloca_once(builder, data_type, size=ir.Constant(ir.IntType(64), max(count, 1)))
+        data = cgutils.alloca_once(builder, data_type, size=context.get_constant(types.intp, max(count, 1)))
         itemsize = context.get_abi_sizeof(data_type)
         strides = [itemsize * int(np.prod(dims[a + 1:])) for a in range(len(dims))]
         array = make_array(array_type)(context, builder)
@@ -122,23 +121,23 @@ def _rotate_angles(c0, s0, thd, h, n, c, s):
 
 
 @njit(**_JIT, inline="always")
-def _mass_terms(lam, c, s, v, passive, n, k, M, R, S, Mc, Hc, qd, thd, H):
+def _mass_terms(lam, c, s, v, passive, n, k, M, R, Sn, Mc, Hc, qd, thd, H):
     """M, q̇ = g0 v, M_comb and H_comb of one arm from its link angles' c, s (written to the arrays).
 
     M = Sᵀ (λ ∘ cos(θ_b − θ_a)) S and H = Sᵀ h, h_a = −Σ_b λ_ab sin(θ_b − θ_a) θ̇_b² (MODEL.md §1, §3);
     the differences θ_b − θ_a do not depend on φ, so c, s may include it. λ is symmetric, so each
-    pair of links is visited once: ``R`` gets λ_ab cos(θ_b − θ_a) (symmetric), ``S`` gets
+    pair of links is visited once: ``R`` gets λ_ab cos(θ_b − θ_a) (symmetric), ``Sn`` gets
     λ_ab sin(θ_b − θ_a) (antisymmetric)."""
     for a in range(n):
         R[a, a] = lam[a, a]
-        S[a, a] = 0.0
+        Sn[a, a] = 0.0
         for b in range(a + 1, n):
             rab = lam[a, b] * (c[b] * c[a] + s[b] * s[a])
             sab = lam[a, b] * (s[b] * c[a] - c[b] * s[a])
             R[a, b] = rab
             R[b, a] = rab
-            S[a, b] = sab
-            S[b, a] = -sab
+            Sn[a, b] = sab
+            Sn[b, a] = -sab
     # M[a, b] = Σ_{α ≥ a} Σ_{β ≥ b} R[α, β]: suffix sums down the columns, then along the rows
     for b in range(n):
         acc = 0.0
@@ -167,7 +166,7 @@ def _mass_terms(lam, c, s, v, passive, n, k, M, R, S, Mc, Hc, qd, thd, H):
     for a in range(n - 1, -1, -1):
         h = 0.0
         for b in range(n):
-            h -= S[a, b] * thd[b] * thd[b]
+            h -= Sn[a, b] * thd[b] * thd[b]
         acc += h
         H[a] = acc
     if passive:

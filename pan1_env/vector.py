@@ -126,13 +126,12 @@ class Pan1VectorEnv(VectorEnv):
         self._obs_offsets = np.concatenate([[0], np.cumsum([s.shape[0] for s in obs_spaces])])
         self._scale = t.max_joint_speed if t.action_mode == "velocity" else t.max_torque
         self._torque = t.action_mode == "torque"
-        self._k = np.array(act_sizes)
         # effort = Σ_i ‖a_i‖² / k_i: one weight per action column
         self._effort_weights = np.concatenate([np.full(k, 1.0 / max(k, 1)) for k in act_sizes])
         self._build_batches(t.scenario)
-        # observations on numba's thread pool from PARALLEL_THRESHOLD arms on (a chunk per team range)
-        parallel_obs = threads is True or (threads == "auto" and self.num_envs * self._n_arms >= PARALLEL_THRESHOLD)
-        self._obs_chunks = 4 if parallel_obs else 0
+        # observations on numba's thread pool from PARALLEL_THRESHOLD arms on
+        self._parallel_obs = threads is True or (threads == "auto"
+                                                 and self.num_envs * self._n_arms >= PARALLEL_THRESHOLD)
         self._rngs = [np.random.default_rng() for _ in range(self.num_envs)]
         self._steps = np.zeros(self.num_envs, dtype=np.int64)
         self._needs_reset = True
@@ -161,6 +160,8 @@ class Pan1VectorEnv(VectorEnv):
             })
         N, n_max = sc.n_arms, max(a.n_links for a in sc.arms)
         self._n_arms, self._n_max = N, n_max
+        # one arm kind in team order: the state arrays reshaped are the observation's inputs
+        self._team_order = len(self._groups) == 1 and list(self._groups[0]["ids"]) == list(range(N))
         self._bases = np.tile(np.array([a.base for a in sc.arms])[None], (B, 1, 1))
         self._centers = np.tile(sc.obstacles.centers[None], (B, 1, 1))
         self._radii = np.tile(sc.obstacles.radii[None], (B, 1))
@@ -318,12 +319,19 @@ class Pan1VectorEnv(VectorEnv):
             return np.full(self.num_envs, np.inf)
         return clearance(self._positions(), self._centers[:, None], self._radii[:, None]).min(axis=(1, 2))
 
+    def _obs_chunks(self) -> int:
+        """0 (one thread) or the number of chunks of teams for the multi-threaded observation kernel."""
+        if not self._parallel_obs:
+            return 0
+        from numba import get_num_threads
+
+        return 4 * get_num_threads()
+
     def _observations(self) -> tuple[np.ndarray, np.ndarray]:
         """The edge-length errors ``(B, E)`` and the observations ``(B, Σ obs_i)`` of the current state."""
         B, N = self.num_envs, self._n_arms
-        g = self._groups[0]
-        if len(self._groups) == 1 and list(g["ids"]) == list(range(N)):  # one kind in team order: views
-            q, qd, P = (g[key].reshape(B, N, -1) for key in ("q", "qd", "p"))
+        if self._team_order:
+            q, qd, P = (self._groups[0][key].reshape(B, N, -1) for key in ("q", "qd", "p"))
         else:
             P = self._positions()
             q = np.zeros((B, N, self._n_max))
@@ -333,7 +341,7 @@ class Pan1VectorEnv(VectorEnv):
                 qd[:, g["ids"], : g["n"]] = g["qd"].reshape(B, g["A"], g["n"])
         err, mats = self.template._layout.build_with_errors(q, qd, P, self._bases, self._edges, self._distances,
                                                             self._centers, self._radii, self.template.max_joint_speed,
-                                                            self._obs_chunks)
+                                                            self._obs_chunks())
         if len(mats) == 1 and len(self._groups[0]["ids"]) == N:
             return err, mats[0].reshape(B, -1)
         out = np.empty((B, self._obs_offsets[-1]), dtype=np.float32)

@@ -162,10 +162,11 @@ def test_advance_rejects_sizes_that_do_not_match_the_arrays() -> None:
             _advance(full, q4, v4, np.zeros_like(v4), parallel=parallel)
 
 
-@njit(cache=True)
-def _spd_solve_all(G, r):
+# plain @njit (no cache): numba's cache of a test helper would not notice a change to the kernels it inlines
+@njit
+def _spd_solve_all(G, r, scratch):
     size = G.shape[1]
-    x, L, y = np.zeros((G.shape[0], size)), np.empty((size, size)), np.empty(size)
+    x, L, y = np.zeros((G.shape[0], size)), np.empty((scratch, scratch)), np.empty(scratch)
     ok = np.zeros(G.shape[0], dtype=np.bool_)
     for i in range(G.shape[0]):
         ok[i] = kernels._spd_solve(G[i], r[i], x[i], size, L, y)
@@ -178,8 +179,11 @@ def test_spd_solve_matches_numpy_and_refuses_matrices_that_are_not_positive_defi
     F = rng.normal(size=(200, size, size))
     G = F @ F.transpose(0, 2, 1) + 1e-3 * np.eye(size)  # SPD, some badly conditioned
     r = rng.normal(size=(200, size))
-    ok, x = _spd_solve_all(G, r)
+    ok, x = _spd_solve_all(G, r, size)
     assert ok.all()
+    ok2, x2 = _spd_solve_all(G, r, 6)  # scratch larger than the system, as in the QP's active sets
+    assert ok2.all()
+    np.testing.assert_array_equal(x2, x)
     np.testing.assert_allclose(G @ x[..., None], r[..., None], rtol=0, atol=1e-9 * (1 + np.abs(r).max()))
     np.testing.assert_allclose(x, np.linalg.solve(G, r[..., None])[..., 0], rtol=1e-6, atol=1e-9)
     # indefinite (one negative eigenvalue) and singular matrices are refused
@@ -187,11 +191,11 @@ def test_spd_solve_matches_numpy_and_refuses_matrices_that_are_not_positive_defi
     for bad in (-1.0, 0.0):
         w2 = w.copy()
         w2[:, 0] = bad * w[:, -1]
-        ok, _ = _spd_solve_all(V @ (w2[..., None] * V.transpose(0, 2, 1)), r)
+        ok, _ = _spd_solve_all(V @ (w2[..., None] * V.transpose(0, 2, 1)), r, size)
         assert not ok.any()
 
 
-@njit(cache=True)
+@njit
 def _local_arrays(links, actuated):
     a = kernels._local((links, actuated), np.float64)
     b = kernels._local((actuated,), np.int64)
@@ -204,12 +208,14 @@ def _local_arrays(links, actuated):
     for i in range(2):
         for j in range(c.shape[1]):
             c[i, j] = (i + j) % 2 == 0
-    return a.copy(), b.copy(), c.copy(), a.flags.c_contiguous
+    return a.copy(), b.copy(), c.copy(), (a.strides, b.strides, c.strides), (a.itemsize, b.itemsize, c.itemsize)
 
 
 def test_local_arrays_have_the_shape_of_their_size_tuples() -> None:
-    a, b, c, contiguous = _local_arrays(*kernels.kernel_sizes(4, 3))
-    assert a.shape == (4, 3) and a.dtype == np.float64 and contiguous
+    a, b, c, strides, itemsizes = _local_arrays(*kernels.kernel_sizes(4, 3))
+    assert a.shape == (4, 3) and a.dtype == np.float64
+    assert strides == (np.empty((4, 3)).strides, np.empty(3, np.int64).strides, np.empty((2, 4), np.bool_).strides)
+    assert itemsizes == (8, 8, 1)
     np.testing.assert_array_equal(a, 10 * np.arange(4)[:, None] + np.arange(3)[None])
     np.testing.assert_array_equal(b, -np.arange(3))
     assert c.dtype == np.bool_
