@@ -168,6 +168,8 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
     without it (RK4's four dynamics evaluations and little else). Last, the multi-threaded kernel on
     the same state, as core time (threads × wall time) per arm-sub-step: against the one-thread row it
     shows what the threads lose."""
+    from numba import get_num_threads
+
     from pan1_env import kernels
     from pan1_env.vector import Pan1VectorEnv
 
@@ -198,8 +200,6 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
                 kernels.group_advance(*args)
         run()
         return threads * _median_time(run, repeats, 1) / (A * t.substeps)
-
-    from numba import get_num_threads
 
     threads = get_num_threads()
     return [("sub-step kernel per PA3 arm-sub-step, one thread: velocity mode, filter on", advance(False), ""),

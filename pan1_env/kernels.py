@@ -366,6 +366,12 @@ def _observation_rows(lo, hi, q, qd, P, base, err, centers, radii, ids, neighbou
             _obstacle_slots(o, c, px, py, centers[bi], radii[bi], K, bound, clear, taken)
 
 
+@njit(**_JIT)
+def _check_chunks(n_chunks):
+    if n_chunks < 1:
+        raise ValueError("n_chunks must be at least 1 (the multi-threaded kernels split their work into n_chunks)")
+
+
 _OBSERVATIONS_DOC = """Local observations of the arms ``ids`` (all with n links) of B teams, written to
     ``out (B, A, size)``.
 
@@ -386,6 +392,7 @@ def group_observations(q, qd, P, base, err, centers, radii, ids, neighbour, neig
 @njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
 def group_observations_parallel(q, qd, P, base, err, centers, radii, ids, neighbour, neighbour_edge, present, K,
                                 inv_vmax, bound, out, n_chunks):
+    _check_chunks(n_chunks)
     B = q.shape[0]
     for c in prange(n_chunks):
         _observation_rows(c * B // n_chunks, (c + 1) * B // n_chunks, q, qd, P, base, err, centers, radii, ids,
@@ -537,11 +544,11 @@ def _advance_arms(links, actuated, lo, hi, lam, lengths, base, phi, _passive, q,
 
     Each arm's parameters and state are copied into small stack arrays (:func:`_local`), advanced
     through the sub-steps there and written back: the hot loop makes no array view and, but for the
-    filter's rows, touches no heap scratch. The link angles' sines and
-    cosines are computed from q (``_angles``) once per arm at the start of a call (and again after a
-    non-finite state); RK4 stages and the state a sub-step reaches get theirs by rotating those at
-    the sub-step's start (``_rotate_angles``, exact to rounding). Those at the state reached serve
-    its clearance and the next sub-step's filter, tracker and first RK4 stage."""
+    filter's rows, touches no heap scratch. The link angles' sines and cosines are computed from q
+    (``_angles``) once per arm at the start of a call (and again after a non-finite state); RK4
+    stages and the state a sub-step reaches get theirs by rotating those at the sub-step's start
+    (``_rotate_angles``, exact to rounding). Those at the state reached serve its clearance and the
+    next sub-step's filter, tracker and first RK4 stage."""
     n = len(links)
     k = len(actuated)
     passive = k < n  # a compile-time constant (the argument, checked by the callers, is the same)
@@ -807,6 +814,7 @@ def group_advance_parallel(links, actuated, lam, lengths, base, phi, passive, q,
                            v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track,
                            finite_out, n_chunks):
     _check_sizes(links, actuated, passive, q, v)
+    _check_chunks(n_chunks)
     A = q.shape[0]
     for c in prange(n_chunks):
         _advance_arms(links, actuated, c * A // n_chunks, (c + 1) * A // n_chunks, lam, lengths, base, phi, passive,

@@ -26,6 +26,11 @@ OBSTACLE_FEATURES = 5  # present, dx, dy, radius, barrier h
 OBS_BOUND = 1e6  # observation entries other than cos/sin and flags are clipped to ±OBS_BOUND
 
 
+def _check_chunks(n_chunks: int) -> None:
+    if isinstance(n_chunks, bool) or not isinstance(n_chunks, (int, np.integer)) or n_chunks < 0:
+        raise ValueError(f"n_chunks must be 0 (one thread) or a positive int, got {n_chunks!r}")
+
+
 @dataclass(frozen=True)
 class ObservationLayout:
     """Where each agent's observation entries come from (fixed by the team's structure).
@@ -100,6 +105,7 @@ class ObservationLayout:
                           max_joint_speed: float, n_chunks: int = 0) -> tuple[np.ndarray, list[np.ndarray]]:
         """The edges' length errors ‖z_k‖ − d_k ``(B, E)`` and :meth:`build`'s observations, computed
         together (``edges (E, 2)`` int64, ``distances (B, E)``; other arguments as :meth:`build`)."""
+        _check_chunks(n_chunks)
         kern = kernels()
         err = np.empty(distances.shape)
         if n_chunks:
@@ -132,6 +138,7 @@ class ObservationLayout:
             n_chunks: 0 for the single-threaded kernel; otherwise the teams are split into this
                 many chunks on numba's thread pool (for large B).
         """
+        _check_chunks(n_chunks)
         kern = kernels()
         out = []
         for ids, size in self._group_sizes:

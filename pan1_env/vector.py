@@ -129,9 +129,6 @@ class Pan1VectorEnv(VectorEnv):
         # effort = Σ_i ‖a_i‖² / k_i: one weight per action column
         self._effort_weights = np.concatenate([np.full(k, 1.0 / max(k, 1)) for k in act_sizes])
         self._build_batches(t.scenario)
-        # observations on numba's thread pool from PARALLEL_THRESHOLD arms on
-        self._parallel_obs = threads is True or (threads == "auto"
-                                                 and self.num_envs * self._n_arms >= PARALLEL_THRESHOLD)
         self._rngs = [np.random.default_rng() for _ in range(self.num_envs)]
         self._steps = np.zeros(self.num_envs, dtype=np.int64)
         self._needs_reset = True
@@ -260,8 +257,7 @@ class Pan1VectorEnv(VectorEnv):
                     g["mask"], kappa, eps, margin, ke, t.physics_dt, t.substeps,
                     t.max_joint_speed if self.shield else np.inf, g["v_star"], g["tau"], g["qd"], g["p"], clear,
                     np.full(B * A, np.inf), g["counts"], np.zeros(B * A), g["finite"])
-            parallel = self.threads is True or (self.threads == "auto" and B * A >= PARALLEL_THRESHOLD)
-            if parallel:
+            if self._threaded(B * A):
                 kernels.group_advance_parallel(*args, 4 * get_num_threads())
             else:
                 kernels.group_advance(*args)
@@ -319,9 +315,13 @@ class Pan1VectorEnv(VectorEnv):
             return np.full(self.num_envs, np.inf)
         return clearance(self._positions(), self._centers[:, None], self._radii[:, None]).min(axis=(1, 2))
 
+    def _threaded(self, arms: int) -> bool:
+        """Whether a compiled call over ``arms`` arms runs on numba's thread pool (the ``threads`` argument)."""
+        return self.threads is True or (self.threads == "auto" and arms >= PARALLEL_THRESHOLD)
+
     def _obs_chunks(self) -> int:
         """0 (one thread) or the number of chunks of teams for the multi-threaded observation kernel."""
-        if not self._parallel_obs:
+        if not self._threaded(self.num_envs * self._n_arms):
             return 0
         from numba import get_num_threads
 

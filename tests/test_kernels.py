@@ -56,7 +56,7 @@ def test_group_terms_match_reference(n: int, passive: bool) -> None:
 
 def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False, centers=None, radii=None,
              mask=None, kappa=0.5, eps=5.0, margin=0.0, ke=100.0, dt=1e-3, n_sub=1, v_max=np.inf, parallel=False,
-             sizes=None):
+             sizes=None, n_chunks=2):
     A, k = v.shape
     centers = np.zeros((0, 2)) if centers is None else centers
     radii = np.zeros(0) if radii is None else radii
@@ -75,7 +75,7 @@ def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False
             v_max, out["v_star"], out["tau"], out["qd"], out["p"], out["clear"], out["min_h"], out["counts"],
             out["track"], out["finite"])
     if parallel:
-        kernels.group_advance_parallel(*args, 2)
+        kernels.group_advance_parallel(*args, n_chunks)
     else:
         kernels.group_advance(*args)
     return bool(out["finite"].all()), q, v, prev, out
@@ -160,6 +160,8 @@ def test_advance_rejects_sizes_that_do_not_match_the_arrays() -> None:
     for parallel in (False, True):
         with pytest.raises(ValueError, match="PAn-1"):
             _advance(full, q4, v4, np.zeros_like(v4), parallel=parallel)
+    with pytest.raises(ValueError, match="n_chunks"):  # no chunk: nothing would be advanced
+        _advance(four, q4, v4, np.zeros_like(v4), parallel=True, n_chunks=0)
 
 
 # plain @njit (no cache): numba's cache of a test helper would not notice a change to the kernels it inlines

@@ -58,3 +58,29 @@ def test_observations_match_the_per_agent_reference(kwargs) -> None:
             assert obs[agent].dtype == np.float32 and env.observation_space(agent).contains(obs[agent])
             np.testing.assert_allclose(obs[agent], ref[agent], rtol=2e-6, atol=2e-6, err_msg=f"{agent} step {t}")
         obs, *_ = env.step({a: rng.uniform(-1, 1, env.action_space(a).shape) for a in env.agents})
+
+
+def test_multi_threaded_observations_equal_the_serial_ones_and_bad_chunks_are_refused() -> None:
+    from pan1_env.vector import Pan1VectorEnv
+
+    venv = Pan1VectorEnv("paper_pa_mixed_square", 5, threads=False)  # three arm kinds
+    venv.reset(seed=2)
+    rng = np.random.default_rng(2)
+    for _ in range(3):
+        venv.step(rng.uniform(-1, 1, venv.action_space.shape))
+    B, N = venv.num_envs, venv._n_arms
+    q, qd = np.zeros((B, N, venv._n_max)), np.zeros((B, N, venv._n_max))
+    for g in venv._groups:
+        q[:, g["ids"], : g["n"]] = g["q"].reshape(B, g["A"], g["n"])
+        qd[:, g["ids"], : g["n"]] = g["qd"].reshape(B, g["A"], g["n"])
+    args = (q, qd, venv._positions(), venv._bases, venv._edges, venv._distances, venv._centers, venv._radii,
+            venv.template.max_joint_speed)
+    layout = venv.template._layout
+    err, serial = layout.build_with_errors(*args)
+    err3, chunked = layout.build_with_errors(*args, 3)
+    np.testing.assert_array_equal(err3, err)
+    for a, b in zip(chunked, serial, strict=True):
+        np.testing.assert_array_equal(a, b)
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="n_chunks"):
+            layout.build_with_errors(*args, bad)
