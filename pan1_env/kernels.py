@@ -296,15 +296,17 @@ def group_end_effectors(lengths, base, phi, q, p):
         p[i, 0], p[i, 1] = _position(lengths[i], base[i, 0], base[i, 1], c, s, n)
 
 
-@njit(**_JIT)
-def _obstacle_slots(o, c, px, py, centers, radii, K, bound, clear, taken):
-    """Write K obstacle slots (present, dx, dy, r, h) at ``o[c:]`` for an end-effector at (px, py): the
-    K obstacles of smallest clearance ‖p − o‖ − r (ties: lower index first), zeros where absent."""
-    O = radii.shape[0]
+@njit(**_JIT, inline="always")
+def _obstacle_slots(out, row, col, c, px, py, centers, radii, team, K, bound, clear, taken):
+    """Write K obstacle slots (present, dx, dy, r, h) at ``out[row, col, c:]`` for an end-effector at
+    (px, py), from the obstacles ``centers[team]``, ``radii[team]``: the K obstacles of smallest
+    clearance ‖p − o‖ − r (ties: lower index first), zeros where absent. Inlined, and indices rather
+    than views: a view of a heap array costs two atomic reference-count updates."""
+    O = radii.shape[1]
     for j in range(O):
-        dx = centers[j, 0] - px
-        dy = centers[j, 1] - py
-        clear[j] = np.sqrt(dx * dx + dy * dy) - radii[j]
+        dx = centers[team, j, 0] - px
+        dy = centers[team, j, 1] - py
+        clear[j] = np.sqrt(dx * dx + dy * dy) - radii[team, j]
         taken[j] = False
     for _slot in range(K):
         best = -1
@@ -313,17 +315,17 @@ def _obstacle_slots(o, c, px, py, centers, radii, K, bound, clear, taken):
                 best = j
         if best < 0:
             for f in range(5):
-                o[c + f] = 0.0
+                out[row, col, c + f] = 0.0
         else:
             taken[best] = True
-            dx = centers[best, 0] - px
-            dy = centers[best, 1] - py
-            rad = radii[best]
-            o[c] = 1.0
-            o[c + 1] = min(max(dx, -bound), bound)
-            o[c + 2] = min(max(dy, -bound), bound)
-            o[c + 3] = min(max(rad, -bound), bound)
-            o[c + 4] = min(max(dx * dx + dy * dy - rad * rad, -bound), bound)
+            dx = centers[team, best, 0] - px
+            dy = centers[team, best, 1] - py
+            rad = radii[team, best]
+            out[row, col, c] = 1.0
+            out[row, col, c + 1] = min(max(dx, -bound), bound)
+            out[row, col, c + 2] = min(max(dy, -bound), bound)
+            out[row, col, c + 3] = min(max(rad, -bound), bound)
+            out[row, col, c + 4] = min(max(dx * dx + dy * dy - rad * rad, -bound), bound)
         c += 5
 
 
@@ -340,30 +342,29 @@ def _observation_rows(lo, hi, q, qd, P, base, err, centers, radii, ids, neighbou
     for bi in range(lo, hi):
         for r in range(ids.shape[0]):
             i = ids[r]
-            o = out[bi, r]
             for a in range(n):
-                o[a] = np.cos(q[bi, i, a])
-                o[n + a] = np.sin(q[bi, i, a])
-                o[2 * n + a] = min(max(qd[bi, i, a] * inv_vmax, -bound), bound)
+                out[bi, r, a] = np.cos(q[bi, i, a])
+                out[bi, r, n + a] = np.sin(q[bi, i, a])
+                out[bi, r, 2 * n + a] = min(max(qd[bi, i, a] * inv_vmax, -bound), bound)
             px = P[bi, i, 0]
             py = P[bi, i, 1]
-            o[3 * n] = min(max(px - base[bi, i, 0], -bound), bound)
-            o[3 * n + 1] = min(max(py - base[bi, i, 1], -bound), bound)
+            out[bi, r, 3 * n] = min(max(px - base[bi, i, 0], -bound), bound)
+            out[bi, r, 3 * n + 1] = min(max(py - base[bi, i, 1], -bound), bound)
             c = 3 * n + 2
             for s in range(D):
                 if present[i, s]:
                     j = neighbour[i, s]
-                    o[c] = 1.0
-                    o[c + 1] = min(max(P[bi, j, 0] - px, -bound), bound)
-                    o[c + 2] = min(max(P[bi, j, 1] - py, -bound), bound)
-                    o[c + 3] = min(max(err[bi, neighbour_edge[i, s]], -bound), bound)
+                    out[bi, r, c] = 1.0
+                    out[bi, r, c + 1] = min(max(P[bi, j, 0] - px, -bound), bound)
+                    out[bi, r, c + 2] = min(max(P[bi, j, 1] - py, -bound), bound)
+                    out[bi, r, c + 3] = min(max(err[bi, neighbour_edge[i, s]], -bound), bound)
                 else:
-                    o[c] = 0.0
-                    o[c + 1] = 0.0
-                    o[c + 2] = 0.0
-                    o[c + 3] = 0.0
+                    out[bi, r, c] = 0.0
+                    out[bi, r, c + 1] = 0.0
+                    out[bi, r, c + 2] = 0.0
+                    out[bi, r, c + 3] = 0.0
                 c += 4
-            _obstacle_slots(o, c, px, py, centers[bi], radii[bi], K, bound, clear, taken)
+            _obstacle_slots(out, bi, r, c, px, py, centers, radii, bi, K, bound, clear, taken)
 
 
 @njit(**_JIT)
@@ -871,19 +872,19 @@ def reach_observations(q, qd, p, base, goal, centers, radii, K, inv_vmax, bound,
     O = radii.shape[1]
     clear = np.empty(O)
     taken = np.empty(O, dtype=np.bool_)
+    rows = out.reshape((1, out.shape[0], out.shape[1]))  # the layout _obstacle_slots indexes
     for i in range(q.shape[0]):
-        o = out[i]
         for a in range(n):
-            o[a] = np.cos(q[i, a])
-            o[n + a] = np.sin(q[i, a])
-            o[2 * n + a] = min(max(qd[i, a] * inv_vmax, -bound), bound)
+            out[i, a] = np.cos(q[i, a])
+            out[i, n + a] = np.sin(q[i, a])
+            out[i, 2 * n + a] = min(max(qd[i, a] * inv_vmax, -bound), bound)
         px = p[i, 0]
         py = p[i, 1]
-        o[3 * n] = min(max(px - base[i, 0], -bound), bound)
-        o[3 * n + 1] = min(max(py - base[i, 1], -bound), bound)
-        o[3 * n + 2] = min(max(goal[i, 0] - px, -bound), bound)
-        o[3 * n + 3] = min(max(goal[i, 1] - py, -bound), bound)
-        _obstacle_slots(o, 3 * n + 4, px, py, centers[i], radii[i], K, bound, clear, taken)
+        out[i, 3 * n] = min(max(px - base[i, 0], -bound), bound)
+        out[i, 3 * n + 1] = min(max(py - base[i, 1], -bound), bound)
+        out[i, 3 * n + 2] = min(max(goal[i, 0] - px, -bound), bound)
+        out[i, 3 * n + 3] = min(max(goal[i, 1] - py, -bound), bound)
+        _obstacle_slots(rows, 0, i, 3 * n + 4, px, py, centers, radii, i, K, bound, clear, taken)
 
 
 @njit(**_JIT)

@@ -143,9 +143,10 @@ class Pan1VectorEnv(VectorEnv):
             A = len(g.arm_ids)
             rep = lambda x: np.ascontiguousarray(np.tile(x, (B,) + (1,) * (x.ndim - 1)))  # noqa: E731
             b = g.batch
-            cols = np.array([np.arange(self._act_offsets[i], self._act_offsets[i] + g.k) for i in g.arm_ids])
+            cols = np.array([np.arange(self._act_offsets[i], self._act_offsets[i] + g.k) for i in g.arm_ids],
+                            dtype=np.int64).reshape(A, g.k)
             self._groups.append({
-                "ids": g.arm_ids, "n": g.n, "k": g.k, "sizes": g.sizes, "A": A,
+                "ids": np.ascontiguousarray(g.arm_ids, dtype=np.int64), "n": g.n, "k": g.k, "sizes": g.sizes, "A": A,
                 "passive": b.passive_first_joint, "cols": cols,
                 "lam": rep(b.lam), "lengths": rep(b.lengths), "base": rep(b.base), "phi": rep(b.phi),
                 "centers": rep(g.centers), "radii": rep(g.radii), "mask": rep(g.obstacle_mask),
@@ -154,6 +155,9 @@ class Pan1VectorEnv(VectorEnv):
                 "has_prev": np.zeros(B * A, dtype=bool), "qd": np.zeros((B * A, g.n)), "p": np.zeros((B * A, 2)),
                 "v_star": np.zeros((B * A, g.k)), "tau": np.zeros((B * A, g.k)),
                 "finite": np.ones(B * A, dtype=bool), "counts": np.zeros((B * A, 3), dtype=np.int64),
+                # per-step scratch: commands and the kernel's running extremes
+                "command": np.zeros((B * A, g.k)), "clear": np.zeros(B * A), "min_h": np.zeros(B * A),
+                "track": np.zeros(B * A),
             })
         N, n_max = sc.n_arms, max(a.n_links for a in sc.arms)
         self._n_arms, self._n_max = N, n_max
@@ -229,7 +233,7 @@ class Pan1VectorEnv(VectorEnv):
     def step(self, actions: np.ndarray):
         from numba import get_num_threads
 
-        from . import kernels
+        from . import kernels, vector_kernels
 
         if self._needs_reset:
             raise RuntimeError("step() called before reset(); call reset()")
@@ -239,51 +243,49 @@ class Pan1VectorEnv(VectorEnv):
         if not np.isfinite(a).all():
             bad = int(np.flatnonzero(~np.isfinite(a).all(axis=1))[0])
             raise ValueError(f"actions for copy {bad} contain NaN or inf")
-        a = np.clip(a, -1.0, 1.0)
         t = self.template
         B = self.num_envs
         kappa, eps, margin, ke = self._sim_params
-        min_clear = np.full((B, self._n_arms), np.inf)
+        min_clear = np.empty((B, self._n_arms))
         intervened = np.zeros(B, dtype=bool)
         fallback = np.zeros(B, dtype=bool)
         finite = np.ones(B, dtype=bool)
         for g in self._groups:
             A = g["A"]
-            command = (a[:, g["cols"]] * self._scale).reshape(B * A, g["k"])
-            clear = np.full(B * A, np.inf)
-            g["counts"][:] = 0
+            command = g["command"]
+            vector_kernels.gather_commands(a, g["cols"], self._scale, command)
+            clear = g["clear"]
+            clear.fill(np.inf)
+            g["min_h"].fill(np.inf)
+            g["track"].fill(0.0)
+            g["counts"].fill(0)
             args = (*g["sizes"], g["lam"], g["lengths"], g["base"], g["phi"], g["passive"], g["q"], g["v"],
                     g["v_prev"], g["has_prev"], command, self._torque, self.shield, g["centers"], g["radii"],
                     g["mask"], kappa, eps, margin, ke, t.physics_dt, t.substeps,
                     t.max_joint_speed if self.shield else np.inf, g["v_star"], g["tau"], g["qd"], g["p"], clear,
-                    np.full(B * A, np.inf), g["counts"], np.zeros(B * A), g["finite"])
+                    g["min_h"], g["counts"], g["track"], g["finite"])
             if self._threaded(B * A):
                 kernels.group_advance_parallel(*args, 4 * get_num_threads())
             else:
                 kernels.group_advance(*args)
             if self._torque:
-                g["has_prev"][:] = False
-            min_clear[:, g["ids"]] = clear.reshape(B, A)
-            counts = g["counts"].reshape(B, A, 3)
-            intervened |= counts[..., 1:].any(axis=(1, 2))
-            fallback |= counts[..., 2].any(axis=1)
-            finite &= g["finite"].reshape(B, A).all(axis=1)
+                g["has_prev"].fill(False)
+            vector_kernels.gather_arm_results(g["ids"], clear, g["counts"], g["finite"], min_clear, intervened,
+                                              fallback, finite)
         self._steps += 1
-        cost = (min_clear < 0).sum(axis=1).astype(float)
         err, obs = self._observations()
-        abs_err = np.abs(err)
-        formation_error = abs_err.max(axis=1)
-        effort = (a * a) @ self._effort_weights
-        reward = (-t.formation_weight * abs_err.mean(axis=1) - t.effort_weight * effort / self._n_arms
-                  - t.collision_penalty * cost / self._n_arms)
-        success = formation_error < t.success_tolerance
+        cost, clearance, formation_error = np.empty(B), np.empty(B), np.empty(B)
+        success, reward = np.empty(B, dtype=bool), np.empty(B)
+        vector_kernels.team_rewards(min_clear, err, a, self._effort_weights, t.formation_weight, t.effort_weight,
+                                    t.collision_penalty, t.success_tolerance, cost, clearance, formation_error,
+                                    success, reward)
         terminated = np.zeros(B, dtype=bool)
         if t.terminate_on_collision:
             terminated |= cost > 0
         if t.terminate_on_success:
             terminated |= success
         truncated = (self._steps >= t.max_steps) | ~finite
-        infos = self._infos(cost, min_clear.min(axis=1), formation_error, (intervened, fallback))
+        infos = self._infos(cost, clearance, formation_error, (intervened, fallback), success)
         if not finite.all():
             infos["fault"] = np.where(finite, "", "non-finite state in the physics step; episode truncated")
             infos["_fault"] = ~finite
@@ -350,12 +352,13 @@ class Pan1VectorEnv(VectorEnv):
                 out[:, self._obs_offsets[i] : self._obs_offsets[i + 1]] = mat[:, r]
         return err, out
 
-    def _infos(self, cost, min_clearance, formation_error, shield) -> dict[str, Any]:
+    def _infos(self, cost, min_clearance, formation_error, shield, success=None) -> dict[str, Any]:
         B = self.num_envs
         everywhere = np.ones(B, dtype=bool)
+        if success is None:
+            success = formation_error < self.template.success_tolerance
         infos = {"cost": np.asarray(cost, dtype=float), "min_clearance": min_clearance,
-                 "formation_error": formation_error,
-                 "is_success": formation_error < self.template.success_tolerance}
+                 "formation_error": formation_error, "is_success": success}
         if shield is not None and self.shield:
             infos["shield_intervened"], infos["shield_fallback"] = shield
         for key in list(infos):

@@ -18,7 +18,7 @@ def _singles(scenario, B, shield=True, **kw):
                                               ("paper_pa3_square", True)])
 @pytest.mark.parametrize("mode", ["velocity", "torque"])
 def test_vector_env_equals_independent_copies(scenario: str, threads: bool, mode: str) -> None:
-    B, kw = 3, dict(max_steps=7, action_mode=mode)
+    B, kw = 3, dict(max_steps=7, action_mode=mode, effort_weight=0.3, collision_penalty=2.0)
     venv = Pan1VectorEnv(scenario, B, threads=threads, **kw)
     singles = _singles(scenario, B, **kw)
     obs, info = venv.reset(seed=5)
@@ -39,6 +39,9 @@ def test_vector_env_equals_independent_copies(scenario: str, threads: bool, mode
             assert info["cost"][b] == i["cost"]
             assert info["min_clearance"][b] == pytest.approx(i["min_clearance"], abs=1e-12)
             assert info["shield_intervened"][b] == i["shield_intervened"]
+            assert info["shield_fallback"][b] == i["shield_fallback"]
+            assert info["formation_error"][b] == pytest.approx(i["formation_error"], abs=1e-12)
+            assert info["is_success"][b] == i["is_success"]
             if te or tr:
                 np.testing.assert_array_equal(info["final_obs"][b], o)
                 assert info["_final_obs"][b] and info["final_info"]["cost"][b] == i["cost"]
@@ -131,3 +134,58 @@ def test_sb3_adapter_runs_ppo_and_reports_terminal_observations() -> None:
     model = PPO("MlpPolicy", venv, n_steps=16, batch_size=32, n_epochs=1, seed=0)
     model.learn(64)
     assert model.num_timesteps >= 64
+
+
+def test_compiled_step_bookkeeping_matches_numpy() -> None:
+    """The vector env's compiled per-copy reductions against the same formulas in numpy, on a mixed
+    team (two arm kinds, arms not in team order) with collisions, interventions and a fault."""
+    from pan1_env import vector_kernels as vk
+
+    rng = np.random.default_rng(3)
+    B, N, E = 6, 5, 7
+    kinds = [np.array([3, 0, 4]), np.array([1, 2])]  # arm ids of each kind
+    min_clear = np.empty((B, N))
+    intervened, fallback, finite = np.zeros(B, bool), np.zeros(B, bool), np.ones(B, bool)
+    want_clear = np.empty((B, N))
+    want_int, want_fb, want_fin = np.zeros(B, bool), np.zeros(B, bool), np.ones(B, bool)
+    for ids in kinds:
+        A = len(ids)
+        clear = rng.uniform(-0.2, 1.0, B * A)
+        counts = rng.integers(0, 3, (B * A, 3)) * (rng.random((B * A, 3)) < 0.05)
+        ok = rng.random(B * A) > 0.1
+        counts[4 * A : 5 * A], ok[4 * A : 5 * A] = 0, True  # copy 4: nothing happens in this kind
+        counts[A + 1, 1] += 1  # copy 1: a QP solved
+        counts[2 * A, 2] += 1  # copy 2: a fallback
+        ok[3 * A + A - 1] = False  # copy 3: a fault
+        vk.gather_arm_results(ids, clear, counts, ok, min_clear, intervened, fallback, finite)
+        want_clear[:, ids] = clear.reshape(B, A)
+        per_copy = counts.reshape(B, A, 3)
+        want_int |= per_copy[..., 1:].any(axis=(1, 2))
+        want_fb |= per_copy[..., 2].any(axis=1)
+        want_fin &= ok.reshape(B, A).all(axis=1)
+    np.testing.assert_array_equal(min_clear, want_clear)
+    np.testing.assert_array_equal(intervened, want_int)
+    np.testing.assert_array_equal(fallback, want_fb)
+    np.testing.assert_array_equal(finite, want_fin)
+    assert want_int.any() and not want_int.all() and not want_fin.all()  # the draw exercises every branch
+
+    err = rng.normal(0.0, 0.05, (B, E))
+    actions = rng.uniform(-1.5, 1.5, (B, 9))
+    weights = rng.uniform(0.2, 1.0, 9)
+    out = [np.empty(B), np.empty(B), np.empty(B), np.empty(B, bool), np.empty(B)]
+    vk.team_rewards(min_clear, err, actions, weights, 1.5, 0.3, 2.0, 0.06, *out)
+    cost, clearance, formation_error, success, reward = out
+    want_cost = (min_clear < 0).sum(axis=1)
+    effort = np.clip(actions, -1, 1) ** 2 @ weights
+    np.testing.assert_array_equal(cost, want_cost)
+    np.testing.assert_array_equal(clearance, min_clear.min(axis=1))
+    np.testing.assert_array_equal(formation_error, np.abs(err).max(axis=1))
+    np.testing.assert_array_equal(success, np.abs(err).max(axis=1) < 0.06)
+    np.testing.assert_allclose(reward, -1.5 * np.abs(err).mean(axis=1) - 0.3 * effort / N - 2.0 * want_cost / N,
+                               rtol=1e-13, atol=1e-15)
+    assert want_cost.any() and success.any() and not success.all()
+
+    cols = np.array([[4, 5], [0, 1], [7, 8]])
+    command = np.empty((B * 3, 2))
+    vk.gather_commands(actions, cols, 2.5, command)
+    np.testing.assert_array_equal(command, (np.clip(actions[:, cols], -1, 1) * 2.5).reshape(B * 3, 2))
