@@ -3,7 +3,9 @@
 :class:`Pan1VectorEnv` holds the state of every arm of every copy in arrays batched over
 ``B × (arms of one kind)`` and advances them all with one call of the compiled closed-loop kernel
 (:func:`pan1_env.kernels.group_advance`, or its multi-threaded twin for large batches) per arm
-kind, then builds every observation with one compiled call per kind. It is the vectorised form of
+kind, then builds every observation with one compiled call per kind; turning actions into
+commands and the arms' results into per-copy costs, rewards and flags is compiled too
+(:mod:`pan1_env.vector_kernels`). It is the vectorised form of
 :class:`~pan1_env.registration.CentralizedEnv` (the ``gymnasium.make`` view): the same flat
 observation, action, reward, cost and time steps, with the safety filter on by default.
 """
