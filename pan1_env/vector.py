@@ -239,7 +239,7 @@ class Pan1VectorEnv(VectorEnv):
 
         if self._needs_reset:
             raise RuntimeError("step() called before reset(); call reset()")
-        a = np.asarray(actions, dtype=float)
+        a = np.ascontiguousarray(actions, dtype=float)
         if a.shape != self.action_space.shape:
             raise ValueError(f"actions must have shape {self.action_space.shape}, got {a.shape}")
         if not np.isfinite(a).all():
@@ -248,7 +248,7 @@ class Pan1VectorEnv(VectorEnv):
         t = self.template
         B = self.num_envs
         kappa, eps, margin, ke = self._sim_params
-        min_clear = np.empty((B, self._n_arms))
+        min_clear = np.full((B, self._n_arms), np.inf)
         intervened = np.zeros(B, dtype=bool)
         fallback = np.zeros(B, dtype=bool)
         finite = np.ones(B, dtype=bool)

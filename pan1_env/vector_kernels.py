@@ -81,5 +81,5 @@ def team_rewards(min_clear, err, actions, effort_weights, formation_weight, effo
         clearance[b] = low
         formation_error[b] = worst
         success[b] = worst < success_tolerance
-        reward[b] = (-formation_weight * (total / max(E, 1)) - effort_weight * effort / N
+        reward[b] = (-formation_weight * (total / E) - effort_weight * effort / N
                      - collision_penalty * hits / N)

@@ -35,12 +35,16 @@ def test_arm_follows_the_same_trajectory_as_in_the_team_env(scenario: str, arm: 
     core = team.unwrapped
     agent = core.possible_agents[arm]
     rng = np.random.default_rng(3)
+    n, K = reach.arm.n_links, reach.n_obstacle_obs
+    assert K == core.n_obstacle_obs
     for _ in range(60):
         actions = {a: rng.uniform(-1.3, 1.3, team.action_space(a).shape) for a in core.possible_agents}
-        _, _, _, _, info = reach.step(actions[agent])
-        _, _, _, _, infos = team.step(actions)
+        obs, _, _, _, info = reach.step(actions[agent])
+        team_obs, _, _, _, infos = team.step(actions)
+        # the layouts share the arm's own entries (cos q, sin q, q̇, p − base) and the K obstacle slots
+        np.testing.assert_allclose(obs[: 3 * n + 2], team_obs[agent][: 3 * n + 2], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(obs[-5 * K :], team_obs[agent][-5 * K :], rtol=0, atol=1e-6)
         q_team, _ = core.sim.joint_state()
-        n = reach.arm.n_links
         np.testing.assert_allclose(reach.q, q_team[arm, :n], rtol=0, atol=1e-12)
         np.testing.assert_allclose(reach.end_effector, core.sim.positions()[arm], rtol=0, atol=1e-12)
         assert info["min_clearance"] == pytest.approx(infos[agent]["min_clearance"], abs=1e-12)

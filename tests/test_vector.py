@@ -52,6 +52,28 @@ def test_vector_env_equals_independent_copies(scenario: str, threads: bool, mode
         assert (t == 6) == bool(trunc.all())
 
 
+def test_unshielded_vector_env_charges_collisions_like_the_single_env() -> None:
+    """Without the shield, arms driven at full speed hit obstacles: cost and the collision penalty
+    in the reward agree with the single env's."""
+    B, kw = 4, dict(max_steps=40, collision_penalty=2.0, effort_weight=0.1)
+    venv = Pan1VectorEnv("paper_pa3_square", B, shield=False, **kw)
+    singles = _singles("paper_pa3_square", B, shield=False, **kw)
+    venv.reset(seed=0)
+    for b, e in enumerate(singles):
+        e.reset(seed=b)
+    rng = np.random.default_rng(7)
+    hits = 0.0
+    for _ in range(40):
+        actions = np.sign(rng.uniform(-1.0, 1.0, venv.action_space.shape))
+        _, rew, _, _, info = venv.step(actions)
+        for b, e in enumerate(singles):
+            _, r, _, _, i = e.step(actions[b])
+            assert info["cost"][b] == i["cost"]
+            assert rew[b] == pytest.approx(r, rel=1e-12, abs=1e-12)
+        hits += info["cost"].sum()
+    assert hits > 0
+
+
 def test_random_teams_follow_per_copy_seeds_and_redraw_on_autoreset() -> None:
     B = 4
     venv = Pan1VectorEnv("random", B, max_steps=3)
