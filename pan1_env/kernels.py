@@ -95,8 +95,11 @@ def _angles(q, phi, n, c, s):
         s[a] = np.sin(ang)
 
 
-# Largest angle increment |δ| for which :func:`_rotate_angles` uses its series (the first omitted term,
-# δ¹²/12! for the cosine, is then below 1e-19); larger increments take np.cos/np.sin.
+# Largest angle increments |δ| for which :func:`_rotate_angles` uses its short series (to δ⁶ and δ⁷:
+# the first omitted term, δ⁸/8! for the cosine, is then below 2e-17) and its long one (to δ¹⁰ and δ¹¹:
+# δ¹²/12! below 1e-19); larger increments take np.cos/np.sin. With 10 ms sub-steps the short series
+# covers link speeds up to 3 rad/s, most of a sub-step's rotations.
+_SERIES_SHORT = 0.03
 _SERIES_MAX = 0.125
 
 
@@ -104,12 +107,17 @@ _SERIES_MAX = 0.125
 def _rotate_angles(c0, s0, thd, h, n, c, s):
     """c, s of the link angles θ_α + h θ̇_α from those of θ_α (``c0``, ``s0``) and the absolute angular
     speeds θ̇_α (``thd``): the angle-sum formulas, with cos δ and sin δ of the small increment
-    δ = h θ̇_α from their Taylor series to δ¹⁰ and δ¹¹ (exact to rounding for |δ| ≤ ``_SERIES_MAX``).
-    An RK4 step's stages and end state are reached this way from the state at its start, so a
-    sub-step evaluates no sine or cosine (the series is a handful of multiplications)."""
+    δ = h θ̇_α from their Taylor series, to δ⁶ and δ⁷ for |δ| ≤ ``_SERIES_SHORT`` and to δ¹⁰ and δ¹¹
+    for |δ| ≤ ``_SERIES_MAX`` (exact to rounding in both). An RK4 step's stages and end state are
+    reached this way from the state at its start, so a sub-step evaluates no sine or cosine (the
+    series is a handful of multiplications, and their chain lies on the sub-step's critical path)."""
     for a in range(n):
         d = h * thd[a]
-        if abs(d) <= _SERIES_MAX:
+        if abs(d) <= _SERIES_SHORT:
+            d2 = d * d
+            cd = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0))
+            sd = d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0)))
+        elif abs(d) <= _SERIES_MAX:
             d2 = d * d
             cd = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0 * (1.0 - d2 / 56.0 * (1.0 - d2 / 90.0))))
             sd = d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0 * (1.0 - d2 / 72.0 * (1.0 - d2 / 110.0)))))

@@ -115,8 +115,9 @@ def test_advance_torque_mode_without_filter_applies_the_torque() -> None:
 
 
 def test_rotated_angles_match_cos_and_sin() -> None:
-    # the RK4 stages' link angles come from the step's start by a small rotation (series for
-    # |δ| ≤ 0.125, np.cos/np.sin beyond): both branches against cos and sin of the summed angle
+    # the RK4 stages' link angles come from the step's start by a small rotation (a short series for
+    # |δ| ≤ 0.03, a long one to 0.125, np.cos/np.sin beyond): each branch against cos and sin of the
+    # summed angle
     rng = np.random.default_rng(11)
     n = 6
     for h in (1e-3, 5e-3, 0.05, 0.5):
@@ -126,6 +127,15 @@ def test_rotated_angles_match_cos_and_sin() -> None:
         kernels._rotate_angles(np.cos(theta), np.sin(theta), thd, h, n, c, s)
         np.testing.assert_allclose(c, np.cos(theta + h * thd), rtol=0, atol=2e-15)
         np.testing.assert_allclose(s, np.sin(theta + h * thd), rtol=0, atol=2e-15)
+    # every increment δ = h θ̇ on a grid through both series' ranges and their edges
+    edges = [kernels._SERIES_SHORT, kernels._SERIES_MAX]
+    d = np.concatenate([np.linspace(-0.2, 0.2, 801), edges, np.nextafter(edges, 1.0), np.nextafter(edges, 0.0)])
+    d = np.concatenate([d, -d])
+    theta = rng.uniform(-np.pi, np.pi, d.size)
+    c, s = np.empty(d.size), np.empty(d.size)
+    kernels._rotate_angles(np.cos(theta), np.sin(theta), d, 1.0, d.size, c, s)
+    np.testing.assert_allclose(c, np.cos(theta + d), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(s, np.sin(theta + d), rtol=0, atol=1e-15)
 
 
 def test_advance_fast_joints_match_rk4() -> None:
