@@ -44,7 +44,11 @@ STATUS_NOMINAL, STATUS_SOLVED, STATUS_FALLBACK = 0, 1, 2
 # numpy error model: no zero-division checks in the hot loops (a zero pivot gives inf/NaN, caught by the
 # finiteness checks); fast-math without nnan/ninf, so NaN and inf tests keep working, and without reassoc
 # (with it LLVM let a NaN state through the RK4 step's finiteness check: tests/test_robustness.py).
-_JIT = {"cache": True, "error_model": "numpy", "fastmath": {"nsz", "arcp", "contract", "afn"}}
+# Without contract either: with it, whether a multiply-add is fused depends on the code a function is
+# compiled into, and a kernel compiled in the running process (which calls its helpers' own compiled
+# copies) rounded differently from the same kernel loaded from the disk cache (its inlined copies), so
+# the first run after a change did not reproduce later runs bit for bit (tests/test_determinism.py).
+_JIT = {"cache": True, "error_model": "numpy", "fastmath": {"nsz", "arcp", "afn"}}
 
 
 @intrinsic
@@ -836,8 +840,7 @@ group_advance.__doc__ = _ADVANCE_DOC
 group_advance_parallel.__doc__ = _ADVANCE_DOC + """
     The same, with the arms split into ``n_chunks`` chunks run on numba's thread pool (for large
     batches; a call costs a few microseconds more than :func:`group_advance`). Both run the same
-    compiled per-arm loop; results agree to rounding (LLVM may fuse multiply-adds differently in
-    the two callers), QP statuses and flags exactly.
+    compiled per-arm loop and give identical results (no fused multiply-adds: see ``_JIT``).
     """
 
 
