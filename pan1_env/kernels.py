@@ -44,10 +44,12 @@ STATUS_NOMINAL, STATUS_SOLVED, STATUS_FALLBACK = 0, 1, 2
 # numpy error model: no zero-division checks in the hot loops (a zero pivot gives inf/NaN, caught by the
 # finiteness checks); fast-math without nnan/ninf, so NaN and inf tests keep working, and without reassoc
 # (with it LLVM let a NaN state through the RK4 step's finiteness check: tests/test_robustness.py).
-# Without contract either: with it, whether a multiply-add is fused depends on the code a function is
-# compiled into, and a kernel compiled in the running process (which calls its helpers' own compiled
-# copies) rounded differently from the same kernel loaded from the disk cache (its inlined copies), so
-# the first run after a change did not reproduce later runs bit for bit (tests/test_determinism.py).
+# Without contract either: numba links a called kernel (``_advance_arms``) into its caller's module as a
+# weak copy, compiled again there; in the process that compiles them the call goes to the callee's own
+# copy, in a process that loads the caller from the disk cache to the caller's copy. With contract,
+# LLVM fused multiply-adds differently in the two copies, so the first run after a change did not
+# reproduce later runs bit for bit (tests/test_determinism.py). arcp and afn are value-changing too
+# and could in principle differ the same way; the test would show it.
 _JIT = {"cache": True, "error_model": "numpy", "fastmath": {"nsz", "arcp", "afn"}}
 
 
@@ -101,8 +103,9 @@ def _angles(q, phi, n, c, s):
 
 # Largest angle increments |δ| for which :func:`_rotate_angles` uses its short series (to δ⁶ and δ⁷:
 # the first omitted term, δ⁸/8! for the cosine, is then below 2e-17) and its long one (to δ¹⁰ and δ¹¹:
-# δ¹²/12! below 1e-19); larger increments take np.cos/np.sin. With 10 ms sub-steps the short series
-# covers link speeds up to 3 rad/s, most of a sub-step's rotations.
+# δ¹²/12! below 1e-19); larger increments take np.cos/np.sin. Both are within an ulp of cos δ and
+# sin δ (tests/test_kernels.py). With 10 ms sub-steps the short series covers absolute link speeds
+# up to 3 rad/s.
 _SERIES_SHORT = 0.03
 _SERIES_MAX = 0.125
 
@@ -112,7 +115,7 @@ def _rotate_angles(c0, s0, thd, h, n, c, s):
     """c, s of the link angles θ_α + h θ̇_α from those of θ_α (``c0``, ``s0``) and the absolute angular
     speeds θ̇_α (``thd``): the angle-sum formulas, with cos δ and sin δ of the small increment
     δ = h θ̇_α from their Taylor series, to δ⁶ and δ⁷ for |δ| ≤ ``_SERIES_SHORT`` and to δ¹⁰ and δ¹¹
-    for |δ| ≤ ``_SERIES_MAX`` (exact to rounding in both). An RK4 step's stages and end state are
+    for |δ| ≤ ``_SERIES_MAX`` (within an ulp in both). An RK4 step's stages and end state are
     reached this way from the state at its start, so a sub-step evaluates no sine or cosine (the
     series is a handful of multiplications, and their chain lies on the sub-step's critical path)."""
     for a in range(n):
@@ -560,7 +563,7 @@ def _advance_arms(links, actuated, lo, hi, lam, lengths, base, phi, _passive, q,
     filter's rows, touches no heap scratch. The link angles' sines and cosines are computed from q
     (``_angles``) once per arm at the start of a call (and again after a non-finite state); RK4
     stages and the state a sub-step reaches get theirs by rotating those at the sub-step's start
-    (``_rotate_angles``, exact to rounding). Those at the state reached serve its clearance and the
+    (``_rotate_angles``, within an ulp). Those at the state reached serve its clearance and the
     next sub-step's filter, tracker and first RK4 stage."""
     n = len(links)
     k = len(actuated)
@@ -840,7 +843,8 @@ group_advance.__doc__ = _ADVANCE_DOC
 group_advance_parallel.__doc__ = _ADVANCE_DOC + """
     The same, with the arms split into ``n_chunks`` chunks run on numba's thread pool (for large
     batches; a call costs a few microseconds more than :func:`group_advance`). Both run the same
-    compiled per-arm loop and give identical results (no fused multiply-adds: see ``_JIT``).
+    compiled per-arm loop with no reduction across arms; compiled without contraction (see ``_JIT``)
+    they have agreed bit for bit in every test (``tests/test_vector.py``, ``tests/test_determinism.py``).
     """
 
 

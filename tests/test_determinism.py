@@ -39,8 +39,14 @@ for threads in (False, True):
     venv.action_space.seed(5)
     for _ in range(50):
         obs, reward, *_ = venv.step(venv.action_space.sample())
-        digest.update(obs.tobytes() + reward.tobytes())
+        g = venv._groups[0]
+        digest.update(obs.tobytes() + reward.tobytes() + g["q"].tobytes() + g["v"].tobytes())
 print(digest.hexdigest())
+# where each kernel came from: compiled here (misses) or loaded from the disk cache (hits)
+from pan1_env import kernels, vector_kernels
+for f in (kernels.group_advance, kernels.group_advance_parallel, kernels.formation_observations,
+          kernels.group_observations_parallel, vector_kernels.team_rewards):
+    print(sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values()))
 """
 
 
@@ -50,6 +56,8 @@ def test_fresh_compile_and_cache_load_agree_bit_for_bit(tmp_path) -> None:
             for _ in range(2)]
     for r in runs:
         assert r.returncode == 0, r.stderr[-2000:]
-    assert any((tmp_path / "numba-cache").rglob("*.nbi"))  # the second process had a cache to load
-    fresh, cached = (r.stdout.strip() for r in runs)
+    (fresh, *compiled), (cached, *loaded) = (r.stdout.strip().split("\n") for r in runs)
+    # every kernel was compiled in the first process and loaded from the cache in the second
+    assert all(line.split()[0] == "0" and line.split()[1] != "0" for line in compiled), compiled
+    assert all(line.split()[0] != "0" and line.split()[1] == "0" for line in loaded), loaded
     assert len(fresh) == 64 and fresh == cached

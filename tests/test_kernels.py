@@ -136,6 +136,12 @@ def test_rotated_angles_match_cos_and_sin() -> None:
     kernels._rotate_angles(np.cos(theta), np.sin(theta), d, 1.0, d.size, c, s)
     np.testing.assert_allclose(c, np.cos(theta + d), rtol=0, atol=1e-15)
     np.testing.assert_allclose(s, np.sin(theta + d), rtol=0, atol=1e-15)
+    # rotating the angle 0 gives cos δ and sin δ themselves: within an ulp of np.cos/np.sin (a wrong
+    # coefficient or a series used beyond its range is off by several)
+    d = d[d != 0]
+    kernels._rotate_angles(np.ones(d.size), np.zeros(d.size), d, 1.0, d.size, c[: d.size], s[: d.size])
+    assert np.all(np.abs(c[: d.size] - np.cos(d)) <= np.spacing(np.cos(d)))
+    assert np.all(np.abs(s[: d.size] - np.sin(d)) <= np.spacing(np.abs(np.sin(d))))
 
 
 def test_advance_fast_joints_match_rk4() -> None:
