@@ -233,8 +233,6 @@ class Pan1VectorEnv(VectorEnv):
         return obs, info
 
     def step(self, actions: np.ndarray):
-        from numba import get_num_threads
-
         from . import kernels, vector_kernels
 
         if self._needs_reset:
@@ -266,8 +264,9 @@ class Pan1VectorEnv(VectorEnv):
                     g["mask"], kappa, eps, margin, ke, t.physics_dt, t.substeps,
                     t.max_joint_speed if self.shield else np.inf, g["v_star"], g["tau"], g["qd"], g["p"], clear,
                     g["min_h"], g["counts"], g["track"], g["finite"])
-            if self._threaded(B * A):
-                kernels.group_advance_parallel(*args, 4 * get_num_threads())
+            chunks = self._chunks(B * A)
+            if chunks:
+                kernels.group_advance_parallel(*args, chunks)
             else:
                 kernels.group_advance(*args)
             if self._torque:
@@ -319,13 +318,10 @@ class Pan1VectorEnv(VectorEnv):
             return np.full(self.num_envs, np.inf)
         return clearance(self._positions(), self._centers[:, None], self._radii[:, None]).min(axis=(1, 2))
 
-    def _threaded(self, arms: int) -> bool:
-        """Whether a compiled call over ``arms`` arms runs on numba's thread pool (the ``threads`` argument)."""
-        return self.threads is True or (self.threads == "auto" and arms >= PARALLEL_THRESHOLD)
-
-    def _obs_chunks(self) -> int:
-        """0 (one thread) or the number of chunks of teams for the multi-threaded observation kernel."""
-        if not self._threaded(self.num_envs * self._n_arms):
+    def _chunks(self, arms: int) -> int:
+        """0 if a compiled call over ``arms`` arms runs on one thread, else the number of chunks it is split
+        into on numba's thread pool (the ``threads`` argument; "auto" from :data:`PARALLEL_THRESHOLD`)."""
+        if not (self.threads is True or (self.threads == "auto" and arms >= PARALLEL_THRESHOLD)):
             return 0
         from numba import get_num_threads
 
@@ -345,7 +341,7 @@ class Pan1VectorEnv(VectorEnv):
                 qd[:, g["ids"], : g["n"]] = g["qd"].reshape(B, g["A"], g["n"])
         err, mats = self.template._layout.build_with_errors(q, qd, P, self._bases, self._edges, self._distances,
                                                             self._centers, self._radii, self.template.max_joint_speed,
-                                                            self._obs_chunks())
+                                                            self._chunks(B * N))
         if len(mats) == 1 and len(self._groups[0]["ids"]) == N:
             return err, mats[0].reshape(B, -1)
         out = np.empty((B, self._obs_offsets[-1]), dtype=np.float32)

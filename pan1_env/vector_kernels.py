@@ -3,9 +3,12 @@
 Around the physics kernel (:func:`pan1_env.kernels.group_advance`), a step of B copies turns the
 batched actions into each arm kind's commands, gathers the arms' clearances, QP statuses and
 finiteness flags into per-copy arrays, and reduces them with the edge-length errors into costs and
-rewards. In numpy this is some thirty calls over B-sized arrays, about a tenth of the step at
-B = 1024; here it is one loop per kind and one per step. The formulas are the parallel env's
+rewards. In numpy this was some thirty calls over B-sized arrays; here it is one loop per kind and
+one per step. The formulas are the parallel env's
 (:mod:`pan1_env.environment`); the vector env's tests compare the two.
+
+These are the vector env's internals: they trust the shapes and dtypes it builds (compiled code has
+no bounds checks), so validate at the env's boundary, as :meth:`Pan1VectorEnv.step` does for actions.
 
 Importing this module imports numba; :mod:`pan1_env.vector` imports it on its first step.
 """
