@@ -117,31 +117,33 @@ def test_advance_torque_mode_without_filter_applies_the_torque() -> None:
 def test_rotated_angles_match_cos_and_sin() -> None:
     # the RK4 stages' link angles come from the step's start by a small rotation (a short series for
     # |δ| ≤ 0.03, a long one to 0.125, np.cos/np.sin beyond): each branch against cos and sin of the
-    # summed angle
+    # summed angle, as links × lanes arrays
     rng = np.random.default_rng(11)
-    n = 6
+    n, W = 6, 5
     for h in (1e-3, 5e-3, 0.05, 0.5):
-        theta = rng.uniform(-np.pi, np.pi, n)
-        thd = rng.uniform(-20.0, 20.0, n)
-        c, s = np.empty(n), np.empty(n)
-        kernels._rotate_angles(np.cos(theta), np.sin(theta), thd, h, n, c, s)
+        theta = rng.uniform(-np.pi, np.pi, (n, W))
+        thd = rng.uniform(-20.0, 20.0, (n, W))
+        c, s = np.empty((n, W)), np.empty((n, W))
+        kernels._rotate_lanes(np.cos(theta), np.sin(theta), thd, h, n, W, c, s)
         np.testing.assert_allclose(c, np.cos(theta + h * thd), rtol=0, atol=2e-15)
         np.testing.assert_allclose(s, np.sin(theta + h * thd), rtol=0, atol=2e-15)
-    # every increment δ = h θ̇ on a grid through both series' ranges and their edges
+    # every increment δ = h θ̇ on a grid through both series' ranges and their edges (one link, the
+    # increments along the lanes: the series are selected lane by lane)
     edges = [kernels._SERIES_SHORT, kernels._SERIES_MAX]
     d = np.concatenate([np.linspace(-0.2, 0.2, 801), edges, np.nextafter(edges, 1.0), np.nextafter(edges, 0.0)])
-    d = np.concatenate([d, -d])
-    theta = rng.uniform(-np.pi, np.pi, d.size)
-    c, s = np.empty(d.size), np.empty(d.size)
-    kernels._rotate_angles(np.cos(theta), np.sin(theta), d, 1.0, d.size, c, s)
+    d = np.concatenate([d, -d])[None]
+    theta = rng.uniform(-np.pi, np.pi, d.shape)
+    c, s = np.empty(d.shape), np.empty(d.shape)
+    kernels._rotate_lanes(np.cos(theta), np.sin(theta), d, 1.0, 1, d.shape[1], c, s)
     np.testing.assert_allclose(c, np.cos(theta + d), rtol=0, atol=1e-15)
     np.testing.assert_allclose(s, np.sin(theta + d), rtol=0, atol=1e-15)
     # rotating the angle 0 gives cos δ and sin δ themselves: within an ulp of np.cos/np.sin (a wrong
     # coefficient or a series used beyond its range is off by several)
-    d = d[d != 0]
-    kernels._rotate_angles(np.ones(d.size), np.zeros(d.size), d, 1.0, d.size, c[: d.size], s[: d.size])
-    assert np.all(np.abs(c[: d.size] - np.cos(d)) <= np.spacing(np.cos(d)))
-    assert np.all(np.abs(s[: d.size] - np.sin(d)) <= np.spacing(np.abs(np.sin(d))))
+    d = d[:, d[0] != 0]
+    c, s = np.empty(d.shape), np.empty(d.shape)
+    kernels._rotate_lanes(np.ones(d.shape), np.zeros(d.shape), d, 1.0, 1, d.shape[1], c, s)
+    assert np.all(np.abs(c - np.cos(d)) <= np.spacing(np.cos(d)))
+    assert np.all(np.abs(s - np.sin(d)) <= np.spacing(np.abs(np.sin(d))))
 
 
 def test_advance_fast_joints_match_rk4() -> None:
@@ -300,15 +302,12 @@ def test_parallel_kernel_equals_serial_and_reports_state(torque: bool) -> None:
     ok_s, q_s, v_s, _, out_s = _advance(batch, q, v, command, **kw)
     ok_p, q_p, v_p, _, out_p = _advance(batch, q, v, command, parallel=True, **kw)
     assert ok_s and ok_p
-    # the same _advance_arms, but LLVM may fuse multiply-adds differently in the two callers
-    # (fast-math "contract"): equal to rounding, statuses and flags exactly
-    np.testing.assert_allclose(q_p, q_s, rtol=1e-13, atol=1e-14)
-    np.testing.assert_allclose(v_p, v_s, rtol=1e-12, atol=1e-13)
+    # the same _advance_arms with 4 lanes (serial) and 16 (parallel), 9 arms padding both: each lane
+    # computes its arm alone, and without fused multiply-adds (see kernels._JIT) bit for bit alike
+    np.testing.assert_array_equal(_bits(q_p), _bits(q_s))
+    np.testing.assert_array_equal(_bits(v_p), _bits(v_s))
     for key in out_s:
-        if out_s[key].dtype.kind in "bi":
-            np.testing.assert_array_equal(out_p[key], out_s[key])
-        else:
-            np.testing.assert_allclose(out_p[key], out_s[key], rtol=1e-12, atol=1e-13)
+        np.testing.assert_array_equal(_bits(out_p[key]), _bits(out_s[key]))
     # the reported q̇ and end-effector are those of the final state
     np.testing.assert_allclose(out_s["qd"], cascade_terms(batch, q_s, v_s).qd, atol=1e-12)
     np.testing.assert_allclose(out_s["p"], end_effector(batch, q_s), atol=1e-12)
@@ -354,3 +353,138 @@ def test_piqp_and_active_set_records_agree_on_barriers() -> None:
     assert mask.any() and np.isfinite(recs["active_set"].min_barrier[mask]).all()
     np.testing.assert_allclose(recs["piqp"].min_barrier, recs["active_set"].min_barrier, rtol=1e-9, atol=1e-9)
     np.testing.assert_array_equal(recs["piqp"].qp_counts.sum(axis=1), [3] * scenario.n_arms)
+
+
+# plain @njit (no cache): numba's cache of a test helper would not notice a change to the kernels it inlines
+@njit(error_model="numpy", fastmath=kernels._JIT["fastmath"])  # as the kernels: 0/0 is NaN, not an exception
+def _first_candidates(px, py, Jbar, obstacles, active, filtered, v0, kappa, epsilon, margin, v_max):
+    """kernels._first_projection_lanes on W lanes, with the rows it used as a (W, m, k) QP batch."""
+    O, k, W = obstacles.shape[1], v0.shape[0], v0.shape[1]
+    m = O + 2 * k
+    arm_h = np.full(W, np.inf)
+    A, b, h, norm, act = np.empty((k, W)), np.empty(W), np.empty(W), np.empty(W), np.empty(W, np.bool_)
+    rows, violated, best, best_viol = np.empty((O, k + 2, W)), np.empty(W, np.bool_), np.empty(W, np.int64), np.empty(W)
+    Ab, bb, cand, found = np.empty((k, W)), np.empty(W), np.empty((k, W)), np.empty(W, np.bool_)
+    kernels._first_projection_lanes(px, py, Jbar, obstacles, active, filtered, kappa, epsilon, margin, v_max, O, k, W,
+                                    v0, arm_h, A, b, h, norm, act, rows, violated, best, best_viol, Ab, bb, cand,
+                                    found)
+    A_all, b_all = np.zeros((W, m, k)), np.zeros((W, m))
+    for w in range(W):
+        for j in range(O):
+            for t in range(k):
+                A_all[w, j, t] = rows[j, t, w]
+            b_all[w, j] = rows[j, k, w]
+        for t in range(k):
+            A_all[w, O + 2 * t, t] = 1.0
+            A_all[w, O + 2 * t + 1, t] = -1.0
+            b_all[w, O + 2 * t] = v_max
+            b_all[w, O + 2 * t + 1] = v_max
+    return violated, found, cand, A_all, b_all, arm_h
+
+
+@pytest.mark.parametrize("v_max", [2.5, np.inf])
+def test_first_projection_of_the_lanes_is_the_active_set_answer(v_max: float) -> None:
+    """The vectorised first stage of the safety QP (all lanes at once) settles a lane only with what
+    the scalar active-set search (qp_project, checked against PIQP in test_safety_qp) returns for the
+    same rows, bit for bit; it leaves to that search the lanes whose optimum needs more than one row,
+    and those with a zero or non-finite row."""
+    rng = np.random.default_rng(41)
+    O, k, W = 3, 2, 4000
+    px, py = rng.normal(size=W), rng.normal(size=W)
+    Jbar = rng.normal(size=(2, k, W))
+    Jbar[:, :, :40] = 0.0  # a zero Jacobian: zero RCBF rows
+    obstacles = np.stack([px + rng.normal(scale=0.3, size=(O, W)), py + rng.normal(scale=0.3, size=(O, W)),
+                          rng.uniform(0.05, 0.2, (O, W))])
+    obstacles[2, 0, 40:60] = np.nan  # a non-finite row
+    v0 = rng.normal(scale=2.0, size=(k, W))
+    active = np.zeros((O + 2 * k, W), bool)
+    active[:O] = rng.random((O, W)) < 0.8
+    active[O:] = v_max < np.inf
+    filtered = rng.random(W) < 0.95
+    active[:O, :60] = filtered[:60] = True  # the zero and non-finite rows above count
+    violated, found, cand, A_all, b_all, arm_h = _first_candidates(px, py, Jbar, obstacles, active, filtered, v0, 0.5,
+                                                                   5.0, 0.01, v_max)
+    v_out, status = np.empty((W, k)), np.zeros(W, np.int64)
+    kernels.qp_project(np.ascontiguousarray(v0.T), A_all, b_all, np.ascontiguousarray(active.T), v_out, status)
+    clean = np.ones(W, bool)
+    clean[:60] = False
+    np.testing.assert_array_equal(violated[clean], (status != kernels.STATUS_NOMINAL)[clean] & filtered[clean])
+    assert not violated[~filtered].any()
+    settled = violated & found
+    assert not settled[:60].any(), "zero and non-finite rows go to the full search"
+    assert settled.sum() > 0.3 * violated.sum() and (violated & ~found).any(), "both stages should be exercised"
+    assert np.all(status[settled] == kernels.STATUS_SOLVED)
+    np.testing.assert_array_equal(cand.T[settled], v_out[settled])
+    # the smallest barrier h_j = ‖p − o_j‖² − r_j² of the active obstacles, for the filtered lanes
+    h = (px - obstacles[0]) ** 2 + (py - obstacles[1]) ** 2 - obstacles[2] ** 2
+    expected = np.where(active[:O] & filtered & (h < np.inf), h, np.inf).min(axis=0)
+    np.testing.assert_allclose(arm_h[clean], expected[clean], rtol=1e-14)
+
+
+def _four_products(a, b, out):
+    x0, x1, x2, x3 = a[0] * b[0], a[1] * b[1], a[2] * b[2], a[3] * b[3]
+    out[0], out[1], out[2], out[3] = x0, x1, x2, x3
+
+
+def test_slp_vectorised_dispatchers_compile_with_slp_and_leave_numba_as_it_was() -> None:
+    from numba.core import config
+
+    before = config.SLP_VECTORIZE
+    slp = kernels._slp_vectorised(njit(_four_products))
+    plain = njit(_four_products)
+    a, b = np.arange(4.0), np.arange(4.0) + 1
+    for f in (slp, plain):
+        out = np.empty(4)
+        f(a, b, out)
+        np.testing.assert_array_equal(out, a * b)
+    assert "<4 x double>" in next(iter(slp.inspect_llvm().values()))
+    assert "<4 x double>" not in next(iter(plain.inspect_llvm().values())) or before
+    assert config.SLP_VECTORIZE == before
+
+
+def _bits(x: np.ndarray) -> np.ndarray:
+    return x.view(np.int64) if x.dtype == np.float64 else x
+
+
+@pytest.mark.slow
+def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
+    """The sub-step kernel is compiled with LLVM's SLP vectoriser (kernels._slp_vectorised), which
+    numba leaves off by default after miscompilations; the same code compiled without it (scalar
+    instructions) must give the same bits, in both modes, with the filter, with an arm that goes
+    non-finite and with a group whose size is not a multiple of the lanes (4, as group_advance
+    runs it; the 16 lanes of group_advance_parallel equal those in test_parallel_kernel_equals_serial)."""
+    from numba import njit as plain_njit
+    from numba.core import config
+
+    before = config.SLP_VECTORIZE
+    plain = plain_njit(error_model="numpy", fastmath=kernels._JIT["fastmath"])(kernels._advance_arms.py_func)
+    rng = np.random.default_rng(51)
+    A = 37
+    batch, q, v = _group(rng, 3, True, count=A)
+    t, centers, radii = _binding_obstacles(rng, batch, q, v)
+    mask = rng.random((A, 3)) < 0.8
+    mask[3] = False  # arm 3 goes unfiltered, with a command that makes its state non-finite
+    for torque, v_max in ((False, 2.0), (True, np.inf)):
+        command = rng.normal(scale=5.0 if torque else 2.5, size=v.shape)
+        command[3] = 1e300
+        runs = []
+        for kernel in ("slp", "plain"):
+            qk, vk = q.copy(), v.copy()
+            out = [np.zeros((A, 2)), np.zeros(A, bool), np.empty((A, 2)), np.empty((A, 2)), np.empty((A, 3)),
+                   np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64), np.zeros(A),
+                   np.zeros(A, bool)]
+            args = [batch.lam, batch.lengths, batch.base, batch.phi, True, qk, vk, out[0], out[1], command, torque,
+                    True, np.broadcast_to(centers, (A, 3, 2)).copy(), np.broadcast_to(radii, (A, 3)).copy(), mask,
+                    0.5, 5.0, 0.01, 100.0, 1e-2, 5, v_max, *out[2:]]
+            if kernel == "slp":
+                kernels.group_advance(*kernels.kernel_sizes(3, 2), *args)
+            else:
+                plain(*kernels.kernel_sizes(3, 2), kernels._LANES_SERIAL, 0, A, *args)
+            runs.append([qk, vk, *out])
+        finite, counts = runs[0][-1], runs[0][-3]
+        assert not finite[3] and finite.sum() == A - 1
+        assert (counts[:, kernels.STATUS_SOLVED] > 0).any(), "the filter should change some commands"
+        assert np.all(counts[finite].sum(axis=1) == 5), "one status per arm and sub-step (no padded lane's)"
+        for got, expected in zip(runs[0], runs[1], strict=True):
+            np.testing.assert_array_equal(_bits(got), _bits(expected))
+    assert config.SLP_VECTORIZE == before, "compiling the kernel must leave numba's own setting as it was"
