@@ -173,10 +173,9 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
     """The compiled sub-step kernel alone, one thread, per arm-sub-step: 4096 PA3 arms (the vector
     env's state at B = 1024 after a few random steps) advanced 5 sub-steps of 10 ms, from the same state
     each time; in velocity mode with the filter (the shielded env's case) and in torque mode
-    without it (RK4's four dynamics evaluations and little else), with the 16 lanes of the
-    multi-threaded kernel run as one chunk (one thread), and in velocity mode with the 4 lanes of the
-    serial kernel. Last, the multi-threaded kernel on the same state, as core time (threads × wall
-    time) per arm-sub-step: against the one-thread row it shows what the threads lose."""
+    without it (RK4's four dynamics evaluations and little else). Last, the multi-threaded kernel on
+    the same state, as core time (threads × wall time) per arm-sub-step: against the one-thread row it
+    shows what the threads lose."""
     from numba import get_num_threads
 
     from pan1_env import kernels
@@ -192,7 +191,7 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
     kappa, epsilon, margin, ke = venv._sim_params
     command = np.random.default_rng(0).uniform(-1.0, 1.0, (A, k))
 
-    def advance(torque: bool, threads: int = 1, serial: bool = False):
+    def advance(torque: bool, threads: int = 1):
         state = {name: g[name].copy() for name in ("q", "v", "v_prev", "has_prev")}
 
         def run():
@@ -203,20 +202,16 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
                     np.inf if torque else t.max_joint_speed, np.empty((A, k)), np.empty((A, k)), np.empty((A, n)),
                     np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64),
                     np.zeros(A), np.ones(A, bool))
-            if serial:
-                kernels.group_advance(*args)
+            if threads > 1:
+                kernels.group_advance_parallel(*args, 4 * threads)
             else:
-                kernels.group_advance_parallel(*args, 4 * threads if threads > 1 else 1)
+                kernels.group_advance(*args)
         run()
         return threads * _median_time(run, repeats, 1) / (A * t.substeps)
 
     threads = get_num_threads()
-    return [("sub-step kernel per PA3 arm-sub-step, one thread, 16 lanes: velocity mode, filter on", advance(False),
-             ""),
-            ("sub-step kernel per PA3 arm-sub-step, one thread, 16 lanes: torque mode, filter off (RK4)", advance(True),
-             ""),
-            ("sub-step kernel per PA3 arm-sub-step, one thread, 4 lanes (serial kernel): velocity mode, filter on",
-             advance(False, serial=True), ""),
+    return [("sub-step kernel per PA3 arm-sub-step, one thread: velocity mode, filter on", advance(False), ""),
+            ("sub-step kernel per PA3 arm-sub-step, one thread: torque mode, filter off (RK4)", advance(True), ""),
             (f"the same, velocity mode, multi-threaded as the vector env runs it: core time ({threads} threads × wall)",
              advance(False, threads), "")]
 

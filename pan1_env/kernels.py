@@ -1136,12 +1136,11 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     """
 
 
-# Lane counts of the sub-step kernel: 4 arms per lane group (one AVX register of doubles) in
-# group_advance, which steps an env's few arms (and a small vector env's), and 16 in
-# group_advance_parallel, which steps thousands (more independent chains in flight; a padded lane
-# costs as much as a real one, so small groups take the short width).
-_LANES_SERIAL = (0,) * 4
-_LANES_PARALLEL = (0,) * 16
+# The sub-step kernel's lane count: 4 arms at once (one AVX register of doubles), in the serial and
+# the multi-threaded kernel alike (measured on this project's machine: 8 or 16 lanes were no faster
+# on RK4 and about a fifth slower with the filter, whose per-lane search and larger code weigh more;
+# a padded lane also costs as much as a real one).
+_LANES = (0,) * 4
 
 
 def _slp_vectorised(dispatcher):
@@ -1194,7 +1193,7 @@ def group_advance(links, actuated, lam, lengths, base, phi, passive, q, v, v_pre
                   v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out):
     _check_sizes(links, actuated, passive, q, v)
     lo = q.shape[0] * 0  # an int64, like the parallel kernel's chunk bounds
-    _advance_arms(links, actuated, _LANES_SERIAL, lo, q.shape[0], lam, lengths, base, phi, passive, q, v, v_prev,
+    _advance_arms(links, actuated, _LANES, lo, q.shape[0], lam, lengths, base, phi, passive, q, v, v_prev,
                   has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt,
                   n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out)
 
@@ -1208,7 +1207,7 @@ def group_advance_parallel(links, actuated, lam, lengths, base, phi, passive, q,
     _check_chunks(n_chunks)
     A = q.shape[0]
     for c in prange(n_chunks):
-        _advance_arms(links, actuated, _LANES_PARALLEL, c * A // n_chunks, (c + 1) * A // n_chunks, lam, lengths,
+        _advance_arms(links, actuated, _LANES, c * A // n_chunks, (c + 1) * A // n_chunks, lam, lengths,
                       base, phi, passive, q, v, v_prev, has_prev, command, torque_mode, filter_on, centers, radii,
                       mask, kappa, epsilon, margin, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out,
                       min_clear, min_h, qp_counts, max_track, finite_out)
@@ -1220,10 +1219,11 @@ _slp_vectorised(group_advance)
 _slp_vectorised(group_advance_parallel)
 group_advance_parallel.__doc__ = _ADVANCE_DOC + """
     The same, with the arms split into ``n_chunks`` chunks run on numba's thread pool (for large
-    batches; a call costs a few microseconds more than :func:`group_advance`). Both run the code of
-    :func:`_advance_arms`, with 4 lanes and with 16: each lane computes its own arm with no reduction
-    across lanes or arms and, compiled without contraction (see ``_JIT``), the two give the same
-    results bit for bit (``tests/test_kernels.py``, ``tests/test_vector.py``, ``tests/test_determinism.py``).
+    batches; a call costs a few microseconds more than :func:`group_advance`). Both run the same
+    compiled :func:`_advance_arms`, chunk by chunk here: each lane computes its own arm with no
+    reduction across lanes or arms, so the chunks' padded lane groups change nothing and the two give
+    the same results bit for bit (``tests/test_kernels.py``, ``tests/test_vector.py``,
+    ``tests/test_determinism.py``).
     """
 
 

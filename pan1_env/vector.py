@@ -83,9 +83,9 @@ class Pan1VectorEnv(VectorEnv):
     * ``shield``: run the paper's RCBF-QP safety filter at every physics sub-step (default True;
       the same filter as :class:`~pan1_env.wrappers.SafetyShield` with the scenario's κ, ε, margin).
     * ``threads``: ``"auto"`` (numba's thread pool from :data:`PARALLEL_THRESHOLD` arms of a kind
-      on), ``True`` or ``False``. The serial and multi-threaded kernels run the same code with 4 and
-      16 lanes (arms at once); a lane's result does not depend on the others, and the two agree bit
-      for bit (tests/test_kernels.py, tests/test_vector.py).
+      on), ``True`` or ``False``. The serial and multi-threaded kernels run the same compiled code,
+      4 arms at once; an arm's result does not depend on the others, and the two agree bit for bit
+      (tests/test_kernels.py, tests/test_vector.py).
     * every other keyword of :class:`~pan1_env.environment.Pan1ParallelEnv` except ``render_mode``
       and ``qp_solver`` (the batched engine uses the exact compiled QP).
 

@@ -302,8 +302,8 @@ def test_parallel_kernel_equals_serial_and_reports_state(torque: bool) -> None:
     ok_s, q_s, v_s, _, out_s = _advance(batch, q, v, command, **kw)
     ok_p, q_p, v_p, _, out_p = _advance(batch, q, v, command, parallel=True, **kw)
     assert ok_s and ok_p
-    # the same _advance_arms with 4 lanes (serial) and 16 (parallel), 9 arms padding both: each lane
-    # computes its arm alone, and without fused multiply-adds (see kernels._JIT) bit for bit alike
+    # the same _advance_arms on 9 arms, whole (two groups of 4 lanes and a padded one) and in 2 chunks
+    # (other padded groups): each lane computes its arm alone, so bit for bit alike
     np.testing.assert_array_equal(_bits(q_p), _bits(q_s))
     np.testing.assert_array_equal(_bits(v_p), _bits(v_s))
     for key in out_s:
@@ -451,8 +451,7 @@ def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
     """The sub-step kernel is compiled with LLVM's SLP vectoriser (kernels._slp_vectorised), which
     numba leaves off by default after miscompilations; the same code compiled without it (scalar
     instructions) must give the same bits, in both modes, with the filter, with an arm that goes
-    non-finite and with a group whose size is not a multiple of the lanes (4, as group_advance
-    runs it; the 16 lanes of group_advance_parallel equal those in test_parallel_kernel_equals_serial)."""
+    non-finite and with a group whose size is not a multiple of the lanes."""
     from numba import njit as plain_njit
     from numba.core import config
 
@@ -479,7 +478,7 @@ def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
             if kernel == "slp":
                 kernels.group_advance(*kernels.kernel_sizes(3, 2), *args)
             else:
-                plain(*kernels.kernel_sizes(3, 2), kernels._LANES_SERIAL, 0, A, *args)
+                plain(*kernels.kernel_sizes(3, 2), kernels._LANES, 0, A, *args)
             runs.append([qk, vk, *out])
         finite, counts = runs[0][-1], runs[0][-3]
         assert not finite[3] and finite.sum() == A - 1
