@@ -911,10 +911,7 @@ def _advance_arms(links, actuated, lanes, lo, hi, lam, lengths, base, phi, _pass
                     for w in range(W):
                         tau[t, w] = command[arm[w], t]
                 if any_filter:
-                    for t in range(k):
-                        for w in range(W):
-                            rhs[t, w] = tau[t, w] - Hc[t, w]
-                    _solve_lanes(Mc, rhs, k, W, acc, Lc, yc, ok)
+                    _acceleration_lanes(Mc, Hc, tau, k, W, acc, rhs, Lc, yc, ok)  # NaN where not SPD: 0 below
                     for t in range(k):
                         for w in range(W):
                             vdes[t, w] = vi[t, w] + dt * (acc[t, w] if ok[w] else 0.0)
