@@ -718,7 +718,7 @@ def _first_projection_lanes(px, py, Jbar, obstacles, active, filtered, kappa, ep
 
     Where ``found[w]``, ``cand[:, w]`` is :func:`_project_one`'s answer bit for bit (the same
     operations in the same order); elsewhere (a zero row, a non-finite value, or another active set)
-    the lane needs the full search. Most filtered steps that change the command end here.
+    the lane needs the full search. Many filtered steps that change the command end here.
 
     Rows go one at a time through the stack arrays ``A``, ``b``, ``h``, ``norm``, ``act``: the RCBF
     rows (:func:`_rcbf_row_lanes`, kept in ``rows (O, k + 2, W)`` as A_j, b_j, ‖A_j‖ for the second
@@ -806,7 +806,7 @@ def _advance_arms(links, actuated, lanes, lo, hi, lam, lengths, base, phi, _pass
     lanes as their last axis, advanced through the sub-steps there and written back: the hot loop
     makes no array view and, but for the obstacles and the filter's rows, touches no heap scratch.
     Dynamics, tracker, RK4 and the safety filter's rows run on all lanes at once, and so does the QP
-    as far as one active row settles it (:func:`_first_projection_lanes`, most filtered sub-steps);
+    as far as one active row settles it (:func:`_first_projection_lanes`, many filtered sub-steps);
     the lanes it does not settle get the full active-set search one by one (:func:`_project_one`).
 
     The link angles' sines and cosines are computed from q (``_lane_angles``) once per arm at the
