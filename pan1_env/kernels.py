@@ -846,7 +846,7 @@ def _advance_arms(links, actuated, lanes, lo, hi, lam, lengths, base, phi, _pass
     vs_last, tau_last, counts = _local(kw, f8), _local(kw, f8), _local(((0, 0, 0), lanes), np.int64)
     # the filter of every lane: its obstacles (centre x, y, radius), active rows, RCBF rows (A_j, b_j,
     # ‖A_j‖), one row at a time, and the first candidate (_first_projection_lanes)
-    obstacles, lane_active = np.empty((3, O, W)), np.zeros((m, W), dtype=np.bool_)
+    obstacles, lane_active = np.empty((3, O, W)), np.empty((O, W), dtype=np.bool_)
     obst_rows = np.empty((O, k + 2, W))
     row_A, row_b, row_h, row_norm = _local(kw, f8), _local(lw, f8), _local(lw, f8), _local(lw, f8)
     row_act, filtered, needs_qp = _local(lw, b1), _local(lw, b1), _local(lw, b1)
@@ -861,10 +861,13 @@ def _advance_arms(links, actuated, lanes, lo, hi, lam, lengths, base, phi, _pass
     # RK4: trial state, stage derivative, weighted sums
     qt, vt, dv, sq, sv = _local(nw, f8), _local(kw, f8), _local(kw, f8), _local(nw, f8), _local(kw, f8)
     if v_max < np.inf:
-        for t in range(k):  # speed bounds ±v_t ≤ v_max: active in every lane
-            for w in range(W):
-                lane_active[O + 2 * t, w] = True
-                lane_active[O + 2 * t + 1, w] = True
+        for t in range(k):  # the full search's speed bounds ±v_t ≤ v_max, the same in every lane
+            Arows[O + 2 * t, t] = 1.0
+            Arows[O + 2 * t + 1, t] = -1.0
+            brows[O + 2 * t] = v_max
+            brows[O + 2 * t + 1] = v_max
+            active[O + 2 * t] = True
+            active[O + 2 * t + 1] = True
     for first in range(lo, hi, W):
         for w in range(W):
             i = min(first + w, hi - 1)
@@ -937,20 +940,12 @@ def _advance_arms(links, actuated, lanes, lo, hi, lam, lengths, base, phi, _pass
                         status[w] = STATUS_SOLVED
                         for t in range(k):
                             vs[t, w] = q_cand[t, w]
-                    elif needs_qp[w]:  # the full active-set search, on this lane's rows
+                    elif needs_qp[w]:  # the full active-set search, on this lane's RCBF rows (speed rows set above)
                         for j in range(O):
                             for t in range(k):
                                 Arows[j, t] = obst_rows[j, t, w]
                             brows[j] = obst_rows[j, k, w]
                             active[j] = lane_active[j, w]
-                        for t0 in range(k):  # speed bounds ±v_t ≤ v_max (active if v_max is finite)
-                            for t in range(k):
-                                Arows[O + 2 * t0, t] = 1.0 if t == t0 else 0.0
-                                Arows[O + 2 * t0 + 1, t] = -1.0 if t == t0 else 0.0
-                            brows[O + 2 * t0] = v_max
-                            brows[O + 2 * t0 + 1] = v_max
-                            active[O + 2 * t0] = lane_active[O + 2 * t0, w]
-                            active[O + 2 * t0 + 1] = lane_active[O + 2 * t0 + 1, w]
                         for t in range(k):
                             qv0[t] = vdes[t, w]
                         status[w] = _project_one(qv0, Arows, brows, active, m, k, qvs, qrows, qidx, qG, qr, qlam,
