@@ -206,13 +206,28 @@ def test_spd_solve_matches_numpy_and_refuses_matrices_that_are_not_positive_defi
     np.testing.assert_array_equal(x2, x)
     np.testing.assert_allclose(G @ x[..., None], r[..., None], rtol=0, atol=1e-9 * (1 + np.abs(r).max()))
     np.testing.assert_allclose(x, np.linalg.solve(G, r[..., None])[..., 0], rtol=1e-6, atol=1e-9)
-    # indefinite (one negative eigenvalue) and singular matrices are refused
+    # a clearly negative eigenvalue (−λ_max: no rounding makes it positive) is refused
     w, V = np.linalg.eigh(G)
-    for bad in (-1.0, 0.0):
-        w2 = w.copy()
-        w2[:, 0] = bad * w[:, -1]
-        ok, _ = _spd_solve_all(V @ (w2[..., None] * V.transpose(0, 2, 1)), r, size)
+    w[:, 0] = -w[:, -1]
+    ok, _ = _spd_solve_all(V @ (w[..., None] * V.transpose(0, 2, 1)), r, size)
+    assert not ok.any()
+    # exactly singular or indefinite by construction: G = L D Lᵀ with L unit lower triangular with small
+    # integer entries and D from {1, 2, 4} with one pivot set to 0 or −1. Every entry and every step of
+    # the factorisation is then an exact integer (division by powers of two only), so the pivot the
+    # solver meets is exactly 0 or −1 on any IEEE machine, whatever the BLAS or the compiler's rounding.
+    for bad in (0.0, -1.0):
+        L = np.tril(rng.integers(-3, 4, size=(200, size, size)), -1) + np.eye(size)
+        D = rng.choice([1.0, 2.0, 4.0], size=(200, size))
+        D[np.arange(200), rng.integers(0, size, 200)] = bad
+        ok, _ = _spd_solve_all(L @ (D[..., None] * L.transpose(0, 2, 1)), r, size)
         assert not ok.any()
+    # and with every pivot positive the same construction is accepted and solved exactly
+    D = rng.choice([1.0, 2.0, 4.0], size=(200, size))
+    G = L @ (D[..., None] * L.transpose(0, 2, 1))
+    ok, x = _spd_solve_all(G, r, size)
+    assert ok.all()
+    residual = np.abs(np.einsum("bij,bj->bi", G, x) - r)  # backward error: these G can be ill-conditioned
+    assert (residual <= 1e-12 * (np.einsum("bij,bj->bi", np.abs(G), np.abs(x)) + np.abs(r))).all()
 
 
 @njit

@@ -56,5 +56,8 @@ def test_piqp_and_active_set_give_the_same_run() -> None:
     sc = scenario.load("paper_pa_mixed_square")
     a = experiment.run(sc, "safe", horizon=1.0, qp_solver="active_set")
     b = experiment.run(sc, "safe", horizon=1.0, qp_solver="piqp")
-    assert a.metrics["qp_solved_steps"] == b.metrics["qp_solved_steps"] > 0
+    # PIQP's interior-point answers differ from the exact ones by ~1e-6, so a step whose desired velocity
+    # lies on a barrier row's boundary may be counted on either side: the counts agree up to a few steps
+    solved_a, solved_b = a.metrics["qp_solved_steps"], b.metrics["qp_solved_steps"]
+    assert solved_a > 0 and abs(solved_a - solved_b) <= max(2, solved_a // 100)
     np.testing.assert_allclose(a.trajectory["q"], b.trajectory["q"], atol=1e-5)
