@@ -27,6 +27,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 from numba.np.arrayobj import make_array, populate_array
 
+from . import compile_notice
 from .compiled import kernel_sizes  # the first two arguments of group_advance
 
 __all__ = [
@@ -43,6 +44,8 @@ __all__ = [
     "formation_observations",
     "reach_observations",
 ]
+
+compile_notice.install()  # a first use of an arm kind compiles for tens of seconds: say so
 
 STATUS_NOMINAL, STATUS_SOLVED, STATUS_FALLBACK = 0, 1, 2
 # numpy error model: no zero-division checks in the hot loops (a zero pivot gives inf/NaN, caught by the
@@ -159,7 +162,7 @@ def _rotate_lanes(c0, s0, thd, h, n, W, c, s):
 def _mass_lanes(lam, c, s, v, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H):
     """M, q̇ = g0 v, M_comb and H_comb of W arms from their link angles' c, s (written to the arrays).
 
-    M = Sᵀ (λ ∘ cos(θ_b − θ_a)) S and H = Sᵀ h, h_a = −Σ_b λ_ab sin(θ_b − θ_a) θ̇_b² (MODEL.md §1, §3);
+    M = Sᵀ (λ ∘ cos(θ_b − θ_a)) S and H = Sᵀ h, h_a = −Σ_b λ_ab sin(θ_b − θ_a) θ̇_b² (docs/MODEL.md §1, §3);
     the differences θ_b − θ_a do not depend on φ, so c, s may include it. λ is symmetric, so each
     pair of links is visited once: ``R`` gets λ_ab cos(θ_b − θ_a) (symmetric), ``Sn`` gets
     λ_ab sin(θ_b − θ_a) (antisymmetric)."""
@@ -636,7 +639,7 @@ def qp_project(v0, A, b, active, v_out, status):
 def _rcbf_row_lanes(j, px, py, Jbar, obstacles, kappa, epsilon, margin, k, W, A, b, h):
     """The RCBF row of obstacle j for W lanes, A_j v ≤ b_j, into ``A (k, W)``, ``b (W)``:
     A_j = −L_g0 h_j and b_j = κ (h_j − margin) − ‖L_g0 h_j‖²/ε, with h_j = ‖p − o_j‖² − r_j² (also
-    written to ``h``) and L_g0 h_j = 2 (p − o_j)ᵀ J̄ (MODEL.md §4); ``obstacles (3, O, W)`` holds
+    written to ``h``) and L_g0 h_j = 2 (p − o_j)ᵀ J̄ (docs/MODEL.md §4); ``obstacles (3, O, W)`` holds
     every lane's obstacle centres (x, y) and radii."""
     for w in range(W):
         dx = px[w] - obstacles[0, j, w]

@@ -5,7 +5,8 @@ The first process compiles every kernel into an empty cache directory; the secon
 Each runs a seeded shielded episode of the parallel env and of the vector env (its serial and
 multi-threaded kernels) and prints a digest of the states and observations. (With fused
 multiply-adds left to LLVM, the two differed at rounding level: see ``_JIT`` in
-``pan1_env/kernels.py``.)
+``pan1_env/kernels.py``.) The first process must also announce each arm kind it compiles
+(:mod:`pan1_env.compile_notice`), and the second must say nothing of compiling.
 """
 
 import os
@@ -61,3 +62,11 @@ def test_fresh_compile_and_cache_load_agree_bit_for_bit(tmp_path) -> None:
     assert all(line.split()[0] == "0" and line.split()[1] != "0" for line in compiled), compiled
     assert all(line.split()[0] != "0" and line.split()[1] == "0" for line in loaded), loaded
     assert len(fresh) == 64 and fresh == cached
+    # the first use of each arm kind is announced, with the cache's place; a cache load is silent
+    cache = str(tmp_path / "numba-cache")
+    for kind in ("2 links, fully actuated", "2 links, passive first joint (PA1)", "4 links, passive first joint (PA3)",
+                 "4 links, passive first joint (PA3) (multi-threaded)"):
+        notice = f"pan1_env: compiling the sub-step kernel for arms of {kind}: once per arm kind"
+        assert notice in runs[0].stderr and cache in runs[0].stderr, runs[0].stderr[-2000:]
+        assert f"pan1_env: compiled the sub-step kernel for arms of {kind} in " in runs[0].stderr
+    assert "compil" not in runs[1].stderr, runs[1].stderr[-2000:]
