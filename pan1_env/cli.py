@@ -7,6 +7,7 @@ Commands:
 * ``paper [--out DIR] [--horizon S]``: the paper's whole Section 5 (both scenarios, both
   controllers), the Figure-8 overlays, and a Markdown table of the metrics (``summary.md``).
 * ``scenarios``: list the built-in scenarios.
+* ``warmup [--kinds 4p 2f …] [--scenario NAME …] [--threaded]``: compile the kernels ahead of time.
 * ``animate SCENARIO --policy reference|zero|random|adversarial|sb3:PATH [--no-shield] --out FILE.gif``:
   a GIF of one env episode.
 * ``train --algo ppo|sac --scenario S --shield/--no-shield --timesteps T --seed K --out DIR``:
@@ -18,6 +19,7 @@ Commands:
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 from collections.abc import Sequence
@@ -38,12 +40,26 @@ def _positive_float(text: str) -> float:
     return value
 
 
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Appends "(default: …)" to an option's help unless the help already states its default, or
+    the default is None (then the help says what happens) or False (an on/off flag, off)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if "default" in text or action.default is None or action.default is False:
+            return text
+        return super()._get_help_string(action)
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pan1-env",
         description="Multi-arm PAn-1 formation control with robust-CBF safety (the paper's Section 5).",
     )
-    sub = parser.add_subparsers(dest="command", required=True)
+    # every sub-command's --help shows the defaults (see _HelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True,
+                                parser_class=functools.partial(argparse.ArgumentParser,
+                                                               formatter_class=_HelpFormatter))
 
     rep = sub.add_parser("reproduce", help="simulate one scenario with the paper's controller")
     rep.add_argument("scenario", help="built-in scenario name or path to a .toml file")
@@ -58,14 +74,25 @@ def _parser() -> argparse.ArgumentParser:
 
     sub.add_parser("scenarios", help="list the built-in scenarios")
 
+    warm = sub.add_parser("warmup", help="compile the kernels ahead of time (once per arm kind; cached on disk)",
+                          description="Compile (or load from numba's disk cache) the kernels the environments use, "
+                                      "so that later processes start in seconds. With no option: the arm kinds "
+                                      "of the built-in scenarios and of the random task's default team.")
+    warm.add_argument("--kinds", nargs="+", metavar="KIND",
+                      help="arm kinds: LINKS followed by p (passive first joint) or f (fully actuated), e.g. 4p 2f")
+    warm.add_argument("--scenario", action="append", metavar="NAME",
+                      help="a built-in scenario, a .toml path or 'random' (repeatable)")
+    warm.add_argument("--threaded", action="store_true",
+                      help="also compile the multi-threaded kernel the vector env uses for large batches")
+
     anim = sub.add_parser("animate", help="write a GIF of one episode of the environment")
     anim.add_argument("scenario", help="built-in scenario name, path to a .toml file, or 'random'")
     anim.add_argument("--policy", default="reference",
                       help="reference (the paper's nominal law on local observations), zero, random, adversarial "
                            "or sb3:PATH")
     anim.add_argument("--shield", action=argparse.BooleanOptionalAction, default=True,
-                      help="behind the safety shield (default: on; with the reference policy this is the paper's "
-                           "safe controller)")
+                      help="behind the safety shield (with the reference policy this is the paper's safe "
+                           "controller)")
     anim.add_argument("--out", type=Path, required=True, help="output .gif file")
     anim.add_argument("--steps", type=_positive_int, default=None,
                       help="env steps (default: the env's max_steps)")
@@ -74,30 +101,35 @@ def _parser() -> argparse.ArgumentParser:
     anim.add_argument("--fps", type=_positive_int, default=20, help="frames per second of the GIF")
 
     tr = sub.add_parser("train", help="train PPO or SAC with Stable-Baselines3 (needs the rl extra)")
-    tr.add_argument("--algo", choices=("ppo", "sac"), default="ppo")
+    tr.add_argument("--algo", choices=("ppo", "sac"), default="ppo", help="Stable-Baselines3 algorithm")
     tr.add_argument("--scenario", default="paper_pa3_square", help="built-in name, .toml path or 'random'")
     tr.add_argument("--shield", action=argparse.BooleanOptionalAction, default=True,
-                    help="train behind the RCBF-QP safety shield (default: on)")
+                    help="train behind the RCBF-QP safety shield")
     tr.add_argument("--timesteps", type=_positive_int, default=100_000, help="total environment steps")
-    tr.add_argument("--seed", type=int, default=0)
+    tr.add_argument("--seed", type=int, default=0, help="seed of the model and of the env resets")
     tr.add_argument("--out", type=Path, required=True, help="output directory")
     tr.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in --out")
     tr.add_argument("--n-envs", type=_positive_int, default=1, help="parallel copies of the env")
     tr.add_argument("--param-sharing", action="store_true",
                     help="one policy shared by every arm (PettingZoo env through SuperSuit, padded)")
     tr.add_argument("--checkpoint-every", type=_positive_int, default=10_000, help="steps between checkpoints")
-    tr.add_argument("--max-steps", type=_positive_int, default=None, help="env steps per episode")
-    tr.add_argument("--no-progress", action="store_true")
+    tr.add_argument("--max-steps", type=_positive_int, default=None,
+                    help="env steps per episode (default: the env's max_steps)")
+    tr.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     bench = sub.add_parser("benchmark", help="compare policies on the same seeded starts, shield on and off")
     bench.add_argument("--scenarios", default="paper_pa3_square,paper_pa_mixed_square",
                        help="comma-separated scenario names or paths")
     bench.add_argument("--policies", default="reference,zero,random",
                        help="comma-separated: reference, zero, random, adversarial, sb3:PATH")
-    bench.add_argument("--episodes", type=_positive_int, default=5)
-    bench.add_argument("--seed", type=int, default=0)
-    bench.add_argument("--shield", choices=("both", "on", "off"), default="both")
-    bench.add_argument("--max-steps", type=_positive_int, default=None, help="env steps per episode")
+    bench.add_argument("--episodes", type=_positive_int, default=5,
+                       help="episodes per scenario, policy and shield setting")
+    bench.add_argument("--seed", type=int, default=0,
+                       help="episode k starts from reset(seed=seed + k); also seeds the random policy")
+    bench.add_argument("--shield", choices=("both", "on", "off"), default="both",
+                       help="run every policy with the safety shield, without it, or both")
+    bench.add_argument("--max-steps", type=_positive_int, default=None,
+                       help="env steps per episode (default: the env's max_steps)")
     bench.add_argument("--out", type=Path, default=Path("runs/benchmark"), help="output directory")
     return parser
 
@@ -117,9 +149,9 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--horizon", type=_positive_float, default=None,
                    help="seconds to simulate (default: the scenario's horizon)")
     p.add_argument("--record-dt", type=_positive_float, default=0.01,
-                   help="trajectory sampling period in seconds (default 0.01)")
+                   help="trajectory sampling period in seconds")
     p.add_argument("--qp-solver", choices=("active_set", "piqp"), default="active_set",
-                   help="exact active-set kernel (default) or qpsolvers + PIQP")
+                   help="exact active-set kernel or qpsolvers + PIQP")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -169,15 +201,20 @@ def summary_table(rows: Sequence[dict]) -> str:
 
 
 def _print_summary(m: dict) -> None:
-    print(f"\n{m['scenario']} / {m['controller']}: {m['steps']} steps of {m['physics_dt']} s "
+    """A run's metrics for people: seconds to 2 decimals, clearances in mm to 1 decimal, errors in
+    scientific notation (``metrics.json`` keeps the full precision)."""
+    t1 = m["time_to_edge_error_1cm_s"]
+    drift = m.get("max_momentum_drift")
+    print(f"\n{m['scenario']} / {m['controller']}: {m['steps']:,} steps of {m['physics_dt']:g} s "
           f"in {m['wall_time_s']:.1f} s wall time")
     for a in m["arms"]:
         c = a["min_clearance_m"]
         print(f"  arm {a['index'] + 1}: min clearance "
               f"{'—' if c is None else f'{1000 * c:+.1f} mm'}{'  COLLIDED' if a['collided'] else ''}")
     print(f"  final max edge error {m['final_max_edge_error_m']:.2e} m; "
-          f"time to 1 cm: {m['time_to_edge_error_1cm_s']}; "
-          f"QP solved/fallback steps: {m['qp_solved_steps']}/{m['qp_fallback_steps']}")
+          f"time to 1 cm: {'never' if t1 is None else f'{t1:.2f} s'}; "
+          f"max momentum drift: {'—' if drift is None else f'{drift:.1e}'}; "
+          f"QP solved/fallback steps: {m['qp_solved_steps']:,}/{m['qp_fallback_steps']:,}")
     for k, v in m.get("outputs", {}).items():
         print(f"  {k}: {v}")
 
@@ -230,6 +267,13 @@ def _cmd_scenarios(args) -> int:
     for name in scenario_mod.builtin_names():
         sc = scenario_mod.load(name)
         print(f"{name}: {sc.n_arms} arms, {len(sc.obstacles)} obstacles, horizon {sc.horizon:g} s")
+    return 0
+
+
+def _cmd_warmup(args) -> int:
+    from .warmup import warm_up
+
+    warm_up(args.kinds, args.scenario, threaded=args.threaded)
     return 0
 
 
@@ -314,6 +358,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     args = _parser().parse_args(argv)
     handlers = {"reproduce": _cmd_reproduce, "paper": _cmd_paper, "scenarios": _cmd_scenarios,
+                "warmup": _cmd_warmup,
                 "animate": _cmd_animate, "train": _cmd_train, "benchmark": _cmd_benchmark}
     try:
         return handlers[args.command](args)

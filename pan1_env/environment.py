@@ -22,7 +22,7 @@ from .random_scenario import RandomScenarioOptions, random_scenario
 from .registration import RENDER_FPS, RENDER_MODES
 from .safety import QP_SOLVERS
 from .scenario import Scenario, load
-from .validation import positive_int, real, whole_ratio
+from .validation import float_array, positive_int, real, whole_ratio
 
 __all__ = ["Pan1ParallelEnv", "parallel_env", "env", "raw_env", "ACTION_MODES"]
 
@@ -50,7 +50,8 @@ class Pan1ParallelEnv(ParallelEnv):
     ## Action Space
 
     ``Box(-1, 1, (k,), float32)`` per agent, k = n − 1 for a PA arm and n for a fully actuated one.
-    Values outside [−1, 1] are clipped; NaN/inf or a wrong shape raise ``ValueError``.
+    Values outside [−1, 1] are clipped; NaN/inf, a wrong shape or a non-numeric action (a dict, a
+    string) raise ``ValueError``.
 
     * ``action_mode="velocity"`` (default): the desired active-joint velocity
       v = a · ``max_joint_speed`` (rad/s), held for the control step and tracked inside the env by
@@ -431,10 +432,7 @@ class Pan1ParallelEnv(ParallelEnv):
         if command is None:  # mixed sizes, or a bad action: per agent, with a specific error
             command = np.zeros(self._command_shape)
             for i, agent in enumerate(self.possible_agents):
-                a = np.asarray(actions[agent], dtype=float)
-                if a.shape != (self._k[i],):
-                    raise ValueError(f"action for {agent} must have shape ({self._k[i]},), got {a.shape}")
-                command[i, : self._k[i]] = a
+                command[i, : self._k[i]] = float_array(f"action for {agent}", actions[agent], (self._k[i],))
         effort = np.empty(len(command))
         bad = kernels().scale_command(command, self._k_array, self._action_scale, effort)  # clip, effort, scale
         if bad >= 0:

@@ -2,7 +2,11 @@
 
 * :func:`run_figure` – one run: (a) joint angles, (b) joint velocities, (c) edge-length errors
   ‖z_k‖ − d_k, (d) end-effector paths (× start, ∘ end) with the obstacles as red disks, the
-  final formation, and for a 2-link PA arm its reachable curve (Remark 1) dashed.
+  final formation, and for a 2-link PA arm its reachable curve (Remark 1) dashed. When the start
+  transient dominates panel (b) (its whole range is more than three times that of the velocities
+  after the first :data:`VELOCITY_AXIS_SKIP_S` seconds, e.g. 16 rad/s at t ≈ 0.04 s in Section
+  5.2), the panel's y-axis is clipped to those later velocities and a note in the panel gives the
+  off-axis peaks (value, arm, joint, time).
 * :func:`obstacle_distance_figure` – for each PA arm that can reach an obstacle, its end-effector's
   distance to the nearest obstacle centre against the safety boundary r (Figure 8); several runs
   (e.g. nominal and safe) overlay.
@@ -20,7 +24,9 @@ import numpy as np
 from .dynamics import ArmParams, end_effector, mass_matrix
 from .scenario import Scenario
 
-__all__ = ["run_figure", "obstacle_distance_figure", "pa_reachable_curve", "save_figure"]
+__all__ = ["run_figure", "obstacle_distance_figure", "pa_reachable_curve", "save_figure", "VELOCITY_AXIS_SKIP_S"]
+
+VELOCITY_AXIS_SKIP_S = 0.5  # panel (b)'s y-axis may be fitted to the velocities after this start transient
 
 
 def _pyplot():
@@ -72,6 +78,7 @@ def run_figure(scenario: Scenario, traj: Mapping[str, np.ndarray], title: str = 
             ax[0, 1].plot(t, traj["qd"][:, i, a], style, color=c, lw=1, label=label)
     ax[0, 0].set(xlabel="time [s]", ylabel="joint angle [rad]", title="(a) joint angles")
     ax[0, 1].set(xlabel="time [s]", ylabel="joint velocity [rad/s]", title="(b) joint velocities")
+    _clip_start_transient(ax[0, 1], t, traj["qd"], "rad/s")
     ax[0, 0].legend(fontsize=8, title="dashed: passive joint", title_fontsize=8)
     for k, (i, j) in enumerate(scenario.formation.edges):
         ax[1, 0].plot(t, traj["edge_error"][:, k], lw=1, label=f"edge ({i + 1},{j + 1})")
@@ -83,6 +90,38 @@ def run_figure(scenario: Scenario, traj: Mapping[str, np.ndarray], title: str = 
         fig.suptitle(title)
     fig.tight_layout()
     return fig
+
+
+def _clip_start_transient(ax, t: np.ndarray, values: np.ndarray, unit: str,
+                          skip: float = VELOCITY_AXIS_SKIP_S, ratio: float = 3.0) -> None:
+    """Fit the y-axis to ``values`` (time first) after the first ``skip`` seconds when the whole
+    range is more than ``ratio`` times that; note the clipping and the off-axis extremes in the panel."""
+    t = np.asarray(t)
+    later = values[t >= t[0] + skip]
+    later = later[np.isfinite(later)]
+    every = values[np.isfinite(values)]
+    if later.size == 0 or every.size == 0:
+        return
+    lo, hi = float(later.min()), float(later.max())
+    pad = 0.1 * max(hi - lo, 1e-3)
+    lo, hi = lo - pad, hi + pad
+    if every.max() - every.min() <= ratio * (hi - lo):
+        return  # nothing dominates: matplotlib's own limits
+    ax.set_ylim(lo, hi)
+    flat = np.where(np.isfinite(values), values, np.nan).reshape(len(t), -1)
+    n_joints = values.shape[2] if values.ndim == 3 else 1
+    notes = []
+    for pick, outside in ((np.nanargmax, lambda v: v > hi), (np.nanargmin, lambda v: v < lo)):
+        r, col = np.unravel_index(pick(flat), flat.shape)
+        value = flat[r, col]
+        if outside(value):
+            sign = "+" if value >= 0 else "−"
+            notes.append(f"{sign}{abs(value):.1f} {unit} (arm {col // n_joints + 1} joint {col % n_joints + 1}, "
+                         f"t = {t[r]:.2f} s)")
+    head = [f"y-axis clipped to the data after t = {skip:g} s", f"off-axis peak{'s' if len(notes) > 1 else ''}:"]
+    ax.text(0.98, 0.97, "\n".join(head + notes),
+            transform=ax.transAxes, ha="right", va="top", multialignment="left", fontsize=8,
+            bbox={"boxstyle": "round", "fc": "white", "ec": "0.7", "alpha": 0.9})
 
 
 def _trajectory_panel(ax, scenario: Scenario, traj: Mapping[str, np.ndarray], colors) -> None:

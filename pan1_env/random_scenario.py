@@ -34,22 +34,27 @@ __all__ = ["RandomScenarioOptions", "random_scenario"]
 class RandomScenarioOptions:
     """What :func:`random_scenario` draws.
 
+    The team's structure (links and passive joints per arm) is fixed by the options, so the
+    environments' spaces do not change between episodes; everything else is drawn.
+
     Attributes:
         n_arms: number of arms (≥ 2).
         links: links per arm: one integer for every arm, or one per arm (e.g. ``(2, 3, 4, 3)``).
         passive_fraction: fraction of arms whose first joint is passive: arms
             ``0 … round(passive_fraction · n_arms) − 1`` are PA arms, the rest fully actuated.
-
-    The team's structure (links and passive joints per arm) is fixed by the options, so the
-    environments' spaces do not change between episodes; everything else is drawn.
         n_obstacles: number of disk obstacles.
         shape: ``"polygon"`` (regular N-gon with fan diagonals) or ``"square"`` (N = 4).
         size: range of the formation's side length, metres.
         obstacle_radius: range of obstacle radii, metres.
         start_clearance: smallest clearance of a starting end-effector, metres.
         min_sigma: smallest singular value of J̄ at the start.
-        kp, ke, kappa, epsilon: controller and RCBF gains of the drawn scenario.
-        physics_dt, control_dt, horizon: time steps and horizon of the drawn scenario, seconds.
+        kp: gain K_P of the nominal formation law of the drawn scenario.
+        ke: gain K_e of the backstepping tracker of the drawn scenario.
+        kappa: RCBF parameter κ of the drawn scenario.
+        epsilon: RCBF parameter ε of the drawn scenario.
+        physics_dt: physics (RK4) step of the drawn scenario, seconds.
+        control_dt: control step of the drawn scenario, seconds.
+        horizon: horizon of the drawn scenario, seconds.
     """
 
     n_arms: int = 4

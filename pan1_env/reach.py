@@ -29,7 +29,7 @@ from .random_scenario import _passive_path
 from .registration import DEFAULT_REACH_STEPS
 from .safety import clearance
 from .scenario import Scenario, load
-from .validation import positive_int, real, whole_ratio
+from .validation import float_array, positive_int, real, whole_ratio
 
 __all__ = ["PAReachEnv"]
 
@@ -52,7 +52,8 @@ class PAReachEnv(gymnasium.Env):
     ``Box(-1, 1, (k,), float32)``, k = n − 1 for a PA arm (n when fully actuated): the desired
     active-joint velocity v = a · ``max_joint_speed`` (rad/s), held for the control step and
     tracked by the paper's backstepping law (Eq. 64) at every physics sub-step. Values outside
-    [−1, 1] are clipped; NaN/inf or a wrong shape raise ``ValueError``.
+    [−1, 1] are clipped; NaN/inf, a wrong shape or a non-numeric action (a dict, a string) raise
+    ``ValueError``.
 
     With ``safety_filter=True`` (default) every sub-step first projects the command through the
     paper's RCBF-QP (Eq. 61) with the scenario's κ, ε and margin, and bounds the filtered speeds by
@@ -239,9 +240,7 @@ class PAReachEnv(gymnasium.Env):
         if self._needs_reset:
             raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
         kern = kernels()
-        a = np.asarray(action, dtype=float)
-        if a.shape != self.action_space.shape:
-            raise ValueError(f"action must have shape {self.action_space.shape}, got {a.shape}")
+        a = float_array("action", action, self.action_space.shape)
         self._command[0] = a
         if kern.scale_command(self._command, self._k_array, self.max_joint_speed, self._effort) >= 0:
             raise ValueError(f"action contains NaN or inf: {a.tolist()}")

@@ -21,6 +21,8 @@ from typing import Any
 import gymnasium
 import numpy as np
 
+from .validation import float_array
+
 __all__ = ["CentralizedEnv", "register_envs", "ENV_IDS", "REACH_ENV_ID", "DEFAULT_REACH_STEPS"]
 
 ENV_IDS = {
@@ -66,9 +68,7 @@ class CentralizedEnv(gymnasium.Env):
         return self._flat_obs(obs), {"cost": 0.0, "agents": infos}
 
     def step(self, action: np.ndarray):
-        action = np.asarray(action, dtype=float)
-        if action.shape != self.action_space.shape:
-            raise ValueError(f"action must have shape {self.action_space.shape}, got {action.shape}")
+        action = float_array("action", action, self.action_space.shape)
         parts = np.split(action, self._splits)
         agents = list(self.parallel.possible_agents)
         obs, rewards, terms, truncs, infos = self.parallel.step(dict(zip(agents, parts, strict=True)))

@@ -1,10 +1,11 @@
 """Frames of an environment (``rgb_array``) and its window (``human``), drawn with matplotlib.
 
-A frame shows each arm's links and joints (a PA arm's passive joint as a hollow red ring), the
-obstacles (red disks) with the safety filter's boundary (dashed), the formation's edges between the
-end-effectors (green when within 1 cm of their length, orange otherwise) and the target shape
-(grey, dashed) fitted to the end-effectors by the best rigid motion. Matplotlib is imported only
-when the first frame is drawn; ``rgb_array`` needs no display.
+A frame shows each arm's links and joints (a PA arm's passive joint as a hollow red ring), its
+end-effector labelled with the arm's number 1..N (as in the figures and tables; agent ``arm_i`` is
+arm i + 1), the obstacles (red disks) with the safety filter's boundary (dashed), the formation's
+edges between the end-effectors (green when within 1 cm of their length, orange otherwise) and the
+target shape (grey, dashed) fitted to the end-effectors by the best rigid motion. Matplotlib is
+imported only when the first frame is drawn; ``rgb_array`` needs no display.
 """
 
 from __future__ import annotations
@@ -71,7 +72,7 @@ class Renderer:
             if arm.passive_first_joint:
                 ax.plot(*arm.base, "o", mfc="none", mec="red", ms=12, mew=2)
             ax.plot(*pts[-1], "o", color=col, ms=7)
-            ax.annotate(str(i), pts[-1], textcoords="offset points", xytext=(5, 5), fontsize=8)
+            ax.annotate(str(i + 1), pts[-1], textcoords="offset points", xytext=(5, 5), fontsize=8)
         f = sc.formation
         fitted = fit_shape(f.target, P)
         err = np.abs(np.linalg.norm(P[f.edges[:, 0]] - P[f.edges[:, 1]], axis=-1) - f.distances)

@@ -11,7 +11,9 @@ import math
 from numbers import Integral, Real
 from typing import Any
 
-__all__ = ["real", "positive_int", "whole_ratio"]
+import numpy as np
+
+__all__ = ["real", "positive_int", "whole_ratio", "float_array"]
 
 
 def real(name: str, value: Any, *, positive: bool = False, non_negative: bool = False,
@@ -44,3 +46,22 @@ def whole_ratio(name: str, big: float, small_name: str, small: float) -> int:
     if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
         raise ValueError(f"{name}={big} must be a whole multiple of {small_name}={small}")
     return int(round(ratio))
+
+
+def float_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
+    """``value`` as a float array of ``shape`` (e.g. an action), or a ``ValueError`` naming ``name``,
+    the expected shape and what was received (a dict, a string, a ragged list, … or the wrong shape).
+
+    Only the conversion and the shape are checked; NaN and inf pass (the callers report them).
+    """
+    try:
+        out = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        text = repr(value)
+        if len(text) > 80:
+            text = text[:77] + "..."
+        raise ValueError(f"{name} must be an array of numbers of shape {shape}, got {type(value).__name__} "
+                         f"{text}") from None
+    if out.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {out.shape}")
+    return out

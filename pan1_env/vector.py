@@ -24,7 +24,7 @@ from .dynamics import ArmBatch
 from .random_scenario import random_scenario
 from .safety import clearance
 from .scenario import Scenario
-from .validation import positive_int
+from .validation import float_array, positive_int
 
 __all__ = ["Pan1VectorEnv", "PARALLEL_THRESHOLD"]
 
@@ -44,7 +44,8 @@ class Pan1VectorEnv(VectorEnv):
 
     ``Box(-1, 1, (num_envs, Σ k_i), float32)``: row b is copy b's concatenated per-arm actions
     (agent order), scaled as in the parallel env (``action_mode`` velocity or torque). Values are
-    clipped to [−1, 1]; a wrong shape or NaN/inf raises ``ValueError``.
+    clipped to [−1, 1]; a wrong shape, NaN/inf or a non-numeric batch (a dict, a string) raises
+    ``ValueError``.
 
     ## Observation Space
 
@@ -238,9 +239,7 @@ class Pan1VectorEnv(VectorEnv):
 
         if self._needs_reset:
             raise RuntimeError("step() called before reset(); call reset()")
-        a = np.ascontiguousarray(actions, dtype=float)
-        if a.shape != self.action_space.shape:
-            raise ValueError(f"actions must have shape {self.action_space.shape}, got {a.shape}")
+        a = np.ascontiguousarray(float_array("actions", actions, self.action_space.shape))
         if not np.isfinite(a).all():
             bad = int(np.flatnonzero(~np.isfinite(a).all(axis=1))[0])
             raise ValueError(f"actions for copy {bad} contain NaN or inf")

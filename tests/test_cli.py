@@ -63,3 +63,68 @@ def test_animate_writes_a_gif_with_the_shielded_reference(tmp_path, capsys) -> N
     text = capsys.readouterr().out
     assert "shield on" in text and "cost (arm-steps in obstacles) 0" in text
     assert main(["animate", "paper_pa3_square", "--out", str(tmp_path / "x.mp4")]) == 2
+
+
+def _subcommands() -> dict:
+    import argparse
+
+    from pan1_env.cli import _parser
+
+    (commands,) = [a for a in _parser()._actions if isinstance(a, argparse._SubParsersAction)]
+    return commands.choices
+
+
+def test_every_option_of_every_subcommand_has_help_and_shows_its_default() -> None:
+    import argparse
+
+    commands = _subcommands()
+    assert {"reproduce", "paper", "scenarios", "animate", "train", "benchmark"} <= set(commands)
+    for name, parser in commands.items():
+        formatter = parser._get_formatter()
+        for action in parser._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            what = f"pan1-env {name} {'/'.join(action.option_strings) or action.dest}"
+            assert action.help and action.help.strip(), f"{what} has no help text"
+            shown = formatter._expand_help(action)  # the text `--help` prints for it
+            if not action.option_strings or action.required or action.default in (None, False):
+                continue  # positionals, required options, off-by-default flags: no value to show
+            assert f"default: {action.default}" in shown, f"{what}: default not shown: {shown!r}"
+
+
+def test_train_and_benchmark_help_show_defaults(capsys) -> None:
+    import pytest
+
+    for command, expected in (("train", "(default: 100000)"), ("benchmark", "(default: both)")):
+        with pytest.raises(SystemExit):
+            main([command, "--help"])
+        assert expected in " ".join(capsys.readouterr().out.split())
+
+
+def test_console_summary_is_formatted_for_people(capsys) -> None:
+    import re
+
+    from pan1_env.cli import _print_summary
+
+    metrics = {
+        "scenario": "paper_pa3_square", "controller": "nominal", "steps": 100_000, "physics_dt": 0.001,
+        "wall_time_s": 54.123456789,
+        "arms": [{"index": 0, "min_clearance_m": -0.022198765432, "collided": True},
+                 {"index": 1, "min_clearance_m": 0.55983210987, "collided": False},
+                 {"index": 2, "min_clearance_m": None, "collided": False}],
+        "final_max_edge_error_m": 0.000168912345678, "time_to_edge_error_1cm_s": 31.551000000015577,
+        "max_momentum_drift": 1.8734e-16, "qp_solved_steps": 0, "qp_fallback_steps": 0,
+    }
+    _print_summary(metrics)
+    out = capsys.readouterr().out
+    assert "100,000 steps of 0.001 s in 54.1 s wall time" in out
+    assert "arm 1: min clearance -22.2 mm  COLLIDED" in out
+    assert "arm 2: min clearance +559.8 mm\n" in out
+    assert "arm 3: min clearance —" in out
+    assert "final max edge error 1.69e-04 m" in out
+    assert "time to 1 cm: 31.55 s" in out
+    assert "max momentum drift: 1.9e-16" in out
+    assert not re.search(r"\d\.\d{4,}", out), f"raw floats in {out!r}"
+    _print_summary({**metrics, "time_to_edge_error_1cm_s": None, "max_momentum_drift": None})
+    out = capsys.readouterr().out
+    assert "time to 1 cm: never" in out and "max momentum drift: —" in out

@@ -143,6 +143,10 @@ def test_bad_actions_and_calls() -> None:
         env.step(np.zeros(4))
     with pytest.raises(ValueError, match="NaN or inf"):
         env.step(np.array([0.0, np.nan, 0.0]))
+    with pytest.raises(ValueError, match=r"action must be an array of numbers of shape \(3,\), got dict"):
+        env.step({"arm_0": np.zeros(3)})
+    with pytest.raises(ValueError, match=r"action must be an array of numbers of shape \(3,\), got str 'zero'"):
+        env.step("zero")
     np.testing.assert_array_equal(env.q, q)  # a refused action changes nothing
     env.step(np.zeros(3))
     _, _, _, truncated, _ = env.step(np.zeros(3))

@@ -5,8 +5,9 @@ import pytest
 
 from pan1_env import experiment, scenario
 from pan1_env.environment import parallel_env
+from pan1_env.random_scenario import RandomScenarioOptions
 from pan1_env.simulation import Simulation
-from pan1_env.validation import positive_int, real, whole_ratio
+from pan1_env.validation import float_array, positive_int, real, whole_ratio
 from pan1_env.wrappers import SafetyShield
 
 
@@ -25,6 +26,43 @@ def test_real_and_int_accept_numpy_scalars() -> None:
     assert whole_ratio("a", 0.05, "b", 0.001) == 50
     with pytest.raises(ValueError, match="whole multiple"):
         whole_ratio("a", 0.0015, "b", 0.001)
+
+
+@pytest.mark.parametrize("value, match", [
+    ({"arm_0": [0.0]}, r"action must be an array of numbers of shape \(3,\), got dict \{'arm_0': \[0.0\]\}"),
+    ("full", r"action must be an array of numbers of shape \(3,\), got str 'full'"),
+    ([1.0, [2.0], 3.0], r"action must be an array of numbers of shape \(3,\), got list"),
+    ({i: i for i in range(100)}, r"got dict \{0: 0, .*\.\.\.$"),
+    (None, r"action must have shape \(3,\), got \(\)"),
+    (np.zeros(4), r"action must have shape \(3,\), got \(4,\)"),
+])
+def test_float_array_names_the_shape_and_what_it_got(value, match) -> None:
+    with pytest.raises(ValueError, match=match):
+        float_array("action", value, (3,))
+
+
+def test_float_array_passes_numbers_through() -> None:
+    out = float_array("action", [1, 2.5, np.float32(3)], (3,))
+    assert out.dtype == float and out.tolist() == [1.0, 2.5, 3.0]
+    assert np.isnan(float_array("action", [np.nan, 0, 0], (3,))[0])  # NaN is the caller's to report
+
+
+def test_random_scenario_options_attributes_are_one_list() -> None:
+    """Google style: the Attributes section is one list with an entry per field, nothing in between."""
+    import dataclasses
+    import inspect
+
+    doc = inspect.cleandoc(RandomScenarioOptions.__doc__)
+    head, _, section = doc.partition("\nAttributes:\n")
+    assert section, "no Attributes section"
+    names = []
+    for line in section.splitlines():
+        assert line.startswith("    "), f"not part of the attribute list: {line!r}"
+        if not line.startswith("     "):  # an entry ("name: text"); deeper lines continue it
+            name, sep, text = line.strip().partition(": ")
+            assert sep and name.isidentifier() and text, f"not an attribute entry: {line!r}"
+            names.append(name)
+    assert names == [f.name for f in dataclasses.fields(RandomScenarioOptions)]
 
 
 def test_simulation_rejects_bad_q0_and_substeps() -> None:

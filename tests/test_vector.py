@@ -134,6 +134,9 @@ def test_a_numerical_fault_truncates_only_its_copy() -> None:
 @pytest.mark.parametrize("bad,error", [
     (np.zeros((2, 5)), "shape"),
     (np.full((2, 12), np.nan), "NaN"),
+    pytest.param({"arm_0": np.zeros(3)}, r"actions must be an array of numbers of shape \(2, 12\), got dict",
+                 id="dict"),
+    pytest.param("zeros", r"actions must be an array of numbers of shape \(2, 12\), got str 'zeros'", id="string"),
 ])
 def test_bad_actions_are_refused(bad, error) -> None:
     venv = Pan1VectorEnv("paper_pa3_square", 2)

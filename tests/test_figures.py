@@ -1,0 +1,63 @@
+"""Figures and frames: what a reader sees (no simulation: synthetic trajectories and states)."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from pan1_env import figures, scenario
+from pan1_env.dynamics import end_effector
+from pan1_env.render import Renderer
+
+
+def _trajectory(sc, spike: float) -> dict[str, np.ndarray]:
+    """10 s of a smooth ±0.8 rad/s velocity record with ``spike`` rad/s on arm 3, joint 2 at t = 0.05 s."""
+    t = np.arange(0.0, 10.0 + 1e-9, 0.01)
+    N, n_max = sc.n_arms, max(a.n_links for a in sc.arms)
+    qd = np.full((len(t), N, n_max), np.nan)
+    for i, arm in enumerate(sc.arms):
+        qd[:, i, : arm.n_links] = 0.8 * np.sin(t + i)[:, None]
+    qd[5, 2, 1] = spike
+    q = np.where(np.isnan(qd), np.nan, 0.0)
+    p_end = np.broadcast_to(np.array([a.base for a in sc.arms]), (len(t), N, 2)).copy()
+    return {"time": t, "q": q, "qd": qd, "p_end": p_end,
+            "edge_error": np.zeros((len(t), len(sc.formation.distances)))}
+
+
+def test_velocity_panel_clips_the_start_transient_and_names_the_peak() -> None:
+    sc = scenario.load("paper_pa_mixed_square")
+    fig = figures.run_figure(sc, _trajectory(sc, 16.3))
+    ax = fig.axes[1]
+    assert ax.get_title() == "(b) joint velocities"
+    lo, hi = ax.get_ylim()
+    assert -1.0 < lo < -0.8 and 0.8 < hi < 1.0  # the smooth data after 0.5 s, not the spike
+    notes = [t.get_text() for t in ax.texts]
+    assert len(notes) == 1 and "clipped" in notes[0]
+    assert "+16.3 rad/s (arm 3 joint 2, t = 0.05 s)" in notes[0]
+    figures._pyplot().close(fig)
+
+
+def test_velocity_panel_without_a_transient_is_not_clipped() -> None:
+    sc = scenario.load("paper_pa_mixed_square")
+    fig = figures.run_figure(sc, _trajectory(sc, 0.5))
+    ax = fig.axes[1]
+    assert ax.get_ylim()[1] >= 0.8 and not ax.texts
+    figures._pyplot().close(fig)
+
+
+@pytest.mark.parametrize("name", ["paper_pa3_square", "paper_pa_mixed_square"])
+def test_frames_number_the_arms_from_one_like_the_figures(name: str) -> None:
+    sc = scenario.load(name)
+    n_max = max(a.n_links for a in sc.arms)
+    q = np.zeros((sc.n_arms, n_max))
+    for i, q0 in enumerate(sc.q0):
+        q[i, : len(q0)] = q0
+    P = np.array([end_effector(arm, q0) for arm, q0 in zip(sc.arms, sc.q0, strict=True)])
+    sim = SimpleNamespace(joint_state=lambda: (q, np.zeros_like(q)), positions=lambda: P, time=0.0)
+    renderer = Renderer()
+    try:
+        frame = renderer.draw(SimpleNamespace(scenario=sc, sim=sim))
+        assert frame.ndim == 3
+        assert [t.get_text() for t in renderer.ax.texts] == [str(i) for i in range(1, sc.n_arms + 1)]
+    finally:
+        renderer.close()
