@@ -1,6 +1,6 @@
 """Train the arms with Ray RLlib's PPO through its PettingZoo wrapper (for runs that outgrow one machine).
 
-    pip install torch==2.13.0 && pip install -e ".[ray]"
+    pip install -e ".[ray]"      (install PyTorch's CPU-only wheel first: see the README)
     python examples/rllib_pettingzoo.py --iterations 5 --num-env-runners 2
 
 Shows how :func:`pan1_env.environment.parallel_env` (optionally behind :class:`~pan1_env.wrappers.SafetyShield`)

@@ -1,6 +1,8 @@
 """Train PPO behind the safety shield on Section 5.2's team, then check it never collided.
 
-    python examples/train_shielded_ppo.py      (needs: pip install torch==2.13.0 'pan1-env[rl]')
+    python examples/train_shielded_ppo.py
+
+Needs the rl extra; install PyTorch's CPU-only wheel first (see the README).
 """
 
 import gymnasium

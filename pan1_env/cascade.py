@@ -1,4 +1,4 @@
-"""The cascaded (reduced-order) model of a PAn−1 arm and its integrators (MODEL.md §2–3).
+"""The cascaded (reduced-order) model of a PAn−1 arm and its integrators (docs/MODEL.md §2–3).
 
 For a PAn−1 arm started from rest the passive momentum Σ_α M_1α q̇_α stays zero (Lemma 1), so
 the passive velocity is a function of the active ones and the arm becomes the cascade

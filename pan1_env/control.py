@@ -1,7 +1,7 @@
 """The paper's control laws: the distributed nominal formation law and the backstepping tracker.
 
-    v_i0 = −K_P J̄_iᵀ ê_i                                  (Eq. 39, MODEL.md §4)
-    τ_a  = M_comb (v̇* − K_e (v − v*)) + H_comb            (Eq. 64, MODEL.md §5)
+    v_i0 = −K_P J̄_iᵀ ê_i                                  (Eq. 39, docs/MODEL.md §4)
+    τ_a  = M_comb (v̇* − K_e (v − v*)) + H_comb            (Eq. 64, docs/MODEL.md §5)
 
 (for a fully actuated arm M_comb = M and H_comb = C q̇). The tracker makes the cascaded model's
 error dynamics ẽ̇ = −K_e ẽ exactly; v̇* is supplied by the caller (the simulation uses a backward

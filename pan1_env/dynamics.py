@@ -1,6 +1,6 @@
 """Rigid-body model of one planar n-link arm: parameters, inertia, Coriolis, kinematics.
 
-This module owns the equations of MODEL.md §1 (the paper's Eq. 1–8 and 15, with signs restored):
+This module owns the equations of docs/MODEL.md §1 (the paper's Eq. 1–8 and 15, with signs restored):
 
     λ_αα = I_α + m_α l_α² + L_α² Σ_{γ>α} m_γ
     λ_αβ = m_β L_α l_β + L_α L_β Σ_{γ>β} m_γ            (α < β)
@@ -9,7 +9,7 @@ This module owns the equations of MODEL.md §1 (the paper's Eq. 1–8 and 15, wi
     p_end = p0 + Σ_α L_α [sin(θ_α + φ), cos(θ_α + φ)]
 
 Joint angles are relative; link angles θ are measured from the base frame's vertical axis,
-positive clockwise (see PAPER_SCENARIOS.md). There is no gravity: the plane is horizontal.
+positive clockwise (see docs/MODEL.md §6). There is no gravity: the plane is horizontal.
 
 Every function takes ``arm`` (an :class:`ArmParams`, or an :class:`ArmBatch` of arms with the same
 number of links) and joint arrays of shape ``(n,)`` or ``(B, n)``; the result has the matching
@@ -123,7 +123,7 @@ class ArmParams:
 
     @property
     def lam(self) -> np.ndarray:
-        """The symmetric coefficient matrix λ (n × n) of MODEL.md §1."""
+        """The symmetric coefficient matrix λ (n × n) of docs/MODEL.md §1."""
         return self._lambda  # type: ignore[attr-defined]
 
     def __eq__(self, other: object) -> bool:
@@ -202,7 +202,7 @@ def _lambda(m: np.ndarray, L: np.ndarray, l: np.ndarray, I: np.ndarray) -> np.nd
 
 
 def inertia_coefficients(arm: Arm) -> np.ndarray:
-    """The λ matrix of MODEL.md §1, shape ``(n, n)`` (or ``(B, n, n)`` for an ArmBatch)."""
+    """The λ matrix of docs/MODEL.md §1, shape ``(n, n)`` (or ``(B, n, n)`` for an ArmBatch)."""
     return arm.lam
 
 

@@ -1,4 +1,4 @@
-"""Formation graphs and the distance-based formation errors (MODEL.md §4, the paper's Eq. 31–39).
+"""Formation graphs and the distance-based formation errors (docs/MODEL.md §4, the paper's Eq. 31–39).
 
 A formation is an undirected graph on the arms' end-effectors with a desired length d_k per edge.
 Edge k = (i, j) has the incidence column +1 at i and −1 at j, so ``z_k = p_i − p_j``, and

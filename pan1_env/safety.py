@@ -1,4 +1,4 @@
-"""Disk obstacles, robust control barrier functions and the safety QP (MODEL.md §5, Eq. 48–61).
+"""Disk obstacles, robust control barrier functions and the safety QP (docs/MODEL.md §5, Eq. 48–61).
 
 For arm i and obstacle j (centre o_j, radius r_j):
 

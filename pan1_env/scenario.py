@@ -86,7 +86,7 @@ class Scenario:
 
         With ``ignore_unreachable_obstacles`` an obstacle farther from an arm's base than its reach
         plus the radius is dropped for that arm: it can never be hit, and its RCBF row would only
-        slow the arm down far from it (PAPER_SCENARIOS.md, Section 5.2).
+        slow the arm down far from it (docs/PAPER_REPRODUCTION.md, Section 5.2).
         """
         mask = np.ones((self.n_arms, len(self.obstacles)), dtype=bool)
         if self.ignore_unreachable_obstacles:

@@ -1,4 +1,4 @@
-"""The cascaded (reduced-order) model of MODEL.md §2–3 against the full-order model M q̈ + C q̇ = τ.
+"""The cascaded (reduced-order) model of docs/MODEL.md §2–3 against the full-order model M q̈ + C q̇ = τ.
 
 The reference quantities are built here from ``mass_matrix`` and ``coriolis_matrix`` (both checked
 against Pinocchio in test_dynamics_pinocchio.py), never from the cascade module's own terms.

@@ -1,4 +1,4 @@
-"""Formation graphs, the distance-based errors and rigidity (MODEL.md §4, Eq. 31–39)."""
+"""Formation graphs, the distance-based errors and rigidity (docs/MODEL.md §4, Eq. 31–39)."""
 
 import itertools
 

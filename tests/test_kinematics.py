@@ -1,4 +1,4 @@
-"""Forward kinematics and the end-effector Jacobian (MODEL.md §1, Eq. 15; PAPER_SCENARIOS.md).
+"""Forward kinematics and the end-effector Jacobian (docs/MODEL.md §1, Eq. 15; docs/PAPER_REPRODUCTION.md).
 
 Checked against finite differences and against Pinocchio's forward kinematics of a planar chain of
 revolute-z joints whose links lie along x. The project's convention
@@ -69,7 +69,7 @@ def test_end_effector_matches_plain_loop() -> None:
 
 
 def test_end_effector_convention_hand_example() -> None:
-    """Link angles are measured from the vertical axis, positive clockwise (PAPER_SCENARIOS.md)."""
+    """Link angles are measured from the vertical axis, positive clockwise (docs/PAPER_REPRODUCTION.md)."""
     arm = ArmParams(
         masses=[1.0, 1.0], lengths=[2.0, 1.0], com=[1.0, 0.5], inertias=[0.1, 0.1], base=[1.0, -1.0]
     )

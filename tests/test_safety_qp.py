@@ -1,4 +1,4 @@
-"""The safety QP v* = argmin ½‖v − v0‖² s.t. A v ≤ b and its RCBF rows (MODEL.md §5, Eq. 56–61).
+"""The safety QP v* = argmin ½‖v − v0‖² s.t. A v ≤ b and its RCBF rows (docs/MODEL.md §5, Eq. 56–61).
 
 Optimality is certified independently of both solvers by the KKT conditions (the QP is strictly
 convex, so a feasible point with v0 − v = Aᵀλ, λ ≥ 0 on the active rows is the unique optimum);

@@ -37,7 +37,7 @@ def test_paper_pa3_square_matches_paper_scenarios_md() -> None:
         np.testing.assert_allclose(arm.inertias, [0.0022, 0.0022, 0.0053, 0.0053])
         assert arm.phi == 0.0
     np.testing.assert_allclose([a.base for a in sc.arms], [[0, 0], [2.5, 0], [2.5, 2], [0, 2]])
-    # Initial angles with the signs restored in PAPER_SCENARIOS.md (paper arms 1..4 = code 0..3).
+    # Initial angles with the signs restored in docs/PAPER_REPRODUCTION.md (paper arms 1..4 = code 0..3).
     expected_q0 = [
         [PI / 3, -PI / 6, PI / 4, -PI / 8],
         [PI / 4, 0.0, -PI / 3, -PI / 2],

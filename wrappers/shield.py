@@ -26,7 +26,7 @@ value h = ‖p − o‖² − r² seen by the filter; inf when the arm has no ob
 ``fallback`` (the braking fallback was used) and ``qp_counts`` (sub-steps per status).
 
 With ``tracking_bound=δ̄`` the filter uses the tightened barrier h − Γ(δ̄), Γ(δ̄) = ε δ̄² / (4 κ)
-(MODEL.md §5): as long as the tracking error stays below δ̄ the arm stays in the *original* set
+(docs/MODEL.md §5): as long as the tracking error stays below δ̄ the arm stays in the *original* set
 h ≥ 0, not only in the inflated one h ≥ −Γ(δ̄).
 """
 
