@@ -71,8 +71,8 @@ class _KernelCompileNotice(numba_event.Listener):
         if found is not None:
             kind, cache = found
             self._started[id(event.data["dispatcher"])] = time.perf_counter()
-            notify(f"compiling the sub-step kernel for arms of {kind}: once per arm kind, about 40 s and up "
-                   f"to ~1 GB on a 2-core machine; cached in {cache} for later runs "
+            notify(f"compiling the sub-step kernel for arms of {kind}: once per arm kind, about 10 s "
+                   f"on a 2-core machine; cached in {cache} for later runs "
                    f"(`pan1-env warmup` compiles ahead of time)")
 
     def on_end(self, event) -> None:

@@ -111,7 +111,7 @@ _SERIES_SHORT = 0.03
 _SERIES_MAX = 0.125
 
 
-@njit(**_JIT, inline="always")
+@njit(**_JIT, forceinline=True)
 def _lane_angles(q, phi, n, w, c, s):
     """c_α, s_α = cos, sin of lane w's absolute link angles θ_α + φ (θ_α = q_1 + … + q_α)."""
     ang = phi[w]
@@ -121,7 +121,7 @@ def _lane_angles(q, phi, n, w, c, s):
         s[a, w] = np.sin(ang)
 
 
-@njit(**_JIT, inline="always")
+@njit(**_JIT, forceinline=True)
 def _rotate_lanes(c0, s0, thd, h, n, W, c, s):
     """c, s of the link angles θ_α + h θ̇_α from those of θ_α (``c0``, ``s0``) and the absolute angular
     speeds θ̇_α (``thd``): the angle-sum formulas, with cos δ and sin δ of the small increment
@@ -158,7 +158,7 @@ def _rotate_lanes(c0, s0, thd, h, n, W, c, s):
                     s[a, w] = s0[a, w] * cd + c0[a, w] * sd
 
 
-@njit(**_JIT, inline="always")
+@njit(**_JIT, forceinline=True)
 def _mass_lanes(lam, c, s, v, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H):
     """M, q̇ = g0 v, M_comb and H_comb of W arms from their link angles' c, s (written to the arrays).
 
@@ -225,7 +225,7 @@ def _mass_lanes(lam, c, s, v, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H):
                     Mc[i, j, w] = M[i, j, w]
 
 
-@njit(**_JIT, inline="always")
+@njit(**_JIT, forceinline=True)
 def _spd_solve(G, r, x, size, L, y):
     """Solve G x = r (the leading ``size`` × ``size`` block, symmetric positive definite) by the
     square-root-free Cholesky factorisation G = L D Lᵀ; False if it is not SPD (a pivot D_i at or
@@ -262,7 +262,7 @@ def _spd_solve(G, r, x, size, L, y):
     return True
 
 
-@njit(**_JIT, inline="always")
+@njit(**_JIT, forceinline=True)
 def _solve_lanes(G, r, k, W, x, L, y, ok):
     """:func:`_spd_solve` of the k × k systems G x = r of W lanes, branch-free (so the lanes
     vectorise): ``ok[w]`` is False where G is not SPD (a pivot at or below 1e-12 × the largest
@@ -297,7 +297,7 @@ def _solve_lanes(G, r, k, W, x, L, y, ok):
             x[i, w] = acc
 
 
-@njit(**_JIT, inline="always")
+@njit(**_JIT, forceinline=True)
 def _acceleration_lanes(Mc, Hc, tau, k, W, dv, r, L, y, ok):
     """v̇ = M_comb⁻¹ (τ_a − H_comb) of W lanes (NaN where M_comb is not positive definite)."""
     for t in range(k):
@@ -309,7 +309,7 @@ def _acceleration_lanes(Mc, Hc, tau, k, W, dv, r, L, y, ok):
             dv[t, w] = dv[t, w] if ok[w] else np.nan
 
 
-@njit(**_JIT, inline="always")
+@njit(**_JIT, forceinline=True)
 def _position_lanes(lengths, bx, by, c, s, n, W, px, py):
     """End-effectors p = p0 + Σ L_α [sin(θ_α + φ), cos(θ_α + φ)] of W lanes, into ``px``, ``py`` (W)."""
     for w in range(W):
@@ -322,7 +322,7 @@ def _position_lanes(lengths, bx, by, c, s, n, W, px, py):
         py[w] = y
 
 
-@njit(**_JIT, inline="always")
+@njit(**_JIT, forceinline=True)
 def _jacobian_lanes(lengths, c, s, M, passive, n, k, W, J, Jbar):
     """J̄ = J g0 (2 × k per lane) from the link angles' c, s and the mass matrix (g0 = [−M_0a / M_00 ; I]).
 
@@ -508,7 +508,7 @@ group_observations_parallel.__doc__ = _OBSERVATIONS_DOC + """
     """
 
 
-@njit(**_JIT, inline="always")
+@njit(**_JIT, forceinline=True)
 def _project_one(v0, A, b, active, m, k, v_out, rows, idx, G, r, lam, cand, L, y, viol, rnorm):
     """Exact min ½‖v − v0‖² s.t. A_j v ≤ b_j (rows j < m with active_j): returns a status code.
 
@@ -635,7 +635,7 @@ def qp_project(v0, A, b, active, v_out, status):
                                  viol, rnorm)
 
 
-@njit(**_JIT, inline="always")
+@njit(**_JIT, forceinline=True)
 def _rcbf_row_lanes(j, px, py, Jbar, obstacles, kappa, epsilon, margin, k, W, A, b, h):
     """The RCBF row of obstacle j for W lanes, A_j v ≤ b_j, into ``A (k, W)``, ``b (W)``:
     A_j = −L_g0 h_j and b_j = κ (h_j − margin) − ‖L_g0 h_j‖²/ε, with h_j = ‖p − o_j‖² − r_j² (also
@@ -654,7 +654,7 @@ def _rcbf_row_lanes(j, px, py, Jbar, obstacles, kappa, epsilon, margin, k, W, A,
         h[w] = hw
 
 
-@njit(**_JIT, inline="always")
+@njit(**_JIT, forceinline=True)
 def _speed_row_lanes(t0, sign, v_max, k, W, A, b, h):
     """The speed bound sign · v_t0 ≤ ``v_max`` as a filter row of W lanes. Called with t0 and sign known
     at compile time, so LLVM folds the row's constant entries (its norm is 1) into the arithmetic
@@ -666,7 +666,7 @@ def _speed_row_lanes(t0, sign, v_max, k, W, A, b, h):
         h[w] = np.inf
 
 
-@njit(**_JIT, inline="always")
+@njit(**_JIT, forceinline=True)
 def _consider_row(j, A, b, h, act, v0, k, W, arm_h, violated, best, best_viol, Ab, bb, found, norm):
     """Row j (``A``, ``b``, ``h``; active in lanes ``act``) in :func:`_first_projection_lanes`' first
     pass; ``norm`` gets ‖A_j‖."""
@@ -692,7 +692,7 @@ def _consider_row(j, A, b, h, act, v0, k, W, arm_h, violated, best, best_viol, A
         found[w] = found[w] & (not (act[w] & (not ((nrm > 0.0) & (nrm < np.inf) & (viol == viol)))))
 
 
-@njit(**_JIT, inline="always")
+@njit(**_JIT, forceinline=True)
 def _check_row(A, b, norm, act, cand, cand_norm, k, W, found):
     """A row (``A``, ``b``, its norm ``norm``) in :func:`_first_projection_lanes`' second pass:
     ``found[w]`` stays True only if the candidate satisfies the row (where active), with
@@ -705,7 +705,7 @@ def _check_row(A, b, norm, act, cand, cand_norm, k, W, found):
         found[w] = found[w] & (not bad)
 
 
-@njit(**_JIT, inline="always")
+@njit(**_JIT, forceinline=True)
 def _first_projection_lanes(px, py, Jbar, obstacles, active, filtered, kappa, epsilon, margin, v_max, O, k, W, v0,
                             arm_h, A, b, h, norm, act, rows, violated, best, best_viol, Ab, bb, cand, found):
     """The safety QP of W lanes as far as it goes without a search, all lanes at once (branch-free, so
