@@ -15,7 +15,8 @@ Prints a Markdown table of medians (each over several repeats) and the ratios th
 * the exact compiled QP against qpsolvers + PIQP, per solve, on the same random filter problems;
 * the shielded step for teams of 4, 16 and 64 arms (random polygons of PA3 arms), and 64 against 4;
 * ``pan1-env reproduce`` of each paper scenario (the simulation loop, nominal and safe);
-* ``import pan1_env`` in a fresh interpreter.
+* ``import pan1_env`` in a fresh interpreter; the cold start of an arm kind (empty numba cache: first
+  step and peak memory).
 
 Absolute times on shared machines are noise; read the ratios. The pairs compared are measured in
 alternation (one batch of steps each, repeated), so a slow spell of the machine hits both.
@@ -287,6 +288,36 @@ def bench_import() -> list[tuple[str, float, str]]:
             (f"heavy modules imported by it: {heavy}", float("nan"), "note")]
 
 
+_COLD_START = r"""
+import resource, sys, time
+t = time.perf_counter()
+import pan1_env
+team = {"n_arms": 2, "links": (LINKS, LINKS), "passive_fraction": PASSIVE}
+env = pan1_env.parallel_env("random", random_options=team)
+env.reset(seed=0)
+env.step({a: env.action_space(a).sample() for a in env.agents})
+print(time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+"""
+
+
+def bench_cold_start(kinds: tuple[str, ...] = ("2f", "4p", "5p")) -> list[tuple[str, float, str]]:
+    """The first step of a two-arm team of one arm kind in a fresh interpreter with an empty numba
+    cache: everything compiled (the kind's sub-step kernel and the observation kernels), and the
+    process's peak memory (issue 17: ≤ 10 s and ≤ 400 MB for a new kind)."""
+    import os
+    import tempfile
+
+    rows = []
+    for kind in kinds:
+        code = _COLD_START.replace("LINKS", kind[:-1]).replace("PASSIVE", "1.0" if kind[-1] == "p" else "0.0")
+        with tempfile.TemporaryDirectory() as cache:
+            out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                                 env=dict(os.environ, NUMBA_CACHE_DIR=cache)).stdout.split()
+        rows.append((f"cold start, arm kind {kind}: first step with an empty numba cache", float(out[0]), ""))
+        rows.append(("  peak memory of that process [MB] (target ≤ 400)", float(out[1]), "count"))
+    return rows
+
+
 def _format(rows: list[tuple[str, float, str]]) -> str:
     lines = ["| measurement | median |", "|---|---|"]
     for label, value, kind in rows:
@@ -294,6 +325,8 @@ def _format(rows: list[tuple[str, float, str]]) -> str:
             text = f"**{value:.2f}×**"
         elif kind == "value":
             text = f"{value:.1e}"
+        elif kind == "count":
+            text = f"{value:,.0f}"
         elif kind == "rate":
             text = f"{value:,.0f} /s"
         elif kind in ("note",) or not np.isfinite(value):
@@ -317,6 +350,7 @@ def main() -> int:
     args = parser.parse_args()
     repeats, inner = (3, 50) if args.quick else (7, 200)
     rows = bench_import()
+    rows += bench_cold_start(("4p",) if args.quick else ("2f", "4p", "5p"))
     rows += bench_env_vs_mpe(repeats, inner)
     rows += bench_one_arm_vs_acrobot(repeats, inner)
     rows += bench_vector(repeats, (1, 64, 1024) if args.quick else (1, 64, 1024, 16384))
