@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
+from pan1_env.validation import forwards_keywords
 from pan1_env.vector import Pan1VectorEnv
 
 __all__ = ["SB3VecEnv"]
@@ -35,9 +36,11 @@ class SB3VecEnv(VecEnv):
         scenario: as :class:`~pan1_env.vector.Pan1VectorEnv`, or an existing ``Pan1VectorEnv`` (then
             ``num_envs`` and ``kwargs`` must be left out).
         num_envs: number of copies.
-        kwargs: passed to :class:`~pan1_env.vector.Pan1VectorEnv` (``shield``, ``max_steps``, …).
+        kwargs: passed to :class:`~pan1_env.vector.Pan1VectorEnv` (``shield``, ``max_steps``, …;
+            ``inspect.signature``/``help()`` list them).
     """
 
+    @forwards_keywords("pan1_env.vector:Pan1VectorEnv")
     def __init__(self, scenario: Any = "paper_pa3_square", num_envs: int = 1, **kwargs: Any) -> None:
         if isinstance(scenario, Pan1VectorEnv):
             if kwargs or num_envs not in (1, scenario.num_envs):

@@ -6,7 +6,6 @@ See :class:`Pan1ParallelEnv` for the full description. :func:`parallel_env` buil
 
 from __future__ import annotations
 
-import difflib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -22,7 +21,7 @@ from .random_scenario import RandomScenarioOptions, random_scenario
 from .registration import RENDER_FPS, RENDER_MODES
 from .safety import QP_SOLVERS
 from .scenario import Scenario, load
-from .validation import float_array, positive_int, real, whole_ratio
+from .validation import float_array, forwarded_signature, hints_unknown_keywords, positive_int, real, whole_ratio
 
 __all__ = ["Pan1ParallelEnv", "parallel_env", "env", "raw_env", "ACTION_MODES"]
 
@@ -154,27 +153,11 @@ class Pan1ParallelEnv(ParallelEnv):
         "is_parallelizable": True,
     }
 
-    _ARGUMENTS = (
-        "action_mode", "control_dt", "physics_dt", "max_steps", "render_mode",
-        "terminate_on_collision", "terminate_on_success", "success_tolerance", "formation_weight",
-        "effort_weight", "collision_penalty", "max_joint_speed", "max_torque", "n_obstacle_obs",
-        "random_options", "qp_solver",
-    )
-
-    def __init__(self, scenario: str | Path | Scenario = "paper_pa3_square", **kwargs: Any) -> None:
-        unknown = sorted(set(kwargs) - set(self._ARGUMENTS))
-        if unknown:
-            hint = difflib.get_close_matches(unknown[0], self._ARGUMENTS, n=1)
-            raise TypeError(
-                f"Pan1ParallelEnv got an unknown argument {unknown[0]!r}"
-                + (f"; did you mean {hint[0]!r}?" if hint else "")
-                + f" Arguments: scenario, {', '.join(self._ARGUMENTS)}"
-            )
-        self._configure(scenario, **kwargs)
-
-    def _configure(
+    @hints_unknown_keywords
+    def __init__(
         self,
-        scenario: str | Path | Scenario,
+        scenario: str | Path | Scenario = "paper_pa3_square",
+        *,
         action_mode: str = "velocity",
         control_dt: float = DEFAULT_CONTROL_DT,
         physics_dt: float | None = None,
@@ -287,6 +270,14 @@ class Pan1ParallelEnv(ParallelEnv):
 
     def action_space(self, agent: str) -> gymnasium.spaces.Box:
         return self.action_spaces[agent]
+
+    @property
+    def observation_layout(self) -> ObservationLayout:
+        """The agents' observation layout (read-only; fixed by the team's structure): its
+        :meth:`~pan1_env.observation.ObservationLayout.segments` say where each part of an agent's
+        observation lies, ``slots`` is D and ``n_obstacle_obs`` K. Public, so wrappers forward it
+        (:func:`pan1_env.baselines.decode_observation` reads observations with it)."""
+        return self._layout
 
     # --------------------------------------------------------------- scenario
     def _set_scenario(self, scenario: Scenario) -> None:
@@ -490,6 +481,11 @@ def parallel_env(scenario: str | Path | Scenario = "paper_pa3_square", **kwargs:
 def env(scenario: str | Path | Scenario = "paper_pa3_square", **kwargs: Any):
     """PettingZoo's AEC view of :func:`parallel_env` (``parallel_to_aec`` adds order enforcement)."""
     return parallel_to_aec(parallel_env(scenario, **kwargs))
+
+
+# help() and notebooks show the constructor's named arguments (Pan1ParallelEnv refuses unknown ones with a hint)
+parallel_env.__signature__ = forwarded_signature(parallel_env, Pan1ParallelEnv)  # type: ignore[attr-defined]
+env.__signature__ = forwarded_signature(env, Pan1ParallelEnv)  # type: ignore[attr-defined]
 
 
 raw_env = Pan1ParallelEnv

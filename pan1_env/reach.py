@@ -29,7 +29,7 @@ from .random_scenario import _passive_path
 from .registration import DEFAULT_REACH_STEPS
 from .safety import clearance
 from .scenario import Scenario, load
-from .validation import float_array, positive_int, real, whole_ratio
+from .validation import float_array, hints_unknown_keywords, positive_int, real, whole_ratio
 
 __all__ = ["PAReachEnv"]
 
@@ -116,6 +116,7 @@ class PAReachEnv(gymnasium.Env):
 
     metadata = {"render_modes": []}
 
+    @hints_unknown_keywords
     def __init__(self, scenario: str | Path | Scenario = "paper_pa3_square", arm: int = 0, *,
                  control_dt: float = DEFAULT_CONTROL_DT, physics_dt: float | None = None,
                  max_steps: int = DEFAULT_REACH_STEPS, max_joint_speed: float = 2.0,

@@ -21,7 +21,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from .validation import float_array
+from .validation import float_array, forwards_keywords
 
 __all__ = ["CentralizedEnv", "register_envs", "ENV_IDS", "REACH_ENV_ID", "DEFAULT_REACH_STEPS"]
 
@@ -40,12 +40,14 @@ RENDER_FPS = 20
 class CentralizedEnv(gymnasium.Env):
     """One agent controlling every arm of a :class:`~pan1_env.environment.Pan1ParallelEnv`.
 
-    Takes the same arguments as the parallel env. See the module docstring for the spaces, reward
+    Takes the same arguments as the parallel env (its docstring's "Arguments" documents them, and
+    ``inspect.signature``/``help()`` list them here). See the module docstring for the spaces, reward
     and cost; the parallel env's docstring documents everything else.
     """
 
     metadata = {"render_modes": RENDER_MODES, "render_fps": RENDER_FPS}
 
+    @forwards_keywords("pan1_env.environment:Pan1ParallelEnv")
     def __init__(self, scenario: Any = "paper_pa3_square", **kwargs: Any) -> None:
         from .environment import Pan1ParallelEnv
 

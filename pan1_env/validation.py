@@ -7,13 +7,24 @@ scalars are accepted; booleans and strings are not numbers.
 
 from __future__ import annotations
 
+import difflib
+import functools
+import importlib
+import inspect
 import math
+import types
+from collections.abc import Callable, Iterable
 from numbers import Integral, Real
-from typing import Any
+from typing import Any, ParamSpec, TypeVar
 
 import numpy as np
 
-__all__ = ["real", "positive_int", "whole_ratio", "float_array"]
+__all__ = ["real", "positive_int", "whole_ratio", "float_array", "hints_unknown_keywords", "forwards_keywords",
+           "forwarded_signature"]
+
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
+_F = TypeVar("_F", bound=Callable[..., Any])
 
 
 def real(name: str, value: Any, *, positive: bool = False, non_negative: bool = False,
@@ -65,3 +76,82 @@ def float_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
     if out.shape != shape:
         raise ValueError(f"{name} must have shape {shape}, got {out.shape}")
     return out
+
+
+# ------------------------------------------------------------------ constructor keywords
+def _refuse_unknown(owner: str, kwargs: Iterable[str], known: Iterable[str], listed: list[str]) -> None:
+    """TypeError for the first keyword not in ``known``, with difflib's closest match ("did you mean")."""
+    known = set(known)
+    for key in kwargs:
+        if key not in known:
+            hint = difflib.get_close_matches(key, listed, n=1)
+            raise TypeError(f"{owner} got an unknown argument {key!r}"
+                            + (f"; did you mean {hint[0]!r}?" if hint else "")
+                            + f" Arguments: {', '.join(listed)}")
+
+
+def _names(sig: inspect.Signature) -> list[str]:
+    return [p.name for p in sig.parameters.values()
+            if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD) and p.name != "self"]
+
+
+def hints_unknown_keywords(init: Callable[_P, _R]) -> Callable[_P, _R]:
+    """Decorator for a constructor with explicit arguments: an unknown keyword raises ``TypeError``
+    naming the closest argument ("did you mean 'control_dt'?") instead of Python's bare message.
+    The signature seen by ``inspect.signature`` and ``help()`` is the constructor's own."""
+    names = _names(inspect.signature(init))
+    owner = init.__qualname__.split(".")[0]
+
+    @functools.wraps(init)
+    def checked(*args: _P.args, **kwargs: _P.kwargs) -> _R:
+        _refuse_unknown(owner, kwargs, names, names)
+        return init(*args, **kwargs)
+
+    return checked
+
+
+def forwarded_signature(func: Callable[..., Any], target: Any, exclude: Iterable[str] = ()) -> inspect.Signature:
+    """``func``'s signature with its ``**kwargs`` replaced by ``target``'s keyword-only arguments
+    (a class: its constructor's) less ``exclude`` and those ``func`` names itself."""
+    own = inspect.signature(func)
+    params = [p for p in own.parameters.values() if p.kind is not p.VAR_KEYWORD]
+    taken = {p.name for p in params} | set(exclude)
+    theirs = inspect.signature(target.__init__ if isinstance(target, type) else target)
+    params += [p for p in theirs.parameters.values() if p.kind is p.KEYWORD_ONLY and p.name not in taken]
+    return own.replace(parameters=params)
+
+
+class _Forwarding:
+    """A constructor that passes ``**kwargs`` on to ``target``; see :func:`forwards_keywords`."""
+
+    def __init__(self, func: Callable[..., Any], target: str, exclude: tuple[str, ...]) -> None:
+        functools.update_wrapper(self, func)
+        self._func, self._target, self._exclude = func, target, exclude
+
+    @functools.cached_property
+    def __signature__(self) -> inspect.Signature:
+        module, _, name = self._target.partition(":")
+        return forwarded_signature(self._func, getattr(importlib.import_module(module), name), self._exclude)
+
+    def __get__(self, instance: Any, owner: type | None = None) -> Any:
+        return self if instance is None else types.MethodType(self, instance)
+
+    @functools.cached_property
+    def _names(self) -> list[str]:
+        return _names(self.__signature__)
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        _refuse_unknown(self.__qualname__.split(".")[0], kwargs, [*self._names, *self._exclude], self._names)
+        return self._func(*args, **kwargs)
+
+
+def forwards_keywords(target: str, *, exclude: Iterable[str] = ()) -> Callable[[_F], _F]:
+    """Decorator for a constructor ``f(self, ..., **kwargs)`` that passes ``kwargs`` on to ``target``
+    (``"module:Class"``, imported on first use so that importing the decorated module stays light).
+
+    ``inspect.signature``, ``help()`` and notebooks then show ``f``'s own arguments followed by the
+    target's keyword-only ones less ``exclude`` (which ``f`` refuses itself): the list of arguments
+    and their defaults is kept once, in the target's signature. An unknown keyword raises
+    ``TypeError`` with a "did you mean" hint naming ``f``'s class.
+    """
+    return lambda func: _Forwarding(func, target, tuple(exclude))  # type: ignore[return-value]

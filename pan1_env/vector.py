@@ -24,7 +24,7 @@ from .dynamics import ArmBatch
 from .random_scenario import random_scenario
 from .safety import clearance
 from .scenario import Scenario
-from .validation import float_array, positive_int
+from .validation import float_array, forwards_keywords, positive_int
 
 __all__ = ["Pan1VectorEnv", "PARALLEL_THRESHOLD"]
 
@@ -97,6 +97,7 @@ class Pan1VectorEnv(VectorEnv):
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
 
+    @forwards_keywords("pan1_env.environment:Pan1ParallelEnv", exclude=("render_mode", "qp_solver"))
     def __init__(self, scenario: str | Path | Scenario = "paper_pa3_square", num_envs: int = 1, *,
                  shield: bool = True, threads: bool | str = "auto", **kwargs: Any) -> None:
         from .environment import Pan1ParallelEnv

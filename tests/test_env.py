@@ -1,5 +1,6 @@
 """The PettingZoo env and the Gymnasium view: API conformance, seeding, rendering, bad input."""
 
+import inspect
 import subprocess
 import sys
 import warnings
@@ -175,6 +176,26 @@ def test_gym_view_cost_and_info() -> None:
 def test_unknown_argument_suggests_the_right_one() -> None:
     with pytest.raises(TypeError, match="did you mean 'control_dt'"):
         parallel_env("paper_pa3_square", contol_dt=0.1)
+
+
+def test_constructors_name_their_arguments() -> None:
+    """help() and IDEs see the arguments; an unknown keyword still gets a "did you mean" hint."""
+    from pan1_env.environment import Pan1ParallelEnv
+    from pan1_env.registration import CentralizedEnv
+
+    named = {"action_mode", "control_dt", "physics_dt", "max_steps", "render_mode"}
+    for init in (Pan1ParallelEnv.__init__, CentralizedEnv.__init__, parallel_env, aec_env):
+        params = inspect.signature(init).parameters
+        assert named <= set(params) and "qp_solver" in params, init
+        assert params["control_dt"].default == 0.05 and params["max_steps"].default is None
+        assert all(p.kind is not p.VAR_KEYWORD for p in params.values())
+    with pytest.raises(TypeError, match="Pan1ParallelEnv got an unknown argument 'max_step'; did you mean 'max_steps'"):
+        Pan1ParallelEnv("paper_pa3_square", max_step=10)
+    with pytest.raises(TypeError, match="CentralizedEnv got an unknown argument 'contol_dt'; did you mean"):
+        gymnasium.make("pan1_env/PaperPA3Square-v0", contol_dt=0.1)
+    with pytest.raises(TypeError, match="did you mean 'max_steps'"):
+        gymnasium.make(REACH_ENV_ID, max_step=10)
+    assert gymnasium.make("pan1_env/PaperPA3Square-v0", max_steps=5).unwrapped.parallel.max_steps == 5
 
 
 @pytest.mark.parametrize("kwargs, match", [

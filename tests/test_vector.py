@@ -1,5 +1,8 @@
 """The batched vector env against independent copies of the single env it vectorises."""
 
+import importlib.util
+import inspect
+
 import gymnasium
 import numpy as np
 import pytest
@@ -156,6 +159,22 @@ def test_bad_actions_are_refused(bad, error) -> None:
 def test_bad_arguments_are_refused(kwargs, error) -> None:
     with pytest.raises((ValueError, TypeError), match=error):
         Pan1VectorEnv("paper_pa3_square", **kwargs)
+
+
+def test_vector_constructor_names_its_arguments() -> None:
+    """The team env's arguments in the signature (less render_mode, qp_solver); a typo gets a hint."""
+    params = inspect.signature(Pan1VectorEnv.__init__).parameters
+    assert {"num_envs", "shield", "threads", "action_mode", "control_dt", "physics_dt", "max_steps"} <= set(params)
+    assert not {"render_mode", "qp_solver"} & set(params)
+    assert all(p.kind is not p.VAR_KEYWORD for p in params.values())
+    with pytest.raises(TypeError, match="Pan1VectorEnv got an unknown argument 'sheild'; did you mean 'shield'"):
+        Pan1VectorEnv("paper_pa3_square", 2, sheild=False)
+    if importlib.util.find_spec("stable_baselines3"):
+        from pan1_env.baselines.vec_env import SB3VecEnv
+
+        assert set(params) - {"self"} <= set(inspect.signature(SB3VecEnv).parameters)
+        with pytest.raises(TypeError, match="did you mean 'max_steps'"):
+            SB3VecEnv("paper_pa3_square", 2, max_step=3)
 
 
 def test_sb3_adapter_runs_ppo_and_reports_terminal_observations() -> None:
