@@ -18,7 +18,11 @@ __all__ = ["AdversarialPolicy"]
 
 
 class AdversarialPolicy:
-    """Every arm heads for its nearest obstacle at full action (velocity or torque mode)."""
+    """Every arm heads for its nearest obstacle at full action (velocity or torque mode).
+
+    ``env`` is the parallel env, wrapped or not; only its public ``possible_agents``, ``scenario``
+    and ``observation_layout`` are read.
+    """
 
     def __init__(self, env) -> None:
         self.env = env
@@ -27,7 +31,7 @@ class AdversarialPolicy:
         env = self.env
         i = env.possible_agents.index(agent)
         arm = env.scenario.arms[i]
-        d = decode_observation(obs, arm.n_links, env._slots)
+        d = decode_observation(obs, env.observation_layout, arm.n_links)
         obstacles = d["obstacles"]
         if obstacles.size == 0 or obstacles[0, 0] < 0.5:
             return np.zeros(arm.n_actuated, np.float32)

@@ -1,9 +1,11 @@
 """The policy benchmark: every policy meets the same seeded starts, with the shield on and off.
 
-Policies (by name): ``reference`` (the paper's nominal law on local observations; behind the shield
+Policies are named in the registry of :mod:`pan1_env.baselines.policies` (:func:`make_policy`,
+re-exported here): ``reference`` (the paper's nominal law on local observations; behind the shield
 it is the paper's full controller), ``zero``, ``random`` (uniform actions), ``adversarial`` (every
-arm heads for its nearest obstacle) and ``sb3:PATH`` (a Stable-Baselines3 model trained on the
-Gymnasium view of the same scenario, run deterministically).
+arm heads for its nearest obstacle), ``sb3:PATH`` (a Stable-Baselines3 model trained on the
+Gymnasium view of the same scenario, run deterministically) and any name added with
+:func:`~pan1_env.baselines.policies.register_policy`; each is built on the (shielded or plain) env.
 
 For each scenario × policy × shield setting, episodes ``seed, seed+1, …`` are run to their end
 (``max_steps``). Per row: ``success_rate`` (formation error < 1 cm at the end), ``mean_time_to_formation_s``
@@ -26,63 +28,9 @@ from typing import Any
 
 import numpy as np
 
+from .policies import BUILTIN_POLICIES, check_policy_name, make_policy
+
 __all__ = ["run_benchmark", "markdown_table", "plot_benchmark", "make_policy", "BUILTIN_POLICIES"]
-
-BUILTIN_POLICIES = ("reference", "zero", "random", "adversarial")
-
-
-def make_policy(name: str, env, seed: int) -> Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]]:
-    """A callable mapping the agents' observations to their actions (see the module docstring)."""
-    from . import AdversarialPolicy, ReferencePolicy
-
-    core = env.unwrapped
-    if name == "reference" and core.action_mode != "velocity":
-        raise ValueError("the reference policy outputs velocities: use action_mode='velocity'")
-    if name == "reference":
-        return ReferencePolicy(core)
-    if name == "adversarial":
-        return AdversarialPolicy(core)
-    if name == "zero":
-        return lambda obs: {a: np.zeros(core.action_space(a).shape, np.float32) for a in obs}
-    if name == "random":
-        rng = np.random.default_rng(seed)
-        return lambda obs: {a: rng.uniform(-1, 1, core.action_space(a).shape).astype(np.float32) for a in obs}
-    if name.startswith("sb3:"):
-        path = Path(name[4:])
-        if not path.exists():
-            raise ValueError(f"policy {name!r}: no such model file {path}")
-        return _sb3_policy(path, core)
-    raise ValueError(f"unknown policy {name!r}; use one of {BUILTIN_POLICIES} or sb3:PATH")
-
-
-def _sb3_policy(path: Path, core):
-    import torch
-    from stable_baselines3 import PPO, SAC
-
-    torch.set_num_threads(1)
-    model = None
-    for cls in (PPO, SAC):
-        try:
-            model = cls.load(path, device="cpu")
-            break
-        except Exception:  # noqa: BLE001 - try the next algorithm
-            continue
-    if model is None:
-        raise ValueError(f"{path} is not a PPO or SAC model saved by Stable-Baselines3")
-    agents = core.possible_agents
-    sizes = [core.action_space(a).shape[0] for a in agents]
-    n_obs = sum(core.observation_space(a).shape[0] for a in agents)
-    if model.observation_space.shape != (n_obs,) or model.action_space.shape != (sum(sizes),):
-        raise ValueError(f"{path} was trained on spaces {model.observation_space.shape} → "
-                         f"{model.action_space.shape}, this scenario has ({n_obs},) → ({sum(sizes)},)")
-    splits = np.cumsum(sizes)[:-1]
-
-    def policy(obs):
-        flat = np.concatenate([obs[a] for a in agents])
-        action, _ = model.predict(flat, deterministic=True)
-        return dict(zip(agents, np.split(np.asarray(action, np.float32), splits), strict=True))
-
-    return policy
 
 
 def _episode(env, policy, seed: int, shield: bool) -> dict[str, Any]:
@@ -123,8 +71,7 @@ def run_benchmark(scenarios: Sequence[str], policies: Sequence[str], episodes: i
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
     for name in policies:
-        if name not in BUILTIN_POLICIES and not name.startswith("sb3:"):
-            raise ValueError(f"unknown policy {name!r}; use one of {BUILTIN_POLICIES} or sb3:PATH")
+        check_policy_name(name)
     rows = []
     kwargs = dict(env_kwargs or {})
     if max_steps is not None:

@@ -16,25 +16,37 @@ from __future__ import annotations
 import numpy as np
 
 from pan1_env.cascade import reduced_jacobian
+from pan1_env.observation import NEIGHBOUR_FEATURES, OBSTACLE_FEATURES, ObservationLayout
 
 __all__ = ["ReferencePolicy", "decode_observation"]
 
 
-def decode_observation(obs: np.ndarray, n_links: int, neighbour_slots: int) -> dict[str, np.ndarray]:
-    """Split one agent's observation (layout of :class:`pan1_env.environment.Pan1ParallelEnv`)."""
+def decode_observation(obs: np.ndarray, layout: ObservationLayout, n_links: int | None = None) -> dict[str, np.ndarray]:
+    """Split one agent's observation by the env's public ``observation_layout``.
+
+    Args:
+        obs: the agent's observation vector.
+        layout: ``env.observation_layout`` (works through wrappers).
+        n_links: the agent's number of links (default: inferred from the observation's length).
+
+    Returns ``q``, ``qd_scaled``, ``ee_rel_base``, the present neighbours' ``neighbour_delta``
+    (p_j − p_i, ``(m, 2)``) and ``neighbour_error`` (``(m,)``), and every obstacle slot
+    ``obstacles`` ``(K, 5)`` (``[present, dx, dy, r, h]``, absent slots zero).
+    """
     obs = np.asarray(obs, dtype=float)
-    n = n_links
-    q = np.arctan2(obs[n : 2 * n], obs[:n])
-    base = 3 * n + 2
-    nb = obs[base : base + 4 * neighbour_slots].reshape(neighbour_slots, 4)
+    n = layout.n_links(obs.shape[-1]) if n_links is None else int(n_links)
+    if obs.shape != (layout.size(n),):
+        raise ValueError(f"observation of shape {obs.shape}; the layout gives ({layout.size(n)},) for {n} links")
+    seg = layout.segments(n)
+    nb = obs[seg["neighbours"]].reshape(layout.slots, NEIGHBOUR_FEATURES)
     present = nb[:, 0] > 0.5
     return {
-        "q": q,
-        "qd_scaled": obs[2 * n : 3 * n],
-        "ee_rel_base": obs[3 * n : 3 * n + 2],
+        "q": np.arctan2(obs[seg["sin_q"]], obs[seg["cos_q"]]),
+        "qd_scaled": obs[seg["qd_scaled"]],
+        "ee_rel_base": obs[seg["ee_rel_base"]],
         "neighbour_delta": nb[present, 1:3],
         "neighbour_error": nb[present, 3],
-        "obstacles": obs[base + 4 * neighbour_slots :].reshape(-1, 5),
+        "obstacles": obs[seg["obstacles"]].reshape(layout.n_obstacle_obs, OBSTACLE_FEATURES),
     }
 
 
@@ -42,8 +54,10 @@ class ReferencePolicy:
     """The nominal law of every agent of a :class:`~pan1_env.environment.Pan1ParallelEnv` (velocity mode).
 
     Args:
-        env: the parallel env (its current scenario supplies each arm's parameters and K_P; for
-            random scenarios the parameters are re-read at every call).
+        env: the parallel env, wrapped (e.g. in :class:`~pan1_env.wrappers.SafetyShield`) or not; only
+            its public attributes are read: ``possible_agents``, ``scenario`` (each arm's parameters
+            and K_P, re-read at every call, so random scenarios work), ``observation_layout``,
+            ``max_joint_speed`` and ``action_mode``.
         kp: overrides the scenario's K_P.
     """
 
@@ -58,7 +72,7 @@ class ReferencePolicy:
         i = env.possible_agents.index(agent)
         arm = env.scenario.arms[i]
         kp = env.scenario.kp if self.kp is None else self.kp
-        d = decode_observation(obs, arm.n_links, env._slots)
+        d = decode_observation(obs, env.observation_layout, arm.n_links)
         delta = d["neighbour_delta"]  # p_j − p_i
         dist = np.linalg.norm(delta, axis=-1)
         desired = dist - d["neighbour_error"]

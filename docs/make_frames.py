@@ -17,7 +17,7 @@ for name in ("paper_pa3_square", "paper_pa_mixed_square"):
     env = SafetyShield(parallel_env(name, render_mode="rgb_array"))
     obs, _ = env.reset(seed=0)
     start = env.render()
-    policy = ReferencePolicy(env.unwrapped)
+    policy = ReferencePolicy(env)
     for _ in range(400):  # 20 s
         obs, *_ = env.step(policy(obs))
     frame = np.concatenate([start, env.render()], axis=1)

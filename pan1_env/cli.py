@@ -88,8 +88,8 @@ def _parser() -> argparse.ArgumentParser:
     anim = sub.add_parser("animate", help="write a GIF of one episode of the environment")
     anim.add_argument("scenario", help="built-in scenario name, path to a .toml file, or 'random'")
     anim.add_argument("--policy", default="reference",
-                      help="reference (the paper's nominal law on local observations), zero, random, adversarial "
-                           "or sb3:PATH")
+                      help="reference (the paper's nominal law on local observations), zero, random, adversarial, "
+                           "sb3:PATH, or a name registered with pan1_env.baselines.register_policy")
     anim.add_argument("--shield", action=argparse.BooleanOptionalAction, default=True,
                       help="behind the safety shield (with the reference policy this is the paper's safe "
                            "controller)")
@@ -121,7 +121,8 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--scenarios", default="paper_pa3_square,paper_pa_mixed_square",
                        help="comma-separated scenario names or paths")
     bench.add_argument("--policies", default="reference,zero,random",
-                       help="comma-separated: reference, zero, random, adversarial, sb3:PATH")
+                       help="comma-separated: reference, zero, random, adversarial, sb3:PATH, or names "
+                            "registered with pan1_env.baselines.register_policy")
     bench.add_argument("--episodes", type=_positive_int, default=5,
                        help="episodes per scenario, policy and shield setting")
     bench.add_argument("--seed", type=int, default=0,
@@ -286,7 +287,7 @@ def _cmd_animate(args) -> int:
     if args.out.suffix.lower() != ".gif":
         print(f"pan1-env: error: --out must end in .gif, got {args.out}", file=sys.stderr)
         return 2
-    from .baselines.benchmark import make_policy
+    from .baselines import make_policy
 
     env = parallel_env(args.scenario, render_mode="rgb_array")
     if args.shield:

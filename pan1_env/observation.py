@@ -87,16 +87,37 @@ class ObservationLayout:
         """Observation length of an agent with n links."""
         return 3 * n + 2 + NEIGHBOUR_FEATURES * self.slots + OBSTACLE_FEATURES * self.n_obstacle_obs
 
+    def segments(self, n: int) -> dict[str, slice]:
+        """Where each part of an n-link agent's observation lies, as slices of its vector.
+
+        ``cos_q``, ``sin_q``, ``qd_scaled`` (q̇ / max_joint_speed), ``ee_rel_base`` (p − p0),
+        ``neighbours`` (:attr:`slots` × :data:`NEIGHBOUR_FEATURES` entries ``[present, dx, dy, err]``)
+        and ``obstacles`` (:attr:`n_obstacle_obs` × :data:`OBSTACLE_FEATURES` entries
+        ``[present, dx, dy, r, h]``), in this order, covering :meth:`size` entries.
+        """
+        nb = 3 * n + 2
+        ob = nb + NEIGHBOUR_FEATURES * self.slots
+        return {"cos_q": slice(0, n), "sin_q": slice(n, 2 * n), "qd_scaled": slice(2 * n, 3 * n),
+                "ee_rel_base": slice(3 * n, nb), "neighbours": slice(nb, ob),
+                "obstacles": slice(ob, ob + OBSTACLE_FEATURES * self.n_obstacle_obs)}
+
+    def n_links(self, size: int) -> int:
+        """The number of links of an agent whose observation has ``size`` entries (inverse of :meth:`size`)."""
+        n, rest = divmod(int(size) - self.size(0), 3)
+        if n < 1 or rest:
+            raise ValueError(f"an observation of {size} entries does not fit this layout "
+                             f"(3n + {self.size(0)} entries for an n-link arm)")
+        return n
+
     def bounds(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """cos/sin in [−1, 1], presence flags in [0, 1], everything else in ±OBS_BOUND."""
         size = self.size(n)
+        seg = self.segments(n)
         low = np.full(size, -OBS_BOUND, dtype=np.float32)
         high = np.full(size, OBS_BOUND, dtype=np.float32)
         low[: 2 * n], high[: 2 * n] = -1.0, 1.0
-        base = 3 * n + 2
-        flags = [base + NEIGHBOUR_FEATURES * s for s in range(self.slots)]
-        base += NEIGHBOUR_FEATURES * self.slots
-        flags += [base + OBSTACLE_FEATURES * s for s in range(self.n_obstacle_obs)]
+        nb, ob = seg["neighbours"], seg["obstacles"]
+        flags = [*range(nb.start, nb.stop, NEIGHBOUR_FEATURES), *range(ob.start, ob.stop, OBSTACLE_FEATURES)]
         low[flags], high[flags] = 0.0, 1.0
         return low, high
 

@@ -1,0 +1,182 @@
+"""The policy contract: policies read only public attributes (so they work behind any wrapper), the
+observation layout is public, and policies are made by name from a registry."""
+
+import numpy as np
+import pytest
+from pettingzoo.utils.wrappers import BaseParallelWrapper
+
+from pan1_env.baselines import (
+    AdversarialPolicy,
+    Policy,
+    RandomPolicy,
+    ReferencePolicy,
+    ZeroPolicy,
+    decode_observation,
+    make_policy,
+    register_policy,
+    registered_policies,
+    unregister_policy,
+)
+from pan1_env.baselines.benchmark import run_benchmark
+from pan1_env.cli import main
+from pan1_env.environment import parallel_env
+from pan1_env.observation import ObservationLayout
+from pan1_env.wrappers import SafetyShield
+
+
+def test_private_attributes_stay_private_behind_wrappers() -> None:
+    """The premise: PettingZoo's wrappers refuse ``_names`` but forward public ones."""
+    env = SafetyShield(parallel_env("paper_pa_mixed_square"))
+    with pytest.raises(AttributeError, match="private attribute"):
+        _ = env._layout
+    core = env.unwrapped
+    assert env.observation_layout is core.observation_layout
+    assert env.scenario is core.scenario and env.possible_agents == core.possible_agents
+    assert env.max_joint_speed == core.max_joint_speed and env.action_mode == core.action_mode == "velocity"
+
+
+def test_observation_layout_is_public_read_only_and_decodes_observations() -> None:
+    env = SafetyShield(parallel_env("paper_pa_mixed_square"))
+    layout = env.observation_layout
+    assert isinstance(layout, ObservationLayout)
+    with pytest.raises(AttributeError):
+        env.unwrapped.observation_layout = layout
+    obs, _ = env.reset(seed=0)
+    q = env.unwrapped.sim.joint_state()[0]
+    for i, agent in enumerate(env.possible_agents):
+        n = int(layout.n[i])
+        seg = layout.segments(n)
+        assert seg["obstacles"].stop == layout.size(n) == env.observation_space(agent).shape[0]
+        assert layout.n_links(layout.size(n)) == n
+        low = env.observation_space(agent).low
+        assert (low[seg["neighbours"]][:: 4] == 0).all() and (low[seg["obstacles"]][:: 5] == 0).all()
+        d = decode_observation(obs[agent], layout)  # n inferred from the length
+        np.testing.assert_allclose(d["q"], q[i][:n], atol=1e-6)
+        degree = len(env.scenario.formation.neighbours(i))
+        assert d["neighbour_delta"].shape == (degree, 2) and d["neighbour_error"].shape == (degree,)
+        assert d["obstacles"].shape == (layout.n_obstacle_obs, 5)
+    with pytest.raises(ValueError, match="does not fit"):
+        decode_observation(np.zeros(layout.size(2) + 1), layout)
+    with pytest.raises(ValueError, match="layout gives"):
+        decode_observation(obs["arm_0"], layout, n_links=int(layout.n[0]) + 1)
+
+
+@pytest.mark.parametrize("wrap", [SafetyShield, BaseParallelWrapper])
+def test_policies_act_the_same_on_a_wrapped_env(wrap) -> None:
+    core = parallel_env("paper_pa_mixed_square", max_steps=5)
+    env = wrap(core)
+    obs, _ = env.reset(seed=0)
+    for cls in (ReferencePolicy, AdversarialPolicy):
+        wrapped, plain = cls(env)(obs), cls(core)(obs)
+        assert wrapped.keys() == set(env.possible_agents)
+        for agent in env.possible_agents:
+            np.testing.assert_array_equal(wrapped[agent], plain[agent])
+    for name in ("reference", "zero", "random", "adversarial"):
+        actions = make_policy(name, env, seed=0)(obs)
+        assert all(env.action_space(a).contains(actions[a]) for a in env.possible_agents)
+
+
+def test_reference_policy_behind_the_shield_forms_the_square_without_cost() -> None:
+    """The way a user writes it: the policy built on the shielded env itself (default max_steps)."""
+    env = SafetyShield(parallel_env("paper_pa_mixed_square"))
+    policy = ReferencePolicy(env)
+    obs, _ = env.reset(seed=0)
+    cost, steps = 0.0, 0
+    while env.agents:
+        obs, _, _, _, infos = env.step(policy(obs))
+        cost += sum(info["cost"] for info in infos.values())
+        steps += 1
+    assert steps == env.max_steps
+    assert cost == 0.0
+    assert infos["arm_0"]["formation_error"] < 0.01
+
+
+def test_adversarial_policy_on_a_wrapped_env_is_blocked_by_the_shield() -> None:
+    env = SafetyShield(parallel_env("paper_pa_mixed_square", max_steps=200))
+    policy = AdversarialPolicy(env)
+    obs, _ = env.reset(seed=0)
+    cost, intervened = 0.0, 0
+    while env.agents:
+        obs, _, _, _, infos = env.step(policy(obs))
+        cost += sum(info["cost"] for info in infos.values())
+        intervened += sum(info["shield"]["intervened"] for info in infos.values())
+    assert cost == 0.0 and intervened > 0
+    # the same adversary behind a plain PettingZoo wrapper (no shield) does hit an obstacle
+    plain = BaseParallelWrapper(parallel_env("paper_pa_mixed_square", max_steps=200))
+    policy = AdversarialPolicy(plain)
+    obs, _ = plain.reset(seed=0)
+    cost = 0.0
+    while plain.agents:
+        obs, _, _, _, infos = plain.step(policy(obs))
+        cost += sum(info["cost"] for info in infos.values())
+    assert cost > 0
+
+
+class _Constant:
+    def __init__(self, env, value: float) -> None:
+        self.env, self.value = env, value
+
+    def __call__(self, observations):
+        return {a: np.full(self.env.action_space(a).shape, self.value, np.float32) for a in observations}
+
+
+@pytest.fixture
+def registered():
+    """Register test policies and remove them afterwards (the registry is per process)."""
+    names = []
+
+    def add(name, factory, **kwargs):
+        register_policy(name, factory, **kwargs)
+        names.append(name)
+
+    yield add
+    for name in names:
+        unregister_policy(name)
+
+
+def test_builtin_policies_are_registered_and_satisfy_the_protocol() -> None:
+    assert registered_policies()[:5] == ("reference", "zero", "random", "adversarial", "sb3:PATH")
+    env = parallel_env("paper_pa3_square")
+    assert isinstance(make_policy("zero", env, seed=0), ZeroPolicy)
+    assert isinstance(make_policy("random", env, seed=0), RandomPolicy)
+    assert all(isinstance(make_policy(n, env, seed=0), Policy) for n in ("reference", "zero", "random", "adversarial"))
+    with pytest.raises(ValueError, match="outputs velocities"):
+        make_policy("reference", parallel_env("paper_pa3_square", action_mode="torque"), seed=0)
+    with pytest.raises(ValueError, match="no such model file"):
+        make_policy("sb3:/nonexistent/model.zip", env, seed=0)
+
+
+def test_unknown_policy_names_are_a_clear_error() -> None:
+    env = parallel_env("paper_pa3_square")
+    for name in ("greedy", "sb3:", "sb3", "Reference", "zero:1"):
+        with pytest.raises(ValueError, match=r"unknown policy .*registered: reference, zero, random, adversarial, "
+                                             r"sb3:PATH"):
+            make_policy(name, env, seed=0)
+    with pytest.raises(ValueError, match="unknown policy 'greedy'"):
+        run_benchmark(["paper_pa3_square"], ["zero", "greedy"], episodes=1)
+
+
+def test_registering_a_policy_makes_it_available_everywhere(registered, tmp_path, capsys) -> None:
+    registered("still", lambda env, seed: _Constant(env, 0.0))
+    registered("const:", lambda env, seed, arg: _Constant(env, float(arg)), metavar="VALUE")
+    assert {"still", "const:VALUE"} <= set(registered_policies())
+    env = SafetyShield(parallel_env("paper_pa3_square", max_steps=5))
+    obs, _ = env.reset(seed=0)
+    assert make_policy("const:0.25", env, seed=0)(obs)["arm_0"].tolist() == [0.25] * env.action_space("arm_0").shape[0]
+    with pytest.raises(ValueError, match="already registered"):
+        register_policy("still", lambda env, seed: _Constant(env, 1.0))
+    with pytest.raises(ValueError, match="policy name"):
+        register_policy("two words", lambda env, seed: _Constant(env, 1.0))
+    with pytest.raises(ValueError, match="unknown policy 'nope'.*still.*const:VALUE"):
+        make_policy("nope", env, seed=0)
+    # the benchmark and the CLI know the new names without any change of their own
+    rows = run_benchmark(["paper_pa3_square"], ["still", "const:0.5"], episodes=1, max_steps=5)
+    assert [(r["policy"], r["shield"]) for r in rows] == [("still", True), ("still", False), ("const:0.5", True),
+                                                          ("const:0.5", False)]
+    assert rows[0]["intervention_rate"] == 0.0
+    out = tmp_path / "still.gif"
+    assert main(["animate", "paper_pa3_square", "--policy", "still", "--steps", "3", "--frames", "2",
+                 "--out", str(out)]) == 0
+    assert out.exists() and "policy still" in capsys.readouterr().out
+    assert main(["animate", "paper_pa3_square", "--policy", "nope", "--steps", "3", "--out", str(out)]) == 2
+    assert "unknown policy 'nope'" in capsys.readouterr().err
