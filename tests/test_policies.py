@@ -76,16 +76,22 @@ def test_policies_act_the_same_on_a_wrapped_env(wrap) -> None:
         assert all(env.action_space(a).contains(actions[a]) for a in env.possible_agents)
 
 
-def test_reference_policy_behind_the_shield_forms_the_square_without_cost() -> None:
-    """The way a user writes it: the policy built on the shielded env itself (default max_steps)."""
-    env = SafetyShield(parallel_env("paper_pa_mixed_square"))
-    policy = ReferencePolicy(env)
+def _episode(env, policy) -> tuple[float, int, int, dict]:
+    """Run one seeded episode: total cost, shield interventions, steps and the last infos."""
     obs, _ = env.reset(seed=0)
-    cost, steps = 0.0, 0
+    cost, intervened, steps = 0.0, 0, 0
     while env.agents:
         obs, _, _, _, infos = env.step(policy(obs))
         cost += sum(info["cost"] for info in infos.values())
+        intervened += sum(info.get("shield", {}).get("intervened", 0) for info in infos.values())
         steps += 1
+    return cost, intervened, steps, infos
+
+
+def test_reference_policy_behind_the_shield_forms_the_square_without_cost() -> None:
+    """The way a user writes it: the policy built on the shielded env itself (default max_steps)."""
+    env = SafetyShield(parallel_env("paper_pa_mixed_square"))
+    cost, _, steps, infos = _episode(env, ReferencePolicy(env))
     assert steps == env.max_steps
     assert cost == 0.0
     assert infos["arm_0"]["formation_error"] < 0.01
@@ -93,22 +99,11 @@ def test_reference_policy_behind_the_shield_forms_the_square_without_cost() -> N
 
 def test_adversarial_policy_on_a_wrapped_env_is_blocked_by_the_shield() -> None:
     env = SafetyShield(parallel_env("paper_pa_mixed_square", max_steps=200))
-    policy = AdversarialPolicy(env)
-    obs, _ = env.reset(seed=0)
-    cost, intervened = 0.0, 0
-    while env.agents:
-        obs, _, _, _, infos = env.step(policy(obs))
-        cost += sum(info["cost"] for info in infos.values())
-        intervened += sum(info["shield"]["intervened"] for info in infos.values())
+    cost, intervened, _, _ = _episode(env, AdversarialPolicy(env))
     assert cost == 0.0 and intervened > 0
     # the same adversary behind a plain PettingZoo wrapper (no shield) does hit an obstacle
     plain = BaseParallelWrapper(parallel_env("paper_pa_mixed_square", max_steps=200))
-    policy = AdversarialPolicy(plain)
-    obs, _ = plain.reset(seed=0)
-    cost = 0.0
-    while plain.agents:
-        obs, _, _, _, infos = plain.step(policy(obs))
-        cost += sum(info["cost"] for info in infos.values())
+    cost, _, _, _ = _episode(plain, AdversarialPolicy(plain))
     assert cost > 0
 
 
