@@ -13,6 +13,8 @@ Behind :class:`pan1_env.wrappers.SafetyShield` this is the paper's full safe con
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from pan1_env.cascade import reduced_jacobian
@@ -34,6 +36,8 @@ def decode_observation(obs: np.ndarray, layout: ObservationLayout, n_links: int 
     ``obstacles`` ``(K, 5)`` (``[present, dx, dy, r, h]``, absent slots zero).
     """
     obs = np.asarray(obs, dtype=float)
+    if isinstance(layout, (int, np.integer)):
+        layout, n_links = _layout_from_counts(obs, int(layout), n_links)
     n = layout.n_links(obs.shape[-1]) if n_links is None else int(n_links)
     if obs.shape != (layout.size(n),):
         raise ValueError(f"observation of shape {obs.shape}; the layout gives ({layout.size(n)},) for {n} links")
@@ -48,6 +52,22 @@ def decode_observation(obs: np.ndarray, layout: ObservationLayout, n_links: int 
         "neighbour_error": nb[present, 3],
         "obstacles": obs[seg["obstacles"]].reshape(layout.n_obstacle_obs, OBSTACLE_FEATURES),
     }
+
+
+def _layout_from_counts(obs: np.ndarray, n_links: int, slots: int | None) -> tuple[ObservationLayout, int]:
+    """The 0.1.0 call ``decode_observation(obs, n_links, neighbour_slots)``, kept for one release."""
+    warnings.warn("decode_observation(obs, n_links, neighbour_slots) is deprecated; pass the env's "
+                  "observation_layout: decode_observation(obs, env.observation_layout)", DeprecationWarning,
+                  stacklevel=3)
+    if slots is None:
+        raise TypeError("decode_observation(obs, n_links, neighbour_slots) needs neighbour_slots")
+    K, rest = divmod(obs.shape[-1] - 3 * n_links - 2 - NEIGHBOUR_FEATURES * slots, OBSTACLE_FEATURES)
+    if K < 0 or rest:
+        raise ValueError(f"an observation of {obs.shape[-1]} entries does not fit {n_links} links and {slots} "
+                         f"neighbour slots")
+    empty = np.zeros((0, slots))
+    return ObservationLayout(n=np.zeros(0, np.int64), slots=int(slots), n_obstacle_obs=int(K), neighbour=empty,
+                             neighbour_edge=empty.astype(np.int64), neighbour_present=empty, groups=()), n_links
 
 
 class ReferencePolicy:

@@ -40,7 +40,7 @@ class SB3VecEnv(VecEnv):
             ``inspect.signature``/``help()`` list them).
     """
 
-    @forwards_keywords("pan1_env.vector:Pan1VectorEnv")
+    @forwards_keywords("pan1_env.vector:Pan1VectorEnv", exclude=("render_mode", "qp_solver"))
     def __init__(self, scenario: Any = "paper_pa3_square", num_envs: int = 1, **kwargs: Any) -> None:
         if isinstance(scenario, Pan1VectorEnv):
             if kwargs or num_envs not in (1, scenario.num_envs):

@@ -1,4 +1,4 @@
-"""Speed of pan1-env against peers, measured in one process and one run (issue 5's benchmark).
+"""Speed of pan1-env against peers, measured in one process and one run.
 
     python benchmarks/bench.py [--quick] [--out benchmarks/results.md]
 
@@ -303,7 +303,7 @@ print(time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrs
 def bench_cold_start(kinds: tuple[str, ...] = ("2f", "4p", "5p")) -> list[tuple[str, float, str]]:
     """The first step of a two-arm team of one arm kind in a fresh interpreter with an empty numba
     cache: everything compiled (the kind's sub-step kernel and the observation kernels), and the
-    process's peak memory (issue 17: ≤ 10 s and ≤ 400 MB for a new kind)."""
+    process's peak memory (targets: ≤ 10 s and ≤ 400 MB)."""
     import os
     import tempfile
 

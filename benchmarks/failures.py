@@ -1,4 +1,4 @@
-"""Why the paper's law fails on random teams (issue 18, item 1: "understand the baseline").
+"""Why the paper's law fails on random teams (what a learner has to beat).
 
     python benchmarks/failures.py [--episodes 200] [--seed 10000] [--max-steps 2000] [--out runs/failures]
                                   [--unshielded] [--no-progress]
@@ -52,7 +52,7 @@ their nominal action substantially over the last 10 s).
 2. ``shield_far`` — a blocked arm, but every blocked arm is ≥ ``DEADLOCK_CLEARANCE`` from the
    obstacles. The filter stalls the arm far from any obstacle: the robust term (1/ε)‖L_g h‖² of the RCBF
    row exceeds κh, which happens at any distance once ‖J̄ᵀn‖ > √(κε)/2 (long, stretched arms). This class
-   is not in issue 18's list; its deadlock class asks for a small clearance, and the frames show
+   is not among the usual CBF failure modes; the deadlock class asks for a small clearance, and the frames show
    arms frozen 0.1–2 m from the obstacle that binds them (fully actuated arms, mostly stretched).
 3. ``singular_arm`` — no arm blocked, but some arm i has σ_min(J̄_i) < ``SIGMA_SINGULAR`` at the end
    while it is still asked to move (‖ê_i‖ ≥ ``GRAD_ACTIVE``): its end-effector cannot move in one

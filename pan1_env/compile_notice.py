@@ -28,8 +28,10 @@ KERNELS_PER_KIND = ("group_advance", "group_advance_parallel")
 
 
 def notify(message: str) -> None:
-    """Tell the user ``message``: through logging if the application configured it, else on stderr."""
-    if logger.hasHandlers():
+    """Tell the user ``message``: through logging if the application configured it to show INFO from
+    ``pan1_env``, else on stderr (a root handler at WARNING, as a library's first ``logging.warning``
+    sets up, would otherwise swallow it)."""
+    if logger.hasHandlers() and logger.isEnabledFor(logging.INFO):
         logger.info(message)
     else:
         print(f"pan1_env: {message}", file=sys.stderr, flush=True)
@@ -77,10 +79,14 @@ class _KernelCompileNotice(numba_event.Listener):
 
     def on_end(self, event) -> None:
         found = self._kind(event)
-        if found is not None:
-            started = self._started.pop(id(event.data["dispatcher"]), None)
+        if found is None:
+            return
+        started = self._started.pop(id(event.data["dispatcher"]), None)
+        # a failed compilation raises to the caller; numba 0.68's Event.is_failed reads inverted, so
+        # look at the exception details the event carries
+        if getattr(event, "_exc_details", None) is None:
             took = f" in {time.perf_counter() - started:.0f} s" if started is not None else ""
-            notify(f"compiled the sub-step kernel for arms of {found[0]}{took}")  # (a failure raises anyway)
+            notify(f"compiled the sub-step kernel for arms of {found[0]}{took}")
 
 
 _INSTALLED = False

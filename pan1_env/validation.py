@@ -127,21 +127,29 @@ class _Forwarding:
     def __init__(self, func: Callable[..., Any], target: str, exclude: tuple[str, ...]) -> None:
         functools.update_wrapper(self, func)
         self._func, self._target, self._exclude = func, target, exclude
+        self._owner: type | None = None
+        self._signature: inspect.Signature | None = None  # worked out on first use: the target is imported then
 
-    @functools.cached_property
+    def __set_name__(self, owner: type, name: str) -> None:
+        self._owner = owner
+
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        return getattr, (self._owner, self._func.__name__)  # pickled by reference, like a plain function
+
+    @property
     def __signature__(self) -> inspect.Signature:
-        module, _, name = self._target.partition(":")
-        return forwarded_signature(self._func, getattr(importlib.import_module(module), name), self._exclude)
+        if self._signature is None:
+            module, _, name = self._target.partition(":")
+            target = getattr(importlib.import_module(module), name)
+            self._signature = forwarded_signature(self._func, target, self._exclude)
+        return self._signature
 
     def __get__(self, instance: Any, owner: type | None = None) -> Any:
         return self if instance is None else types.MethodType(self, instance)
 
-    @functools.cached_property
-    def _names(self) -> list[str]:
-        return _names(self.__signature__)
-
     def __call__(self, *args: Any, **kwargs: Any) -> Any:
-        _refuse_unknown(self.__qualname__.split(".")[0], kwargs, [*self._names, *self._exclude], self._names)
+        names = _names(self.__signature__)
+        _refuse_unknown(self.__qualname__.split(".")[0], kwargs, [*names, *self._exclude], names)
         return self._func(*args, **kwargs)
 
 

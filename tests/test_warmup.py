@@ -33,3 +33,18 @@ def test_warmup_compiles_a_kind_once_and_says_so(tmp_path) -> None:
     assert first.returncode == 0 and second.returncode == 0, first.stderr[-2000:] + second.stderr[-2000:]
     assert "compiling the sub-step kernel for arms of 3 links, passive first joint (PA2)" in first.stderr
     assert "compil" not in second.stderr and "kernels ready" in second.stdout
+
+
+def test_notice_reaches_the_user_whatever_the_logging_setup(capsys, caplog) -> None:
+    import logging
+
+    from pan1_env.compile_notice import notify
+
+    # a root handler at WARNING (what a library's first logging.warning sets up) must not swallow it
+    with caplog.at_level(logging.WARNING):
+        notify("compiling X")
+    assert "pan1_env: compiling X" in capsys.readouterr().err and not caplog.records
+    # an application that shows INFO from pan1_env gets it through logging instead
+    with caplog.at_level(logging.INFO, logger="pan1_env"):
+        notify("compiling Y")
+    assert [r.getMessage() for r in caplog.records] == ["compiling Y"] and not capsys.readouterr().err
