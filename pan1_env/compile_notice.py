@@ -1,13 +1,13 @@
 """A notice whenever numba compiles a sub-step kernel for an arm kind, so that a first use is never silent.
 
 The sub-step kernel is specialised for each arm kind (number of links n, number of actuated joints k):
-the first use of a kind compiles it (tens of seconds, several hundred MB) and numba caches the result
-on disk, so later processes load it in a fraction of a second. :func:`install` listens to numba's
+the first use of a kind compiles it (about 10 s and a few hundred MB on a 2-core machine) and numba
+caches the result on disk, so later processes load it instead. :func:`install` listens to numba's
 compile events (``numba.core.event``, which fire only for a real compilation, not for a cache load) and
 says which kind is being compiled, that it happens once, how long it took and where the cache lives.
 
-The notice goes to the ``pan1_env`` logger at level INFO when the application has configured logging
-(then its configuration decides what is shown), and to standard error otherwise.
+The notice goes to the ``pan1_env`` logger at level INFO when the application's logging shows that
+logger's INFO messages, and to standard error otherwise (:func:`notify`).
 ``pan1-env warmup`` compiles the kinds ahead of time.
 """
 
