@@ -215,10 +215,9 @@ def run_episode(env, policy, seed: int) -> dict:
 
     qs, qds, P = team_state(env, scenario)
     grad = _grad(scenario, P)
-    params = getattr(core, "shield_params", None) or {}
-    kappa = params.get("kappa", scenario.kappa)
-    epsilon = params.get("epsilon", scenario.epsilon)
-    margin = params.get("margin", scenario.safety_margin)
+    params = core.safety_filter
+    kappa, epsilon, margin = ((params.kappa, params.epsilon, params.margin) if params is not None
+                              else (scenario.kappa, scenario.epsilon, scenario.safety_margin))
     mask = scenario.obstacle_mask()
     obstacles = scenario.obstacles
     sigma, ee_speed, cos_into, robust = [], [], [], []

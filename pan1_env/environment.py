@@ -16,11 +16,13 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec
 
 from .compiled import kernels
+from .engine import Engine, FilterParams, StepRecord, filter_parameters
 from .observation import OBS_BOUND, ObservationLayout
 from .random_scenario import RandomScenarioOptions, random_scenario
 from .registration import RENDER_FPS, RENDER_MODES
 from .safety import QP_SOLVERS
 from .scenario import Scenario, load
+from .tasks import FormationTask
 from .validation import float_array, forwarded_signature, hints_unknown_keywords, positive_int, real, whole_ratio
 
 __all__ = ["Pan1ParallelEnv", "parallel_env", "env", "raw_env", "ACTION_MODES"]
@@ -174,6 +176,7 @@ class Pan1ParallelEnv(ParallelEnv):
         n_obstacle_obs: int = 3,
         random_options: RandomScenarioOptions | Mapping[str, Any] | None = None,
         qp_solver: str = "active_set",
+        safety_filter: bool | FilterParams = False,
     ) -> None:
         if action_mode not in ACTION_MODES:
             raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
@@ -233,33 +236,36 @@ class Pan1ParallelEnv(ParallelEnv):
         self.max_joint_speed = float(max_joint_speed)
         self.max_torque = float(max_torque)
         self.n_obstacle_obs = int(n_obstacle_obs)
-        self.safety_filter = False  # switched on by pan1_env.wrappers.SafetyShield
-        self.shield_params: dict[str, float] | None = None  # kappa, epsilon, margin overrides
 
         self.possible_agents = [f"arm_{i}" for i in range(template.n_arms)]
         self.agents: list[str] = []
-        self._n = [a.n_links for a in template.arms]
-        self._k = [a.n_actuated for a in template.arms]
-        self._k_array = np.array(self._k)
-        self._command_shape = (template.n_arms, max(self._k))
-        self._uniform_k = len(set(self._k)) == 1
-        edges = template.formation.edges
-        degrees = np.bincount(edges.ravel(), minlength=template.n_arms)
-        self._slots = template.n_arms - 1 if self._random else int(degrees.max())
-        self._n_obstacles = len(template.obstacles)
-        self._n_max = max(self._n)
-        self._layout = ObservationLayout.from_scenario(template, self._slots, self.n_obstacle_obs)
+        self.n_links = [a.n_links for a in template.arms]
+        self.n_actuated = [a.n_actuated for a in template.arms]
+        self._k_array = np.array(self.n_actuated)
+        self._command_shape = (1, template.n_arms, max(self.n_actuated))
+        self._uniform_k = len(set(self.n_actuated)) == 1
+        degrees = np.bincount(template.formation.edges.ravel(), minlength=template.n_arms)
+        slots = template.n_arms - 1 if self._random else int(degrees.max())
+        self._layout = ObservationLayout.from_scenario(template, slots, self.n_obstacle_obs)
         self.observation_spaces = {
-            agent: gymnasium.spaces.Box(*self._layout.bounds(self._n[i]), dtype=np.float32)
+            agent: gymnasium.spaces.Box(*self._layout.bounds(self.n_links[i]), dtype=np.float32)
             for i, agent in enumerate(self.possible_agents)
         }
         self.action_spaces = {
-            agent: gymnasium.spaces.Box(-1.0, 1.0, (self._k[i],), np.float32)
+            agent: gymnasium.spaces.Box(-1.0, 1.0, (self.n_actuated[i],), np.float32)
             for i, agent in enumerate(self.possible_agents)
         }
-        state_size = template.n_arms * (2 * self._n_max + 2) + 3 * self._n_obstacles
+        state_size = template.n_arms * (2 * max(self.n_links) + 2) + 3 * len(template.obstacles)
         self.state_space = gymnasium.spaces.Box(-OBS_BOUND, OBS_BOUND, (state_size,), np.float32)
-        self._set_scenario(template)
+        self.scenario = template
+        self.engine = Engine(template, 1, physics_dt=physics_dt, safety_filter=safety_filter,
+                             max_speed=self.max_joint_speed, qp_solver=qp_solver)
+        self.task = FormationTask(template, 1, self._layout, max_joint_speed=self.max_joint_speed,
+                                  success_tolerance=self.success_tolerance, formation_weight=self.formation_weight,
+                                  effort_weight=self.effort_weight, collision_penalty=self.collision_penalty,
+                                  terminate_on_collision=self.terminate_on_collision,
+                                  terminate_on_success=self.terminate_on_success)
+        self.last_step: StepRecord | None = None
         self.np_random, self.np_random_seed = gymnasium.utils.seeding.np_random(None)
         self._renderer = None
         self._needs_reset = True
@@ -279,53 +285,51 @@ class Pan1ParallelEnv(ParallelEnv):
         (:func:`pan1_env.baselines.decode_observation` reads observations with it)."""
         return self._layout
 
-    # --------------------------------------------------------------- scenario
-    def _set_scenario(self, scenario: Scenario) -> None:
-        from .simulation import Simulation
+    # ---------------------------------------------------------- safety filter
+    @property
+    def safety_filter(self) -> FilterParams | None:
+        """The safety filter's parameters, or None when it is off."""
+        return self.engine.filter
 
-        if [a.n_links for a in scenario.arms] != self._n or [a.n_actuated for a in scenario.arms] != self._k:
-            raise ValueError("the scenario's team structure does not match the environment's spaces")
-        self.scenario = scenario
-        self.sim = Simulation(scenario, safety_filter=self.safety_filter, physics_dt=self.physics_dt,
-                              qp_solver=self.qp_solver)
-        self._edges = np.ascontiguousarray(scenario.formation.edges, dtype=np.int64)
-        self._distances = np.ascontiguousarray(scenario.formation.distances, dtype=float)[None]
-        self._bases = np.array([a.base for a in scenario.arms])[None]
-        self._centers = scenario.obstacles.centers[None]
-        self._radii = scenario.obstacles.radii[None]
-        self._single_group = len(self.sim.groups) == 1 and self.sim.groups[0].whole_team
-        self._bind_state_views()
+    def set_safety_filter(self, safety_filter: bool | FilterParams) -> None:
+        """Switch the RCBF-QP filter on (``True``: the scenario's κ, ε, margin; or a
+        :class:`~pan1_env.engine.FilterParams`) or off (``False``), from the next physics sub-step.
+        :class:`~pan1_env.wrappers.SafetyShield` calls this."""
+        if self.qp_solver == "piqp" and self.action_mode == "torque" and safety_filter is not False:
+            raise ValueError("the torque-mode filter needs qp_solver='active_set'")
+        self.engine.set_safety_filter(filter_parameters(safety_filter, self.scenario))
 
-    def _bind_state_views(self) -> None:
-        """(1, N, ·) views of the state arrays, which the Simulation updates in place (one-group teams)."""
-        g = self.sim.groups[0]
-        self._state_views = (g.q[None], g.qd[None], g.p[None]) if self._single_group else None
+    @property
+    def action_scale(self) -> float:
+        """Physical units of an action of 1: ``max_joint_speed`` (rad/s) or ``max_torque`` (N·m)."""
+        return self._action_scale
 
-    def __getstate__(self) -> dict[str, Any]:
-        state = self.__dict__.copy()
-        state.pop("_state_views", None)  # pickling and copying would turn the views into separate arrays
-        return state
+    # ------------------------------------------------------------------ state
+    def joint_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every arm's joint angles and velocities ``(N, n_max)`` (float64 copies, NaN padding)."""
+        q, qd = self.engine.joint_state()
+        return q[0].copy(), qd[0].copy()
 
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state)
-        self._bind_state_views()
+    def end_effectors(self) -> np.ndarray:
+        """Every arm's end-effector ``(N, 2)`` (a float64 copy)."""
+        return self.engine.positions()[0].copy()
 
     # ------------------------------------------------------------------- API
     def reset(self, seed: int | None = None, options: dict | None = None):
         if seed is not None:
             self.np_random, self.np_random_seed = gymnasium.utils.seeding.np_random(seed)
         if self._random:
-            self._set_scenario(random_scenario(self.np_random, self.random_options))
-        else:
-            self.sim.reset()
-        self._apply_shield()
+            self.scenario = random_scenario(self.np_random, self.random_options)
+            self.engine.load_team(0, self.scenario)
+            self.task.load_team(0, self.scenario)
+        self.engine.reset()
         self.agents = list(self.possible_agents)
         self.num_steps = 0
         self._needs_reset = False
-        self._last_record = None
+        self.last_step = None
         err, obs = self._observations()
         max_err = float(np.max(np.abs(err)))
-        clear = self.sim.clearance()
+        clear = self.engine.clearance()[0]
         infos = {agent: self._info(0.0, clear[i], max_err) for i, agent in enumerate(self.agents)}
         if self.render_mode == "human":
             self.render()
@@ -335,33 +339,27 @@ class Pan1ParallelEnv(ParallelEnv):
         if self._needs_reset or not self.agents:
             raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
         command, effort = self._command(actions)
-        rec = self.sim.step(command, self.substeps, torque=self._torque_mode, max_speed=self.max_joint_speed)
+        rec = self.engine.step(command, self.substeps, torque=self._torque_mode)
         self.num_steps += 1
         err, obs = self._observations()
-        # per-step scalars in plain Python: a handful of edges and arms is cheaper there than in numpy calls
-        abs_err = [abs(x) for x in err[0].tolist()]
-        shared = -self.formation_weight * (sum(abs_err) / len(abs_err))
-        max_err = max(abs_err)
-        success = max_err < self.success_tolerance
-        clearances = rec.min_clearance.tolist()
-        cost = [1.0 if c < 0 else 0.0 for c in clearances]
-        if self.effort_weight or self.collision_penalty:
-            rewards = {agent: shared - self.effort_weight * e - self.collision_penalty * c
-                       for agent, e, c in zip(self.possible_agents, effort.tolist(), cost, strict=True)}
-        else:
-            rewards = dict.fromkeys(self.possible_agents, shared)
-        fault = None if rec.finite else "non-finite state in the physics step; episode truncated"
-        terminated = bool((self.terminate_on_collision and any(cost)) or (self.terminate_on_success and success))
+        out = self.task.evaluate(rec, err, effort[None])
+        self.last_step = StepRecord(**{name: getattr(rec, name)[0] for name in StepRecord.__dataclass_fields__})
+        max_err = float(out.measures["formation_error"][0])
+        success = bool(out.success[0])
+        fault = None if rec.finite.all() else "non-finite state in the physics step; episode truncated"
+        terminated = bool(out.terminated[0])
         truncated = self.num_steps >= self.max_steps or fault is not None
+        rewards = dict(zip(self.possible_agents, out.reward[0].tolist(), strict=True))
         infos = {}  # every arm is live in a step (agents leave together), so team index = position
-        for i, agent in enumerate(self.possible_agents):
-            info = {"cost": cost[i], "min_clearance": clearances[i], "formation_error": max_err, "is_success": success}
-            if self.safety_filter:
-                info["qp_counts"] = rec.qp_counts[i]  # a row of this step's fresh record
+        filtered = self.engine.filter is not None
+        for i, (agent, cost, clear) in enumerate(zip(self.possible_agents, out.cost[0].tolist(),
+                                                     rec.min_clearance[0].tolist(), strict=True)):
+            info = {"cost": cost, "min_clearance": clear, "formation_error": max_err, "is_success": success}
+            if filtered:
+                info["qp_counts"] = self.last_step.qp_counts[i]
             if fault:
                 info["fault"] = fault
             infos[agent] = info
-        self._last_record = rec
         terminations = dict.fromkeys(self.agents, terminated)
         truncations = dict.fromkeys(self.agents, truncated)
         if terminated or truncated:
@@ -372,10 +370,8 @@ class Pan1ParallelEnv(ParallelEnv):
         return obs, rewards, terminations, truncations, infos
 
     def state(self) -> np.ndarray:
-        q, qd = self.sim.joint_state()
-        q = np.nan_to_num(q, nan=0.0)
-        qd = np.nan_to_num(qd, nan=0.0)
-        P = self.sim.positions()
+        q, qd = self.engine.joint_state(pad=0.0)
+        q, qd, P = np.nan_to_num(q[0], nan=0.0), np.nan_to_num(qd[0], nan=0.0), self.engine.positions()[0]
         parts = [np.concatenate([q[i], qd[i], P[i]]) for i in range(self.scenario.n_arms)]
         obs = self.scenario.obstacles
         parts.append(np.concatenate([obs.centers, obs.radii[:, None]], axis=1).ravel())
@@ -397,13 +393,6 @@ class Pan1ParallelEnv(ParallelEnv):
             self._renderer = None
 
     # ------------------------------------------------------------- internals
-    def _apply_shield(self) -> None:
-        self.sim.safety_filter = self.safety_filter
-        params = self.shield_params or {}
-        self.sim.kappa = params.get("kappa", self.scenario.kappa)
-        self.sim.epsilon = params.get("epsilon", self.scenario.epsilon)
-        self.sim.margin = params.get("margin", self.scenario.safety_margin)
-
     def _command(self, actions: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """The padded physical command ``(N, k_max)`` and each agent's effort ‖clip(a)‖² / k."""
         if type(actions) is not dict and not isinstance(actions, Mapping):
@@ -415,7 +404,7 @@ class Pan1ParallelEnv(ParallelEnv):
         command = None
         if self._uniform_k:  # one array call when every agent has the same action size
             try:
-                command = np.array([actions[a] for a in self.possible_agents], dtype=float)
+                command = np.array([[actions[a] for a in self.possible_agents]], dtype=float)
             except (ValueError, TypeError):
                 command = None
             if command is not None and command.shape != self._command_shape:
@@ -423,9 +412,10 @@ class Pan1ParallelEnv(ParallelEnv):
         if command is None:  # mixed sizes, or a bad action: per agent, with a specific error
             command = np.zeros(self._command_shape)
             for i, agent in enumerate(self.possible_agents):
-                command[i, : self._k[i]] = float_array(f"action for {agent}", actions[agent], (self._k[i],))
-        effort = np.empty(len(command))
-        bad = kernels().scale_command(command, self._k_array, self._action_scale, effort)  # clip, effort, scale
+                command[0, i, : self.n_actuated[i]] = float_array(f"action for {agent}", actions[agent],
+                                                                  (self.n_actuated[i],))
+        effort = np.empty(command.shape[1])
+        bad = kernels().scale_command(command[0], self._k_array, self._action_scale, effort)  # clip, effort, scale
         if bad >= 0:
             agent = self.possible_agents[bad]
             raise ValueError(f"action for {agent} contains NaN or inf: {np.asarray(actions[agent]).tolist()}")
@@ -441,20 +431,14 @@ class Pan1ParallelEnv(ParallelEnv):
 
     def _observations(self) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """The edges' length errors ‖z_k‖ − d_k ``(1, E)`` and every live agent's observation."""
-        if self._single_group:  # one group in team order: no padding or gathering needed
-            q, qd, P = self._state_views
-        else:
-            q, qd = self.sim.joint_state()
-            q, qd, P = q[None], qd[None], self.sim.positions()[None]
-        err, mats = self._layout.build_with_errors(q, qd, P, self._bases, self._edges, self._distances,
-                                                   self._centers, self._radii, self.max_joint_speed)
-        if self._single_group and len(self.agents) == len(self.possible_agents):
-            return err, dict(zip(self.possible_agents, mats[0][0], strict=True))
+        err, mats = self.task.observe(self.engine)
         out = {}
         for (_, ids), mat in zip(self._layout.groups, mats, strict=True):
-            for row, i in enumerate(ids):
+            for row, i in enumerate(ids.tolist()):
                 out[self.possible_agents[i]] = mat[0, row]
-        return err, (out if len(out) == len(self.agents) else {a: out[a] for a in self.agents})
+        if len(out) != len(self.agents):
+            out = {a: out[a] for a in self.agents}
+        return err, out
 
 
 def default_physics_dt(control_dt: float, ke: float, scenario_dt: float, action_mode: str = "velocity") -> float:

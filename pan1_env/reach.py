@@ -5,15 +5,15 @@ of ``paper_pa3_square``, a PA3 arm), the scenario's obstacles, and a goal point 
 end-effector drawn at every reset. It is what a one-arm learner or a controller comparison starts
 from, and the peer of Gymnasium's ``Acrobot-v1`` (another underactuated arm) in the benchmark.
 
-It steps the same compiled closed loop as the team environment
-(:func:`pan1_env.kernels.group_advance`: RCBF-QP filter, backstepping tracker, RK4), with one arm
-and the state held in preallocated arrays, so a step costs a handful of calls. The tests check that
-an arm here and the same arm in :class:`~pan1_env.environment.Pan1ParallelEnv`, given the same
-commands, follow the same trajectory.
+It is an adapter over the same :class:`~pan1_env.engine.Engine` as the team environment (RCBF-QP
+filter, backstepping tracker, RK4), holding one arm, and the reach task
+(:class:`~pan1_env.tasks.ReachTask`). The tests check that an arm here and the same arm in
+:class:`~pan1_env.environment.Pan1ParallelEnv`, given the same commands, follow the same trajectory.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -21,13 +21,14 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from .compiled import kernel_sizes, kernels
-from .dynamics import ArmBatch, end_effector
+from .compiled import kernels
+from .dynamics import end_effector
+from .engine import Engine, FilterParams
 from .environment import DEFAULT_CONTROL_DT, MAX_KE_DT, default_physics_dt
-from .observation import OBS_BOUND, OBSTACLE_FEATURES
 from .random_scenario import _passive_path
 from .registration import DEFAULT_REACH_STEPS
 from .safety import clearance
+from .tasks import ReachTask
 from .scenario import Scenario, load
 from .validation import float_array, hints_unknown_keywords, positive_int, real, whole_ratio
 
@@ -120,7 +121,7 @@ class PAReachEnv(gymnasium.Env):
     def __init__(self, scenario: str | Path | Scenario = "paper_pa3_square", arm: int = 0, *,
                  control_dt: float = DEFAULT_CONTROL_DT, physics_dt: float | None = None,
                  max_steps: int = DEFAULT_REACH_STEPS, max_joint_speed: float = 2.0,
-                 safety_filter: bool = True, goal_tolerance: float = 0.02, goal_spread: float = np.pi / 2,
+                 safety_filter: bool | FilterParams = True, goal_tolerance: float = 0.02, goal_spread: float = np.pi / 2,
                  goal_clearance: float = 0.05, terminate_on_success: bool = False,
                  terminate_on_collision: bool = False, effort_weight: float = 0.0,
                  collision_penalty: float = 0.0, n_obstacle_obs: int = 3, render_mode: str | None = None) -> None:
@@ -142,7 +143,6 @@ class PAReachEnv(gymnasium.Env):
         self.substeps = whole_ratio("control_dt", self.control_dt, "physics_dt", self.physics_dt)
         self.max_steps = positive_int("max_steps", max_steps)
         self.max_joint_speed = real("max_joint_speed", max_joint_speed, positive=True)
-        self.safety_filter = bool(safety_filter)
         self.goal_tolerance = real("goal_tolerance", goal_tolerance, positive=True)
         self.goal_spread = real("goal_spread", goal_spread, positive=True)
         self.goal_clearance = real("goal_clearance", goal_clearance, non_negative=True)
@@ -153,58 +153,42 @@ class PAReachEnv(gymnasium.Env):
         self.n_obstacle_obs = positive_int("n_obstacle_obs", n_obstacle_obs, minimum=0)
 
         n, k = self.arm.n_links, self.arm.n_actuated
+        self.task = ReachTask(1, n, n_obstacle_obs=self.n_obstacle_obs, max_joint_speed=self.max_joint_speed,
+                              goal_tolerance=self.goal_tolerance, effort_weight=self.effort_weight,
+                              collision_penalty=self.collision_penalty,
+                              terminate_on_success=self.terminate_on_success,
+                              terminate_on_collision=self.terminate_on_collision)
         self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (k,), np.float32)
-        size = 3 * n + 4 + OBSTACLE_FEATURES * self.n_obstacle_obs
-        low = np.full(size, -OBS_BOUND, dtype=np.float32)
-        high = np.full(size, OBS_BOUND, dtype=np.float32)
-        low[: 2 * n], high[: 2 * n] = -1.0, 1.0
-        flags = [3 * n + 4 + OBSTACLE_FEATURES * s for s in range(self.n_obstacle_obs)]
-        low[flags], high[flags] = 0.0, 1.0
-        self.observation_space = gymnasium.spaces.Box(low, high, dtype=np.float32)
-
-        # the one-arm group the kernel steps, and every array it reads or writes, allocated once
-        obstacles = self.scenario.obstacles
-        self._batch = ArmBatch.stack([self.arm])
-        self._centers = np.array(obstacles.centers[None], dtype=float)  # writable copies: the kernel is
-        self._radii = np.array(obstacles.radii[None], dtype=float)  # compiled for writable arrays
-        self._mask = np.ascontiguousarray(self.scenario.obstacle_mask()[self.arm_index][None])
-        self._sizes = kernel_sizes(n, k)
-        self._q = np.zeros((1, n))
-        self._v = np.zeros((1, k))
-        self._v_prev = np.zeros((1, k))
-        self._has_prev = np.zeros(1, dtype=bool)
-        self._command = np.zeros((1, k))
+        self.observation_space = gymnasium.spaces.Box(*self.task.bounds(n), dtype=np.float32)
+        # the engine holds a one-arm team: this arm, the scenario's obstacles (the formation is unused)
+        one_arm = dataclasses.replace(self.scenario, arms=(self.arm,), q0=(self.scenario.q0[self.arm_index],))
+        self.engine = Engine(one_arm, 1, physics_dt=self.physics_dt, safety_filter=safety_filter,
+                             max_speed=self.max_joint_speed)
+        self._command = np.zeros((1, 1, k))
         self._k_array = np.array([k])
-        self._effort = np.zeros(1)
-        self._v_star = np.zeros((1, k))
-        self._tau = np.zeros((1, k))
-        self._qd = np.zeros((1, n))
-        self._p = np.zeros((1, 2))
-        self._min_clear = np.zeros(1)
-        self._min_h = np.zeros(1)
-        self._counts = np.zeros((1, 3), dtype=np.int64)
-        self._track = np.zeros(1)
-        self._finite = np.ones(1, dtype=bool)
-        self._goal = np.zeros((1, 2))
-        self._base = np.ascontiguousarray(self._batch.base)
         self.num_steps = 0
         self._needs_reset = True
+
+    @property
+    def safety_filter(self) -> FilterParams | None:
+        """The safety filter's parameters, or None when it is off."""
+        return self.engine.filter
 
     # ------------------------------------------------------------------- API
     @property
     def goal(self) -> np.ndarray:
         """The current goal point (2,) (a copy)."""
-        return self._goal[0].copy()
+        return self.task.goal[0].copy()
 
     @property
     def q(self) -> np.ndarray:
         """The arm's joint angles (n,) (a copy)."""
-        return self._q[0].copy()
+        return self.engine.kinds[0].q[0].copy()
 
     @property
     def end_effector(self) -> np.ndarray:
         """The end-effector position (2,) (a copy)."""
-        return self._p[0].copy()
+        return self.engine.kinds[0].p[0].copy()
 
     def reset(self, *, seed: int | None = None, options: Mapping[str, Any] | None = None):
         options = dict(options or {})
@@ -221,73 +205,45 @@ class PAReachEnv(gymnasium.Env):
             goal = point
         super().reset(seed=seed)
         q0 = np.asarray(self.scenario.q0[self.arm_index], dtype=float)
-        self._q[0] = q0
-        self._v[:] = 0.0
-        self._v_prev[:] = 0.0
-        self._has_prev[:] = False
-        self._qd[:] = 0.0
-        b = self._batch
-        kernels().group_end_effectors(b.lengths, b.base, b.phi, self._q, self._p)
-        self._goal[0] = self._draw_goal(q0) if goal is None else goal
+        self.engine.reset()
+        self.task.goal[0] = self._draw_goal(q0) if goal is None else goal
         self.num_steps = 0
         self._needs_reset = False
-        distance = float(np.hypot(*(self._goal[0] - self._p[0])))
-        clear = self._clearance(self._p[0])
-        info = {"cost": 0.0, "min_clearance": clear, "distance": distance,
-                "is_success": distance < self.goal_tolerance, "intervened": False, "fallback": False}
-        return self._observation(), info
+        out = self.task.evaluate(None, self.engine, np.zeros((1, 1)))
+        return self.task.observe(self.engine)[0], self._info(out, None)
 
     def step(self, action: np.ndarray):
         if self._needs_reset:
             raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
-        kern = kernels()
         a = float_array("action", action, self.action_space.shape)
-        self._command[0] = a
-        if kern.scale_command(self._command, self._k_array, self.max_joint_speed, self._effort) >= 0:
+        self._command[0, 0] = a
+        effort = np.zeros((1, 1))
+        if kernels().scale_command(self._command[0], self._k_array, self.max_joint_speed, effort[0]) >= 0:
             raise ValueError(f"action contains NaN or inf: {a.tolist()}")
-        self._min_clear[0] = np.inf
-        self._min_h[0] = np.inf
-        self._counts[0] = 0
-        self._track[0] = 0.0
-        self._finite[0] = True
-        b, sc = self._batch, self.scenario
-        kern.group_advance(*self._sizes, b.lam, b.lengths, b.base, b.phi, b.passive_first_joint, self._q,
-                           self._v, self._v_prev, self._has_prev, self._command, False, self.safety_filter,
-                           self._centers, self._radii, self._mask, sc.kappa, sc.epsilon, sc.safety_margin, sc.ke,
-                           self.physics_dt, self.substeps, self.max_joint_speed, self._v_star, self._tau, self._qd,
-                           self._p, self._min_clear, self._min_h, self._counts, self._track, self._finite)
+        rec = self.engine.step(self._command, self.substeps)
         self.num_steps += 1
-        px, py = self._p[0].tolist()
-        gx, gy = self._goal[0].tolist()
-        distance = ((gx - px) ** 2 + (gy - py) ** 2) ** 0.5
-        min_clear = float(self._min_clear[0])
-        finite = bool(self._finite[0])
-        if not finite:  # the arm stopped at its last finite state: include that state's clearance
-            min_clear = min(min_clear, self._clearance(self._p[0]))
-        cost = 1.0 if min_clear < 0 else 0.0
-        success = distance < self.goal_tolerance
-        _, solved, fallback = self._counts[0].tolist()
-        reward = -distance - self.effort_weight * float(self._effort[0]) - self.collision_penalty * cost
-        terminated = (self.terminate_on_success and success) or (self.terminate_on_collision and cost > 0)
+        out = self.task.evaluate(rec, self.engine, effort)
+        finite = bool(rec.finite[0, 0])
+        terminated = bool(out.terminated[0])
         truncated = self.num_steps >= self.max_steps or not finite
-        info = {"cost": cost, "min_clearance": min_clear, "distance": distance, "is_success": success,
-                "intervened": solved + fallback > 0, "fallback": fallback > 0}
+        info = self._info(out, rec)
         if not finite:
             info["fault"] = "non-finite state in the physics step; episode truncated"
         if terminated or truncated:
             self._needs_reset = True
-        return self._observation(), reward, terminated, truncated, info
+        return self.task.observe(self.engine)[0], float(out.reward[0, 0]), terminated, truncated, info
 
     # ------------------------------------------------------------- internals
-    def _observation(self) -> np.ndarray:
-        out = np.empty((1, self.observation_space.shape[0]), dtype=np.float32)
-        kernels().reach_observations(self._q, self._qd, self._p, self._base, self._goal, self._centers, self._radii,
-                                     self.n_obstacle_obs, 1.0 / self.max_joint_speed, OBS_BOUND, out)
-        return out[0]
+    @staticmethod
+    def _info(out, rec) -> dict[str, Any]:
+        return {"cost": float(out.cost[0, 0]), "min_clearance": float(out.measures["min_clearance"][0]),
+                "distance": float(out.measures["distance"][0]), "is_success": bool(out.success[0]),
+                "intervened": bool(rec is not None and rec.intervened[0, 0]),
+                "fallback": bool(rec is not None and rec.fallback[0, 0])}
 
     def _clearance(self, p: np.ndarray) -> float:
         """Smallest clearance ‖p − o_j‖ − r_j of a point to the obstacles (inf with none)."""
-        return float(clearance(p, self._centers[0], self._radii[0]).min(initial=np.inf))
+        return float(clearance(p, self.engine.centers[0], self.engine.radii[0]).min(initial=np.inf))
 
     def _draw_goal(self, q0: np.ndarray) -> np.ndarray:
         """An end-effector reachable from ``q0`` at rest, ``goal_clearance`` clear of every obstacle."""

@@ -61,6 +61,11 @@ class CentralizedEnv(gymnasium.Env):
         self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (sum(s.shape[0] for s in act),), np.float32)
         self._splits = np.cumsum([s.shape[0] for s in act])[:-1]
 
+    def agent_actions(self, action: np.ndarray) -> dict[str, np.ndarray]:
+        """The flat action split into the agents' actions (agent order)."""
+        parts = np.split(np.asarray(action, dtype=float), self._splits)
+        return dict(zip(self.parallel.possible_agents, parts, strict=True))
+
     def _flat_obs(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         return np.concatenate([obs[a] for a in self.parallel.possible_agents]).astype(np.float32)
 
@@ -71,9 +76,8 @@ class CentralizedEnv(gymnasium.Env):
 
     def step(self, action: np.ndarray):
         action = float_array("action", action, self.action_space.shape)
-        parts = np.split(action, self._splits)
         agents = list(self.parallel.possible_agents)
-        obs, rewards, terms, truncs, infos = self.parallel.step(dict(zip(agents, parts, strict=True)))
+        obs, rewards, terms, truncs, infos = self.parallel.step(self.agent_actions(action))
         reward = float(np.mean([rewards[a] for a in agents]))
         info = {
             "cost": float(sum(infos[a]["cost"] for a in agents)),

@@ -47,7 +47,7 @@ class Renderer:
     def draw(self, env) -> np.ndarray | None:
         import matplotlib.patches as mpatches
 
-        sc, sim, ax = env.scenario, env.sim, self.ax
+        sc, ax = env.scenario, self.ax
         ax.clear()
         if self._limits is None or getattr(self, "_scenario", None) is not sc:
             self._scenario = sc
@@ -60,8 +60,8 @@ class Renderer:
         for c, r in zip(sc.obstacles.centers, sc.obstacles.radii, strict=True):
             ax.add_patch(mpatches.Circle(c, r, color="tab:red", alpha=0.55, lw=0))
             ax.add_patch(mpatches.Circle(c, np.sqrt(r * r + margin), fill=False, ls="--", color="tab:red", lw=1))
-        q, _ = sim.joint_state()
-        P = sim.positions()
+        q, _ = env.joint_state()
+        P = env.end_effectors()
         colors = self._plt.rcParams["axes.prop_cycle"].by_key()["color"]
         for i, arm in enumerate(sc.arms):
             pts = joint_positions(arm, q[i, : arm.n_links])
@@ -82,7 +82,7 @@ class Renderer:
         ax.set_xlim(lo[0], hi[0])
         ax.set_ylim(lo[1], hi[1])
         ax.set_aspect("equal")
-        ax.set_title(f"{sc.name}  t = {sim.time:.2f} s  max edge error {err.max():.3f} m", fontsize=9)
+        ax.set_title(f"{sc.name}  t = {env.num_steps * env.control_dt:.2f} s  max edge error {err.max():.3f} m", fontsize=9)
         self.fig.tight_layout()
         self.fig.canvas.draw()
         if self.human:

@@ -1,17 +1,15 @@
-"""The Gymnasium vector environment: B copies of a scenario stepped in one batched call per arm kind.
+"""The Gymnasium vector environment: B copies of a scenario on one engine.
 
-:class:`Pan1VectorEnv` holds the state of every arm of every copy in arrays batched over
-``B × (arms of one kind)`` and advances them all with one call of the compiled closed-loop kernel
-(:func:`pan1_env.kernels.group_advance`, or its multi-threaded twin for large batches) per arm
-kind, then builds every observation with one compiled call per kind; turning actions into
-commands and the arms' results into per-copy costs, rewards and flags is compiled too
-(:mod:`pan1_env.vector_kernels`). It is the vectorised form of
+:class:`Pan1VectorEnv` is an adapter over :class:`~pan1_env.engine.Engine` with B copies (one
+kernel call per arm kind for all copies) and the formation task (:class:`~pan1_env.tasks.FormationTask`),
+the same two the parallel env runs on with B = 1. It is the vectorised form of
 :class:`~pan1_env.registration.CentralizedEnv` (the ``gymnasium.make`` view): the same flat
 observation, action, reward, cost and time steps, with the safety filter on by default.
 """
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -20,15 +18,14 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from .dynamics import ArmBatch
+from .compiled import kernels
+from .engine import PARALLEL_THRESHOLD, Engine, FilterParams
 from .random_scenario import random_scenario
-from .safety import clearance
 from .scenario import Scenario
+from .tasks import FormationTask
 from .validation import float_array, forwards_keywords, positive_int
 
 __all__ = ["Pan1VectorEnv", "PARALLEL_THRESHOLD"]
-
-PARALLEL_THRESHOLD = 256  # arms of one kind from which the kernel runs on numba's thread pool
 
 
 class Pan1VectorEnv(VectorEnv):
@@ -81,8 +78,10 @@ class Pan1VectorEnv(VectorEnv):
 
     * ``scenario``: as the parallel env (a built-in name, a TOML path, a Scenario or ``"random"``).
     * ``num_envs``: B, the number of copies.
-    * ``shield``: run the paper's RCBF-QP safety filter at every physics sub-step (default True;
-      the same filter as :class:`~pan1_env.wrappers.SafetyShield` with the scenario's κ, ε, margin).
+    * ``safety_filter``: the paper's RCBF-QP safety filter at every physics sub-step: ``True``
+      (default; the same filter as :class:`~pan1_env.wrappers.SafetyShield`, the scenario's κ, ε and
+      margin), ``False``, or a :class:`~pan1_env.engine.FilterParams`. (``shield=`` is its
+      deprecated name.)
     * ``threads``: ``"auto"`` (numba's thread pool from :data:`PARALLEL_THRESHOLD` arms of a kind
       on), ``True`` or ``False``. The serial and multi-threaded kernels run the same compiled code,
       4 arms at once; an arm's result does not depend on the others, and the two agree bit for bit
@@ -97,126 +96,63 @@ class Pan1VectorEnv(VectorEnv):
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
 
-    @forwards_keywords("pan1_env.environment:Pan1ParallelEnv", exclude=("render_mode", "qp_solver"))
+    @forwards_keywords("pan1_env.environment:Pan1ParallelEnv", exclude=("render_mode", "qp_solver", "safety_filter"))
     def __init__(self, scenario: str | Path | Scenario = "paper_pa3_square", num_envs: int = 1, *,
-                 shield: bool = True, threads: bool | str = "auto", **kwargs: Any) -> None:
+                 safety_filter: bool | FilterParams = True, threads: bool | str = "auto",
+                 shield: bool | None = None, **kwargs: Any) -> None:
         from .environment import Pan1ParallelEnv
 
         for bad in ("render_mode", "qp_solver"):
             if bad in kwargs:
                 raise TypeError(f"Pan1VectorEnv does not take {bad!r} (no rendering; the exact compiled QP only)")
-        if threads not in ("auto", True, False):
-            raise ValueError(f"threads must be 'auto', True or False, got {threads!r}")
+        if shield is not None:
+            warnings.warn("Pan1VectorEnv(shield=...) is deprecated; use safety_filter=...", DeprecationWarning,
+                          stacklevel=3)
+            safety_filter = bool(shield)
         self.num_envs = positive_int("num_envs", num_envs)
-        self.threads = threads
         # one parallel env validates the arguments and fixes spaces, layout and time steps
-        self.template = Pan1ParallelEnv(scenario, **kwargs)
-        if shield:
-            from pan1_env.wrappers.shield import _switch_on
-
-            _switch_on(self.template, None, None, None, None)
-        t = self.template
-        self.shield = bool(shield)
+        self.template = t = Pan1ParallelEnv(scenario, safety_filter=safety_filter, **kwargs)
         self._random = t._random
+        self.engine = Engine(t.scenario, self.num_envs, physics_dt=t.physics_dt, safety_filter=t.safety_filter or False,
+                             max_speed=t.max_joint_speed, threads=threads)
+        self.task = FormationTask(t.scenario, self.num_envs, t.observation_layout, max_joint_speed=t.max_joint_speed,
+                                  success_tolerance=t.success_tolerance, formation_weight=t.formation_weight,
+                                  effort_weight=t.effort_weight, collision_penalty=t.collision_penalty,
+                                  terminate_on_collision=t.terminate_on_collision,
+                                  terminate_on_success=t.terminate_on_success)
         self.agents = list(t.possible_agents)
         obs_spaces = [t.observation_space(a) for a in self.agents]
-        act_sizes = [t.action_space(a).shape[0] for a in self.agents]
+        act_sizes = t.n_actuated
         self.single_observation_space = gymnasium.spaces.Box(
             np.concatenate([s.low for s in obs_spaces]), np.concatenate([s.high for s in obs_spaces]),
             dtype=np.float32)
         self.single_action_space = gymnasium.spaces.Box(-1.0, 1.0, (sum(act_sizes),), np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self._act_offsets = np.concatenate([[0], np.cumsum(act_sizes)])
-        self._obs_offsets = np.concatenate([[0], np.cumsum([s.shape[0] for s in obs_spaces])])
-        self._scale = t.max_joint_speed if t.action_mode == "velocity" else t.max_torque
-        self._torque = t.action_mode == "torque"
-        # effort = Σ_i ‖a_i‖² / k_i: one weight per action column
-        self._effort_weights = np.concatenate([np.full(k, 1.0 / max(k, 1)) for k in act_sizes])
-        self._build_batches(t.scenario)
+        N, k_max = len(act_sizes), max(act_sizes)
+        # where each action column goes in the padded (N, k_max) command of a copy
+        self._columns = np.concatenate([i * k_max + np.arange(k) for i, k in enumerate(act_sizes)])
+        self._k_rows = np.tile(np.asarray(act_sizes), self.num_envs)
+        self._command = np.zeros((self.num_envs, N, k_max))
         self._rngs = [np.random.default_rng() for _ in range(self.num_envs)]
         self._steps = np.zeros(self.num_envs, dtype=np.int64)
         self._needs_reset = True
         self.render_mode = None
 
-    # ------------------------------------------------------------------ set-up
-    def _build_batches(self, sc: Scenario) -> None:
-        """Arrays over B copies of ``sc``: one kernel group per arm kind, arms ordered copy-major."""
-        B, t = self.num_envs, self.template
-        self._groups = []
-        for g in t.sim.groups:
-            A = len(g.arm_ids)
-            rep = lambda x: np.ascontiguousarray(np.tile(x, (B,) + (1,) * (x.ndim - 1)))  # noqa: E731
-            b = g.batch
-            cols = np.array([np.arange(self._act_offsets[i], self._act_offsets[i] + g.k) for i in g.arm_ids],
-                            dtype=np.int64).reshape(A, g.k)
-            self._groups.append({
-                "ids": np.ascontiguousarray(g.arm_ids, dtype=np.int64), "n": g.n, "k": g.k, "sizes": g.sizes, "A": A,
-                "passive": b.passive_first_joint, "cols": cols,
-                "lam": rep(b.lam), "lengths": rep(b.lengths), "base": rep(b.base), "phi": rep(b.phi),
-                "centers": rep(g.centers), "radii": rep(g.radii), "mask": rep(g.obstacle_mask),
-                "q0": rep(np.array([sc.q0[i] for i in g.arm_ids])),
-                "q": np.zeros((B * A, g.n)), "v": np.zeros((B * A, g.k)), "v_prev": np.zeros((B * A, g.k)),
-                "has_prev": np.zeros(B * A, dtype=bool), "qd": np.zeros((B * A, g.n)), "p": np.zeros((B * A, 2)),
-                "v_star": np.zeros((B * A, g.k)), "tau": np.zeros((B * A, g.k)),
-                "finite": np.ones(B * A, dtype=bool), "counts": np.zeros((B * A, 3), dtype=np.int64),
-                # per-step scratch: commands and the kernel's running extremes
-                "command": np.zeros((B * A, g.k)), "clear": np.zeros(B * A), "min_h": np.zeros(B * A),
-                "track": np.zeros(B * A),
-            })
-        N, n_max = sc.n_arms, max(a.n_links for a in sc.arms)
-        self._n_arms, self._n_max = N, n_max
-        # one arm kind in team order: the state arrays reshaped are the observation's inputs
-        self._team_order = len(self._groups) == 1 and list(self._groups[0]["ids"]) == list(range(N))
-        self._bases = np.tile(np.array([a.base for a in sc.arms])[None], (B, 1, 1))
-        self._centers = np.tile(sc.obstacles.centers[None], (B, 1, 1))
-        self._radii = np.tile(sc.obstacles.radii[None], (B, 1))
-        self._edges = np.ascontiguousarray(sc.formation.edges, dtype=np.int64)
-        self._distances = np.tile(sc.formation.distances[None], (B, 1))
-        self._sim_params = (sc.kappa, sc.epsilon, sc.safety_margin, sc.ke)
-        if self.shield and t.shield_params:
-            p = t.shield_params
-            self._sim_params = (p["kappa"], p["epsilon"], p["margin"], sc.ke)
+    @property
+    def safety_filter(self) -> FilterParams | None:
+        """The safety filter's parameters, or None when it is off."""
+        return self.engine.filter
 
-    def _load_team(self, b: int, sc: Scenario) -> None:
-        """Write a (random) team's parameters, obstacles and formation into copy b's slots."""
-        mask = sc.obstacle_mask()
-        for g in self._groups:
-            sl = slice(b * g["A"], (b + 1) * g["A"])
-            arms = [sc.arms[i] for i in g["ids"]]
-            batch = ArmBatch.stack(arms)
-            g["lam"][sl], g["lengths"][sl], g["base"][sl], g["phi"][sl] = (batch.lam, batch.lengths, batch.base,
-                                                                            batch.phi)
-            g["centers"][sl] = sc.obstacles.centers[None]
-            g["radii"][sl] = sc.obstacles.radii[None]
-            g["mask"][sl] = mask[g["ids"]]
-            g["q0"][sl] = np.array([sc.q0[i] for i in g["ids"]])
-        self._bases[b] = np.array([a.base for a in sc.arms])
-        self._centers[b] = sc.obstacles.centers
-        self._radii[b] = sc.obstacles.radii
-        self._distances[b] = sc.formation.distances
+    @property
+    def shield(self) -> bool:
+        """Deprecated: ``safety_filter is not None``."""
+        warnings.warn("Pan1VectorEnv.shield is deprecated; use safety_filter", DeprecationWarning, stacklevel=2)
+        return self.engine.filter is not None
 
-    def _reset_copies(self, which: np.ndarray) -> None:
-        """Put the copies ``which`` (indices) at their start, at rest (new teams when random)."""
-        for b in which:
-            if self._random:
-                self._load_team(int(b), random_scenario(self._rngs[b], self.template.random_options))
-            self._steps[b] = 0
-        for g in self._groups:
-            A = g["A"]
-            rows = (np.asarray(which)[:, None] * A + np.arange(A)[None]).ravel()
-            g["q"][rows] = g["q0"][rows]
-            g["v"][rows] = 0.0
-            g["v_prev"][rows] = 0.0
-            g["has_prev"][rows] = False
-            g["qd"][rows] = 0.0
-        self._refresh_positions()
-
-    def _refresh_positions(self) -> None:
-        from .kernels import group_end_effectors
-
-        for g in self._groups:
-            group_end_effectors(g["lengths"], g["base"], g["phi"], g["q"], g["p"])
+    @property
+    def threads(self) -> bool | str:
+        return self.engine.threads
 
     # ------------------------------------------------------------------ API
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
@@ -231,135 +167,66 @@ class Pan1VectorEnv(VectorEnv):
                     self._rngs[b] = np.random.default_rng(s)
         self._reset_copies(np.arange(B))
         self._needs_reset = False
-        err, obs = self._observations()
-        info = self._infos(np.zeros(B), self._clearance(), np.abs(err).max(axis=1), None)
-        return obs, info
+        err, mats = self.task.observe(self.engine)
+        out = self.task.evaluate(None, err, np.zeros((B, self.engine.n_arms)), self.engine.clearance())
+        return self.task.flat(mats), self._infos(out, None)
 
     def step(self, actions: np.ndarray):
-        from . import kernels, vector_kernels
-
         if self._needs_reset:
             raise RuntimeError("step() called before reset(); call reset()")
-        a = np.ascontiguousarray(float_array("actions", actions, self.action_space.shape))
-        if not np.isfinite(a).all():
-            bad = int(np.flatnonzero(~np.isfinite(a).all(axis=1))[0])
-            raise ValueError(f"actions for copy {bad} contain NaN or inf")
-        t = self.template
-        B = self.num_envs
-        kappa, eps, margin, ke = self._sim_params
-        min_clear = np.full((B, self._n_arms), np.inf)
-        intervened = np.zeros(B, dtype=bool)
-        fallback = np.zeros(B, dtype=bool)
-        finite = np.ones(B, dtype=bool)
-        for g in self._groups:
-            A = g["A"]
-            command = g["command"]
-            vector_kernels.gather_commands(a, g["cols"], self._scale, command)
-            clear = g["clear"]
-            clear.fill(np.inf)
-            g["min_h"].fill(np.inf)
-            g["track"].fill(0.0)
-            g["counts"].fill(0)
-            args = (*g["sizes"], g["lam"], g["lengths"], g["base"], g["phi"], g["passive"], g["q"], g["v"],
-                    g["v_prev"], g["has_prev"], command, self._torque, self.shield, g["centers"], g["radii"],
-                    g["mask"], kappa, eps, margin, ke, t.physics_dt, t.substeps,
-                    t.max_joint_speed if self.shield else np.inf, g["v_star"], g["tau"], g["qd"], g["p"], clear,
-                    g["min_h"], g["counts"], g["track"], g["finite"])
-            chunks = self._chunks(B * A)
-            if chunks:
-                kernels.group_advance_parallel(*args, chunks)
-            else:
-                kernels.group_advance(*args)
-            if self._torque:
-                g["has_prev"].fill(False)
-            vector_kernels.gather_arm_results(g["ids"], clear, g["counts"], g["finite"], min_clear, intervened,
-                                              fallback, finite)
+        a = float_array("actions", actions, self.action_space.shape)
+        B, t = self.num_envs, self.template
+        command = self._command
+        command.reshape(B, -1)[:, self._columns] = a
+        effort = np.empty(B * self.engine.n_arms)
+        bad = kernels().scale_command(command.reshape(len(effort), -1), self._k_rows, t.action_scale, effort)
+        if bad >= 0:
+            raise ValueError(f"actions for copy {bad // self.engine.n_arms} contain NaN or inf")
+        rec = self.engine.step(command, t.substeps, torque=t.action_mode == "torque")
         self._steps += 1
-        err, obs = self._observations()
-        cost, clearance, formation_error = np.empty(B), np.empty(B), np.empty(B)
-        success, reward = np.empty(B, dtype=bool), np.empty(B)
-        vector_kernels.team_rewards(min_clear, err, a, self._effort_weights, t.formation_weight, t.effort_weight,
-                                    t.collision_penalty, t.success_tolerance, cost, clearance, formation_error,
-                                    success, reward)
-        terminated = np.zeros(B, dtype=bool)
-        if t.terminate_on_collision:
-            terminated |= cost > 0
-        if t.terminate_on_success:
-            terminated |= success
+        err, mats = self.task.observe(self.engine)
+        obs = self.task.flat(mats)
+        out = self.task.evaluate(rec, err, effort.reshape(B, -1))
+        finite = rec.finite.all(axis=1)
         truncated = (self._steps >= t.max_steps) | ~finite
-        infos = self._infos(cost, clearance, formation_error, (intervened, fallback), success)
+        infos = self._infos(out, rec)
         if not finite.all():
             infos["fault"] = np.where(finite, "", "non-finite state in the physics step; episode truncated")
             infos["_fault"] = ~finite
-        done = terminated | truncated
+        done = out.terminated | truncated
         if done.any():
             which = np.flatnonzero(done)
             final_obs = np.full(B, None, dtype=object)
             for b in which:
                 final_obs[b] = obs[b].copy()
-            final_info = {key: value for key, value in infos.items()}
+            final_info = dict(infos)
             infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
             infos["final_info"], infos["_final_info"] = final_info, done.copy()
             self._reset_copies(which)
-            obs[which] = self._observations()[1][which]
-        return obs, reward, terminated, truncated, infos
+            obs[which] = self.task.flat(self.task.observe(self.engine)[1])[which]
+        return obs, out.reward.mean(axis=1), out.terminated, truncated, infos
 
     def close_extras(self, **kwargs: Any) -> None:
         self.template.close()
 
     # ------------------------------------------------------------- internals
-    def _positions(self) -> np.ndarray:
-        P = np.empty((self.num_envs, self._n_arms, 2))
-        for g in self._groups:
-            P[:, g["ids"]] = g["p"].reshape(self.num_envs, g["A"], 2)
-        return P
+    def _reset_copies(self, which: np.ndarray) -> None:
+        """Put the copies ``which`` (indices) at their start, at rest (new teams when random)."""
+        for b in which:
+            if self._random:
+                team = random_scenario(self._rngs[b], self.template.random_options)
+                self.engine.load_team(int(b), team)
+                self.task.load_team(int(b), team)
+            self._steps[b] = 0
+        self.engine.reset(which)
 
-    def _clearance(self) -> np.ndarray:
-        if self._radii.shape[1] == 0:
-            return np.full(self.num_envs, np.inf)
-        return clearance(self._positions(), self._centers[:, None], self._radii[:, None]).min(axis=(1, 2))
-
-    def _chunks(self, arms: int) -> int:
-        """0 if a compiled call over ``arms`` arms runs on one thread, else the number of chunks it is split
-        into on numba's thread pool (the ``threads`` argument; "auto" from :data:`PARALLEL_THRESHOLD`)."""
-        if not (self.threads is True or (self.threads == "auto" and arms >= PARALLEL_THRESHOLD)):
-            return 0
-        from numba import get_num_threads
-
-        return 4 * get_num_threads()
-
-    def _observations(self) -> tuple[np.ndarray, np.ndarray]:
-        """The edge-length errors ``(B, E)`` and the observations ``(B, Σ obs_i)`` of the current state."""
-        B, N = self.num_envs, self._n_arms
-        if self._team_order:
-            q, qd, P = (self._groups[0][key].reshape(B, N, -1) for key in ("q", "qd", "p"))
-        else:
-            P = self._positions()
-            q = np.zeros((B, N, self._n_max))
-            qd = np.zeros((B, N, self._n_max))
-            for g in self._groups:
-                q[:, g["ids"], : g["n"]] = g["q"].reshape(B, g["A"], g["n"])
-                qd[:, g["ids"], : g["n"]] = g["qd"].reshape(B, g["A"], g["n"])
-        err, mats = self.template._layout.build_with_errors(q, qd, P, self._bases, self._edges, self._distances,
-                                                            self._centers, self._radii, self.template.max_joint_speed,
-                                                            self._chunks(B * N))
-        if len(mats) == 1 and len(self._groups[0]["ids"]) == N:
-            return err, mats[0].reshape(B, -1)
-        out = np.empty((B, self._obs_offsets[-1]), dtype=np.float32)
-        for (_, ids), mat in zip(self.template._layout.groups, mats, strict=True):
-            for r, i in enumerate(ids):
-                out[:, self._obs_offsets[i] : self._obs_offsets[i + 1]] = mat[:, r]
-        return err, out
-
-    def _infos(self, cost, min_clearance, formation_error, shield, success=None) -> dict[str, Any]:
-        B = self.num_envs
-        everywhere = np.ones(B, dtype=bool)
-        if success is None:
-            success = formation_error < self.template.success_tolerance
-        infos = {"cost": np.asarray(cost, dtype=float), "min_clearance": min_clearance,
-                 "formation_error": formation_error, "is_success": success}
-        if shield is not None and self.shield:
-            infos["shield_intervened"], infos["shield_fallback"] = shield
+    def _infos(self, out, rec) -> dict[str, Any]:
+        everywhere = np.ones(self.num_envs, dtype=bool)
+        infos = {"cost": out.cost.sum(axis=1), "min_clearance": out.measures["min_clearance"].min(axis=1),
+                 "formation_error": out.measures["formation_error"], "is_success": out.success}
+        if self.engine.filter is not None:
+            infos["shield_intervened"] = rec.intervened.any(axis=1) if rec is not None else ~everywhere
+            infos["shield_fallback"] = rec.fallback.any(axis=1) if rec is not None else ~everywhere
         for key in list(infos):
             infos["_" + key] = everywhere
         return infos

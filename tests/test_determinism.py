@@ -32,7 +32,7 @@ while env.agents:
     obs, *_ = env.step({a: rng.uniform(-1, 1, env.action_space(a).shape) for a in env.agents})
     for a in sorted(obs):
         digest.update(obs[a].tobytes())
-q, v = env.unwrapped.sim.joint_state()
+q, v = env.unwrapped.joint_state()
 digest.update(q.tobytes() + v.tobytes())
 for threads in (False, True):
     venv = Pan1VectorEnv("paper_pa3_square", 8, threads=threads, max_steps=40)
@@ -40,13 +40,13 @@ for threads in (False, True):
     venv.action_space.seed(5)
     for _ in range(50):
         obs, reward, *_ = venv.step(venv.action_space.sample())
-        g = venv._groups[0]
-        digest.update(obs.tobytes() + reward.tobytes() + g["q"].tobytes() + g["v"].tobytes())
+        kind = venv.engine.kinds[0]
+        digest.update(obs.tobytes() + reward.tobytes() + kind.q.tobytes() + kind.v.tobytes())
 print(digest.hexdigest())
 # where each kernel came from: compiled here (misses) or loaded from the disk cache (hits)
-from pan1_env import kernels, vector_kernels
+from pan1_env import kernels
 for f in (kernels.group_advance, kernels.group_advance_parallel, kernels.formation_observations,
-          kernels.group_observations_parallel, vector_kernels.team_rewards):
+          kernels.group_observations_parallel, kernels.scale_command):
     print(sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values()))
 """
 

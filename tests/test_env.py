@@ -109,10 +109,10 @@ def test_rgb_array_frame_shows_the_scene(scenario: str) -> None:
 def test_zero_velocity_keeps_arms_still(scenario: str) -> None:
     e = parallel_env(scenario)
     e.reset(seed=0)
-    q0, _ = e.sim.joint_state()
+    q0, _ = e.joint_state()
     for _ in range(50):
         e.step({a: np.zeros(e.action_space(a).shape, np.float32) for a in e.agents})
-    q, qd = e.sim.joint_state()
+    q, qd = e.joint_state()
     np.testing.assert_allclose(q, q0, atol=1e-12, equal_nan=True)
     assert np.nanmax(np.abs(qd)) < 1e-12
 
@@ -167,7 +167,7 @@ def test_gym_view_cost_and_info() -> None:
     assert err / 5 <= -reward <= err
     core = env.unwrapped.parallel
     f = core.scenario.formation  # the numpy reference formulas, not the env's compiled ones
-    z = edge_length_errors(edge_vectors(f.incidence, core.sim.positions()), f.distances)
+    z = edge_length_errors(edge_vectors(f.incidence, core.end_effectors()), f.distances)
     assert reward == pytest.approx(-np.mean(np.abs(z)))
     assert info["formation_error"] == pytest.approx(np.abs(z).max())
 
@@ -216,7 +216,7 @@ def test_bad_constructor_arguments(kwargs, match) -> None:
 def test_bad_actions_are_rejected_and_state_untouched() -> None:
     e = parallel_env("paper_pa_mixed_square")
     e.reset(seed=0)
-    q0, _ = e.sim.joint_state()
+    q0, _ = e.joint_state()
     good = {a: np.zeros(e.action_space(a).shape, np.float32) for a in e.agents}
     with pytest.raises(ValueError, match="NaN or inf"):
         e.step({**good, "arm_0": np.array([np.nan, 0.0], np.float32)})
@@ -226,7 +226,7 @@ def test_bad_actions_are_rejected_and_state_untouched() -> None:
         e.step({a: v for a, v in good.items() if a != "arm_1"})
     with pytest.raises(ValueError, match="unexpected"):
         e.step({**good, "arm_9": np.zeros(1)})
-    q1, _ = e.sim.joint_state()
+    q1, _ = e.joint_state()
     np.testing.assert_array_equal(q0, q1)
     assert e.num_steps == 0
 

@@ -8,13 +8,13 @@ from pan1_env.environment import OBS_BOUND, parallel_env
 
 def _reference(env) -> dict[str, np.ndarray]:
     """The layout of Pan1ParallelEnv's docstring, one agent at a time in numpy."""
-    sc, sim = env.scenario, env.sim
-    q, qd = sim.joint_state()
-    P = np.asarray(sim.positions())
+    sc = env.scenario
+    q, qd = env.joint_state()
+    P = env.end_effectors()
     z = P[sc.formation.edges[:, 1]] - P[sc.formation.edges[:, 0]]
     err = np.linalg.norm(z, axis=-1) - sc.formation.distances
     centers, radii = sc.obstacles.centers, sc.obstacles.radii
-    K, D = env.n_obstacle_obs, env._slots
+    K, D = env.n_obstacle_obs, env.observation_layout.slots
     out = {}
     for i, agent in enumerate(env.agents):
         n = sc.arms[i].n_links
@@ -68,14 +68,11 @@ def test_multi_threaded_observations_equal_the_serial_ones_and_bad_chunks_are_re
     rng = np.random.default_rng(2)
     for _ in range(3):
         venv.step(rng.uniform(-1, 1, venv.action_space.shape))
-    B, N = venv.num_envs, venv._n_arms
-    q, qd = np.zeros((B, N, venv._n_max)), np.zeros((B, N, venv._n_max))
-    for g in venv._groups:
-        q[:, g["ids"], : g["n"]] = g["q"].reshape(B, g["A"], g["n"])
-        qd[:, g["ids"], : g["n"]] = g["qd"].reshape(B, g["A"], g["n"])
-    args = (q, qd, venv._positions(), venv._bases, venv._edges, venv._distances, venv._centers, venv._radii,
+    engine, task = venv.engine, venv.task
+    q, qd = engine.joint_state()
+    args = (q, qd, engine.positions(), engine.bases, task.edges, task.distances, engine.centers, engine.radii,
             venv.template.max_joint_speed)
-    layout = venv.template._layout
+    layout = venv.template.observation_layout
     err, serial = layout.build_with_errors(*args)
     err3, chunked = layout.build_with_errors(*args, 3)
     np.testing.assert_array_equal(err3, err)

@@ -42,7 +42,7 @@ def test_observation_layout_is_public_read_only_and_decodes_observations() -> No
     with pytest.raises(AttributeError):
         env.unwrapped.observation_layout = layout
     obs, _ = env.reset(seed=0)
-    q = env.unwrapped.sim.joint_state()[0]
+    q = env.unwrapped.joint_state()[0]
     for i, agent in enumerate(env.possible_agents):
         n = int(layout.n[i])
         seg = layout.segments(n)

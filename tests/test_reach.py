@@ -44,9 +44,9 @@ def test_arm_follows_the_same_trajectory_as_in_the_team_env(scenario: str, arm: 
         # the layouts share the arm's own entries (cos q, sin q, q̇, p − base) and the K obstacle slots
         np.testing.assert_allclose(obs[: 3 * n + 2], team_obs[agent][: 3 * n + 2], rtol=0, atol=1e-6)
         np.testing.assert_allclose(obs[-5 * K :], team_obs[agent][-5 * K :], rtol=0, atol=1e-6)
-        q_team, _ = core.sim.joint_state()
+        q_team, _ = core.joint_state()
         np.testing.assert_allclose(reach.q, q_team[arm, :n], rtol=0, atol=1e-12)
-        np.testing.assert_allclose(reach.end_effector, core.sim.positions()[arm], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(reach.end_effector, core.end_effectors()[arm], rtol=0, atol=1e-12)
         assert info["min_clearance"] == pytest.approx(infos[agent]["min_clearance"], abs=1e-12)
         assert info["cost"] == infos[agent]["cost"]
         if shielded:

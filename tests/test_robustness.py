@@ -531,7 +531,7 @@ def test_extreme_actions_are_reported_not_raised(name: str) -> None:
             assert np.isfinite(rewards[agent])
             assert np.isfinite(infos[agent]["formation_error"]) and not np.isnan(infos[agent]["min_clearance"])
         assert np.all(np.isfinite(env.unwrapped.state()))
-        q, qd = env.unwrapped.sim.joint_state()
+        q, qd = env.unwrapped.joint_state()
         assert np.all(np.isfinite(q)) and np.all(np.isfinite(qd)), "the state must stay finite (or be reported)"
         faults = [infos[a].get("fault") for a in env.possible_agents]
         if any(f is not None for f in faults):
@@ -566,7 +566,7 @@ def test_non_finite_state_truncates_with_a_fault_and_reset_recovers() -> None:
     assert all("non-finite" in infos[a]["fault"] for a in env.possible_agents)
     assert all(np.all(np.isfinite(o)) for o in obs.values())
     assert all(np.isfinite(r) for r in rewards.values())
-    q, qd = env.sim.joint_state()
+    q, qd = env.joint_state()
     assert np.all(np.isfinite(q)) and np.all(np.isfinite(qd))
     obs, _ = env.reset(seed=0)
     for agent in obs:

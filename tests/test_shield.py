@@ -99,7 +99,7 @@ def test_shield_infos_report_the_intervention() -> None:
 def test_tightened_set_uses_gamma_margin() -> None:
     base = parallel_env("paper_pa3_square")
     SafetyShield(base, tracking_bound=0.05)
-    assert base.sim.margin == pytest.approx(robust_margin(0.05, 0.5, 5.0))
+    assert base.safety_filter.margin == pytest.approx(robust_margin(0.05, 0.5, 5.0))
     with pytest.raises(ValueError, match="kappa"):
         SafetyShield(parallel_env("paper_pa3_square"), kappa=-1.0)
     with pytest.raises(ValueError, match="not both"):
@@ -138,12 +138,12 @@ def test_reference_policy_behind_shield_reproduces_safe_run(name: str) -> None:
     policy = ReferencePolicy(base)
     obs, _ = env.reset(seed=0)
     clearance = np.full(4, np.inf)
-    q_env = [base.sim.joint_state()[0]]
+    q_env = [base.joint_state()[0]]
     while env.agents:
         obs, _, _, _, infos = env.step(policy(obs))
         clearance = np.minimum(clearance, [infos[a]["min_clearance"] for a in base.possible_agents])
         if base.num_steps % steps_per_s == 0:
-            q_env.append(base.sim.joint_state()[0])
+            q_env.append(base.joint_state()[0])
     q_ref = expected.trajectory["q"]
     np.testing.assert_allclose(expected.trajectory["time"], np.arange(len(q_ref)), atol=1e-9)
     np.testing.assert_allclose(np.array(q_env), q_ref, atol=2e-3, equal_nan=True)
@@ -164,6 +164,6 @@ def test_nearly_degenerate_row_brakes_instead_of_blowing_up() -> None:
     while env.agents:
         obs, _, _, _, infos = env.step(policy(obs))
         assert all("fault" not in info and info["cost"] == 0.0 for info in infos.values())
-        assert max(np.abs(g.v).max() for g in core.sim.groups) < 3.0 * core.max_joint_speed
+        assert max(np.abs(kind.v).max() for kind in core.engine.kinds) < 3.0 * core.max_joint_speed
         fallbacks += sum(info["shield"]["fallback"] for info in infos.values())
     assert fallbacks > 0

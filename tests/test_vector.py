@@ -59,7 +59,7 @@ def test_unshielded_vector_env_charges_collisions_like_the_single_env() -> None:
     """Without the shield, arms driven at full speed hit obstacles: cost and the collision penalty
     in the reward agree with the single env's."""
     B, kw = 4, dict(max_steps=40, collision_penalty=2.0, effort_weight=0.1)
-    venv = Pan1VectorEnv("paper_pa3_square", B, shield=False, **kw)
+    venv = Pan1VectorEnv("paper_pa3_square", B, safety_filter=False, **kw)
     singles = _singles("paper_pa3_square", B, shield=False, **kw)
     venv.reset(seed=0)
     for b, e in enumerate(singles):
@@ -124,7 +124,7 @@ def test_shielded_vector_env_stays_out_of_obstacles() -> None:
 
 
 def test_a_numerical_fault_truncates_only_its_copy() -> None:
-    venv = Pan1VectorEnv("paper_pa3_square", 2, action_mode="torque", max_torque=1e300, shield=False)
+    venv = Pan1VectorEnv("paper_pa3_square", 2, action_mode="torque", max_torque=1e300, safety_filter=False)
     venv.reset(seed=0)
     actions = np.zeros((2, 12))
     actions[1] = 1.0
@@ -164,11 +164,13 @@ def test_bad_arguments_are_refused(kwargs, error) -> None:
 def test_vector_constructor_names_its_arguments() -> None:
     """The team env's arguments in the signature (less render_mode, qp_solver); a typo gets a hint."""
     params = inspect.signature(Pan1VectorEnv.__init__).parameters
-    assert {"num_envs", "shield", "threads", "action_mode", "control_dt", "physics_dt", "max_steps"} <= set(params)
+    assert {"num_envs", "safety_filter", "threads", "action_mode", "control_dt", "physics_dt",
+            "max_steps"} <= set(params)
     assert not {"render_mode", "qp_solver"} & set(params)
     assert all(p.kind is not p.VAR_KEYWORD for p in params.values())
-    with pytest.raises(TypeError, match="Pan1VectorEnv got an unknown argument 'sheild'; did you mean 'shield'"):
-        Pan1VectorEnv("paper_pa3_square", 2, sheild=False)
+    with pytest.raises(TypeError, match="Pan1VectorEnv got an unknown argument 'safety_fliter'; did you mean "
+                                        "'safety_filter'"):
+        Pan1VectorEnv("paper_pa3_square", 2, safety_fliter=False)
     if importlib.util.find_spec("stable_baselines3"):
         from pan1_env.baselines.vec_env import SB3VecEnv
 
@@ -196,56 +198,11 @@ def test_sb3_adapter_runs_ppo_and_reports_terminal_observations() -> None:
     assert model.num_timesteps >= 64
 
 
-def test_compiled_step_bookkeeping_matches_numpy() -> None:
-    """The vector env's compiled per-copy reductions against the same formulas in numpy, on a mixed
-    team (two arm kinds, arms not in team order) with collisions, interventions and a fault."""
-    from pan1_env import vector_kernels as vk
-
-    rng = np.random.default_rng(3)
-    B, N, E = 6, 5, 7
-    kinds = [np.array([3, 0, 4]), np.array([1, 2])]  # arm ids of each kind
-    min_clear = np.empty((B, N))
-    intervened, fallback, finite = np.zeros(B, bool), np.zeros(B, bool), np.ones(B, bool)
-    want_clear = np.empty((B, N))
-    want_int, want_fb, want_fin = np.zeros(B, bool), np.zeros(B, bool), np.ones(B, bool)
-    for ids in kinds:
-        A = len(ids)
-        clear = rng.uniform(-0.2, 1.0, B * A)
-        counts = rng.integers(0, 3, (B * A, 3)) * (rng.random((B * A, 3)) < 0.05)
-        ok = rng.random(B * A) > 0.1
-        counts[4 * A : 5 * A], ok[4 * A : 5 * A] = 0, True  # copy 4: nothing happens in this kind
-        counts[A + 1, 1] += 1  # copy 1: a QP solved
-        counts[2 * A, 2] += 1  # copy 2: a fallback
-        ok[3 * A + A - 1] = False  # copy 3: a fault
-        vk.gather_arm_results(ids, clear, counts, ok, min_clear, intervened, fallback, finite)
-        want_clear[:, ids] = clear.reshape(B, A)
-        per_copy = counts.reshape(B, A, 3)
-        want_int |= per_copy[..., 1:].any(axis=(1, 2))
-        want_fb |= per_copy[..., 2].any(axis=1)
-        want_fin &= ok.reshape(B, A).all(axis=1)
-    np.testing.assert_array_equal(min_clear, want_clear)
-    np.testing.assert_array_equal(intervened, want_int)
-    np.testing.assert_array_equal(fallback, want_fb)
-    np.testing.assert_array_equal(finite, want_fin)
-    assert want_int.any() and not want_int.all() and not want_fin.all()  # the draw exercises every branch
-
-    err = rng.normal(0.0, 0.05, (B, E))
-    actions = rng.uniform(-1.5, 1.5, (B, 9))
-    weights = rng.uniform(0.2, 1.0, 9)
-    out = [np.empty(B), np.empty(B), np.empty(B), np.empty(B, bool), np.empty(B)]
-    vk.team_rewards(min_clear, err, actions, weights, 1.5, 0.3, 2.0, 0.06, *out)
-    cost, clearance, formation_error, success, reward = out
-    want_cost = (min_clear < 0).sum(axis=1)
-    effort = np.clip(actions, -1, 1) ** 2 @ weights
-    np.testing.assert_array_equal(cost, want_cost)
-    np.testing.assert_array_equal(clearance, min_clear.min(axis=1))
-    np.testing.assert_array_equal(formation_error, np.abs(err).max(axis=1))
-    np.testing.assert_array_equal(success, np.abs(err).max(axis=1) < 0.06)
-    np.testing.assert_allclose(reward, -1.5 * np.abs(err).mean(axis=1) - 0.3 * effort / N - 2.0 * want_cost / N,
-                               rtol=1e-13, atol=1e-15)
-    assert want_cost.any() and success.any() and not success.all()
-
-    cols = np.array([[4, 5], [0, 1], [7, 8]])
-    command = np.empty((B * 3, 2))
-    vk.gather_commands(actions, cols, 2.5, command)
-    np.testing.assert_array_equal(command, (np.clip(actions[:, cols], -1, 1) * 2.5).reshape(B * 3, 2))
+def test_shield_keyword_is_a_deprecated_alias_of_safety_filter() -> None:
+    """0.1's ``shield=`` still works for one release, with a DeprecationWarning, and means safety_filter."""
+    with pytest.warns(DeprecationWarning, match="safety_filter"):
+        venv = Pan1VectorEnv("paper_pa3_square", 2, shield=False, max_steps=5)
+    assert venv.safety_filter is None
+    with pytest.warns(DeprecationWarning, match="safety_filter"):
+        assert venv.shield is False
+    assert Pan1VectorEnv("paper_pa3_square", 2, max_steps=5).safety_filter is not None

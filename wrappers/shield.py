@@ -38,6 +38,7 @@ import gymnasium
 import numpy as np
 from pettingzoo.utils.wrappers import BaseParallelWrapper
 
+from pan1_env.engine import FilterParams
 from pan1_env.safety import QPStatus, robust_margin
 from pan1_env.validation import real
 
@@ -47,8 +48,9 @@ _NOMINAL, _SOLVED, _FALLBACK = (s.name.lower() for s in (QPStatus.NOMINAL, QPSta
 
 
 def shield_parameters(scenario, kappa: float | None, epsilon: float | None, margin: float | None,
-                      tracking_bound: float | None) -> dict[str, float]:
-    """Validated κ, ε and the barrier margin (explicit, or Γ(δ̄) from ``tracking_bound``)."""
+                      tracking_bound: float | None) -> FilterParams:
+    """Validated filter parameters: κ, ε (default: the scenario's) and the barrier margin (explicit,
+    or Γ(δ̄) from ``tracking_bound``; default: the scenario's)."""
     kappa = real("SafetyShield: kappa", scenario.kappa if kappa is None else kappa, positive=True)
     epsilon = real("SafetyShield: epsilon", scenario.epsilon if epsilon is None else epsilon, positive=True)
     if margin is not None and tracking_bound is not None:
@@ -56,34 +58,33 @@ def shield_parameters(scenario, kappa: float | None, epsilon: float | None, marg
     if tracking_bound is not None:
         margin = robust_margin(real("SafetyShield: tracking_bound", tracking_bound, non_negative=True), kappa, epsilon)
     margin = real("SafetyShield: margin", scenario.safety_margin if margin is None else margin, non_negative=True)
-    return {"kappa": kappa, "epsilon": epsilon, "margin": margin}
+    return FilterParams(kappa, epsilon, margin)
 
 
 def _switch_on(core, kappa, epsilon, margin, tracking_bound) -> None:
-    """Turn the filter on in a :class:`~pan1_env.environment.Pan1ParallelEnv` with these parameters."""
-    if core.safety_filter:
+    """Switch the filter on through the env's public :meth:`set_safety_filter`."""
+    if core.safety_filter is not None:
         raise ValueError("this env is already shielded; wrap it once")
-    core.shield_params = shield_parameters(core.scenario, kappa, epsilon, margin, tracking_bound)
-    core.safety_filter = True
-    core._apply_shield()
+    core.set_safety_filter(shield_parameters(core.scenario, kappa, epsilon, margin, tracking_bound))
 
 
 def _shield_infos(core, actions: dict[str, np.ndarray]) -> dict[str, dict[str, Any]]:
-    rec = core._last_record
+    """Per-agent reports of the last step, from the env's public ``last_step`` record."""
+    rec = core.last_step
     if rec is None:
         return {}
-    velocity = not core._torque_mode
-    applied = ((rec.v_star if velocity else rec.tau) * (1.0 / core._action_scale)).astype(np.float32)
+    velocity = core.action_mode == "velocity"
+    applied = ((rec.v_star if velocity else rec.tau) * (1.0 / core.action_scale)).astype(np.float32)
     counts = rec.qp_counts
     min_barrier = rec.min_barrier.tolist()
     out = {}
     for i, (agent, (_, solved, fallback)) in enumerate(zip(core.possible_agents, counts.tolist(), strict=True)):
         if agent not in actions:
             continue
-        k = core._k[i]
+        n, k = core.n_links[i], core.n_actuated[i]
         out[agent] = {
             "requested": np.array(actions[agent], dtype=np.float32),
-            "applied": applied[i, :k] if velocity else applied[i, core._n[i] - k : core._n[i]],
+            "applied": applied[i, :k] if velocity else applied[i, n - k : n],
             "intervened": solved + fallback > 0,
             "min_barrier": min_barrier[i],
             "status": _FALLBACK if fallback else (_SOLVED if solved else _NOMINAL),
@@ -110,7 +111,7 @@ class SafetyShield(BaseParallelWrapper):
                  margin: float | None = None, tracking_bound: float | None = None) -> None:
         super().__init__(env)
         core = env.unwrapped
-        if not hasattr(core, "safety_filter"):
+        if not hasattr(core, "set_safety_filter"):
             raise TypeError(f"SafetyShield wraps a pan1_env parallel env, got {type(core).__name__}")
         _switch_on(core, kappa, epsilon, margin, tracking_bound)
 
@@ -141,8 +142,7 @@ class GymSafetyShield(gymnasium.Wrapper):
         obs, reward, terminated, truncated, info = self.env.step(action)
         inner = self.env.unwrapped
         core = inner.parallel
-        parts = np.split(np.asarray(action, dtype=float), inner._splits)
-        reports = _shield_infos(core, dict(zip(core.possible_agents, parts, strict=True)))
+        reports = _shield_infos(core, inner.agent_actions(action))
         info["shield"] = reports
         info["shield_intervened"] = any(r["intervened"] for r in reports.values())
         info["shield_fallback"] = any(r["fallback"] for r in reports.values())

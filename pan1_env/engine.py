@@ -1,0 +1,339 @@
+"""The engine: B copies of a team, stepped by one call of the compiled sub-step kernel per arm kind.
+
+:class:`Engine` is the one owner of stepping. It holds the state of every arm of B copies of a
+team in arrays batched over ``B × (arms of one kind)`` (an arm kind is a number of links and an
+actuation; copies are stacked copy-major), the safety filter's parameters, and the only call into
+the sub-step kernel (:func:`pan1_env.kernels.group_advance`, or its multi-threaded twin for large
+batches). A step holds one command per arm for a number of physics sub-steps; at every sub-step the
+kernel filters the command through the RCBF-QP (when the filter is on), tracks it with the
+backstepping law in velocity mode, and takes one RK4 step (docs/MODEL.md). It returns a
+:class:`StepRecord`. What a step *means* (observations, rewards, cost, success) is a task's
+(:mod:`pan1_env.tasks`); the environments are adapters over an engine and a task, and B = 1 is a
+batch of one.
+
+The filter's QP runs in the kernel (``qp_solver="active_set"``, exact); ``"piqp"`` solves it with
+qpsolvers + PIQP instead, one sub-step at a time (velocity mode; slow, for cross-checks).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .compiled import kernel_sizes, kernels
+from .dynamics import ArmBatch
+from .safety import QP_SOLVERS, clearance, project_velocity, rcbf_constraints
+from .scenario import Scenario
+from .validation import real
+
+__all__ = ["Engine", "FilterParams", "StepRecord", "filter_parameters", "PARALLEL_THRESHOLD"]
+
+PARALLEL_THRESHOLD = 256  # arms of one kind from which the kernel runs on numba's thread pool
+
+
+@dataclass(frozen=True)
+class FilterParams:
+    """The RCBF-QP safety filter's parameters (docs/MODEL.md §5): κ and ε of the robust barrier
+    condition, and ``margin`` (m²) subtracted from every barrier h = ‖p − o‖² − r²."""
+
+    kappa: float
+    epsilon: float
+    margin: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kappa", real("FilterParams: kappa", self.kappa, positive=True))
+        object.__setattr__(self, "epsilon", real("FilterParams: epsilon", self.epsilon, positive=True))
+        object.__setattr__(self, "margin", real("FilterParams: margin", self.margin, non_negative=True))
+
+    @classmethod
+    def of(cls, scenario: Scenario) -> FilterParams:
+        """The scenario's own κ, ε and margin."""
+        return cls(scenario.kappa, scenario.epsilon, scenario.safety_margin)
+
+
+def filter_parameters(safety_filter: bool | FilterParams | None, scenario: Scenario) -> FilterParams | None:
+    """The ``safety_filter`` argument every env takes: ``False`` (off), ``True`` (on, the scenario's
+    κ, ε and margin) or a :class:`FilterParams`. Returns the parameters, or None when off."""
+    if safety_filter is None or safety_filter is False:
+        return None
+    if safety_filter is True:
+        return FilterParams.of(scenario)
+    if isinstance(safety_filter, FilterParams):
+        return safety_filter
+    raise ValueError(f"safety_filter must be False, True or a FilterParams, got {safety_filter!r}")
+
+
+@dataclass
+class StepRecord:
+    """What one :meth:`Engine.step` produced, per copy and arm (arrays with leading axes ``(B, N)``)."""
+
+    v_star: np.ndarray  # (B, N, k_max) v* of the last sub-step (NaN in unfiltered torque mode, and as padding)
+    tau: np.ndarray  # (B, N, n_max) joint torques of the last sub-step (passive entry 0; NaN padding)
+    min_clearance: np.ndarray  # (B, N) smallest end-effector clearance after any sub-step (inf: no obstacle)
+    min_barrier: np.ndarray  # (B, N) smallest filtered barrier value h seen (inf: no row)
+    qp_counts: np.ndarray  # (B, N, 3) sub-steps per QP status: nominal, solved, fallback
+    max_tracking_error: np.ndarray  # (B, N) largest ‖v − v*‖ at the start of a sub-step
+    finite: np.ndarray  # (B, N) False where the state went non-finite (left at its last finite state)
+
+    @property
+    def intervened(self) -> np.ndarray:
+        """``(B, N)``: the filter changed the command (or braked) in some sub-step."""
+        return (self.qp_counts[..., 1] + self.qp_counts[..., 2]) > 0
+
+    @property
+    def fallback(self) -> np.ndarray:
+        """``(B, N)``: the filter's QP was infeasible and the braking fallback ran in some sub-step."""
+        return self.qp_counts[..., 2] > 0
+
+
+class _Kind:
+    """The arms of one kind in every copy: rows ``b·A + r`` hold arm ``ids[r]`` of copy b."""
+
+    def __init__(self, ids: list[int], scenario: Scenario, copies: int) -> None:
+        batch = ArmBatch.stack([scenario.arms[i] for i in ids])
+        self.ids = np.asarray(ids, dtype=np.int64)
+        self.A, self.n, self.k = len(ids), batch.n_links, batch.n_actuated
+        self.passive = batch.passive_first_joint
+        self.sizes = kernel_sizes(self.n, self.k)
+        rows, O = copies * self.A, len(scenario.obstacles)
+        self.lam, self.lengths = np.empty((rows, self.n, self.n)), np.empty((rows, self.n))
+        self.base, self.phi = np.empty((rows, 2)), np.empty(rows)
+        self.centers, self.radii = np.empty((rows, O, 2)), np.empty((rows, O))
+        self.mask, self.q0 = np.empty((rows, O), dtype=bool), np.empty((rows, self.n))
+        # the state, updated in place (views of it stay valid for the engine's life)
+        self.q, self.v, self.qd, self.p = (np.zeros((rows, self.n)), np.zeros((rows, self.k)),
+                                           np.zeros((rows, self.n)), np.zeros((rows, 2)))
+        self.v_prev, self.has_prev = np.zeros((rows, self.k)), np.zeros(rows, dtype=bool)
+
+    def rows(self, copies: np.ndarray) -> np.ndarray:
+        return (np.asarray(copies)[:, None] * self.A + np.arange(self.A)[None]).ravel()
+
+    def load(self, b: int, scenario: Scenario, mask: np.ndarray) -> None:
+        sl = slice(b * self.A, (b + 1) * self.A)
+        batch = ArmBatch.stack([scenario.arms[i] for i in self.ids])
+        self.lam[sl], self.lengths[sl], self.base[sl], self.phi[sl] = batch.lam, batch.lengths, batch.base, batch.phi
+        self.centers[sl] = scenario.obstacles.centers[None]
+        self.radii[sl] = scenario.obstacles.radii[None]
+        self.mask[sl] = mask[self.ids]
+        self.q0[sl] = np.array([scenario.q0[i] for i in self.ids])
+
+
+class Engine:
+    """B copies of a team's arms, the safety filter, and the single call into the sub-step kernel.
+
+    Args:
+        scenario: the team (every copy starts as this one; :meth:`load_team` puts another team of the
+            same structure into a copy, e.g. a new random team at a reset).
+        copies: B.
+        physics_dt: the RK4 sub-step, seconds (default: the scenario's).
+        safety_filter: ``False``, ``True`` (the scenario's κ, ε, margin) or a :class:`FilterParams`.
+        max_speed: with the filter on, its QP also bounds every filtered speed by this (rad/s).
+        qp_solver: ``"active_set"`` (exact, in the kernel) or ``"piqp"`` (velocity mode only).
+        threads: ``"auto"`` (numba's thread pool from :data:`PARALLEL_THRESHOLD` arms of a kind),
+            ``True`` or ``False``; the two kernels give the same results bit for bit.
+    """
+
+    def __init__(self, scenario: Scenario, copies: int = 1, *, physics_dt: float | None = None,
+                 safety_filter: bool | FilterParams = False, max_speed: float = np.inf,
+                 qp_solver: str = "active_set", threads: bool | str = "auto") -> None:
+        if qp_solver not in QP_SOLVERS:
+            raise ValueError(f"unknown qp_solver {qp_solver!r}; choose one of {QP_SOLVERS}")
+        if threads not in ("auto", True, False):
+            raise ValueError(f"threads must be 'auto', True or False, got {threads!r}")
+        if qp_solver == "piqp" and copies != 1:
+            raise ValueError("qp_solver='piqp' steps one copy; use the compiled 'active_set' QP for batches")
+        self.physics_dt = real("physics_dt", scenario.physics_dt if physics_dt is None else physics_dt, positive=True)
+        self.copies, self.qp_solver, self.threads = int(copies), qp_solver, threads
+        self.max_speed = float(max_speed)
+        self.ke = scenario.ke
+        self.n_arms = scenario.n_arms
+        self.n_links = [a.n_links for a in scenario.arms]
+        self.n_actuated = [a.n_actuated for a in scenario.arms]
+        self.n_max, self.k_max = max(self.n_links), max(self.n_actuated)
+        kinds: dict[tuple[int, bool], list[int]] = {}
+        for i, arm in enumerate(scenario.arms):
+            kinds.setdefault((arm.n_links, arm.passive_first_joint), []).append(i)
+        self.kinds = [_Kind(ids, scenario, self.copies) for _, ids in sorted(kinds.items())]
+        # one kind in team order: its (B·N, ·) state arrays reshaped are the team arrays
+        self.team_order = len(self.kinds) == 1 and self.kinds[0].ids.tolist() == list(range(self.n_arms))
+        B, O = self.copies, len(scenario.obstacles)
+        self.teams: list[Scenario] = [scenario] * B
+        self.bases, self.centers, self.radii = np.empty((B, self.n_arms, 2)), np.empty((B, O, 2)), np.empty((B, O))
+        for b in range(B):
+            self.load_team(b, scenario)
+        self.set_safety_filter(safety_filter)
+        self._tau_template = np.full((B, self.n_arms, self.n_max), np.nan)
+        self._tau_template[:, [i for i, a in enumerate(scenario.arms) if a.passive_first_joint], 0] = 0.0
+        self.reset()
+
+    # ------------------------------------------------------------------ set-up
+    def set_safety_filter(self, safety_filter: bool | FilterParams) -> None:
+        """Switch the filter off (``False``) or on (``True``: the scenario's parameters, or a
+        :class:`FilterParams`); it acts from the next sub-step."""
+        self.filter = filter_parameters(safety_filter, self.teams[0])
+
+    def load_team(self, b: int, scenario: Scenario) -> None:
+        """Put ``scenario``'s team (same arm kinds in the same order) into copy ``b``; it starts there
+        at the next :meth:`reset` of that copy."""
+        if [a.n_links for a in scenario.arms] != self.n_links or [a.n_actuated for a in scenario.arms] != \
+                self.n_actuated:
+            raise ValueError("the scenario's team structure does not match the engine's")
+        if scenario.ke != self.ke or len(scenario.obstacles) != self.radii.shape[1]:
+            raise ValueError("a loaded team must keep the tracker gain K_e and the number of obstacles")
+        mask = scenario.obstacle_mask()
+        for kind in self.kinds:
+            kind.load(b, scenario, mask)
+        self.teams[b] = scenario
+        self.bases[b] = [a.base for a in scenario.arms]
+        self.centers[b], self.radii[b] = scenario.obstacles.centers, scenario.obstacles.radii
+
+    def reset(self, copies: np.ndarray | None = None, q0: list[np.ndarray] | None = None) -> None:
+        """Put the ``copies`` (default: all) at rest at their team's start (or, for one copy, at ``q0``)."""
+        copies = np.arange(self.copies) if copies is None else np.asarray(copies, dtype=np.int64)
+        if q0 is not None:
+            if len(copies) != 1 or len(q0) != self.n_arms:
+                raise ValueError(f"q0 needs one configuration per arm ({self.n_arms}) and resets one copy")
+            for i, row in enumerate(q0):
+                row = np.asarray(row, dtype=float)
+                if row.shape != (self.n_links[i],) or not np.all(np.isfinite(row)):
+                    raise ValueError(f"q0[{i}] must be {self.n_links[i]} finite joint angles, got {row.tolist()}")
+        for kind in self.kinds:
+            rows = kind.rows(copies)
+            kind.q[rows] = kind.q0[rows] if q0 is None else [q0[i] for i in kind.ids]
+            kind.v[rows] = kind.v_prev[rows] = kind.qd[rows] = 0.0
+            kind.has_prev[rows] = False
+            kernels().group_end_effectors(kind.lengths, kind.base, kind.phi, kind.q, kind.p)
+
+    # ------------------------------------------------------------------ state
+    def positions(self) -> np.ndarray:
+        """End-effectors ``(B, N, 2)`` (a view of the state when one kind is the team in order)."""
+        if self.team_order:
+            return self.kinds[0].p.reshape(self.copies, self.n_arms, 2)
+        P = np.empty((self.copies, self.n_arms, 2))
+        for kind in self.kinds:
+            P[:, kind.ids] = kind.p.reshape(self.copies, kind.A, 2)
+        return P
+
+    def joint_state(self, pad: float = np.nan) -> tuple[np.ndarray, np.ndarray]:
+        """Team arrays ``q, q̇ (B, N, n_max)``, ``pad`` beyond an arm's links (views when one kind is
+        the team in order: do not write to them)."""
+        B, N = self.copies, self.n_arms
+        if self.team_order:
+            return self.kinds[0].q.reshape(B, N, -1), self.kinds[0].qd.reshape(B, N, -1)
+        q, qd = np.full((B, N, self.n_max), pad), np.full((B, N, self.n_max), pad)
+        for kind in self.kinds:
+            q[:, kind.ids, : kind.n] = kind.q.reshape(B, kind.A, kind.n)
+            qd[:, kind.ids, : kind.n] = kind.qd.reshape(B, kind.A, kind.n)
+        return q, qd
+
+    def clearance(self) -> np.ndarray:
+        """Smallest ‖p_i − o_j‖ − r_j over obstacles for every arm, ``(B, N)`` (inf with none)."""
+        if self.radii.shape[1] == 0:
+            return np.full((self.copies, self.n_arms), np.inf)
+        return clearance(self.positions(), self.centers[:, None], self.radii[:, None]).min(axis=-1)
+
+    def kind_terms(self, kind: _Kind) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """End-effectors ``(B·A, 2)``, reduced Jacobians J̄ ``(B·A, 2, k)`` and passive momenta of a kind."""
+        rows = len(kind.q)
+        p, Jbar, Mc = np.empty((rows, 2)), np.empty((rows, 2, kind.k)), np.empty((rows, kind.k, kind.k))
+        Hc, momentum = np.empty((rows, kind.k)), np.empty(rows)
+        kernels().group_terms(kind.lam, kind.lengths, kind.base, kind.phi, kind.passive, kind.q, kind.v, p, Jbar,
+                              Mc, Hc, momentum)
+        return p, Jbar, momentum
+
+    # --------------------------------------------------------------- stepping
+    def step(self, command: np.ndarray, substeps: int, *, torque: bool = False) -> StepRecord:
+        """Hold ``command (B, N, k_max)`` (desired actuated velocities in rad/s, or with ``torque``
+        actuated torques in N·m; padding ignored) for ``substeps`` physics steps."""
+        B, N = self.copies, self.n_arms
+        command = np.asarray(command, dtype=float)
+        if command.shape != (B, N, self.k_max):
+            raise ValueError(f"command must have shape {(B, N, self.k_max)}, got {command.shape}")
+        if isinstance(substeps, bool) or not isinstance(substeps, (int, np.integer)) or substeps < 1:
+            raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
+        piqp = self.filter is not None and self.qp_solver == "piqp"
+        if piqp and torque:
+            raise ValueError("the torque-mode filter needs qp_solver='active_set'")
+        rec = StepRecord(v_star=np.full((B, N, self.k_max), np.nan), tau=self._tau_template.copy(),
+                         min_clearance=np.full((B, N), np.inf), min_barrier=np.full((B, N), np.inf),
+                         qp_counts=np.zeros((B, N, 3), dtype=np.int64), max_tracking_error=np.zeros((B, N)),
+                         finite=np.ones((B, N), dtype=bool))
+        for kind in self.kinds:
+            if piqp and kind.mask.any():
+                for _ in range(int(substeps)):
+                    self._piqp_substep(kind, command, rec)
+            else:
+                self._advance(kind, command, int(substeps), torque, self.filter, rec)
+        if not rec.finite.all():  # a faulty arm stopped early: include the (finite) state it was left in
+            np.minimum(rec.min_clearance, self.clearance(), out=rec.min_clearance)
+        return rec
+
+    def _advance(self, kind: _Kind, command: np.ndarray, substeps: int, torque: bool, params: FilterParams | None,
+                 rec: StepRecord) -> None:
+        """The kernel call: every arm of a kind in every copy, ``substeps`` sub-steps."""
+        B, A, n, k = self.copies, kind.A, kind.n, kind.k
+        rows = B * A
+        if self.team_order:  # the kernel writes straight into the record (it accumulates minima and counts)
+            out = (rec.v_star.reshape(rows, k), rec.tau.reshape(rows, n), rec.min_clearance.reshape(rows),
+                   rec.min_barrier.reshape(rows), rec.qp_counts.reshape(rows, 3),
+                   rec.max_tracking_error.reshape(rows), rec.finite.reshape(rows))
+            cmd = np.ascontiguousarray(command.reshape(rows, k))
+        else:
+            ids = kind.ids  # gathered copies of the record's rows (the kernel accumulates into them)
+            out = (np.empty((rows, k)), rec.tau[:, ids, :n].reshape(rows, n), rec.min_clearance[:, ids].reshape(rows),
+                   rec.min_barrier[:, ids].reshape(rows), np.zeros((rows, 3), dtype=np.int64),
+                   rec.max_tracking_error[:, ids].reshape(rows), np.ones(rows, dtype=bool))
+            cmd = np.ascontiguousarray(command[:, kind.ids, :k].reshape(rows, k))
+        p = params or FilterParams(1.0, 1.0)  # unused with the filter off
+        args = (*kind.sizes, kind.lam, kind.lengths, kind.base, kind.phi, kind.passive, kind.q, kind.v,
+                kind.v_prev, kind.has_prev, cmd, torque, params is not None, kind.centers, kind.radii, kind.mask,
+                p.kappa, p.epsilon, p.margin, self.ke, self.physics_dt, substeps, self.max_speed, out[0], out[1],
+                kind.qd, kind.p, *out[2:])
+        chunks = self._chunks(rows)
+        if chunks:
+            kernels().group_advance_parallel(*args, chunks)
+        else:
+            kernels().group_advance(*args)
+        if torque:
+            kind.has_prev[:] = False
+        if not self.team_order:
+            for field, value in zip(("v_star", "tau", "min_clearance", "min_barrier", "qp_counts",
+                                     "max_tracking_error", "finite"), out, strict=True):
+                target = getattr(rec, field)
+                if target.ndim == 3:
+                    width = value.shape[1]
+                    if field == "qp_counts":
+                        target[:, kind.ids] += value.reshape(B, A, width)
+                    else:
+                        target[:, kind.ids, :width] = value.reshape(B, A, width)
+                else:
+                    target[:, kind.ids] = value.reshape(B, A)
+
+    def _piqp_substep(self, kind: _Kind, command: np.ndarray, rec: StepRecord) -> None:
+        """One velocity-mode sub-step whose RCBF-QP is solved by qpsolvers + PIQP (one copy)."""
+        A, k, f = kind.A, kind.k, self.filter
+        p, Jbar, _ = self.kind_terms(kind)
+        rows, b, h = rcbf_constraints(p, Jbar, kind.centers[0], kind.radii[0], f.kappa, f.epsilon,
+                                      active=kind.mask, margin=f.margin)
+        if np.isfinite(self.max_speed):
+            box = np.concatenate([np.eye(k), -np.eye(k)])
+            rows = np.concatenate([rows, np.broadcast_to(box, (A, 2 * k, k))], axis=1)
+            b = np.concatenate([b, np.full((A, 2 * k), self.max_speed)], axis=1)
+        result = project_velocity(command[0, kind.ids, :k], rows, b, solver="piqp")
+        v_star = np.zeros_like(command)
+        v_star[0, kind.ids, :k] = result.v
+        finite = rec.finite.copy()
+        self._advance(kind, v_star, 1, False, None, rec)  # counted as a nominal sub-step: recount below
+        rec.finite &= finite
+        rec.qp_counts[0, kind.ids] += np.eye(3, dtype=np.int64)[result.status] - np.eye(3, dtype=np.int64)[0]
+        rec.min_barrier[0, kind.ids] = np.minimum(rec.min_barrier[0, kind.ids],
+                                                  np.where(kind.mask, h, np.inf).min(axis=-1))
+
+    def _chunks(self, rows: int) -> int:
+        """0 to run a kernel call on one thread, else its number of chunks on numba's thread pool."""
+        if not (self.threads is True or (self.threads == "auto" and rows >= PARALLEL_THRESHOLD)):
+            return 0
+        from numba import get_num_threads
+
+        return 4 * get_num_threads()

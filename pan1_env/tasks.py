@@ -1,0 +1,146 @@
+"""Tasks: what a step of the engine means, written once and batched over B copies.
+
+A task turns the engine's state and :class:`~pan1_env.engine.StepRecord` into observations,
+rewards (with their terms), cost, success and termination, as arrays over copies (and arms). The
+parallel env, the Gymnasium view and the vector env share :class:`FormationTask`; the reach env
+uses :class:`ReachTask`. Nothing here steps the physics.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .compiled import kernels
+from .engine import Engine, StepRecord
+from .observation import OBS_BOUND, OBSTACLE_FEATURES, ObservationLayout
+from .scenario import Scenario
+
+__all__ = ["FormationTask", "ReachTask", "Outcome"]
+
+
+@dataclass
+class Outcome:
+    """A step's meaning per copy: ``reward (B, N)`` per agent and its ``terms`` (each ``(B, N)``),
+    ``cost (B, N)`` (1.0 where an arm entered an obstacle), ``success (B,)``, ``terminated (B,)``, and
+    task measures in ``measures`` (each ``(B,)``)."""
+
+    reward: np.ndarray
+    terms: dict[str, np.ndarray]
+    cost: np.ndarray
+    success: np.ndarray
+    terminated: np.ndarray
+    measures: dict[str, np.ndarray]
+
+
+class FormationTask:
+    """Bring the end-effectors into the scenario's rigid formation without touching an obstacle.
+
+    Reward of agent i: ``−formation_weight · mean_k |‖z_k‖ − d_k| − effort_weight · ‖a_i‖²/k_i
+    − collision_penalty · cost_i``; success: every edge within ``success_tolerance`` of its length.
+    The observation layout (:class:`~pan1_env.observation.ObservationLayout`) is the one public
+    description of what each agent sees.
+    """
+
+    def __init__(self, scenario: Scenario, copies: int, layout: ObservationLayout, *, max_joint_speed: float,
+                 success_tolerance: float, formation_weight: float, effort_weight: float, collision_penalty: float,
+                 terminate_on_collision: bool, terminate_on_success: bool) -> None:
+        self.layout = layout
+        self.max_joint_speed, self.success_tolerance = max_joint_speed, success_tolerance
+        self.weights = (formation_weight, effort_weight, collision_penalty)
+        self.terminate_on_collision, self.terminate_on_success = terminate_on_collision, terminate_on_success
+        self.edges = np.ascontiguousarray(scenario.formation.edges, dtype=np.int64)
+        self.distances = np.tile(np.asarray(scenario.formation.distances, dtype=float)[None], (copies, 1))
+        self.sizes = [layout.size(n) for n in layout.n]
+        self.offsets = np.concatenate([[0], np.cumsum(self.sizes)])
+
+    def load_team(self, b: int, scenario: Scenario) -> None:
+        """Copy ``b`` now has ``scenario``'s formation."""
+        self.distances[b] = scenario.formation.distances
+
+    def observe(self, engine: Engine) -> tuple[np.ndarray, list[np.ndarray]]:
+        """The edges' length errors ``(B, E)`` and every agent's observation, one float32 array
+        ``(B, A, size)`` per group of :attr:`ObservationLayout.groups`."""
+        q, qd = engine.joint_state()
+        return self.layout.build_with_errors(q, qd, engine.positions(), engine.bases, self.edges, self.distances,
+                                             engine.centers, engine.radii, self.max_joint_speed,
+                                             engine._chunks(engine.copies * engine.n_arms))
+
+    def flat(self, mats: list[np.ndarray]) -> np.ndarray:
+        """The agents' observations concatenated in agent order, ``(B, Σ size)``."""
+        if len(mats) == 1 and self.layout.groups[0][1].tolist() == list(range(len(self.sizes))):
+            return mats[0].reshape(len(mats[0]), -1)
+        out = np.empty((len(mats[0]), self.offsets[-1]), dtype=np.float32)
+        for (_, ids), mat in zip(self.layout.groups, mats, strict=True):
+            for r, i in enumerate(ids):
+                out[:, self.offsets[i] : self.offsets[i + 1]] = mat[:, r]
+        return out
+
+    def evaluate(self, record: StepRecord | None, err: np.ndarray, effort: np.ndarray,
+                 clearance: np.ndarray | None = None) -> Outcome:
+        """The step's outcome from its record, the edge errors after it and each agent's effort
+        ``‖a_i‖²/k_i (B, N)``. At a reset (``record`` None) pass the state's ``clearance (B, N)``."""
+        w_form, w_effort, penalty = self.weights
+        abs_err = np.abs(err)
+        min_clear = record.min_clearance if record is not None else clearance
+        cost = (min_clear < 0).astype(float)
+        terms = {"formation": np.broadcast_to(-w_form * abs_err.mean(axis=1)[:, None], cost.shape),
+                 "effort": -w_effort * effort, "collision": -penalty * cost}
+        reward = terms["formation"] + terms["effort"] + terms["collision"] if (w_effort or penalty) else \
+            np.array(terms["formation"])
+        formation_error = abs_err.max(axis=1)
+        success = formation_error < self.success_tolerance
+        terminated = np.zeros(len(err), dtype=bool)
+        if self.terminate_on_collision:
+            terminated |= cost.any(axis=1)
+        if self.terminate_on_success:
+            terminated |= success
+        return Outcome(reward, terms, cost, success, terminated,
+                       {"formation_error": formation_error, "min_clearance": min_clear})
+
+
+class ReachTask:
+    """One arm brings its end-effector within ``goal_tolerance`` of a goal point.
+
+    Reward: ``−‖goal − p‖ − effort_weight · ‖a‖²/k − collision_penalty · cost``.
+    Observation: ``[cos q, sin q, q̇ / v_max, p − base, goal − p, K obstacle slots]``.
+    """
+
+    def __init__(self, copies: int, n_links: int, *, n_obstacle_obs: int, max_joint_speed: float,
+                 goal_tolerance: float, effort_weight: float, collision_penalty: float,
+                 terminate_on_success: bool, terminate_on_collision: bool) -> None:
+        self.goal = np.zeros((copies, 2))
+        self.n_obstacle_obs, self.max_joint_speed, self.goal_tolerance = n_obstacle_obs, max_joint_speed, goal_tolerance
+        self.weights = (effort_weight, collision_penalty)
+        self.terminate_on_success, self.terminate_on_collision = terminate_on_success, terminate_on_collision
+        self.size = 3 * n_links + 4 + OBSTACLE_FEATURES * n_obstacle_obs
+
+    def bounds(self, n_links: int) -> tuple[np.ndarray, np.ndarray]:
+        """cos/sin in [−1, 1], presence flags in [0, 1], everything else in ±OBS_BOUND."""
+        low, high = np.full(self.size, -OBS_BOUND, dtype=np.float32), np.full(self.size, OBS_BOUND, dtype=np.float32)
+        low[: 2 * n_links], high[: 2 * n_links] = -1.0, 1.0
+        flags = [3 * n_links + 4 + OBSTACLE_FEATURES * s for s in range(self.n_obstacle_obs)]
+        low[flags], high[flags] = 0.0, 1.0
+        return low, high
+
+    def observe(self, engine: Engine) -> np.ndarray:
+        """Every copy's observation ``(B, size)`` (the engine's team is the one arm)."""
+        kind = engine.kinds[0]
+        out = np.empty((engine.copies, self.size), dtype=np.float32)
+        kernels().reach_observations(kind.q, kind.qd, kind.p, kind.base, self.goal, engine.centers, engine.radii,
+                                     self.n_obstacle_obs, 1.0 / self.max_joint_speed, OBS_BOUND,
+                                     out)
+        return out
+
+    def evaluate(self, record: StepRecord | None, engine: Engine, effort: np.ndarray) -> Outcome:
+        """The step's outcome (``record`` None at a reset) for effort ``‖a‖²/k (B, 1)``."""
+        w_effort, penalty = self.weights
+        distance = np.hypot(*(self.goal - engine.positions()[:, 0]).T)
+        min_clear = engine.clearance() if record is None else record.min_clearance
+        cost = (min_clear < 0).astype(float)
+        terms = {"distance": -distance[:, None], "effort": -w_effort * effort, "collision": -penalty * cost}
+        success = distance < self.goal_tolerance
+        terminated = (self.terminate_on_success & success) | (self.terminate_on_collision & cost.any(axis=1))
+        return Outcome(terms["distance"] + terms["effort"] + terms["collision"], terms, cost, success, terminated,
+                       {"distance": distance, "min_clearance": min_clear[:, 0]})
