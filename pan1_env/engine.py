@@ -30,6 +30,7 @@ from .validation import real
 __all__ = ["Engine", "FilterParams", "StepRecord", "filter_parameters", "PARALLEL_THRESHOLD"]
 
 PARALLEL_THRESHOLD = 256  # arms of one kind from which the kernel runs on numba's thread pool
+_UNUSED_RCBF = (1.0, 1.0, 0.0)  # κ, ε, margin passed to the kernel with the filter off (it reads none)
 
 
 @dataclass(frozen=True)
@@ -105,6 +106,9 @@ class _Kind:
         self.q, self.v, self.qd, self.p = (np.zeros((rows, self.n)), np.zeros((rows, self.k)),
                                            np.zeros((rows, self.n)), np.zeros((rows, 2)))
         self.v_prev, self.has_prev = np.zeros((rows, self.k)), np.zeros(rows, dtype=bool)
+        # the kernel's leading arguments: sizes, parameters and state (arrays updated in place, never replaced)
+        self.state_args = (*self.sizes, self.lam, self.lengths, self.base, self.phi, self.passive, self.q, self.v,
+                           self.v_prev, self.has_prev)
 
     def rows(self, copies: np.ndarray) -> np.ndarray:
         return (np.asarray(copies)[:, None] * self.A + np.arange(self.A)[None]).ravel()
@@ -163,8 +167,13 @@ class Engine:
         for b in range(B):
             self.load_team(b, scenario)
         self.set_safety_filter(safety_filter)
-        self._tau_template = np.full((B, self.n_arms, self.n_max), np.nan)
-        self._tau_template[:, [i for i, a in enumerate(scenario.arms) if a.passive_first_joint], 0] = 0.0
+        N = self.n_arms
+        self._blank = StepRecord(  # a record's initial values (passive torques 0, NaN padding)
+            v_star=np.full((B, N, self.k_max), np.nan), tau=np.full((B, N, self.n_max), np.nan),
+            min_clearance=np.full((B, N), np.inf), min_barrier=np.full((B, N), np.inf),
+            qp_counts=np.zeros((B, N, 3), dtype=np.int64), max_tracking_error=np.zeros((B, N)),
+            finite=np.ones((B, N), dtype=bool))
+        self._blank.tau[:, [i for i, a in enumerate(scenario.arms) if a.passive_first_joint], 0] = 0.0
         self.reset()
 
     # ------------------------------------------------------------------ set-up
@@ -255,10 +264,9 @@ class Engine:
         piqp = self.filter is not None and self.qp_solver == "piqp"
         if piqp and torque:
             raise ValueError("the torque-mode filter needs qp_solver='active_set'")
-        rec = StepRecord(v_star=np.full((B, N, self.k_max), np.nan), tau=self._tau_template.copy(),
-                         min_clearance=np.full((B, N), np.inf), min_barrier=np.full((B, N), np.inf),
-                         qp_counts=np.zeros((B, N, 3), dtype=np.int64), max_tracking_error=np.zeros((B, N)),
-                         finite=np.ones((B, N), dtype=bool))
+        blank = self._blank  # fresh arrays every step: records handed out are never overwritten
+        rec = StepRecord(blank.v_star.copy(), blank.tau.copy(), blank.min_clearance.copy(), blank.min_barrier.copy(),
+                         blank.qp_counts.copy(), blank.max_tracking_error.copy(), blank.finite.copy())
         for kind in self.kinds:
             if piqp and kind.mask.any():
                 for _ in range(int(substeps)):
@@ -285,11 +293,9 @@ class Engine:
                    rec.min_barrier[:, ids].reshape(rows), np.zeros((rows, 3), dtype=np.int64),
                    rec.max_tracking_error[:, ids].reshape(rows), np.ones(rows, dtype=bool))
             cmd = np.ascontiguousarray(command[:, kind.ids, :k].reshape(rows, k))
-        p = params or FilterParams(1.0, 1.0)  # unused with the filter off
-        args = (*kind.sizes, kind.lam, kind.lengths, kind.base, kind.phi, kind.passive, kind.q, kind.v,
-                kind.v_prev, kind.has_prev, cmd, torque, params is not None, kind.centers, kind.radii, kind.mask,
-                p.kappa, p.epsilon, p.margin, self.ke, self.physics_dt, substeps, self.max_speed, out[0], out[1],
-                kind.qd, kind.p, *out[2:])
+        rcbf = _UNUSED_RCBF if params is None else (params.kappa, params.epsilon, params.margin)
+        args = (*kind.state_args, cmd, torque, params is not None, kind.centers, kind.radii, kind.mask, *rcbf,
+                self.ke, self.physics_dt, substeps, self.max_speed, out[0], out[1], kind.qd, kind.p, *out[2:])
         chunks = self._chunks(rows)
         if chunks:
             kernels().group_advance_parallel(*args, chunks)

@@ -129,9 +129,11 @@ class Pan1ParallelEnv(ParallelEnv):
     * ``physics_dt``: RK4 step in seconds. Default in velocity mode 0.01 (5 sub-steps per control
       step, as in Gymnasium's MuJoCo tasks), in torque mode 0.002 (open-loop torques can spin the
       light links to hundreds of rad/s); or the next shorter of 5, 2, 1 ms that divides
-      ``control_dt`` and keeps K_e·``physics_dt`` ≤ 1 for the scenario's tracker gain. The paper's runs use 1 ms
-      (``physics_dt=scenario.physics_dt``, or ``pan1-env reproduce``); the safety filter is
-      re-solved at every sub-step either way.
+      ``control_dt`` and keeps K_e·``physics_dt`` ≤ 1 for the scenario's tracker gain (else
+      ValueError: pass ``physics_dt``). The env's time steps come from these two arguments only;
+      the scenario's ``[simulation]`` table sets those of ``pan1-env reproduce`` (the paper's runs
+      use 1 ms: pass ``physics_dt=scenario.physics_dt`` to match). The safety filter is re-solved
+      at every sub-step either way.
     * ``max_steps``: steps before truncation.
     * ``render_mode``: ``None``, ``"rgb_array"`` or ``"human"``.
     * ``terminate_on_collision``, ``terminate_on_success``, ``success_tolerance`` (m, default 0.01).
@@ -142,6 +144,10 @@ class Pan1ParallelEnv(ParallelEnv):
       its fields, for ``scenario="random"``.
     * ``qp_solver``: the safety filter's QP solver when shielded: ``"active_set"`` (exact, compiled,
       default) or ``"piqp"`` (qpsolvers + PIQP, velocity mode only; much slower).
+    * ``safety_filter``: the paper's RCBF-QP filter inside every physics sub-step: ``False``
+      (default), ``True`` (the scenario's κ, ε, margin) or a :class:`~pan1_env.engine.FilterParams`.
+      :class:`~pan1_env.wrappers.SafetyShield` switches it on through :meth:`set_safety_filter` and
+      adds per-agent reports; :attr:`last_step` is the engine's record of the last step.
 
     ## Version History
 
@@ -211,7 +217,7 @@ class Pan1ParallelEnv(ParallelEnv):
                 raise ValueError("random_options is only for scenario='random'")
             template = load(scenario)
         if physics_dt is None:
-            physics_dt = default_physics_dt(control_dt, template.ke, template.physics_dt, action_mode)
+            physics_dt = default_physics_dt(control_dt, template.ke, action_mode)
         physics_dt = real("physics_dt", physics_dt, positive=True)
         if template.ke * physics_dt > MAX_KE_DT:
             raise ValueError(f"physics_dt={physics_dt} is too long for the tracker gain K_e={template.ke}: "
@@ -265,7 +271,7 @@ class Pan1ParallelEnv(ParallelEnv):
                                   effort_weight=self.effort_weight, collision_penalty=self.collision_penalty,
                                   terminate_on_collision=self.terminate_on_collision,
                                   terminate_on_success=self.terminate_on_success)
-        self.last_step: StepRecord | None = None
+        self._record: StepRecord | None = None
         self.np_random, self.np_random_seed = gymnasium.utils.seeding.np_random(None)
         self._renderer = None
         self._needs_reset = True
@@ -300,6 +306,11 @@ class Pan1ParallelEnv(ParallelEnv):
         self.engine.set_safety_filter(filter_parameters(safety_filter, self.scenario))
 
     @property
+    def last_step(self) -> StepRecord | None:
+        """The engine's record of the last step (arrays ``(1, N, …)``: one copy; None after a reset)."""
+        return self._record
+
+    @property
     def action_scale(self) -> float:
         """Physical units of an action of 1: ``max_joint_speed`` (rad/s) or ``max_torque`` (N·m)."""
         return self._action_scale
@@ -326,7 +337,7 @@ class Pan1ParallelEnv(ParallelEnv):
         self.agents = list(self.possible_agents)
         self.num_steps = 0
         self._needs_reset = False
-        self.last_step = None
+        self._record = None
         err, obs = self._observations()
         max_err = float(np.max(np.abs(err)))
         clear = self.engine.clearance()[0]
@@ -343,7 +354,7 @@ class Pan1ParallelEnv(ParallelEnv):
         self.num_steps += 1
         err, obs = self._observations()
         out = self.task.evaluate(rec, err, effort[None])
-        self.last_step = StepRecord(**{name: getattr(rec, name)[0] for name in StepRecord.__dataclass_fields__})
+        self._record = rec
         max_err = float(out.measures["formation_error"][0])
         success = bool(out.success[0])
         fault = None if rec.finite.all() else "non-finite state in the physics step; episode truncated"
@@ -356,7 +367,7 @@ class Pan1ParallelEnv(ParallelEnv):
                                                      rec.min_clearance[0].tolist(), strict=True)):
             info = {"cost": cost, "min_clearance": clear, "formation_error": max_err, "is_success": success}
             if filtered:
-                info["qp_counts"] = self.last_step.qp_counts[i]
+                info["qp_counts"] = rec.qp_counts[0, i]
             if fault:
                 info["fault"] = fault
             infos[agent] = info
@@ -441,20 +452,22 @@ class Pan1ParallelEnv(ParallelEnv):
         return err, out
 
 
-def default_physics_dt(control_dt: float, ke: float, scenario_dt: float, action_mode: str = "velocity") -> float:
+def default_physics_dt(control_dt: float, ke: float, action_mode: str = "velocity") -> float:
     """The env's default RK4 step: the longest candidate that divides ``control_dt`` and keeps
-    K_e·dt ≤ :data:`MAX_KE_DT`, or the scenario's own step if none does.
+    K_e·dt ≤ :data:`MAX_KE_DT`.
 
     Candidates: 10, 5, 2, 1 ms in velocity mode, where the tracker holds speeds near the command;
     2, 1 ms in torque mode, where open-loop torques can spin light links to hundreds of rad/s and a
-    10 ms RK4 step diverges.
+    10 ms RK4 step diverges. The envs' time steps come from their arguments only; a scenario's
+    ``[simulation]`` table sets the steps of ``pan1-env reproduce`` (docs/ARCHITECTURE.md).
     """
     candidates = (DEFAULT_PHYSICS_DT, 0.005, 0.002, 0.001) if action_mode == "velocity" else (0.002, 0.001)
     for dt in candidates:
         ratio = control_dt / dt
-        if ke * dt <= MAX_KE_DT and round(ratio) >= 1 and abs(ratio - round(ratio)) < 1e-9 * max(ratio, 1.0):
+        if ke * dt <= MAX_KE_DT and round(ratio) >= 1 and abs(ratio - round(ratio)) <= 1e-6:  # as whole_ratio
             return dt
-    return scenario_dt
+    raise ValueError(f"no default physics_dt ({', '.join(f'{dt * 1e3:g} ms' for dt in candidates)}) divides "
+                     f"control_dt={control_dt} with K_e·dt ≤ {MAX_KE_DT} (K_e = {ke}); pass physics_dt")
 
 
 def parallel_env(scenario: str | Path | Scenario = "paper_pa3_square", **kwargs: Any) -> Pan1ParallelEnv:

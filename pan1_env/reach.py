@@ -28,8 +28,8 @@ from .environment import DEFAULT_CONTROL_DT, MAX_KE_DT, default_physics_dt
 from .random_scenario import _passive_path
 from .registration import DEFAULT_REACH_STEPS
 from .safety import clearance
-from .tasks import ReachTask
 from .scenario import Scenario, load
+from .tasks import ReachTask
 from .validation import float_array, hints_unknown_keywords, positive_int, real, whole_ratio
 
 __all__ = ["PAReachEnv"]
@@ -121,7 +121,8 @@ class PAReachEnv(gymnasium.Env):
     def __init__(self, scenario: str | Path | Scenario = "paper_pa3_square", arm: int = 0, *,
                  control_dt: float = DEFAULT_CONTROL_DT, physics_dt: float | None = None,
                  max_steps: int = DEFAULT_REACH_STEPS, max_joint_speed: float = 2.0,
-                 safety_filter: bool | FilterParams = True, goal_tolerance: float = 0.02, goal_spread: float = np.pi / 2,
+                 safety_filter: bool | FilterParams = True, goal_tolerance: float = 0.02,
+                 goal_spread: float = np.pi / 2,
                  goal_clearance: float = 0.05, terminate_on_success: bool = False,
                  terminate_on_collision: bool = False, effort_weight: float = 0.0,
                  collision_penalty: float = 0.0, n_obstacle_obs: int = 3, render_mode: str | None = None) -> None:
@@ -135,7 +136,7 @@ class PAReachEnv(gymnasium.Env):
         self.arm = self.scenario.arms[self.arm_index]
         self.control_dt = real("control_dt", control_dt, positive=True)
         if physics_dt is None:
-            physics_dt = default_physics_dt(self.control_dt, self.scenario.ke, self.scenario.physics_dt)
+            physics_dt = default_physics_dt(self.control_dt, self.scenario.ke)
         self.physics_dt = real("physics_dt", physics_dt, positive=True)
         if self.scenario.ke * self.physics_dt > MAX_KE_DT:
             raise ValueError(f"physics_dt={physics_dt} is too long for the tracker gain K_e={self.scenario.ke}: "
@@ -236,10 +237,10 @@ class PAReachEnv(gymnasium.Env):
     # ------------------------------------------------------------- internals
     @staticmethod
     def _info(out, rec) -> dict[str, Any]:
+        _, solved, fallback = (0, 0, 0) if rec is None else rec.qp_counts[0, 0].tolist()
         return {"cost": float(out.cost[0, 0]), "min_clearance": float(out.measures["min_clearance"][0]),
                 "distance": float(out.measures["distance"][0]), "is_success": bool(out.success[0]),
-                "intervened": bool(rec is not None and rec.intervened[0, 0]),
-                "fallback": bool(rec is not None and rec.fallback[0, 0])}
+                "intervened": solved + fallback > 0, "fallback": fallback > 0}
 
     def _clearance(self, p: np.ndarray) -> float:
         """Smallest clearance ‖p − o_j‖ − r_j of a point to the obstacles (inf with none)."""

@@ -82,7 +82,8 @@ class Renderer:
         ax.set_xlim(lo[0], hi[0])
         ax.set_ylim(lo[1], hi[1])
         ax.set_aspect("equal")
-        ax.set_title(f"{sc.name}  t = {env.num_steps * env.control_dt:.2f} s  max edge error {err.max():.3f} m", fontsize=9)
+        time = env.num_steps * env.control_dt
+        ax.set_title(f"{sc.name}  t = {time:.2f} s  max edge error {err.max():.3f} m", fontsize=9)
         self.fig.tight_layout()
         self.fig.canvas.draw()
         if self.human:

@@ -22,7 +22,8 @@ __all__ = ["FormationTask", "ReachTask", "Outcome"]
 
 @dataclass
 class Outcome:
-    """A step's meaning per copy: ``reward (B, N)`` per agent and its ``terms`` (each ``(B, N)``),
+    """A step's meaning per copy: ``reward (B, N)`` per agent and its ``terms`` (each broadcastable to
+    ``(B, N)``; the reward is their sum),
     ``cost (B, N)`` (1.0 where an arm entered an obstacle), ``success (B,)``, ``terminated (B,)``, and
     task measures in ``measures`` (each ``(B,)``)."""
 
@@ -85,19 +86,32 @@ class FormationTask:
         abs_err = np.abs(err)
         min_clear = record.min_clearance if record is not None else clearance
         cost = (min_clear < 0).astype(float)
-        terms = {"formation": np.broadcast_to(-w_form * abs_err.mean(axis=1)[:, None], cost.shape),
-                 "effort": -w_effort * effort, "collision": -penalty * cost}
-        reward = terms["formation"] + terms["effort"] + terms["collision"] if (w_effort or penalty) else \
-            np.array(terms["formation"])
+        formation = -w_form * (abs_err.sum(axis=1) / err.shape[1])
+        reward = np.empty_like(cost)
+        reward[:] = formation[:, None]
+        terms = _terms(reward, {"formation": formation[:, None]}, effort=(w_effort, effort), collision=(penalty, cost))
         formation_error = abs_err.max(axis=1)
         success = formation_error < self.success_tolerance
-        terminated = np.zeros(len(err), dtype=bool)
-        if self.terminate_on_collision:
-            terminated |= cost.any(axis=1)
-        if self.terminate_on_success:
-            terminated |= success
+        terminated = _terminated(success, cost, self.terminate_on_success, self.terminate_on_collision)
         return Outcome(reward, terms, cost, success, terminated,
                        {"formation_error": formation_error, "min_clearance": min_clear})
+
+
+def _terms(reward: np.ndarray, terms: dict[str, np.ndarray], **weighted: tuple[float, np.ndarray]) -> dict:
+    """Add each ``−weight · value`` term with a non-zero weight to ``reward`` (in place) and ``terms``."""
+    for name, (weight, value) in weighted.items():
+        if weight:
+            terms[name] = -weight * value
+            reward += terms[name]
+    return terms
+
+
+def _terminated(success: np.ndarray, cost: np.ndarray, on_success: bool, on_collision: bool) -> np.ndarray:
+    """Per copy: success ends the episode with ``on_success``, any arm's collision with ``on_collision``."""
+    terminated = success & on_success
+    if on_collision:
+        terminated |= cost.any(axis=1) > 0
+    return terminated
 
 
 class ReachTask:
@@ -136,11 +150,13 @@ class ReachTask:
     def evaluate(self, record: StepRecord | None, engine: Engine, effort: np.ndarray) -> Outcome:
         """The step's outcome (``record`` None at a reset) for effort ``‖a‖²/k (B, 1)``."""
         w_effort, penalty = self.weights
-        distance = np.hypot(*(self.goal - engine.positions()[:, 0]).T)
+        d = self.goal - engine.positions()[:, 0]
+        distance = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
         min_clear = engine.clearance() if record is None else record.min_clearance
         cost = (min_clear < 0).astype(float)
-        terms = {"distance": -distance[:, None], "effort": -w_effort * effort, "collision": -penalty * cost}
+        reward = -distance[:, None]
+        terms = _terms(reward, {"distance": reward.copy()}, effort=(w_effort, effort), collision=(penalty, cost))
         success = distance < self.goal_tolerance
-        terminated = (self.terminate_on_success & success) | (self.terminate_on_collision & cost.any(axis=1))
-        return Outcome(terms["distance"] + terms["effort"] + terms["collision"], terms, cost, success, terminated,
+        terminated = _terminated(success, cost, self.terminate_on_success, self.terminate_on_collision)
+        return Outcome(reward, terms, cost, success, terminated,
                        {"distance": distance, "min_clearance": min_clear[:, 0]})

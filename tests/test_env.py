@@ -199,7 +199,8 @@ def test_constructors_name_their_arguments() -> None:
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    ({"control_dt": 0.0015}, "whole multiple"),
+    ({"control_dt": 0.0015}, "divides control_dt=0.0015"),
+    ({"control_dt": 0.0015, "physics_dt": 0.001}, "whole multiple"),
     ({"control_dt": -1.0}, "positive"),
     ({"physics_dt": 0.0}, "positive"),
     ({"action_mode": "acceleration"}, "action_mode"),

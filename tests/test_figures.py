@@ -53,10 +53,11 @@ def test_frames_number_the_arms_from_one_like_the_figures(name: str) -> None:
     for i, q0 in enumerate(sc.q0):
         q[i, : len(q0)] = q0
     P = np.array([end_effector(arm, q0) for arm, q0 in zip(sc.arms, sc.q0, strict=True)])
-    sim = SimpleNamespace(joint_state=lambda: (q, np.zeros_like(q)), positions=lambda: P, time=0.0)
+    env = SimpleNamespace(scenario=sc, joint_state=lambda: (q, np.zeros_like(q)), end_effectors=lambda: P,
+                          num_steps=0, control_dt=0.05)
     renderer = Renderer()
     try:
-        frame = renderer.draw(SimpleNamespace(scenario=sc, sim=sim))
+        frame = renderer.draw(env)
         assert frame.ndim == 3
         assert [t.get_text() for t in renderer.ax.texts] == [str(i) for i in range(1, sc.n_arms + 1)]
     finally:

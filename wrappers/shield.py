@@ -74,9 +74,9 @@ def _shield_infos(core, actions: dict[str, np.ndarray]) -> dict[str, dict[str, A
     if rec is None:
         return {}
     velocity = core.action_mode == "velocity"
-    applied = ((rec.v_star if velocity else rec.tau) * (1.0 / core.action_scale)).astype(np.float32)
-    counts = rec.qp_counts
-    min_barrier = rec.min_barrier.tolist()
+    applied = ((rec.v_star[0] if velocity else rec.tau[0]) * (1.0 / core.action_scale)).astype(np.float32)
+    counts = rec.qp_counts[0]
+    min_barrier = rec.min_barrier[0].tolist()
     out = {}
     for i, (agent, (_, solved, fallback)) in enumerate(zip(core.possible_agents, counts.tolist(), strict=True)):
         if agent not in actions:
