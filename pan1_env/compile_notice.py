@@ -58,7 +58,8 @@ class _KernelCompileNotice(numba_event.Listener):
     def _kind(event) -> tuple[str, str] | None:
         dispatcher = event.data.get("dispatcher")
         name = getattr(getattr(dispatcher, "py_func", None), "__name__", "")
-        if name not in KERNELS_PER_KIND or getattr(dispatcher.py_func, "__module__", "") != "pan1_env.kernels":
+        module = getattr(dispatcher.py_func, "__module__", "") if name in KERNELS_PER_KIND else ""
+        if not module.startswith("pan1_env.kernels"):
             return None
         args = event.data.get("args") or ()
         try:

@@ -5,7 +5,7 @@ The first process compiles every kernel into an empty cache directory; the secon
 Each runs a seeded shielded episode of the parallel env and of the vector env (its serial and
 multi-threaded kernels) and prints a digest of the states and observations. (With fused
 multiply-adds left to LLVM, the two differed at rounding level: see ``_JIT`` in
-``pan1_env/kernels.py``.) The first process must also announce each arm kind it compiles
+``pan1_env/kernels/_numba_ext.py``.) The first process must also announce each arm kind it compiles
 (:mod:`pan1_env.compile_notice`), and the second must say nothing of compiling.
 """
 

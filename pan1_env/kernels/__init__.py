@@ -1,0 +1,62 @@
+"""Compiled (numba) kernels of the physics sub-step: the engine's single implementation.
+
+The formulas are those of :mod:`pan1_env.dynamics`, :mod:`pan1_env.cascade`,
+:mod:`pan1_env.safety` and :mod:`pan1_env.control` (the documented, vectorised numpy reference);
+the tests check the physics, filter and observation kernels against them (the small helpers
+:func:`scale_command`, :func:`edge_length_errors`, :func:`formation_observations` and
+:func:`reach_observations` through the environments' tests). The kernels loop over the arms of one
+group (arms with the same number of links n and actuation, k actuated joints) so that a sub-step
+costs a handful of calls whatever the team size.
+
+The package is split by job: :mod:`.physics` (the building blocks of dynamics and kinematics),
+:mod:`.qp` (the filter's QP), :mod:`.substep` (the sub-step kernel), :mod:`.observe` (observations and
+small helpers) and :mod:`._numba_ext` (numba plumbing).
+
+The sub-step kernel advances the arms W at a time, one arm per lane of arrays whose last axis is
+the lanes, so that LLVM's SLP vectoriser (switched on for these kernels only:
+:func:`_slp_vectorised`) packs four arms into each AVX register; it keeps this scratch space in
+its own stack frame (:func:`_local`, fixed shapes from the ``kernel_sizes`` tuples), where LLVM
+can keep it in registers. A lane's results do not depend on the lane count or on the arms that
+share its group, bit for bit (tests/test_kernels.py).
+
+Importing this module imports numba (about half a second); :mod:`pan1_env` itself does not, so
+``import pan1_env`` stays fast. Compiled code is cached on disk (``cache=True``).
+"""
+
+from __future__ import annotations
+
+from .. import compile_notice
+from ..compiled import kernel_sizes  # the first two arguments of group_advance
+from ._numba_ext import _JIT, _LANES, _local, _slp_vectorised
+from .observe import (
+    edge_length_errors,
+    formation_observations,
+    group_observations,
+    group_observations_parallel,
+    reach_observations,
+    scale_command,
+)
+from .physics import _SERIES_MAX, _SERIES_SHORT, _rotate_lanes, _spd_solve, group_end_effectors, group_terms
+from .qp import STATUS_FALLBACK, STATUS_NOMINAL, STATUS_SOLVED, _first_projection_lanes, qp_project
+from .substep import _advance_arms, group_advance, group_advance_parallel
+
+__all__ = [
+    "kernel_sizes",
+    "group_terms",
+    "group_advance",
+    "group_advance_parallel",
+    "group_end_effectors",
+    "group_observations",
+    "group_observations_parallel",
+    "qp_project",
+    "scale_command",
+    "edge_length_errors",
+    "formation_observations",
+    "reach_observations",
+]
+
+compile_notice.install()  # a first use of an arm kind compiles for tens of seconds: say so
+
+__all__ += ["STATUS_NOMINAL", "STATUS_SOLVED", "STATUS_FALLBACK"]
+_PRIVATE_FOR_TESTS = (_JIT, _LANES, _local, _slp_vectorised, _SERIES_MAX, _SERIES_SHORT, _rotate_lanes, _spd_solve,
+                      _first_projection_lanes, _advance_arms)

@@ -1,0 +1,307 @@
+"""The safety filter's QP in compiled form: the exact active-set projection of one arm
+(:func:`_project_one`, :func:`qp_project`) and the filter rows and first candidate of W arms at once."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ._numba_ext import _JIT
+from .physics import _spd_solve
+
+STATUS_NOMINAL, STATUS_SOLVED, STATUS_FALLBACK = 0, 1, 2
+# Feasibility of a row, and the sign tests of pivots and multipliers, relative to the row's scale
+# (1 + |b|): an exact QP still rounds, and a row met to this precision counts as met.
+ROW_TOLERANCE = 1e-12
+# A candidate's final check, scaled by ‖A_j‖ and ‖candidate‖ too: looser, so that a projection the
+# search accepted is not refused by the rounding of its own product A_j·v.
+CANDIDATE_TOLERANCE = 1e-9
+
+
+@njit(**_JIT, forceinline=True)
+def _project_one(v0, A, b, active, m, k, v_out, rows, idx, G, r, lam, cand, L, y, viol, rnorm):
+    """Exact min ½‖v − v0‖² s.t. A_j v ≤ b_j (rows j < m with active_j): returns a status code.
+
+    Enumerates sets of active rows (sizes 1..k, rows in order of decreasing violation at v0): the
+    projection of v0 onto the rows of a set, with non-negative multipliers and feasible for every
+    row, satisfies the KKT conditions of this strictly convex QP, so it is the unique optimum and
+    the search stops there (see :mod:`pan1_env.safety`). No such set: infeasible, brake (v = 0).
+    The remaining arguments are scratch space: ``rows``, ``viol``, ``rnorm`` (m), ``idx``, ``r``,
+    ``lam``, ``cand``, ``y`` (k) and ``G``, ``L`` (k × k).
+    """
+    feasible = True
+    for j in range(m):
+        if active[j]:
+            acc = 0.0
+            for t in range(k):
+                acc += A[j, t] * v0[t]
+            if acc > b[j] + ROW_TOLERANCE * (1.0 + abs(b[j])):
+                feasible = False
+                break
+    if feasible:
+        for t in range(k):
+            v_out[t] = v0[t]
+        return STATUS_NOMINAL
+    na = 0
+    for j in range(m):
+        if active[j]:
+            nrm = 0.0
+            acc = 0.0
+            for t in range(k):
+                nrm += A[j, t] * A[j, t]
+                acc += A[j, t] * v0[t]
+            if nrm > 0.0:
+                # insertion by decreasing violation A_j v0 − b_j (most violated rows are tried first)
+                root = np.sqrt(nrm)
+                w = (acc - b[j]) / root
+                x = na
+                while x > 0 and viol[x - 1] < w:
+                    rows[x] = rows[x - 1]
+                    viol[x] = viol[x - 1]
+                    rnorm[x] = rnorm[x - 1]
+                    x -= 1
+                rows[x] = j
+                viol[x] = w
+                rnorm[x] = root  # ‖A_j‖, for the feasibility tolerance below
+                na += 1
+            elif b[j] < -ROW_TOLERANCE:
+                # 0·v ≤ b < 0 can never hold: the QP is infeasible
+                for t in range(k):
+                    v_out[t] = 0.0
+                return STATUS_FALLBACK
+    smax = min(na, k)
+    for size in range(1, smax + 1):
+        # iterate over combinations of `size` rows out of `na` (lexicographic)
+        for t in range(size):
+            idx[t] = t
+        while True:
+            for x in range(size):
+                jx = rows[idx[x]]
+                acc = 0.0
+                for t in range(k):
+                    acc += A[jx, t] * v0[t]
+                r[x] = acc - b[jx]
+                for z in range(size):
+                    jz = rows[idx[z]]
+                    acc = 0.0
+                    for t in range(k):
+                        acc += A[jx, t] * A[jz, t]
+                    G[x, z] = acc
+            if _spd_solve(G, r, lam, size, L, y):
+                lmax = 0.0
+                for x in range(size):
+                    lmax = max(lmax, abs(lam[x]))
+                ok = True
+                for x in range(size):
+                    if lam[x] < -ROW_TOLERANCE * (1.0 + lmax):
+                        ok = False
+                if ok:
+                    for t in range(k):
+                        acc = v0[t]
+                        for x in range(size):
+                            acc -= A[rows[idx[x]], t] * lam[x]
+                        cand[t] = acc
+                    cn = 0.0
+                    for t in range(k):
+                        cn += cand[t] * cand[t]
+                    cn = np.sqrt(cn)
+                    for jj in range(na):
+                        j = rows[jj]
+                        acc = 0.0
+                        for t in range(k):
+                            acc += A[j, t] * cand[t]
+                        if acc > b[j] + CANDIDATE_TOLERANCE * (1.0 + abs(b[j]) + rnorm[jj] * (1.0 + cn)):
+                            ok = False
+                            break
+                    if ok:  # a KKT point: the optimum
+                        for t in range(k):
+                            v_out[t] = cand[t]
+                        return STATUS_SOLVED
+            # next combination
+            x = size - 1
+            while x >= 0 and idx[x] == na - size + x:
+                x -= 1
+            if x < 0:
+                break
+            idx[x] += 1
+            for z in range(x + 1, size):
+                idx[z] = idx[z - 1] + 1
+    for t in range(k):
+        v_out[t] = 0.0
+    return STATUS_FALLBACK
+
+
+@njit(**_JIT)
+def qp_project(v0, A, b, active, v_out, status):
+    """Batched exact safety QP: for each arm i, project v0[i] onto {A[i] v ≤ b[i]}."""
+    m, k = A.shape[1], A.shape[2]
+    kk = max(k, 1)
+    rows, viol, rnorm = np.empty(m, dtype=np.int64), np.empty(m), np.empty(m)
+    idx = np.empty(kk, dtype=np.int64)
+    r, lam, cand, y = np.empty(kk), np.empty(kk), np.empty(kk), np.empty(kk)
+    G, L = np.empty((kk, kk)), np.empty((kk, kk))
+    for i in range(v0.shape[0]):
+        status[i] = _project_one(v0[i], A[i], b[i], active[i], m, k, v_out[i], rows, idx, G, r, lam, cand, L, y,
+                                 viol, rnorm)
+
+
+@njit(**_JIT, forceinline=True)
+def _rcbf_row_lanes(j, px, py, Jbar, obstacles, kappa, epsilon, margin, k, W, A, b, h):
+    """The RCBF row of obstacle j for W lanes, A_j v ≤ b_j, into ``A (k, W)``, ``b (W)``:
+    A_j = −L_g0 h_j and b_j = κ (h_j − margin) − ‖L_g0 h_j‖²/ε, with h_j = ‖p − o_j‖² − r_j² (also
+    written to ``h``) and L_g0 h_j = 2 (p − o_j)ᵀ J̄ (docs/MODEL.md §4); ``obstacles (3, O, W)`` holds
+    every lane's obstacle centres (x, y) and radii."""
+    for w in range(W):
+        dx = px[w] - obstacles[0, j, w]
+        dy = py[w] - obstacles[1, j, w]
+        hw = dx * dx + dy * dy - obstacles[2, j, w] * obstacles[2, j, w]
+        lg2 = 0.0
+        for t in range(k):
+            lg = 2.0 * (dx * Jbar[0, t, w] + dy * Jbar[1, t, w])
+            A[t, w] = -lg
+            lg2 += lg * lg
+        b[w] = kappa * (hw - margin) - lg2 / epsilon
+        h[w] = hw
+
+
+@njit(**_JIT, forceinline=True)
+def _speed_row_lanes(t0, sign, v_max, k, W, A, b, h):
+    """The speed bound sign · v_t0 ≤ ``v_max`` as a filter row of W lanes. Called with t0 and sign known
+    at compile time, so LLVM folds the row's constant entries (its norm is 1) into the arithmetic
+    that follows."""
+    for w in range(W):
+        for t in range(k):
+            A[t, w] = sign if t == t0 else 0.0
+        b[w] = v_max
+        h[w] = np.inf
+
+
+@njit(**_JIT, forceinline=True)
+def _consider_row(j, A, b, h, act, v0, k, W, arm_h, violated, best, best_viol, Ab, bb, found, norm):
+    """Row j (``A``, ``b``, ``h``; active in lanes ``act``) in :func:`_first_projection_lanes`' first
+    pass; ``norm`` gets ‖A_j‖."""
+    for w in range(W):
+        arm_h[w] = h[w] if act[w] and h[w] < arm_h[w] else arm_h[w]
+        nrm = 0.0
+        acc = 0.0
+        for t in range(k):
+            nrm += A[t, w] * A[t, w]
+            acc += A[t, w] * v0[t, w]
+        violated[w] = violated[w] | (act[w] & (acc > b[w] + ROW_TOLERANCE * (1.0 + abs(b[w]))))
+        root = np.sqrt(nrm)
+        norm[w] = root
+        viol = (acc - b[w]) / root
+        take = act[w] & (nrm > 0.0) & ((best[w] < 0) | (viol > best_viol[w]))
+        best[w] = j if take else best[w]
+        best_viol[w] = viol if take else best_viol[w]
+        for t in range(k):
+            Ab[t, w] = A[t, w] if take else Ab[t, w]
+        bb[w] = b[w] if take else bb[w]
+        # a zero row, or one that is not finite: the full search decides (_project_one's sort and solve
+        # treat those its own way)
+        found[w] = found[w] & (not (act[w] & (not ((nrm > 0.0) & (nrm < np.inf) & (viol == viol)))))
+
+
+@njit(**_JIT, forceinline=True)
+def _check_row(A, b, norm, act, cand, cand_norm, k, W, found):
+    """A row (``A``, ``b``, its norm ``norm``) in :func:`_first_projection_lanes`' second pass:
+    ``found[w]`` stays True only if the candidate satisfies the row (where active), with
+    :func:`_project_one`'s tolerance."""
+    for w in range(W):
+        acc = 0.0
+        for t in range(k):
+            acc += A[t, w] * cand[t, w]
+        limit = b[w] + CANDIDATE_TOLERANCE * (1.0 + abs(b[w]) + norm[w] * (1.0 + cand_norm[w]))
+        bad = act[w] & (norm[w] > 0.0) & (acc > limit)
+        found[w] = found[w] & (not bad)
+
+
+@njit(**_JIT, forceinline=True)
+def _first_projection_lanes(px, py, Jbar, obstacles, active, filtered, kappa, epsilon, margin, v_max, O, k, W, v0,
+                            arm_h, A, b, h, norm, act, rows, violated, best, best_viol, Ab, bb, cand, found):
+    """The safety QP of W lanes as far as it goes without a search, all lanes at once (branch-free, so
+    they vectorise):
+
+    - ``violated[w]``: v0 breaks one of the lane's active rows (the test :func:`_project_one` starts
+      with; only lanes with ``filtered`` count), and ``arm_h[w]`` takes the smallest
+      active barrier h_j;
+    - ``cand[:, w]``: the first candidate :func:`_project_one` tries, the projection of v0 onto the
+      active row of largest normalised violation (A_j v0 − b_j)/‖A_j‖ (ties: the lower row), and
+      ``found[w]``: it is the optimum (its multiplier non-negative and every active row satisfied,
+      with :func:`_project_one`'s tolerances).
+
+    Where ``found[w]``, ``cand[:, w]`` is :func:`_project_one`'s answer bit for bit (the same
+    operations in the same order); elsewhere (a zero row, a non-finite value, or another active set)
+    the lane needs the full search. Many filtered steps that change the command end here.
+
+    Rows go one at a time through the stack arrays ``A``, ``b``, ``h``, ``norm``, ``act``: the RCBF
+    rows (:func:`_rcbf_row_lanes`, kept in ``rows (O, k + 2, W)`` as A_j, b_j, ‖A_j‖ for the second
+    pass and the full search), then the speed bounds' rows (:func:`_speed_row_lanes`,
+    active in every lane when ``v_max`` is finite), in :func:`_project_one`'s order."""
+    speed = v_max < np.inf
+    for w in range(W):
+        violated[w] = False
+        best[w] = -1
+        best_viol[w] = 0.0
+        found[w] = True
+        bb[w] = 0.0
+        for t in range(k):
+            Ab[t, w] = 0.0
+    for j in range(O):
+        _rcbf_row_lanes(j, px, py, Jbar, obstacles, kappa, epsilon, margin, k, W, A, b, h)
+        for w in range(W):
+            act[w] = active[j, w] & filtered[w]
+        _consider_row(j, A, b, h, act, v0, k, W, arm_h, violated, best, best_viol, Ab, bb, found, norm)
+        for w in range(W):
+            for t in range(k):
+                rows[j, t, w] = A[t, w]
+            rows[j, k, w] = b[w]
+            rows[j, k + 1, w] = norm[w]
+    if speed:
+        for w in range(W):
+            act[w] = filtered[w]
+        for t0 in range(k):
+            _speed_row_lanes(t0, 1.0, v_max, k, W, A, b, h)
+            _consider_row(O + 2 * t0, A, b, h, act, v0, k, W, arm_h, violated, best, best_viol, Ab, bb, found, norm)
+            _speed_row_lanes(t0, -1.0, v_max, k, W, A, b, h)
+            _consider_row(O + 2 * t0 + 1, A, b, h, act, v0, k, W, arm_h, violated, best, best_viol, Ab, bb, found,
+                          norm)
+    any_violated = False
+    for w in range(W):
+        any_violated = any_violated | violated[w]
+    if not any_violated:
+        return
+    for w in range(W):
+        acc = 0.0
+        nrm = 0.0
+        for t in range(k):
+            acc += Ab[t, w] * v0[t, w]
+            nrm += Ab[t, w] * Ab[t, w]
+        lam = (acc - bb[w]) * (1.0 / nrm)
+        cn = 0.0
+        for t in range(k):
+            cand[t, w] = v0[t, w] - Ab[t, w] * lam
+            cn += cand[t, w] * cand[t, w]
+        cn = np.sqrt(cn)
+        found[w] = found[w] & (best[w] >= 0) & np.isfinite(lam) & np.isfinite(cn) & \
+            (not lam < -ROW_TOLERANCE * (1.0 + abs(lam)))
+        best_viol[w] = cn  # reused: ‖candidate‖, for the feasibility tolerance
+    for j in range(O):
+        for w in range(W):
+            for t in range(k):
+                A[t, w] = rows[j, t, w]
+            b[w] = rows[j, k, w]
+            norm[w] = rows[j, k + 1, w]
+            act[w] = active[j, w]
+        _check_row(A, b, norm, act, cand, best_viol, k, W, found)
+    if speed:
+        for w in range(W):
+            act[w] = True
+            norm[w] = 1.0
+        for t0 in range(k):
+            _speed_row_lanes(t0, 1.0, v_max, k, W, A, b, h)
+            _check_row(A, b, norm, act, cand, best_viol, k, W, found)
+            _speed_row_lanes(t0, -1.0, v_max, k, W, A, b, h)
+            _check_row(A, b, norm, act, cand, best_viol, k, W, found)
+
+

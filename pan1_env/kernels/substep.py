@@ -1,0 +1,404 @@
+"""The sub-step kernel: every arm of a group advanced through the physics sub-steps of a control step
+(filter, backstepping tracker, RK4), W arms at once; serial and multi-threaded entry points."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from ._numba_ext import _JIT, _LANES, _check_chunks, _local, _slp_vectorised
+from .physics import (
+    _acceleration_lanes,
+    _jacobian_lanes,
+    _lane_angles,
+    _mass_lanes,
+    _position_lanes,
+    _rotate_lanes,
+)
+from .qp import STATUS_NOMINAL, STATUS_SOLVED, _first_projection_lanes, _project_one
+
+
+@njit(**_JIT)
+def _advance_arms(links, actuated, lanes, lo, hi, lam, lengths, base, phi, _passive, q, v, v_prev, has_prev, command,
+                  torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
+                  v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out):
+    """Arms ``lo … hi−1`` of :func:`group_advance` (the loop body, with its own scratch space).
+
+    ``n``, ``k`` and the lane count W are compile-time constants (the lengths of the tuples
+    ``links``, ``actuated`` and ``lanes``): with the loops over links, joints and lanes of known
+    length, LLVM unrolls them and packs the lanes into vector registers.
+
+    The arms go W at a time (the last group padded with copies of the last arm, never written
+    back). Each group's parameters and state are copied into stack arrays (:func:`_local`) with the
+    lanes as their last axis, advanced through the sub-steps there and written back: the hot loop
+    makes no array view and, but for the obstacles and the filter's rows, touches no heap scratch.
+    Dynamics, tracker, RK4 and the safety filter's rows run on all lanes at once, and so does the QP
+    as far as one active row settles it (:func:`_first_projection_lanes`, many filtered sub-steps);
+    the lanes it does not settle get the full active-set search one by one (:func:`_project_one`).
+
+    The link angles' sines and cosines are computed from q (``_lane_angles``) once per arm at the
+    start of a call (and again after a non-finite state); RK4 stages and the state a sub-step reaches get
+    theirs by rotating those at the sub-step's start (``_rotate_lanes``, within an ulp). Those at the
+    state reached serve its clearance and the next sub-step's filter, tracker and first RK4 stage.
+
+    An arm whose state goes non-finite stops there (its lane is frozen at the last finite state and
+    its outputs are those of the failing sub-step), as its own loop would; the other lanes go on."""
+    n = len(links)
+    k = len(actuated)
+    W = len(lanes)
+    passive = k < n  # a compile-time constant (the argument, checked by the callers, is the same)
+    kk = max(k, 1)
+    O = radii.shape[1]
+    m = O + 2 * k
+    tau_off = tau_out.shape[1] - k  # 0 for (A, k) torques; n − k for full (A, n) rows (passive entries untouched)
+    # Scratch space in this function's stack frame (shapes from the size tuples, so fixed at compile
+    # time), the lanes last. Only what depends on the number of obstacles lives on the heap.
+    f8, b1 = np.float64, np.bool_
+    lw, nw, kw = (lanes,), (links, lanes), (actuated, lanes)
+    nnw, kkw, kx, kkx = (links, links, lanes), (actuated, actuated, lanes), (actuated,), (actuated, actuated)
+    # the lanes' arms, parameters and state
+    arm, real = _local(lw, np.int64), _local(lw, b1)
+    lm, ln, qi, vi, vp = _local(nnw, f8), _local(nw, f8), _local(nw, f8), _local(kw, f8), _local(kw, f8)
+    bx, by, ph = _local(lw, f8), _local(lw, f8), _local(lw, f8)
+    # kinematics and dynamics at a state
+    c, s, qd, thd, H = _local(nw, f8), _local(nw, f8), _local(nw, f8), _local(nw, f8), _local(nw, f8)
+    c0, s0, px, py = _local(nw, f8), _local(nw, f8), _local(lw, f8), _local(lw, f8)
+    M, R, Sn, J = _local(nnw, f8), _local(nnw, f8), _local(nnw, f8), _local(((0, 0), links, lanes), f8)
+    Mc, Hc, Jbar = _local(kkw, f8), _local(kw, f8), _local(((0, 0), actuated, lanes), f8)
+    Lc, yc, rhs, ok = _local(kkw, f8), _local(kw, f8), _local(kw, f8), _local(lw, b1)
+    # command, filter and tracker, per lane; the outputs of each lane's last sub-step (kept when it stops)
+    vdes, vs, tau, acc = _local(kw, f8), _local(kw, f8), _local(kw, f8), _local(kw, f8)
+    use_filter, prev_ok, live, status = _local(lw, b1), _local(lw, b1), _local(lw, b1), _local(lw, np.int64)
+    arm_clear, arm_h, arm_track = _local(lw, f8), _local(lw, f8), _local(lw, f8)
+    vs_last, tau_last, counts = _local(kw, f8), _local(kw, f8), _local(((0, 0, 0), lanes), np.int64)
+    # the filter of every lane: its obstacles (centre x, y, radius), active rows, RCBF rows (A_j, b_j,
+    # ‖A_j‖), one row at a time, and the first candidate (_first_projection_lanes)
+    obstacles, lane_active = np.empty((3, O, W)), np.empty((O, W), dtype=np.bool_)
+    obst_rows = np.empty((O, k + 2, W))
+    row_A, row_b, row_h, row_norm = _local(kw, f8), _local(lw, f8), _local(lw, f8), _local(lw, f8)
+    row_act, filtered, needs_qp = _local(lw, b1), _local(lw, b1), _local(lw, b1)
+    q_best, q_best_viol, q_found = _local(lw, np.int64), _local(lw, f8), _local(lw, b1)
+    q_Ab, q_bb, q_cand = _local(kw, f8), _local(lw, f8), _local(kw, f8)
+    # one lane's full QP search (_project_one)
+    Arows, brows, active = np.zeros((m, kk)), np.zeros(m), np.zeros(m, dtype=np.bool_)
+    qrows, qviol, qnorm, qidx = np.empty(m, dtype=np.int64), np.empty(m), np.empty(m), _local(kx, np.int64)
+    qv0, qvs = _local(kx, f8), _local(kx, f8)
+    qG, qL, qr, qlam, qcand, qy = _local(kkx, f8), _local(kkx, f8), _local(kx, f8), _local(kx, f8), _local(kx, f8), \
+        _local(kx, f8)
+    # RK4: trial state, stage derivative, weighted sums
+    qt, vt, dv, sq, sv = _local(nw, f8), _local(kw, f8), _local(kw, f8), _local(nw, f8), _local(kw, f8)
+    if v_max < np.inf:
+        for t in range(k):  # the full search's speed bounds ±v_t ≤ v_max, the same in every lane
+            Arows[O + 2 * t, t] = 1.0
+            Arows[O + 2 * t + 1, t] = -1.0
+            brows[O + 2 * t] = v_max
+            brows[O + 2 * t + 1] = v_max
+            active[O + 2 * t] = True
+            active[O + 2 * t + 1] = True
+    for first in range(lo, hi, W):
+        for w in range(W):
+            i = min(first + w, hi - 1)
+            arm[w] = i
+            real[w] = first + w < hi
+            for x in range(3):
+                counts[x, w] = 0
+            for a in range(n):
+                qi[a, w] = q[i, a]
+                ln[a, w] = lengths[i, a]
+                for b in range(n):
+                    lm[a, b, w] = lam[i, a, b]
+            for t in range(k):
+                vi[t, w] = v[i, t]
+                vp[t, w] = v_prev[i, t]
+                vs_last[t, w] = np.nan
+                tau_last[t, w] = np.nan
+            bx[w], by[w], ph[w] = base[i, 0], base[i, 1], phi[i]
+            if real[w]:
+                finite_out[i] = True
+            uf = filter_on and torque_mode and v_max < np.inf
+            for j in range(O):
+                obstacles[0, j, w] = centers[i, j, 0]
+                obstacles[1, j, w] = centers[i, j, 1]
+                obstacles[2, j, w] = radii[i, j]
+                lane_active[j, w] = mask[i, j]
+                if filter_on and mask[i, j]:
+                    uf = True
+            use_filter[w] = uf
+            prev_ok[w] = has_prev[i]
+            live[w] = True
+            arm_clear[w] = min_clear[i]
+            arm_h[w] = min_h[i]
+            arm_track[w] = max_track[i]
+            _lane_angles(qi, ph, n, w, c, s)
+        any_filter = False
+        for w in range(W):
+            any_filter = any_filter | use_filter[w]
+        for _s in range(n_sub):
+            _mass_lanes(lm, c, s, vi, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H)
+            # the velocity to filter: the command, or the one-step result of the commanded torque
+            if torque_mode:
+                for t in range(k):
+                    for w in range(W):
+                        tau[t, w] = command[arm[w], t]
+                if any_filter:
+                    _acceleration_lanes(Mc, Hc, tau, k, W, acc, rhs, Lc, yc, ok)  # NaN where not SPD: 0 below
+                    for t in range(k):
+                        for w in range(W):
+                            vdes[t, w] = vi[t, w] + dt * (acc[t, w] if ok[w] else 0.0)
+            else:
+                for t in range(k):
+                    for w in range(W):
+                        vdes[t, w] = command[arm[w], t]
+            for t in range(k):
+                for w in range(W):
+                    vs[t, w] = vdes[t, w]
+            for w in range(W):
+                status[w] = STATUS_NOMINAL
+            if any_filter:
+                _position_lanes(ln, bx, by, c, s, n, W, px, py)
+                _jacobian_lanes(ln, c, s, M, passive, n, k, W, J, Jbar)
+                for w in range(W):
+                    filtered[w] = use_filter[w] & live[w] & real[w]  # a padded lane's result is never used
+                _first_projection_lanes(px, py, Jbar, obstacles, lane_active, filtered, kappa, epsilon, margin, v_max,
+                                        O, k, W, vdes, arm_h, row_A, row_b, row_h, row_norm, row_act, obst_rows,
+                                        needs_qp, q_best, q_best_viol, q_Ab, q_bb, q_cand, q_found)
+                for w in range(W):
+                    if needs_qp[w] and q_found[w]:
+                        status[w] = STATUS_SOLVED
+                        for t in range(k):
+                            vs[t, w] = q_cand[t, w]
+                    elif needs_qp[w]:  # the full active-set search, on this lane's RCBF rows (speed rows set above)
+                        for j in range(O):
+                            for t in range(k):
+                                Arows[j, t] = obst_rows[j, t, w]
+                            brows[j] = obst_rows[j, k, w]
+                            active[j] = lane_active[j, w]
+                        for t in range(k):
+                            qv0[t] = vdes[t, w]
+                        status[w] = _project_one(qv0, Arows, brows, active, m, k, qvs, qrows, qidx, qG, qr, qlam,
+                                                 qcand, qL, qy, qviol, qnorm)
+                        for t in range(k):
+                            vs[t, w] = qvs[t]
+            for x in range(3):
+                for w in range(W):
+                    counts[x, w] += 1 if live[w] and status[w] == x else 0
+            if not torque_mode:
+                # backstepping tracker of v* (Eq. 64), v̇* by backward difference
+                for w in range(W):
+                    err = 0.0
+                    for t in range(k):
+                        e = vi[t, w] - vs[t, w]
+                        err += e * e
+                    err = np.sqrt(err)
+                    arm_track[w] = err if live[w] and err > arm_track[w] else arm_track[w]
+                for t in range(k):
+                    for w in range(W):
+                        vdot = (vs[t, w] - vp[t, w]) / dt if prev_ok[w] else 0.0
+                        acc[t, w] = vdot - ke * (vi[t, w] - vs[t, w])
+                for r in range(k):
+                    for w in range(W):
+                        tr = Hc[r, w]
+                        for t in range(k):
+                            tr += Mc[r, t, w] * acc[t, w]
+                        tau[r, w] = tr
+                for t in range(k):
+                    for w in range(W):
+                        vp[t, w] = vs[t, w] if live[w] else vp[t, w]
+                for w in range(W):
+                    prev_ok[w] = prev_ok[w] | live[w]
+            else:
+                for w in range(W):
+                    if status[w] != STATUS_NOMINAL:
+                        # the torque's velocity was unsafe: reach the projected velocity in one step
+                        for r in range(k):
+                            tr = Hc[r, w]
+                            for t in range(k):
+                                tr += Mc[r, t, w] * (vs[t, w] - vi[t, w]) / dt
+                            tau[r, w] = tr
+                    elif not use_filter[w]:
+                        for t in range(k):
+                            vs[t, w] = np.nan
+            for t in range(k):
+                for w in range(W):
+                    vs_last[t, w] = vs[t, w] if live[w] else vs_last[t, w]
+                    tau_last[t, w] = tau[t, w] if live[w] else tau_last[t, w]
+            # RK4 with τ held; the first stage uses the terms at the current state, and every stage's
+            # link angles come from the current ones (c0, s0) by a small rotation
+            for a in range(n):
+                for w in range(W):
+                    c0[a, w] = c[a, w]
+                    s0[a, w] = s[a, w]
+            _acceleration_lanes(Mc, Hc, tau, k, W, dv, rhs, Lc, yc, ok)
+            for a in range(n):
+                for w in range(W):
+                    sq[a, w] = qd[a, w]
+            for t in range(k):
+                for w in range(W):
+                    sv[t, w] = dv[t, w]
+            for stage in range(3):
+                hs = 0.5 * dt if stage < 2 else dt
+                g = 2.0 if stage < 2 else 1.0
+                for t in range(k):
+                    for w in range(W):
+                        vt[t, w] = vi[t, w] + hs * dv[t, w]
+                # the stage's state q + hs q̇: its link angles θ + hs θ̇ (θ̇ = thd of the previous stage)
+                _rotate_lanes(c0, s0, thd, hs, n, W, c, s)
+                _mass_lanes(lm, c, s, vt, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H)
+                _acceleration_lanes(Mc, Hc, tau, k, W, dv, rhs, Lc, yc, ok)
+                for a in range(n):
+                    for w in range(W):
+                        sq[a, w] += g * qd[a, w]
+                for t in range(k):
+                    for w in range(W):
+                        sv[t, w] += g * dv[t, w]
+            for w in range(W):
+                finite = True
+                acc_th = 0.0
+                for a in range(n):
+                    qt[a, w] = qi[a, w] + dt / 6.0 * sq[a, w]
+                    acc_th += sq[a, w]
+                    thd[a, w] = acc_th  # Σ of the weighted stage speeds: the step moves link angle a by dt/6 · thd
+                    finite = finite & np.isfinite(qt[a, w])
+                for t in range(k):
+                    vt[t, w] = vi[t, w] + dt / 6.0 * sv[t, w]
+                    finite = finite & np.isfinite(vt[t, w])
+                if live[w] and not finite:
+                    live[w] = False
+                    if real[w]:
+                        finite_out[arm[w]] = False
+            _rotate_lanes(c0, s0, thd, dt / 6.0, n, W, c, s)
+            n_live = 0
+            for w in range(W):
+                if live[w]:
+                    n_live += 1
+                    for a in range(n):
+                        qi[a, w] = qt[a, w]
+                    for t in range(k):
+                        vi[t, w] = vt[t, w]
+                else:  # frozen at its last finite state (whose angles the sub-step started from)
+                    for a in range(n):
+                        c[a, w] = c0[a, w]
+                        s[a, w] = s0[a, w]
+            if n_live == 0:
+                break
+            # clearance after the sub-step (a stopped lane keeps its value)
+            _position_lanes(ln, bx, by, c, s, n, W, px, py)
+            for j in range(O):
+                for w in range(W):
+                    dx = px[w] - obstacles[0, j, w]
+                    dy = py[w] - obstacles[1, j, w]
+                    cl = np.sqrt(dx * dx + dy * dy) - obstacles[2, j, w]
+                    arm_clear[w] = cl if live[w] and cl < arm_clear[w] else arm_clear[w]
+        # joint velocities and end-effector at the (last finite) state; a stopped arm's angles from q
+        for w in range(W):
+            if not live[w]:
+                _lane_angles(qi, ph, n, w, c, s)
+        _mass_lanes(lm, c, s, vi, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H)
+        _position_lanes(ln, bx, by, c, s, n, W, px, py)
+        for w in range(W):
+            if real[w]:
+                i = arm[w]
+                has_prev[i] = prev_ok[w]
+                for x in range(3):
+                    qp_counts[i, x] += counts[x, w]
+                min_clear[i] = arm_clear[w]
+                min_h[i] = arm_h[w]
+                max_track[i] = arm_track[w]
+                for t in range(k):
+                    v_star_out[i, t] = vs_last[t, w]
+                    tau_out[i, tau_off + t] = tau_last[t, w]
+                    v[i, t] = vi[t, w]
+                    v_prev[i, t] = vp[t, w]
+                for a in range(n):
+                    q[i, a] = qi[a, w]
+                    qd_out[i, a] = qd[a, w]
+                p_out[i, 0] = px[w]
+                p_out[i, 1] = py[w]
+
+
+_ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a held command (in place).
+
+    ``links, actuated = kernel_sizes(n, k)`` are tuples of length n and k, the arms' numbers of
+    links and actuated joints (``q.shape[1]`` and ``v.shape[1]``, else ValueError): numba types a
+    tuple by its length, so n and k are compile-time constants and the kernel is compiled once per
+    (n, k) pair, on its first use, and cached on disk. ``passive`` must agree with them (k = n − 1
+    for a PAn−1 arm, k = n for a fully actuated one, else ValueError): the kernel takes it from k < n,
+    a compile-time constant too.
+
+    Arrays are per arm (leading axis A): parameters ``lam, lengths, base, phi`` (see
+    :class:`~pan1_env.dynamics.ArmBatch`), state ``q (A, n)``, ``v (A, k)``, obstacles
+    ``centers (A, O, 2)``, ``radii (A, O)`` and ``mask (A, O)`` (the obstacles each arm's filter
+    sees; a team's obstacles are broadcast to every arm).
+
+    Velocity mode (``torque_mode`` False): ``command`` is the desired active velocity; each
+    sub-step filters it through the RCBF-QP when ``filter_on`` (against the obstacles of ``mask``)
+    and tracks v* with the backstepping torque, v̇* by backward difference (``v_prev``/``has_prev``
+    hold the previous sub-step's v* per arm; on return they hold the last v*). Torque mode:
+    ``command`` is τ_a. Without the filter it is applied as is; with it, the velocity the torque
+    would produce after one sub-step, v + dt·M_comb⁻¹(τ_a − H_comb), is filtered, and if the QP
+    changes it the arm is driven to the filtered velocity in one sub-step,
+    τ_a = M_comb (v* − v)/dt + H_comb, instead. With a finite ``v_max`` the filter's QP also bounds
+    every actuated speed, |v_t| ≤ ``v_max``, in both modes: the filtered velocity stays within the
+    arm's speed limit (without it, steady torque builds speeds at which a sub-step jumps over the
+    safe set's boundary, and a nearly degenerate RCBF row, tiny ‖L_g0 h‖ with b < 0, has a huge
+    exact optimum). A problem the box makes infeasible takes the braking fallback.
+
+    Outputs (per arm): ``v_star_out``/``tau_out`` of the last sub-step (``tau_out`` either
+    ``(A, k)`` actuated torques or full ``(A, n)`` rows, whose passive entry is left as passed in), ``qd_out`` the joint
+    velocities q̇ = g0 v and ``p_out`` the end-effector at the final state, ``min_clear`` the
+    smallest clearance ‖p − o_j‖ − r_j to any obstacle after every sub-step (running minimum with
+    the value passed in), ``min_h`` the smallest filtered barrier seen, ``qp_counts[i, s]`` the
+    number of sub-steps with QP status s, ``max_track`` the largest tracking error ‖v − v*‖ at the
+    start of a sub-step (velocity mode; running maximum with the value passed in), ``finite_out``
+    False for an arm whose state went non-finite (left at its last finite value). The first stage
+    of each RK4 step reuses the terms the filter and tracker computed at the same state.
+    """
+
+
+@njit(**_JIT)
+def _check_sizes(links, actuated, passive, q, v):
+    if q.shape[1] != len(links) or v.shape[1] != len(actuated):
+        raise ValueError("group_advance: links, actuated must be kernel_sizes(q.shape[1], v.shape[1])")
+    if len(actuated) != len(links) - (1 if passive else 0):
+        raise ValueError("group_advance: a PAn-1 arm (passive) has k = n - 1 actuated joints, a full one k = n")
+
+
+@njit(**_JIT)
+def group_advance(links, actuated, lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode,
+                  filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
+                  v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out):
+    _check_sizes(links, actuated, passive, q, v)
+    lo = q.shape[0] * 0  # an int64, like the parallel kernel's chunk bounds
+    _advance_arms(links, actuated, _LANES, lo, q.shape[0], lam, lengths, base, phi, passive, q, v, v_prev,
+                  has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt,
+                  n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out)
+
+
+@njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
+def group_advance_parallel(links, actuated, lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command,
+                           torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
+                           v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track,
+                           finite_out, n_chunks):
+    _check_sizes(links, actuated, passive, q, v)
+    _check_chunks(n_chunks)
+    A = q.shape[0]
+    for c in prange(n_chunks):
+        _advance_arms(links, actuated, _LANES, c * A // n_chunks, (c + 1) * A // n_chunks, lam, lengths,
+                      base, phi, passive, q, v, v_prev, has_prev, command, torque_mode, filter_on, centers, radii,
+                      mask, kappa, epsilon, margin, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out,
+                      min_clear, min_h, qp_counts, max_track, finite_out)
+
+
+group_advance.__doc__ = _ADVANCE_DOC
+_slp_vectorised(_advance_arms)
+_slp_vectorised(group_advance)
+_slp_vectorised(group_advance_parallel)
+group_advance_parallel.__doc__ = _ADVANCE_DOC + """
+    The same, with the arms split into ``n_chunks`` chunks run on numba's thread pool (for large
+    batches; a call costs a few microseconds more than :func:`group_advance`). Both run the same
+    compiled :func:`_advance_arms`, chunk by chunk here: each lane computes its own arm with no
+    reduction across lanes or arms, so the chunks' padded lane groups change nothing and the two give
+    the same results bit for bit (``tests/test_kernels.py``, ``tests/test_vector.py``,
+    ``tests/test_determinism.py``).
+    """
+
