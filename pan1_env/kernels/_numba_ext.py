@@ -8,6 +8,7 @@ helpers from the package's other modules, so a change to one of them must invali
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
 import numpy as np
@@ -116,17 +117,17 @@ _PACKAGE = Path(__file__).resolve().parent
 
 
 def _install_package_stamp() -> None:
-    """Give every module of this package one cache stamp: the newest modification time and total size
-    of all its source files. Numba compares a cached kernel's stamp with its own file's only, which
-    would keep a kernel whose inlined helper (in another module here) changed. Done through numba's
-    cache locator for source files (``numba.core.caching``, numba 0.68 here); with a numba without
+    """Give every module of this package one cache stamp: a hash of all its source files. Numba
+    compares a cached kernel's stamp with its own file's only, which would keep a kernel whose inlined
+    helper (in another module here) changed. Done through numba's in-tree cache locator
+    (``numba.core.caching``; its names lost their underscore in numba 0.68); with a numba without
     it the package keeps numba's per-file stamps (a developer then clears the cache after an edit)."""
     try:
         from numba.core import caching
     except ImportError:  # pragma: no cover
         return
-    base = getattr(caching, "_InTreeCacheLocator", None)
-    impl = getattr(caching, "_CacheImpl", None)
+    base = getattr(caching, "InTreeCacheLocator", None) or getattr(caching, "_InTreeCacheLocator", None)
+    impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl", None)
     if base is None or impl is None or not hasattr(impl, "_locator_classes"):
         return
 
@@ -138,8 +139,10 @@ def _install_package_stamp() -> None:
             return super().from_function(py_func, py_file)
 
         def get_source_stamp(self):
-            stats = [p.stat() for p in sorted(_PACKAGE.glob("*.py"))]
-            return max(s.st_mtime for s in stats), sum(s.st_size for s in stats)
+            digest = hashlib.sha256()
+            for path in sorted(_PACKAGE.glob("*.py")):
+                digest.update(path.read_bytes())
+            return digest.digest()
 
     if not any(c.__name__ == "_PackageLocator" for c in impl._locator_classes):
         impl._locator_classes.insert(0, _PackageLocator)
