@@ -187,19 +187,19 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
     venv.action_space.seed(0)
     for _ in range(20):
         venv.step(venv.action_space.sample())
-    g, t = venv._groups[0], venv.template
-    A, k, n = g["q"].shape[0], g["k"], g["n"]
-    kappa, epsilon, margin, ke = venv._sim_params
+    kind, t, f = venv.engine.kinds[0], venv.template, venv.safety_filter
+    A, k, n = kind.q.shape[0], kind.k, kind.n
+    kappa, epsilon, margin, ke = f.kappa, f.epsilon, f.margin, venv.engine.ke
     command = np.random.default_rng(0).uniform(-1.0, 1.0, (A, k))
 
     def advance(torque: bool, threads: int = 1):
-        state = {name: g[name].copy() for name in ("q", "v", "v_prev", "has_prev")}
+        state = {name: getattr(kind, name).copy() for name in ("q", "v", "v_prev", "has_prev")}
 
         def run():
             q, v, v_prev, has_prev = (state[name].copy() for name in ("q", "v", "v_prev", "has_prev"))
-            args = (*g["sizes"], g["lam"], g["lengths"], g["base"], g["phi"], g["passive"], q, v, v_prev, has_prev,
-                    command * (0.3 if torque else t.max_joint_speed), torque, not torque, g["centers"], g["radii"],
-                    g["mask"], kappa, epsilon, margin, ke, t.physics_dt, t.substeps,
+            args = (*kind.sizes, kind.lam, kind.lengths, kind.base, kind.phi, kind.passive, q, v, v_prev, has_prev,
+                    command * (0.3 if torque else t.max_joint_speed), torque, not torque, kind.centers, kind.radii,
+                    kind.mask, kappa, epsilon, margin, ke, t.physics_dt, t.substeps,
                     np.inf if torque else t.max_joint_speed, np.empty((A, k)), np.empty((A, k)), np.empty((A, n)),
                     np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64),
                     np.zeros(A), np.ones(A, bool))

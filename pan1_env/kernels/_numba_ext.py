@@ -119,30 +119,37 @@ _PACKAGE = Path(__file__).resolve().parent
 def _install_package_stamp() -> None:
     """Give every module of this package one cache stamp: a hash of all its source files. Numba
     compares a cached kernel's stamp with its own file's only, which would keep a kernel whose inlined
-    helper (in another module here) changed. Done through numba's in-tree cache locator
-    (``numba.core.caching``; its names lost their underscore in numba 0.68); with a numba without
+    helper (in another module here) changed. Done through numba's cache locators
+    (``numba.core.caching``; ``CacheImpl`` lost its underscore in numba 0.68); with a numba without
     it the package keeps numba's per-file stamps (a developer then clears the cache after an edit)."""
     try:
         from numba.core import caching
     except ImportError:  # pragma: no cover
         return
-    base = getattr(caching, "InTreeCacheLocator", None) or getattr(caching, "_InTreeCacheLocator", None)
     impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl", None)
-    if base is None or impl is None or not hasattr(impl, "_locator_classes"):
+    if impl is None or not hasattr(impl, "_locator_classes"):
         return
 
-    class _PackageLocator(base):
+    def package_stamp() -> bytes:
+        digest = hashlib.sha256()
+        for path in sorted(_PACKAGE.glob("*.py")):
+            digest.update(path.read_bytes())
+        return digest.digest()
+
+    class _PackageLocator:
+        """Numba's own choice of cache place (NUMBA_CACHE_DIR, in-tree, user-wide, …), with the
+        package's stamp for the kernels' files."""
+
         @classmethod
         def from_function(cls, py_func, py_file):
             if Path(py_file).resolve().parent != _PACKAGE:
                 return None
-            return super().from_function(py_func, py_file)
-
-        def get_source_stamp(self):
-            digest = hashlib.sha256()
-            for path in sorted(_PACKAGE.glob("*.py")):
-                digest.update(path.read_bytes())
-            return digest.digest()
+            for other in impl._locator_classes:
+                locator = None if other is cls else other.from_function(py_func, py_file)
+                if locator is not None:
+                    locator.get_source_stamp = package_stamp
+                    return locator
+            return None
 
     if not any(c.__name__ == "_PackageLocator" for c in impl._locator_classes):
         impl._locator_classes.insert(0, _PackageLocator)
