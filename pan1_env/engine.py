@@ -76,6 +76,7 @@ class StepRecord:
     qp_counts: np.ndarray  # (B, N, 3) sub-steps per QP status: nominal, solved, fallback
     max_tracking_error: np.ndarray  # (B, N) largest ‖v − v*‖ at the start of a sub-step
     finite: np.ndarray  # (B, N) False where the state went non-finite (left at its last finite state)
+    all_finite: bool = True  # every arm of every copy stayed finite
 
     @property
     def intervened(self) -> np.ndarray:
@@ -273,7 +274,8 @@ class Engine:
                     self._piqp_substep(kind, command, rec)
             else:
                 self._advance(kind, command, int(substeps), torque, self.filter, rec)
-        if not rec.finite.all():  # a faulty arm stopped early: include the (finite) state it was left in
+        rec.all_finite = bool(rec.finite.all())
+        if not rec.all_finite:  # a faulty arm stopped early: include the (finite) state it was left in
             np.minimum(rec.min_clearance, self.clearance(), out=rec.min_clearance)
         return rec
 

@@ -272,6 +272,9 @@ class Pan1ParallelEnv(ParallelEnv):
                                   terminate_on_collision=self.terminate_on_collision,
                                   terminate_on_success=self.terminate_on_success)
         self._record: StepRecord | None = None
+        # (agent, layout group, row in the group) in agent order: where each observation comes from
+        rows = sorted((i, g, r) for g, (_, ids) in enumerate(self._layout.groups) for r, i in enumerate(ids.tolist()))
+        self._observation_rows = [(self.possible_agents[i], g, r) for i, g, r in rows]
         self.np_random, self.np_random_seed = gymnasium.utils.seeding.np_random(None)
         self._renderer = None
         self._needs_reset = True
@@ -357,7 +360,7 @@ class Pan1ParallelEnv(ParallelEnv):
         self._record = rec
         max_err = float(out.measures["formation_error"][0])
         success = bool(out.success[0])
-        fault = None if rec.finite.all() else "non-finite state in the physics step; episode truncated"
+        fault = None if rec.all_finite else "non-finite state in the physics step; episode truncated"
         terminated = bool(out.terminated[0])
         truncated = self.num_steps >= self.max_steps or fault is not None
         rewards = dict(zip(self.possible_agents, out.reward[0].tolist(), strict=True))
@@ -443,10 +446,7 @@ class Pan1ParallelEnv(ParallelEnv):
     def _observations(self) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """The edges' length errors ‖z_k‖ − d_k ``(1, E)`` and every live agent's observation."""
         err, mats = self.task.observe(self.engine)
-        out = {}
-        for (_, ids), mat in zip(self._layout.groups, mats, strict=True):
-            for row, i in enumerate(ids.tolist()):
-                out[self.possible_agents[i]] = mat[0, row]
+        out = {agent: mats[group][0, row] for agent, group, row in self._observation_rows}
         if len(out) != len(self.agents):
             out = {a: out[a] for a in self.agents}
         return err, out

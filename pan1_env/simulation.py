@@ -88,6 +88,7 @@ class Simulation(Engine):
             self.max_speed = float(max_speed)
         rec = super().step(command[None], substeps, torque=torque)
         self.time += int(substeps) * self.physics_dt
-        out = StepRecord(**{name: getattr(rec, name)[0] for name in StepRecord.__dataclass_fields__})
+        out = StepRecord(rec.v_star[0], rec.tau[0], rec.min_clearance[0], rec.min_barrier[0], rec.qp_counts[0],
+                         rec.max_tracking_error[0], rec.finite[0], rec.all_finite)
         np.minimum(self.min_clearance, out.min_clearance, out=self.min_clearance)
         return out
