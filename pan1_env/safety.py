@@ -21,6 +21,9 @@ Two exact solvers are offered for the per-arm QP, both batched over arms:
 * ``"active_set"`` – enumeration of the linearly independent active sets, which is exact for the
   few rows and ≤ n−1 unknowns of this problem (even when rows are parallel: rank A ≤ 2 always).
 
+:func:`active_set_projection` is the same enumeration in plain numpy, the readable reference of the
+compiled one (``project_velocity(..., solver="numpy")``; tests/test_qp_reference.py checks the two).
+
 If the desired velocity already satisfies every row it is the optimum and is returned unchanged.
 If the QP is infeasible (or the solver fails) the documented fallback is **braking**: v* = 0, so
 q̇ = g0·0 = 0 and no barrier can decrease; the status says so.
@@ -28,6 +31,7 @@ q̇ = g0·0 = 0 and no barrier can decrease; the status says so.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from enum import IntEnum
 from typing import NamedTuple
@@ -44,6 +48,7 @@ __all__ = [
     "QPStatus",
     "FilterResult",
     "project_velocity",
+    "active_set_projection",
     "QP_SOLVERS",
 ]
 
@@ -195,6 +200,86 @@ def _solve_piqp(v0: np.ndarray, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarra
     return out, found
 
 
+# The active-set QP's tolerances, here and in the compiled QP (pan1_env.kernels imports them). An exact
+# QP still rounds: a row met to ROW_TOLERANCE counts as met, and a multiplier above −ROW_TOLERANCE as
+# non-negative (relative to 1 + |b_j|, 1 + max |λ|). A candidate's final check is looser, so that a
+# projection the search accepted is not refused by the rounding of its own product A_j·v.
+ROW_TOLERANCE = 1e-12
+CANDIDATE_TOLERANCE = 1e-9  # relative to 1 + |b_j| + ‖A_j‖ (1 + ‖v‖)
+PIVOT_TOLERANCE = 1e-12  # rows are independent if every pivot of their Gram matrix exceeds this × its top diagonal
+
+
+def active_set_projection(
+    v0: np.ndarray, A: np.ndarray, b: np.ndarray, active: np.ndarray | None = None
+) -> FilterResult:
+    """Exact v* = argmin ½‖v − v0‖² s.t. A_j v ≤ b_j (rows with ``active``), in numpy, one arm at a time.
+
+    The numpy reference of the compiled :func:`pan1_env.kernels.qp_project`, step for step:
+
+    1. v0 meets every active row (within ``ROW_TOLERANCE``): return it, status NOMINAL.
+    2. A zero row with b_j < −ROW_TOLERANCE (0·v ≤ b_j < 0) can never hold: FALLBACK. Other zero
+       rows are dropped, and the rest sorted by decreasing normalised violation (A_j v0 − b_j)/‖A_j‖.
+    3. For sizes 1..k, every set S of those rows in lexicographic order: if the rows of S are
+       independent (Cholesky pivots of G = A_S A_Sᵀ above ``PIVOT_TOLERANCE``), solve the KKT system
+       G λ = A_S v0 − b_S; if λ ≥ 0 and the candidate v = v0 − A_Sᵀ λ meets every row (within
+       ``CANDIDATE_TOLERANCE``), v satisfies the KKT conditions of this strictly convex QP, so it is
+       the unique optimum: status SOLVED. (A feasible QP has an optimum whose active rows include an
+       independent set with λ ≥ 0, so the search finds it.)
+    4. No set qualifies: infeasible, FALLBACK with the braking velocity v = 0. (So is a feasible QP
+       whose optimum needs rows dependent to within PIVOT_TOLERANCE, e.g. a far wedge vertex.)
+
+    Args:
+        v0: ``(..., k)`` desired velocities; A ``(..., m, k)``; b ``(..., m)``.
+        active: ``(..., m)`` mask of the rows that count; default ``isfinite(b)`` (as project_velocity).
+
+    Returns:
+        :class:`FilterResult` with v ``(..., k)`` and the kernel's status codes ``(...)`` (QPStatus).
+    """
+    v0, A, b = (np.asarray(x, dtype=float) for x in (v0, A, b))
+    active = np.isfinite(b) if active is None else np.asarray(active, dtype=bool)
+    k, m = v0.shape[-1], A.shape[-2]
+    v0s, As, bs, acts = v0.reshape(-1, k), A.reshape(-1, m, k), b.reshape(-1, m), active.reshape(-1, m)
+    v, status = np.zeros_like(v0s), np.empty(v0s.shape[0], dtype=np.int64)
+    for i in range(v0s.shape[0]):  # one arm at a time: clarity over speed
+        v[i], status[i] = _project_arm(v0s[i], As[i][acts[i]], bs[i][acts[i]])
+    return FilterResult(v.reshape(v0.shape), status.reshape(v0.shape[:-1]))
+
+
+def _project_arm(v0: np.ndarray, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, QPStatus]:
+    """One arm of :func:`active_set_projection`; A ``(m, k)`` and b ``(m,)`` hold its active rows."""
+    if not np.any(A @ v0 > b + ROW_TOLERANCE * (1.0 + np.abs(b))):
+        return v0.copy(), QPStatus.NOMINAL
+    norm2 = np.sum(A * A, axis=1)
+    if np.any(~(norm2 > 0.0) & (b < -ROW_TOLERANCE)):
+        return np.zeros_like(v0), QPStatus.FALLBACK
+    keep = norm2 > 0.0
+    A, b, norm = A[keep], b[keep], np.sqrt(norm2[keep])
+    order = np.argsort(-(A @ v0 - b) / norm, kind="stable")  # most violated first; ties keep row order
+    A, b, norm = A[order], b[order], norm[order]
+    for size in range(1, min(len(b), v0.shape[0]) + 1):
+        for S in map(list, itertools.combinations(range(len(b)), size)):
+            G = A[S] @ A[S].T
+            try:
+                pivots = np.diag(np.linalg.cholesky(G)) ** 2
+            except np.linalg.LinAlgError:
+                continue  # not positive definite: dependent rows
+            if np.min(pivots) <= PIVOT_TOLERANCE * np.max(np.diag(G)):
+                continue
+            lam = np.linalg.solve(G, A[S] @ v0 - b[S])
+            if np.any(lam < -ROW_TOLERANCE * (1.0 + np.max(np.abs(lam)))):
+                continue
+            v = v0 - A[S].T @ lam
+            slack = CANDIDATE_TOLERANCE * (1.0 + np.abs(b) + norm * (1.0 + np.linalg.norm(v)))
+            if not np.any(A @ v > b + slack):
+                return v, QPStatus.SOLVED
+    return np.zeros_like(v0), QPStatus.FALLBACK
+
+
+def _solve_numpy(v0: np.ndarray, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    result = active_set_projection(v0, A, b)
+    return result.v, result.status != QPStatus.FALLBACK
+
+
 def project_velocity(
     v_desired: np.ndarray, A: np.ndarray, b: np.ndarray, solver: str = "active_set"
 ) -> FilterResult:
@@ -203,13 +288,15 @@ def project_velocity(
     Args:
         v_desired: ``(B, k)`` desired velocities.
         A, b: ``(B, m, k)`` and ``(B, m)`` rows from :func:`rcbf_constraints` (+inf b = no row).
-        solver: ``"active_set"`` (exact enumeration, fast) or ``"piqp"`` (qpsolvers + PIQP).
+        solver: ``"active_set"`` (exact enumeration, fast), ``"piqp"`` (qpsolvers + PIQP) or
+            ``"numpy"`` (:func:`active_set_projection`, the same enumeration in numpy; not in
+            ``QP_SOLVERS``, which the simulator accepts, as the simulator runs the compiled QP).
 
     Returns:
         :class:`FilterResult` with the filtered velocities and a :class:`QPStatus` per arm.
     """
-    if solver not in QP_SOLVERS:
-        raise ValueError(f"unknown QP solver {solver!r}; choose one of {QP_SOLVERS}")
+    if solver not in (*QP_SOLVERS, "numpy"):
+        raise ValueError(f"unknown QP solver {solver!r}; choose one of {(*QP_SOLVERS, 'numpy')}")
     v_desired = np.asarray(v_desired, dtype=float)
     status = np.full(v_desired.shape[0], int(QPStatus.NOMINAL))
     v = v_desired.copy()
@@ -219,7 +306,7 @@ def project_velocity(
     todo = np.flatnonzero(~nominal_ok)
     if todo.size == 0:
         return FilterResult(v, status)
-    solve = _solve_active_set if solver == "active_set" else _solve_piqp
+    solve = {"active_set": _solve_active_set, "piqp": _solve_piqp, "numpy": _solve_numpy}[solver]
     sol, found = solve(v_desired[todo], A[todo], b[todo])
     v[todo] = np.where(found[:, None], sol, 0.0)
     status[todo] = np.where(found, int(QPStatus.SOLVED), int(QPStatus.FALLBACK))

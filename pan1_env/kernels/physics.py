@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..safety import PIVOT_TOLERANCE
 from ._numba_ext import _JIT
 
 # with the lanes as their last axis, shape (…, W), sizes passed explicitly and no array views,
@@ -143,7 +144,7 @@ def _mass_lanes(lam, c, s, v, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H):
 def _spd_solve(G, r, x, size, L, y):
     """Solve G x = r (the leading ``size`` × ``size`` block, symmetric positive definite) by the
     square-root-free Cholesky factorisation G = L D Lᵀ; False if it is not SPD (a pivot D_i at or
-    below 1e-12 × the largest diagonal entry: the same test as on the squared pivots of Cholesky).
+    below PIVOT_TOLERANCE × the largest diagonal entry: the same test as on the squared pivots of Cholesky).
     ``L`` (its diagonal holds 1 / D_i, its upper triangle L_ij D_j) and ``y`` are scratch space.
     One division per row and no square root: in the RK4 stages this chain of dependent operations
     sets much of the sub-step's cost."""
@@ -160,7 +161,7 @@ def _spd_solve(G, r, x, size, L, y):
         acc = G[i, i]
         for t in range(i):
             acc -= L[i, t] * L[t, i]
-        if acc <= 1e-12 * scale:
+        if acc <= PIVOT_TOLERANCE * scale:
             return False
         L[i, i] = 1.0 / acc
     for i in range(size):
@@ -179,7 +180,7 @@ def _spd_solve(G, r, x, size, L, y):
 @njit(**_JIT, forceinline=True)
 def _solve_lanes(G, r, k, W, x, L, y, ok):
     """:func:`_spd_solve` of the k × k systems G x = r of W lanes, branch-free (so the lanes
-    vectorise): ``ok[w]`` is False where G is not SPD (a pivot at or below 1e-12 × the largest
+    vectorise): ``ok[w]`` is False where G is not SPD (a pivot at or below PIVOT_TOLERANCE × the largest
     diagonal entry), and that lane's x is then meaningless."""
     for w in range(W):
         scale = 0.0
@@ -196,7 +197,7 @@ def _solve_lanes(G, r, k, W, x, L, y, ok):
             acc = G[i, i, w]
             for t in range(i):
                 acc -= L[i, t, w] * L[t, i, w]
-            good = good & (not acc <= 1e-12 * scale)
+            good = good & (not acc <= PIVOT_TOLERANCE * scale)
             L[i, i, w] = 1.0 / acc
         ok[w] = good
         for i in range(k):

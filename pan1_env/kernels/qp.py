@@ -6,16 +6,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..safety import CANDIDATE_TOLERANCE, ROW_TOLERANCE  # one owner: the numpy reference QP
 from ._numba_ext import _JIT
 from .physics import _spd_solve
 
 STATUS_NOMINAL, STATUS_SOLVED, STATUS_FALLBACK = 0, 1, 2
-# Feasibility of a row, and the sign tests of pivots and multipliers, relative to the row's scale
-# (1 + |b|): an exact QP still rounds, and a row met to this precision counts as met.
-ROW_TOLERANCE = 1e-12
-# A candidate's final check, scaled by ‖A_j‖ and ‖candidate‖ too: looser, so that a projection the
-# search accepted is not refused by the rounding of its own product A_j·v.
-CANDIDATE_TOLERANCE = 1e-9
 
 
 @njit(**_JIT, forceinline=True)
