@@ -83,15 +83,15 @@ class FormationTask:
         """The step's outcome from its record, the edge errors after it and each agent's effort
         ``‖a_i‖²/k_i (B, N)``. At a reset (``record`` None) pass the state's ``clearance (B, N)``."""
         w_form, w_effort, penalty = self.weights
-        abs_err = np.abs(err)
         min_clear = record.min_clearance if record is not None else clearance
-        cost = (min_clear < 0).astype(float)
-        formation = -w_form * (abs_err.sum(axis=1) / err.shape[1])
+        B = len(err)
+        formation, formation_error, success = np.empty(B), np.empty(B), np.empty(B, dtype=bool)
+        cost = np.empty(min_clear.shape)
+        kernels().formation_outcome(err, min_clear, w_form, self.success_tolerance, formation, formation_error,
+                                    success, cost)
         reward = np.empty_like(cost)
         reward[:] = formation[:, None]
         terms = _terms(reward, {"formation": formation[:, None]}, effort=(w_effort, effort), collision=(penalty, cost))
-        formation_error = abs_err.max(axis=1)
-        success = formation_error < self.success_tolerance
         terminated = _terminated(success, cost, self.terminate_on_success, self.terminate_on_collision)
         return Outcome(reward, terms, cost, success, terminated,
                        {"formation_error": formation_error, "min_clearance": min_clear})

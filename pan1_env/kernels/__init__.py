@@ -31,6 +31,7 @@ from ._numba_ext import _JIT, _LANES, _local, _slp_vectorised
 from .observe import (
     edge_length_errors,
     formation_observations,
+    formation_outcome,
     group_observations,
     group_observations_parallel,
     reach_observations,
@@ -52,6 +53,7 @@ __all__ = [
     "scale_command",
     "edge_length_errors",
     "formation_observations",
+    "formation_outcome",
     "reach_observations",
 ]
 
