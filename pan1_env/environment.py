@@ -101,8 +101,10 @@ class Pan1ParallelEnv(ParallelEnv):
 
     Per agent: ``cost``, ``min_clearance`` (m, smallest over the step's sub-steps and obstacles),
     ``formation_error`` (m, max over edges of |‖z_k‖ − d_k|), ``is_success`` (formation error below
-    ``success_tolerance``), ``qp_counts`` when a safety filter is on, and ``fault`` (a string) if the
-    episode was truncated by a numerical fault.
+    ``success_tolerance``), ``reward_terms`` (the reward's weighted terms, which sum to it:
+    ``formation``, and ``effort`` and ``collision`` when their weights are not zero; after a step),
+    ``qp_counts`` when a safety filter is on, and ``fault`` (a string) if the episode was truncated by a
+    numerical fault.
 
     ## Starting State
 
@@ -366,9 +368,13 @@ class Pan1ParallelEnv(ParallelEnv):
         rewards = dict(zip(self.possible_agents, out.reward[0].tolist(), strict=True))
         infos = {}  # every arm is live in a step (agents leave together), so team index = position
         filtered = self.engine.filter is not None
+        n_agents = len(self.possible_agents)  # per-agent rows of the terms (a shared term has one column)
+        terms = {name: row if len(row) == n_agents else row * n_agents
+                 for name, row in ((name, value[0].tolist()) for name, value in out.terms.items())}
         for i, (agent, cost, clear) in enumerate(zip(self.possible_agents, out.cost[0].tolist(),
                                                      rec.min_clearance[0].tolist(), strict=True)):
-            info = {"cost": cost, "min_clearance": clear, "formation_error": max_err, "is_success": success}
+            info = {"cost": cost, "min_clearance": clear, "formation_error": max_err, "is_success": success,
+                    "reward_terms": {name: value[i] for name, value in terms.items()}}
             if filtered:
                 info["qp_counts"] = rec.qp_counts[0, i]
             if fault:

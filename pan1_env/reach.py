@@ -98,7 +98,9 @@ class PAReachEnv(gymnasium.Env):
 
     ``cost``, ``min_clearance`` (smallest ‖p − o‖ − r over the step's sub-steps), ``distance``
     (‖goal − p‖), ``is_success``, ``intervened`` (the filter changed the command in a sub-step) and
-    ``fallback`` (its QP was infeasible and the braking fallback ran in a sub-step).
+    ``fallback`` (its QP was infeasible and the braking fallback ran in a sub-step); after a step,
+    ``reward_terms``: the reward's terms (``distance``, and ``effort`` and ``collision`` when their
+    weights are not zero), which sum to it.
 
     ## Arguments
 
@@ -228,6 +230,7 @@ class PAReachEnv(gymnasium.Env):
         terminated = bool(out.terminated[0])
         truncated = self.num_steps >= self.max_steps or not finite
         info = self._info(out, rec)
+        info["reward_terms"] = {name: float(value[0, 0]) for name, value in out.terms.items()}
         if not finite:
             info["fault"] = "non-finite state in the physics step; episode truncated"
         if terminated or truncated:

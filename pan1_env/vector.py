@@ -71,8 +71,10 @@ class Pan1VectorEnv(VectorEnv):
 
     Arrays over copies (each with Gymnasium's ``_key`` mask): ``cost`` (number of arms that entered
     an obstacle in the step), ``min_clearance`` (m), ``formation_error`` (m), ``is_success``, and with
-    the safety filter ``shield_intervened`` and ``shield_fallback``; ``fault`` (strings, masked) for a
-    copy truncated by a non-finite state.
+    the safety filter ``shield_intervened`` and ``shield_fallback``; after a step the reward's terms
+    ``reward_formation`` (and ``reward_effort``, ``reward_collision`` when their weights are not
+    zero), averaged over the agents like the reward; ``fault`` (strings, masked) for a copy truncated
+    by a non-finite state.
 
     ## Arguments
 
@@ -224,6 +226,9 @@ class Pan1VectorEnv(VectorEnv):
         everywhere = np.ones(self.num_envs, dtype=bool)
         infos = {"cost": out.cost.sum(axis=1), "min_clearance": out.measures["min_clearance"].min(axis=1),
                  "formation_error": out.measures["formation_error"], "is_success": out.success}
+        if rec is not None:  # the reward's terms, averaged over the agents as the reward is
+            for name, value in out.terms.items():
+                infos[f"reward_{name}"] = np.broadcast_to(value, out.cost.shape).mean(axis=1)
         if self.engine.filter is not None:
             infos["shield_intervened"] = rec.intervened.any(axis=1) if rec is not None else ~everywhere
             infos["shield_fallback"] = rec.fallback.any(axis=1) if rec is not None else ~everywhere

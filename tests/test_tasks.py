@@ -48,3 +48,25 @@ def test_engine_step_record_covers_every_arm_of_every_copy() -> None:
         assert np.isfinite(rec.v_star[:, i, :k]).all() and np.isnan(rec.v_star[:, i, k:]).all()
     # the copies started alike and got the same command: the same results, bit for bit
     np.testing.assert_array_equal(rec.v_star[0], rec.v_star[2])
+
+
+def test_reward_terms_in_infos_sum_to_the_reward() -> None:
+    from pan1_env.reach import PAReachEnv
+    from pan1_env.vector import Pan1VectorEnv
+
+    kw = {"effort_weight": 0.2, "collision_penalty": 1.0}
+    env = parallel_env("paper_pa_mixed_square", **kw)
+    env.reset(seed=0)
+    _, rewards, _, _, infos = env.step({a: np.full(env.action_space(a).shape, 0.7) for a in env.agents})
+    for agent, info in infos.items():
+        assert set(info["reward_terms"]) == {"formation", "effort", "collision"}
+        assert sum(info["reward_terms"].values()) == pytest.approx(rewards[agent], abs=1e-12)
+    venv = Pan1VectorEnv("paper_pa_mixed_square", 2, **kw)
+    venv.reset(seed=0)
+    _, reward, _, _, info = venv.step(np.full(venv.action_space.shape, 0.7))
+    np.testing.assert_allclose(info["reward_formation"] + info["reward_effort"] + info["reward_collision"], reward,
+                               atol=1e-12)
+    reach = PAReachEnv(**kw)
+    reach.reset(seed=0)
+    _, r, _, _, info = reach.step(np.full(reach.action_space.shape, 0.7))
+    assert sum(info["reward_terms"].values()) == pytest.approx(r, abs=1e-12)
