@@ -1,9 +1,10 @@
 """Stable-Baselines3 training on the environments, behind the safety shield or not.
 
-:func:`train` trains PPO or SAC either on the Gymnasium view (one policy for the whole team,
-concatenated observations and actions) or, with ``param_sharing=True``, on the PettingZoo env
-through SuperSuit (one policy shared by every arm; observations and actions padded to the largest
-arm). It writes into ``out``:
+:func:`train` trains PPO or SAC either on the batched vector env (one policy for the whole team,
+concatenated observations and actions: the Gymnasium view's spaces, B copies stepped in one engine
+through :class:`~pan1_env.baselines.vec_env.SB3VecEnv`) or, with ``param_sharing=True``, on the
+PettingZoo env through SuperSuit (one policy shared by every arm; observations and actions padded to
+the largest arm; SuperSuit steps its copies one by one, so this route is slower). It writes into ``out``:
 
 * ``checkpoints/model_<steps>_steps.zip`` and ``state_<steps>_steps.pkl`` at the first update
   boundary after every ``checkpoint_every`` steps and at the end (plus the replay buffer for SAC),
@@ -37,12 +38,16 @@ import numpy as np
 __all__ = ["train", "make_training_env", "ALGOS", "latest_checkpoint"]
 
 ALGOS = ("ppo", "sac")
+DEFAULT_N_ENVS = 16  # copies in the batched engine
+# PPO's rollout and minibatch for B copies: SB3's defaults (2048 steps per copy, minibatches of 64)
+# are sized for one env; with 16 copies these keep an update at 4096 steps in 4 minibatches.
+PPO_DEFAULTS = {"n_steps": 256, "batch_size": 1024}
 
 
-def make_training_env(scenario: str, shield: bool, seed: int, n_envs: int = 1, param_sharing: bool = False,
-                      env_kwargs: dict[str, Any] | None = None):
-    """The SB3 ``VecEnv`` to train on (see the module docstring)."""
-    from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
+def make_training_env(scenario: str, shield: bool, seed: int, n_envs: int = DEFAULT_N_ENVS,
+                      param_sharing: bool = False, env_kwargs: dict[str, Any] | None = None):
+    """The SB3 ``VecEnv`` to train on (see the module docstring); copy b is seeded ``seed + b``."""
+    from stable_baselines3.common.vec_env import VecMonitor
 
     env_kwargs = dict(env_kwargs or {})
     if param_sharing:
@@ -61,20 +66,9 @@ def make_training_env(scenario: str, shield: bool, seed: int, n_envs: int = 1, p
         venv.seed(seed)
         return VecMonitor(venv)
 
-    def factory(rank: int):
-        def make():
-            from pan1_env.registration import CentralizedEnv
-            from pan1_env.wrappers import GymSafetyShield
+    from .vec_env import SB3VecEnv
 
-            env = CentralizedEnv(scenario, **env_kwargs)
-            if shield:
-                env = GymSafetyShield(env)
-            env.reset(seed=seed + rank)
-            return env
-
-        return make
-
-    venv = DummyVecEnv([factory(r) for r in range(n_envs)])
+    venv = SB3VecEnv(scenario, n_envs, safety_filter=bool(shield), **env_kwargs)
     venv.seed(seed)
     return VecMonitor(venv)
 
@@ -206,14 +200,14 @@ def _callbacks(out: Path, checkpoint_every: int, algo: str, total: int, progress
 
 
 def _venv_state(venv) -> dict[str, Any]:
-    """The picklable state of a ``VecMonitor(DummyVecEnv(...))``: its environments mid-episode and
-    the monitor's running episode statistics (SB3's wrappers themselves do not pickle)."""
-    from stable_baselines3.common.vec_env import DummyVecEnv
+    """The picklable state of a ``VecMonitor(SB3VecEnv(...))``: the vector env mid-episode (its engine,
+    task and generators) and the monitor's running episode statistics (SB3's wrappers do not pickle)."""
+    from .vec_env import SB3VecEnv
 
     inner = venv.venv
-    if not isinstance(inner, DummyVecEnv):
+    if not isinstance(inner, SB3VecEnv):
         return {}  # SuperSuit (parameter sharing): resumed with a fresh reset, not exactly
-    return {"envs": inner.envs, "episode_returns": venv.episode_returns, "episode_lengths": venv.episode_lengths,
+    return {"vector": inner.venv, "episode_returns": venv.episode_returns, "episode_lengths": venv.episode_lengths,
             "episode_count": venv.episode_count}
 
 
@@ -221,7 +215,7 @@ def _restore_venv(venv, state: dict[str, Any]) -> None:
     if not state:
         return
     inner = venv.venv
-    inner.envs = state["envs"]
+    inner.venv = state["vector"]
     venv.episode_returns = state["episode_returns"]
     venv.episode_lengths = state["episode_lengths"]
     venv.episode_count = state["episode_count"]
@@ -239,7 +233,7 @@ def _truncate_log(path: Path, steps: int) -> None:
 
 
 def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool = True, timesteps: int = 100_000,
-          seed: int = 0, out: str | Path = "runs/train", resume: bool = False, n_envs: int = 1,
+          seed: int = 0, out: str | Path = "runs/train", resume: bool = False, n_envs: int = DEFAULT_N_ENVS,
           param_sharing: bool = False, checkpoint_every: int = 10_000, progress: bool = True,
           env_kwargs: dict[str, Any] | None = None, algo_kwargs: dict[str, Any] | None = None,
           extra_callbacks: list | None = None) -> dict[str, Any]:
@@ -285,7 +279,8 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
         venv = make_training_env(scenario, shield, seed, n_envs, param_sharing, env_kwargs)
         if (out / "episodes.csv").exists() and not resume:
             (out / "episodes.csv").unlink()
-        kwargs = {"seed": seed, "verbose": 0, "device": "cpu", **(algo_kwargs or {})}
+        defaults = PPO_DEFAULTS if algo == "ppo" and not param_sharing else {}
+        kwargs = {"seed": seed, "verbose": 0, "device": "cpu", **defaults, **(algo_kwargs or {})}
         model = cls("MlpPolicy", venv, **kwargs)
     meta = {"algo": algo, "scenario": scenario, "shield": shield, "timesteps": timesteps, "seed": seed,
             "n_envs": n_envs, "param_sharing": param_sharing, "env_kwargs": env_kwargs or {},

@@ -109,7 +109,8 @@ def _parser() -> argparse.ArgumentParser:
     tr.add_argument("--seed", type=int, default=0, help="seed of the model and of the env resets")
     tr.add_argument("--out", type=Path, required=True, help="output directory")
     tr.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in --out")
-    tr.add_argument("--n-envs", type=_positive_int, default=1, help="parallel copies of the env")
+    tr.add_argument("--n-envs", type=_positive_int, default=16,
+                    help="copies of the env, stepped together in the batched engine (default: %(default)s)")
     tr.add_argument("--param-sharing", action="store_true",
                     help="one policy shared by every arm (PettingZoo env through SuperSuit, padded)")
     tr.add_argument("--checkpoint-every", type=_positive_int, default=10_000, help="steps between checkpoints")

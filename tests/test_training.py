@@ -21,7 +21,7 @@ def _rows(path):
 def test_short_shielded_ppo_run_trains_with_zero_cost(tmp_path) -> None:
     out = tmp_path / "ppo"
     summary = train("ppo", "paper_pa_mixed_square", shield=True, timesteps=2048, seed=0, out=out,
-                    checkpoint_every=1024, progress=False, env_kwargs={"max_steps": 128},
+                    checkpoint_every=1024, progress=False, n_envs=1, env_kwargs={"max_steps": 128},
                     algo_kwargs={"n_steps": 1024, "batch_size": 256})
     rows = _rows(out / "episodes.csv")
     assert len(rows) == 2048 // 128
@@ -31,7 +31,7 @@ def test_short_shielded_ppo_run_trains_with_zero_cost(tmp_path) -> None:
     assert latest_checkpoint(out)[1] == 2048
     # resume: continues from the newest checkpoint up to the new total
     summary = train("ppo", "paper_pa_mixed_square", shield=True, timesteps=3072, seed=0, out=out, resume=True,
-                    checkpoint_every=1024, progress=False, env_kwargs={"max_steps": 128},
+                    checkpoint_every=1024, progress=False, n_envs=1, env_kwargs={"max_steps": 128},
                     algo_kwargs={"n_steps": 1024, "batch_size": 256})
     assert summary["resumed_from"] == 2048
     rows = _rows(out / "episodes.csv")
@@ -77,7 +77,7 @@ def test_interrupted_run_resumes_to_the_same_result(tmp_path) -> None:
 def test_unshielded_training_sees_cost(tmp_path) -> None:
     # SAC's first steps are uniform random actions: without the shield, 5.2's PA arm reaches the obstacle
     summary = train("sac", "paper_pa_mixed_square", shield=False, timesteps=600, seed=0, out=tmp_path,
-                    checkpoint_every=300, progress=False, env_kwargs={"max_steps": 300},
+                    checkpoint_every=300, progress=False, n_envs=1, env_kwargs={"max_steps": 300},
                     algo_kwargs={"learning_starts": 600})
     assert summary["n_episodes"] == 2
     assert (tmp_path / "checkpoints" / "model_replay_buffer_600_steps.pkl").exists()
