@@ -109,7 +109,9 @@ def _parser() -> argparse.ArgumentParser:
     tr.add_argument("--seed", type=int, default=0, help="seed of the model and of the env resets")
     tr.add_argument("--out", type=Path, required=True, help="output directory")
     tr.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in --out")
-    tr.add_argument("--n-envs", type=_positive_int, default=16,
+    from .baselines.training import DEFAULT_N_ENVS  # numpy only: SB3 and torch load when training starts
+
+    tr.add_argument("--n-envs", type=_positive_int, default=DEFAULT_N_ENVS,
                     help="copies of the env, stepped together in the batched engine (default: %(default)s)")
     tr.add_argument("--param-sharing", action="store_true",
                     help="one policy shared by every arm (PettingZoo env through SuperSuit, padded)")
