@@ -330,6 +330,12 @@ class Pan1ParallelEnv(ParallelEnv):
         """Every arm's end-effector ``(N, 2)`` (a float64 copy)."""
         return self.engine.positions()[0].copy()
 
+    @property
+    def sim(self):
+        """Removed in 0.2 (it was never documented): a clear error instead of an unknown attribute."""
+        raise AttributeError("Pan1ParallelEnv.sim was removed: use env.joint_state(), env.end_effectors(), "
+                             "env.last_step or env.engine (B = 1 copy of the team)")
+
     # ------------------------------------------------------------------- API
     def reset(self, seed: int | None = None, options: dict | None = None):
         if seed is not None:
