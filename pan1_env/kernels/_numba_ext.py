@@ -67,10 +67,6 @@ def _local(typingctx, shape, dtype):
     return array_type(shape, dtype), codegen
 
 
-# ---------------------------------------------------------------------------------------------------
-# Building blocks of the sub-step, for W arms at once (the lanes). They work on small local arrays
-
-
 @njit(**_JIT)
 def _check_chunks(n_chunks):
     if n_chunks < 1:
