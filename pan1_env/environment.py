@@ -27,7 +27,7 @@ from .validation import float_array, forwarded_signature, hints_unknown_keywords
 
 __all__ = ["Pan1ParallelEnv", "parallel_env", "env", "raw_env", "ACTION_MODES"]
 
-ACTION_MODES = ("velocity", "torque")
+ACTION_MODES = ("velocity", "torque", "residual")
 # Largest K_e · physics_dt accepted. RK4 on the tracker's error, ė = −K_e e, is stable up to 2.78;
 # at 1.0 it still shrinks the error by 0.375 a step against the exact e⁻¹ = 0.368.
 MAX_KE_DT = 1.0
@@ -58,6 +58,12 @@ class Pan1ParallelEnv(ParallelEnv):
       v = a · ``max_joint_speed`` (rad/s), held for the control step and tracked inside the env by
       the paper's backstepping law (Eq. 64) at every physics sub-step.
     * ``action_mode="torque"``: the active-joint torque τ_a = a · ``max_torque`` (N·m), held.
+    * ``action_mode="residual"``: a correction to the paper's distributed law (Eq. 39),
+      v = clip(v_0 + a · ``max_joint_speed``, ±``max_joint_speed``), tracked as in velocity mode;
+      v_0 = −K_P J̄ᵀ ê computed from the true state at the step's start and scaled down as a whole
+      to ``max_joint_speed`` (as :class:`pan1_env.baselines.ReferencePolicy` does). The zero action
+      is the reference controller (behind the safety filter, the paper's safe controller); the
+      effort term penalises the correction only.
 
     ## Observation Space
 
@@ -126,7 +132,7 @@ class Pan1ParallelEnv(ParallelEnv):
 
     * ``scenario``: a built-in name (``"paper_pa3_square"``, ``"paper_pa_mixed_square"``), a path
       to a TOML file, a :class:`~pan1_env.scenario.Scenario`, or ``"random"``.
-    * ``action_mode``: ``"velocity"`` or ``"torque"``.
+    * ``action_mode``: ``"velocity"``, ``"torque"`` or ``"residual"``.
     * ``control_dt``: seconds per env step (default 0.05); a whole multiple of ``physics_dt``.
     * ``physics_dt``: RK4 step in seconds. Default in velocity mode 0.01 (5 sub-steps per control
       step, as in Gymnasium's MuJoCo tasks), in torque mode 0.002 (open-loop torques can spin the
@@ -445,6 +451,8 @@ class Pan1ParallelEnv(ParallelEnv):
         if bad >= 0:
             agent = self.possible_agents[bad]
             raise ValueError(f"action for {agent} contains NaN or inf: {np.asarray(actions[agent]).tolist()}")
+        if self.action_mode == "residual":
+            self.task.add_nominal(command, self.engine)
         return command, effort
 
     def _info(self, cost: float, min_clearance: float, max_err: float) -> dict[str, Any]:
@@ -473,7 +481,7 @@ def default_physics_dt(control_dt: float, ke: float, action_mode: str = "velocit
     10 ms RK4 step diverges. The envs' time steps come from their arguments only; a scenario's
     ``[simulation]`` table sets the steps of ``pan1-env reproduce`` (docs/ARCHITECTURE.md).
     """
-    candidates = (DEFAULT_PHYSICS_DT, 0.005, 0.002, 0.001) if action_mode == "velocity" else (0.002, 0.001)
+    candidates = (0.002, 0.001) if action_mode == "torque" else (DEFAULT_PHYSICS_DT, 0.005, 0.002, 0.001)
     for dt in candidates:
         ratio = control_dt / dt
         if ke * dt <= MAX_KE_DT and round(ratio) >= 1 and abs(ratio - round(ratio)) <= 1e-6:  # as whole_ratio

@@ -53,12 +53,41 @@ class FormationTask:
         self.terminate_on_collision, self.terminate_on_success = terminate_on_collision, terminate_on_success
         self.edges = np.ascontiguousarray(scenario.formation.edges, dtype=np.int64)
         self.distances = np.tile(np.asarray(scenario.formation.distances, dtype=float)[None], (copies, 1))
+        self.kp = np.full(copies, float(scenario.kp))
         self.sizes = [layout.size(n) for n in layout.n]
         self.offsets = np.concatenate([[0], np.cumsum(self.sizes)])
 
     def load_team(self, b: int, scenario: Scenario) -> None:
         """Copy ``b`` now has ``scenario``'s formation."""
         self.distances[b] = scenario.formation.distances
+        self.kp[b] = scenario.kp
+
+    def nominal_velocity(self, engine: Engine) -> np.ndarray:
+        """The paper's distributed law for every arm, ``(B, N, k_max)`` rad/s (padding zero):
+        ``v_i0 = −K_P J̄_iᵀ ê_i``, ``ê_i = Σ_j 2 (p_i − p_j)(‖p_i − p_j‖² − d_ij²)`` (Eq. 39), each arm's
+        vector scaled down as a whole to ``max_joint_speed`` when an entry exceeds it (so it stays a
+        descent direction of V), as :class:`~pan1_env.baselines.ReferencePolicy` does from observations."""
+        P = engine.positions()
+        z = P[:, self.edges[:, 0]] - P[:, self.edges[:, 1]]  # (B, E, 2)
+        pull = 2.0 * z * (np.einsum("bec,bec->be", z, z) - self.distances**2)[..., None]
+        e_hat = np.zeros_like(P)
+        np.add.at(e_hat, (slice(None), self.edges[:, 0]), pull)
+        np.add.at(e_hat, (slice(None), self.edges[:, 1]), -pull)
+        out = np.zeros((engine.copies, engine.n_arms, engine.k_max))
+        for kind in engine.kinds:
+            _, Jbar, _ = engine.kind_terms(kind)
+            e = e_hat[:, kind.ids].reshape(-1, 2)
+            v0 = -np.repeat(self.kp, kind.A)[:, None] * np.einsum("rck,rc->rk", Jbar, e)
+            peak = np.abs(v0).max(axis=1, initial=0.0) / self.max_joint_speed
+            v0 /= np.maximum(peak, 1.0)[:, None]
+            out[:, kind.ids, : kind.k] = v0.reshape(engine.copies, kind.A, kind.k)
+        return out
+
+    def add_nominal(self, command: np.ndarray, engine: Engine) -> None:
+        """Residual actions: add :meth:`nominal_velocity` to the scaled corrections ``command
+        (B, N, k_max)`` (rad/s) in place and clip to ``±max_joint_speed``."""
+        command += self.nominal_velocity(engine)
+        np.clip(command, -self.max_joint_speed, self.max_joint_speed, out=command)
 
     def observe(self, engine: Engine) -> tuple[np.ndarray, list[np.ndarray]]:
         """The edges' length errors ``(B, E)`` and every agent's observation, one float32 array

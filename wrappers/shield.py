@@ -19,7 +19,8 @@ exceed 1. ``intervened`` counts speed limiting as an intervention too.
 Obstacles beyond an arm's reach (farther from its base than its reach plus their radius) cannot be
 hit and are left out of its QP. If the QP is infeasible the fallback is braking (v* = 0: no barrier
 decreases). ``infos[agent]["shield"]`` reports, for the step: ``requested`` (the action sent),
-``applied`` (the action actually applied at the last sub-step, in the same normalised units),
+``applied`` (the action actually applied at the last sub-step, in the same normalised units; in
+residual mode the whole filtered velocity v*/``max_joint_speed``, reference included),
 ``intervened`` (the QP changed the action at some sub-step), ``min_barrier`` (the smallest barrier
 value h = ‖p − o‖² − r² seen by the filter; inf when the arm has no obstacle in reach), ``status``
 (the worst QP status over the sub-steps: ``"nominal"``, ``"solved"`` or ``"fallback"``),
@@ -73,7 +74,7 @@ def _shield_infos(core, actions: dict[str, np.ndarray]) -> dict[str, dict[str, A
     rec = core.last_step
     if rec is None:
         return {}
-    velocity = core.action_mode == "velocity"
+    velocity = core.action_mode != "torque"  # velocity and residual modes: v* in units of max_joint_speed
     applied = ((rec.v_star[0] if velocity else rec.tau[0]) * (1.0 / core.action_scale)).astype(np.float32)
     counts = rec.qp_counts[0]
     min_barrier = rec.min_barrier[0].tolist()

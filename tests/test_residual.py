@@ -1,0 +1,82 @@
+"""Residual actions (``action_mode="residual"``): the action corrects the paper's distributed law.
+
+The zero action must be the reference controller, computed here independently from the agents'
+observations by :class:`~pan1_env.baselines.ReferencePolicy`; the vector env must agree with the
+parallel env; the correction is added and clipped to the speed limit.
+"""
+
+import numpy as np
+import pytest
+
+from pan1_env.baselines import ReferencePolicy
+from pan1_env.environment import parallel_env
+from pan1_env.vector import Pan1VectorEnv
+from pan1_env.wrappers import SafetyShield
+
+
+def _zeros(env):
+    return {a: np.zeros(env.action_space(a).shape, np.float32) for a in env.agents}
+
+
+@pytest.mark.parametrize("scenario", ["paper_pa3_square", "random"])
+def test_the_nominal_velocity_is_the_reference_policy(scenario) -> None:
+    env = parallel_env(scenario, action_mode="residual")
+    ref = ReferencePolicy(parallel_env(scenario))
+    ref.env = env  # it reads the env's scenario (the team drawn at the reset), layout and speed limit
+    rng = np.random.default_rng(1)
+    obs, _ = env.reset(seed=4)
+    for _ in range(5):
+        nominal = env.task.nominal_velocity(env.engine)[0] / env.max_joint_speed
+        for i, agent in enumerate(env.agents):
+            expected = ref.act(agent, obs[agent])  # from float32 observations
+            np.testing.assert_allclose(nominal[i, : env.n_actuated[i]], expected, rtol=1e-4, atol=1e-5)
+        obs, *_ = env.step({a: rng.uniform(-0.5, 0.5, env.action_space(a).shape) for a in env.agents})
+
+
+def test_zero_residual_behind_the_shield_follows_the_reference() -> None:
+    residual = SafetyShield(parallel_env("paper_pa_mixed_square", action_mode="residual", max_steps=60))
+    reference = SafetyShield(parallel_env("paper_pa_mixed_square", max_steps=60))
+    policy = ReferencePolicy(reference)
+    obs_r, _ = residual.reset(seed=0)
+    obs_p, _ = reference.reset(seed=0)
+    while residual.agents:
+        obs_r, *_ = residual.step(_zeros(residual))
+        obs_p, *_ = reference.step(policy(obs_p))
+    # the reference reads float32 observations, the residual env the exact state: close, not equal
+    np.testing.assert_allclose(residual.unwrapped.end_effectors(), reference.unwrapped.end_effectors(), atol=1e-5)
+
+
+def test_the_correction_is_added_and_clipped_to_the_speed_limit() -> None:
+    env = parallel_env("paper_pa3_square", action_mode="residual", safety_filter=False)
+    env.reset(seed=0)
+    nominal = env.task.nominal_velocity(env.engine)[0]
+    command, effort = env._command({a: np.full(env.action_space(a).shape, 0.25, np.float32) for a in env.agents})
+    k = env.n_actuated[0]
+    expected = np.clip(nominal[:, :k] + 0.25 * env.max_joint_speed, -env.max_joint_speed, env.max_joint_speed)
+    np.testing.assert_allclose(command[0, :, :k], expected, rtol=1e-12)
+    np.testing.assert_allclose(effort, 0.25**2)  # the effort term sees the correction only
+    command, _ = env._command({a: np.full(env.action_space(a).shape, 1.0, np.float32) for a in env.agents})
+    assert np.all(command <= env.max_joint_speed) and np.any(command == env.max_joint_speed)
+
+
+def test_vector_env_residual_matches_the_parallel_env() -> None:
+    venv = Pan1VectorEnv("random", 3, action_mode="residual", max_steps=30)
+    obs, _ = venv.reset(seed=[7, 8, 9])
+    penv = SafetyShield(parallel_env("random", action_mode="residual", max_steps=30))
+    pobs, _ = penv.reset(seed=8)
+    np.testing.assert_array_equal(obs[1], np.concatenate([pobs[a] for a in penv.possible_agents]))
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        a = rng.uniform(-1, 1, venv.action_space.shape).astype(np.float32)
+        obs, reward, *_ = venv.step(a)
+        split = np.split(a[1], np.cumsum(penv.unwrapped.n_actuated)[:-1])
+        pobs, prew, *_ = penv.step(dict(zip(penv.possible_agents, split, strict=True)))
+        np.testing.assert_allclose(obs[1], np.concatenate([pobs[a] for a in penv.possible_agents]), atol=1e-6)
+        assert reward[1] == pytest.approx(np.mean(list(prew.values())), abs=1e-9)
+
+
+def test_residual_mode_is_a_listed_action_mode_and_reference_policy_refuses_it() -> None:
+    with pytest.raises(ValueError, match="residual"):
+        parallel_env("paper_pa3_square", action_mode="residul")
+    with pytest.raises(ValueError, match="velocit"):
+        ReferencePolicy(parallel_env("paper_pa3_square", action_mode="residual"))
