@@ -14,6 +14,8 @@ Commands:
   Stable-Baselines3 training (the ``rl`` extra).
 * ``benchmark --scenarios … --policies reference,zero,random,sb3:PATH --episodes K --seed S``:
   the policy comparison (Markdown, JSON and a plot).
+* ``plot RUN_DIR… [--out PATH] [--x timesteps|episodes] [--window N] [--label NAME …]``: learning
+  curves of training runs, mean over seeds with a 95 % bootstrap band (a PNG and a CSV).
 """
 
 from __future__ import annotations
@@ -135,6 +137,20 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--max-steps", type=_positive_int, default=None,
                        help="env steps per episode (default: the env's max_steps)")
     bench.add_argument("--out", type=Path, default=Path("runs/benchmark"), help="output directory")
+
+    plot = sub.add_parser("plot", help="learning curves of training runs: mean over seeds, 95%% bootstrap band",
+                          description="Return, success rate and cost against env steps for runs written by "
+                                      "pan1-env train; runs that differ only in --seed form one group.")
+    plot.add_argument("runs", nargs="+", type=Path, metavar="RUN_DIR", help="directories written by pan1-env train")
+    plot.add_argument("--out", type=Path, default=Path("runs/curves.png"), metavar="PATH",
+                      help="output .png; the numbers go to the .csv beside it")
+    plot.add_argument("--x", choices=("timesteps", "episodes"), default="timesteps",
+                      help="x axis: env steps (all copies counted) or episodes finished")
+    plot.add_argument("--window", type=_positive_int, default=100, metavar="N",
+                      help="each seed's curve is the running mean of its last N episodes")
+    plot.add_argument("--label", action="append", metavar="NAME",
+                      help="a group's name, repeated once per group in the order the groups first appear "
+                           "(default: algo, shield and the arguments that differ)")
     return parser
 
 
@@ -356,6 +372,24 @@ def _cmd_benchmark(args) -> int:
     return 0
 
 
+def _cmd_plot(args) -> int:
+    import warnings
+
+    from .baselines.curves import plot_curves
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            png, csv_path = plot_curves(args.runs, args.out, x=args.x, window=args.window, labels=args.label)
+        except OSError as err:  # a missing run directory, run.json or episodes.csv
+            print(f"pan1-env: error: {err}", file=sys.stderr)
+            return 2
+    for w in caught:
+        print(f"pan1-env: warning: {w.message}", file=sys.stderr)
+    print(f"{png}\n{csv_path}")
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``pan1-env`` console script."""
     from .scenario import ScenarioError
@@ -363,7 +397,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     handlers = {"reproduce": _cmd_reproduce, "paper": _cmd_paper, "scenarios": _cmd_scenarios,
                 "warmup": _cmd_warmup,
-                "animate": _cmd_animate, "train": _cmd_train, "benchmark": _cmd_benchmark}
+                "animate": _cmd_animate, "train": _cmd_train, "benchmark": _cmd_benchmark, "plot": _cmd_plot}
     try:
         return handlers[args.command](args)
     except (ScenarioError, ValueError) as err:
