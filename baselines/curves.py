@@ -90,10 +90,11 @@ def _number(text: str | None) -> float:
 
 
 def _group_runs(runs: Sequence[dict[str, Any]]) -> list[list[dict[str, Any]]]:
-    """Runs with the same arguments apart from ``seed``, in the order the groups first appear."""
+    """Runs with the same arguments apart from ``seed`` and ``timesteps``, in the order the groups first appear."""
     groups: dict[str, list[dict[str, Any]]] = {}
     for run in runs:
-        key = json.dumps({k: v for k, v in run["meta"].items() if k != "seed"}, sort_keys=True, default=str)
+        key = json.dumps({k: v for k, v in run["meta"].items() if k not in ("seed", "timesteps")}, sort_keys=True,
+                         default=str)  # a run resumed to a longer budget is the same setting
         group = groups.setdefault(key, [])
         twin = next((r for r in group if r["meta"].get("seed") == run["meta"].get("seed")), None)
         if twin is not None:
@@ -106,7 +107,7 @@ def _group_runs(runs: Sequence[dict[str, Any]]) -> list[list[dict[str, Any]]]:
 def _labels(groups: list[list[dict[str, Any]]]) -> list[str]:
     """algo + shield + every other argument (not the seed) whose value differs between the groups."""
     metas = [g[0]["meta"] for g in groups]
-    keys = sorted({k for m in metas for k in m} - {"algo", "shield", "seed"})
+    keys = sorted({k for m in metas for k in m} - {"algo", "shield", "seed", "timesteps"})
     differ = [k for k in keys if len({json.dumps(m.get(k), sort_keys=True, default=str) for m in metas}) > 1]
     labels = []
     for m in metas:

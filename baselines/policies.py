@@ -23,6 +23,7 @@ deterministically). Registration is per process (a plain dict; not thread-safe).
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
@@ -144,6 +145,9 @@ def _sb3(env, seed: int | None, path: str) -> Policy:
 
 
 def _sb3_policy(path: Path, env) -> Policy:
+    """A centralised SB3 model as a policy. ``model.json`` beside the model (written by
+    :func:`~pan1_env.baselines.training.train`) gives its observation normalisation and action mode;
+    a model trained on residual actions runs on a velocity-mode env by adding the reference law."""
     import torch
     from stable_baselines3 import PPO, SAC
 
@@ -163,12 +167,28 @@ def _sb3_policy(path: Path, env) -> Policy:
     if model.observation_space.shape != (n_obs,) or model.action_space.shape != (sum(sizes),):
         raise ValueError(f"{path} was trained on spaces {model.observation_space.shape} → "
                          f"{model.action_space.shape}, this scenario has ({n_obs},) → ({sum(sizes)},)")
+    meta = json.loads(path.with_suffix(".json").read_text()) if path.with_suffix(".json").exists() else {}
+    norm = meta.get("observation_normalization")
+    trained_mode = meta.get("env_kwargs", {}).get("action_mode", "velocity")
+    reference = None
+    if trained_mode != env.action_mode:
+        if (trained_mode, env.action_mode) != ("residual", "velocity"):
+            raise ValueError(f"{path} was trained with action_mode={trained_mode!r}; this env has "
+                             f"action_mode={env.action_mode!r}")
+        reference = ReferencePolicy(env)  # residual actions on top of the paper's law, from observations
     splits = np.cumsum(sizes)[:-1]
 
     def policy(obs):
         flat = np.concatenate([obs[a] for a in agents])
+        if norm is not None:
+            flat = np.clip((flat - np.asarray(norm["mean"])) / np.sqrt(np.asarray(norm["var"]) + norm["epsilon"]),
+                           -norm["clip"], norm["clip"]).astype(np.float32)
         action, _ = model.predict(flat, deterministic=True)
-        return dict(zip(agents, np.split(np.asarray(action, np.float32), splits), strict=True))
+        actions = dict(zip(agents, np.split(np.asarray(action, np.float32), splits), strict=True))
+        if reference is not None:
+            nominal = reference(obs)
+            actions = {a: np.clip(nominal[a] + np.clip(actions[a], -1, 1), -1, 1) for a in agents}
+        return actions
 
     return policy
 

@@ -11,7 +11,13 @@ the largest arm; SuperSuit steps its copies one by one, so this route is slower)
   each written atomically, and ``run.json`` (the arguments);
 * ``episodes.csv``: one row per finished episode: ``timesteps, return, length, cost, success``
   (cost: arm-steps inside an obstacle; success: formation error below 1 cm at the end);
-* ``model.zip``: the final model.
+* ``model.zip``: the final model, and ``model.json`` beside it (and beside every checkpoint): what a
+  policy needs to run the model on an env, the env arguments (``action_mode``…) and, with
+  ``normalize``, the observation statistics (mean, variance, clip) the model was trained with.
+
+``normalize=True`` (the default) trains through SB3's ``VecNormalize``: observations are
+standardised by running statistics (clipped to ±10) and rewards scaled by the running standard
+deviation of the discounted return. Episode returns in ``episodes.csv`` stay raw.
 
 ``resume=True`` continues from the newest checkpoint in ``out`` up to ``timesteps`` in total. A
 checkpoint holds the model and optimiser, the vector env itself (pickled mid-episode), the last
@@ -120,7 +126,7 @@ def latest_checkpoint(out: Path) -> tuple[Path, int] | None:
 
 
 def _callbacks(out: Path, checkpoint_every: int, algo: str, total: int, progress: bool,
-               initial_costs: np.ndarray | None):
+               initial_costs: np.ndarray | None, sidecar):
     import torch
     from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
@@ -195,18 +201,37 @@ def _callbacks(out: Path, checkpoint_every: int, algo: str, total: int, progress
             if algo == "sac":
                 atomic_write(folder / f"model_replay_buffer_{steps}_steps.pkl",
                              lambda fh: pickle.dump(model.replay_buffer, fh))
+            normalizer = _normalizer(model.get_env())
+            if normalizer is not None:  # SB3 does not pickle its running return; keep it for exact resume
+                state["normalize"] = {"obs_rms": normalizer.obs_rms, "ret_rms": normalizer.ret_rms,
+                                      "returns": normalizer.returns.copy()}
             atomic_write(folder / f"state_{steps}_steps.pkl", lambda fh: pickle.dump(state, fh))
+            sidecar(folder / f"model_{steps}_steps.json", normalizer)
             atomic_write(folder / f"model_{steps}_steps.zip", lambda fh: model.save(fh))
             self.last = steps
 
     return CallbackList([ResumableCheckpoint(), log])
 
 
+def _normalizer(venv):
+    """The ``VecNormalize`` on top of the training env, or None."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    return venv if isinstance(venv, VecNormalize) else None
+
+
+def _monitor(venv):
+    """The ``VecMonitor`` of the training env (under the ``VecNormalize``, if any)."""
+    return venv.venv if _normalizer(venv) is not None else venv
+
+
 def _venv_state(venv) -> dict[str, Any]:
-    """The picklable state of a ``VecMonitor(SB3VecEnv(...))``: the vector env mid-episode (its engine,
-    task and generators) and the monitor's running episode statistics (SB3's wrappers do not pickle)."""
+    """The picklable state of a ``[VecNormalize(]VecMonitor(SB3VecEnv(...))``: the vector env mid-episode
+    (its engine, task and generators) and the monitor's running episode statistics (SB3's wrappers do
+    not pickle)."""
     from .vec_env import SB3VecEnv
 
+    venv = _monitor(venv)
     inner = venv.venv
     if not isinstance(inner, SB3VecEnv):
         return {}  # SuperSuit (parameter sharing): resumed with a fresh reset, not exactly
@@ -215,6 +240,7 @@ def _venv_state(venv) -> dict[str, Any]:
 
 
 def _restore_venv(venv, state: dict[str, Any]) -> None:
+    venv = _monitor(venv)
     if not state:
         return
     inner = venv.venv
@@ -239,7 +265,7 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
           seed: int = 0, out: str | Path = "runs/train", resume: bool = False, n_envs: int = DEFAULT_N_ENVS,
           param_sharing: bool = False, checkpoint_every: int = 10_000, progress: bool = True,
           env_kwargs: dict[str, Any] | None = None, algo_kwargs: dict[str, Any] | None = None,
-          extra_callbacks: list | None = None) -> dict[str, Any]:
+          normalize: bool = True, extra_callbacks: list | None = None) -> dict[str, Any]:
     """Train and return a summary (see the module docstring). Raises ValueError on bad arguments."""
     if algo not in ALGOS:
         raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
@@ -264,8 +290,13 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
         path, done_steps = previous
         with path.with_name(f"state_{done_steps}_steps.pkl").open("rb") as fh:
             state = pickle.load(fh)
-        venv = make_training_env(scenario, shield, seed, n_envs, param_sharing, env_kwargs)
+        venv = _normalized(make_training_env(scenario, shield, seed, n_envs, param_sharing, env_kwargs),
+                           normalize, algo_kwargs)
         _restore_venv(venv, state["venv"])
+        if "normalize" in state:
+            norm = _normalizer(venv)
+            norm.obs_rms, norm.ret_rms = state["normalize"]["obs_rms"], state["normalize"]["ret_rms"]
+            norm.returns = state["normalize"]["returns"]
         model = cls.load(path, env=venv, device="cpu")
         model._last_obs = state["last_obs"]
         model._last_episode_starts = state["last_episode_starts"]
@@ -279,7 +310,8 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
         initial_costs = state["costs"]
         _truncate_log(out / "episodes.csv", done_steps)
     else:
-        venv = make_training_env(scenario, shield, seed, n_envs, param_sharing, env_kwargs)
+        venv = _normalized(make_training_env(scenario, shield, seed, n_envs, param_sharing, env_kwargs),
+                           normalize, algo_kwargs)
         if (out / "episodes.csv").exists() and not resume:
             (out / "episodes.csv").unlink()
         defaults = PPO_DEFAULTS if algo == "ppo" and not param_sharing else {}
@@ -287,20 +319,40 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
         model = cls("MlpPolicy", venv, **kwargs)
     meta = {"algo": algo, "scenario": scenario, "shield": shield, "timesteps": timesteps, "seed": seed,
             "n_envs": n_envs, "param_sharing": param_sharing, "env_kwargs": env_kwargs or {},
-            "algo_kwargs": algo_kwargs or {}}
+            "algo_kwargs": algo_kwargs or {}, "normalize": normalize}
+
+    def sidecar(path: Path, normalizer) -> None:
+        info = {"scenario": scenario, "env_kwargs": env_kwargs or {}, "param_sharing": param_sharing,
+                "algo": algo, "shield": shield}
+        if normalizer is not None:
+            info["observation_normalization"] = {
+                "mean": normalizer.obs_rms.mean.tolist(), "var": normalizer.obs_rms.var.tolist(),
+                "clip": float(normalizer.clip_obs), "epsilon": float(normalizer.epsilon)}
+        atomic_write(path, lambda fh: fh.write(json.dumps(info) + "\n"), mode="w")
+
     atomic_write(out / "run.json", lambda fh: fh.write(json.dumps(meta, indent=2) + "\n"), mode="w")
     remaining = timesteps - done_steps
     if remaining > 0:
-        callbacks = _callbacks(out, checkpoint_every, algo, timesteps, progress, initial_costs)
+        callbacks = _callbacks(out, checkpoint_every, algo, timesteps, progress, initial_costs, sidecar)
         if extra_callbacks:
             from stable_baselines3.common.callbacks import CallbackList
 
             callbacks = CallbackList([callbacks, *extra_callbacks])
         model.learn(total_timesteps=remaining, callback=callbacks, reset_num_timesteps=(previous is None))
+    sidecar(out / "model.json", _normalizer(venv))
     atomic_write(out / "model.zip", lambda fh: model.save(fh))
     venv.close()
     return {**meta, "resumed_from": done_steps, "model": str(out / "model.zip"),
             "episodes": str(out / "episodes.csv")} | _episode_summary(out / "episodes.csv")
+
+
+def _normalized(venv, normalize: bool, algo_kwargs: dict[str, Any] | None):
+    """``venv`` behind SB3's ``VecNormalize`` (observations and rewards) when ``normalize``."""
+    if not normalize:
+        return venv
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    return VecNormalize(venv, gamma=(algo_kwargs or {}).get("gamma", 0.99))
 
 
 def _episode_summary(path: Path) -> dict[str, Any]:

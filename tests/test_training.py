@@ -74,6 +74,37 @@ def test_interrupted_run_resumes_to_the_same_result(tmp_path) -> None:
     assert _rows(whole / "episodes.csv") == _rows(cut / "episodes.csv")
 
 
+def test_normalised_residual_model_runs_as_a_velocity_policy(tmp_path) -> None:
+    from stable_baselines3 import PPO
+
+    from pan1_env.baselines import ReferencePolicy, make_policy
+    from pan1_env.environment import parallel_env
+
+    train("ppo", "paper_pa3_square", shield=True, timesteps=256, seed=0, out=tmp_path, checkpoint_every=256,
+          progress=False, n_envs=2, env_kwargs={"max_steps": 64, "action_mode": "residual"},
+          algo_kwargs={"n_steps": 64, "batch_size": 64, "n_epochs": 1})
+    meta = json.loads((tmp_path / "model.json").read_text())
+    assert meta["env_kwargs"]["action_mode"] == "residual"
+    norm = meta["observation_normalization"]
+    assert np.all(np.asarray(norm["var"]) > 0) and np.any(np.asarray(norm["mean"]) != 0)  # statistics were kept
+    assert (tmp_path / "checkpoints" / "model_256_steps.json").exists()
+    env = parallel_env("paper_pa3_square", max_steps=64)  # velocity mode: the reference law is added
+    policy = make_policy(f"sb3:{tmp_path / 'model.zip'}", env, 0)
+    obs, _ = env.reset(seed=0)
+    model = PPO.load(tmp_path / "model.zip", device="cpu")
+    flat = np.concatenate([obs[a] for a in env.possible_agents])
+    flat = np.clip((flat - norm["mean"]) / np.sqrt(np.asarray(norm["var"]) + norm["epsilon"]), -10, 10)
+    residual, _ = model.predict(flat.astype(np.float32), deterministic=True)
+    nominal = ReferencePolicy(env)(obs)
+    actions = policy(obs)
+    k = env.n_actuated[0]
+    for i, a in enumerate(env.possible_agents):
+        expected = np.clip(nominal[a] + np.clip(residual[i * k:(i + 1) * k], -1, 1), -1, 1)
+        np.testing.assert_allclose(actions[a], expected, rtol=1e-6)
+    with pytest.raises(ValueError, match="residual"):
+        make_policy(f"sb3:{tmp_path / 'model.zip'}", parallel_env("paper_pa3_square", action_mode="torque"), 0)
+
+
 def test_unshielded_training_sees_cost(tmp_path) -> None:
     # SAC's first steps are uniform random actions: without the shield, 5.2's PA arm reaches the obstacle
     summary = train("sac", "paper_pa_mixed_square", shield=False, timesteps=600, seed=0, out=tmp_path,
