@@ -19,6 +19,11 @@ the largest arm; SuperSuit steps its copies one by one, so this route is slower)
 standardised by running statistics (clipped to ±10) and rewards scaled by the running standard
 deviation of the discounted return. Episode returns in ``episodes.csv`` stay raw.
 
+``algo="ppo-lagrangian"`` is PPO with a Lagrange multiplier λ on the cost (constrained RL, meant to run
+without the shield; :mod:`~pan1_env.baselines.lagrangian`): rewards become (r − λ·cost) / (1 + λ) before
+``VecNormalize``, λ ← max(0, λ + ``lagrangian_lr`` · (mean episode cost − ``cost_limit``)) after every
+rollout, ``lagrangian.csv`` logs ``timesteps, lambda, episode_cost`` and the checkpoints carry λ.
+
 ``resume=True`` continues from the newest checkpoint in ``out`` up to ``timesteps`` in total. A
 checkpoint holds the model and optimiser, the vector env itself (pickled mid-episode), the last
 observation, the torch/numpy/python random states and the running episode costs, and the episode
@@ -43,7 +48,7 @@ import numpy as np
 
 __all__ = ["train", "make_training_env", "ALGOS", "latest_checkpoint"]
 
-ALGOS = ("ppo", "sac")
+ALGOS = ("ppo", "sac", "ppo-lagrangian")  # ppo-lagrangian: PPO with a Lagrange multiplier on the cost
 DEFAULT_N_ENVS = 128  # copies in the batched engine
 # PPO for B copies, the usual large-batch recipe: 8192 steps per update (64 per copy) in 4 minibatches,
 # 5 epochs. SB3's defaults (2048 steps per copy, minibatches of 64, 10 epochs) are sized for one env:
@@ -198,6 +203,9 @@ def _callbacks(out: Path, checkpoint_every: int, algo: str, total: int, progress
                 "torch_rng": torch.get_rng_state(), "numpy_rng": np.random.get_state(),  # noqa: NPY002
                 "python_rng": random.getstate(), "costs": log.costs.copy(),
             }
+            penalty = _penalty(model.get_env())
+            if penalty is not None:  # the Lagrange multiplier and its running episode costs
+                state["lagrangian"] = penalty.state_dict()
             if algo == "sac":
                 atomic_write(folder / f"model_replay_buffer_{steps}_steps.pkl",
                              lambda fh: pickle.dump(model.replay_buffer, fh))
@@ -221,8 +229,25 @@ def _normalizer(venv):
 
 
 def _monitor(venv):
-    """The ``VecMonitor`` of the training env (under the ``VecNormalize``, if any)."""
-    return venv.venv if _normalizer(venv) is not None else venv
+    """The ``VecMonitor`` of the training env (under the ``VecNormalize`` and the cost penalty, if any)."""
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    while not isinstance(venv, VecMonitor):
+        venv = venv.venv
+    return venv
+
+
+def _penalty(venv):
+    """The :class:`~pan1_env.baselines.lagrangian.CostPenalisedVecEnv` in the training env, or None."""
+    from stable_baselines3.common.vec_env import VecEnvWrapper
+
+    from .lagrangian import CostPenalisedVecEnv
+
+    while isinstance(venv, VecEnvWrapper):
+        if isinstance(venv, CostPenalisedVecEnv):
+            return venv
+        venv = venv.venv
+    return None
 
 
 def _venv_state(venv) -> dict[str, Any]:
@@ -265,13 +290,16 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
           seed: int = 0, out: str | Path = "runs/train", resume: bool = False, n_envs: int = DEFAULT_N_ENVS,
           param_sharing: bool = False, checkpoint_every: int = 10_000, progress: bool = True,
           env_kwargs: dict[str, Any] | None = None, algo_kwargs: dict[str, Any] | None = None,
-          normalize: bool = True, extra_callbacks: list | None = None) -> dict[str, Any]:
+          normalize: bool = True, extra_callbacks: list | None = None, cost_limit: float = 1.0,
+          lagrangian_lr: float = 0.01) -> dict[str, Any]:
     """Train and return a summary (see the module docstring). Raises ValueError on bad arguments."""
     if algo not in ALGOS:
         raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
     for name, value in (("timesteps", timesteps), ("n_envs", n_envs), ("checkpoint_every", checkpoint_every)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if algo == "ppo-lagrangian" and param_sharing:
+        raise ValueError("ppo-lagrangian trains on the batched vector env, not with param_sharing")
     import torch
     from stable_baselines3 import PPO, SAC
 
@@ -280,7 +308,17 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
     torch.set_num_threads(1)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    cls = PPO if algo == "ppo" else SAC
+    cls = SAC if algo == "sac" else PPO
+
+    def build_env():
+        venv = make_training_env(scenario, shield, seed, n_envs, param_sharing, env_kwargs)
+        if algo == "ppo-lagrangian":
+            from .lagrangian import CostPenalisedVecEnv
+
+            horizon = venv.get_attr("template")[0].max_steps  # scales cost per step until episodes end
+            venv = CostPenalisedVecEnv(venv, cost_limit=cost_limit, lagrangian_lr=lagrangian_lr, episode_length=horizon)
+        return _normalized(venv, normalize, algo_kwargs)
+
     done_steps = 0
     initial_costs = None
     previous = latest_checkpoint(out) if resume else None
@@ -290,9 +328,10 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
         path, done_steps = previous
         with path.with_name(f"state_{done_steps}_steps.pkl").open("rb") as fh:
             state = pickle.load(fh)
-        venv = _normalized(make_training_env(scenario, shield, seed, n_envs, param_sharing, env_kwargs),
-                           normalize, algo_kwargs)
+        venv = build_env()
         _restore_venv(venv, state["venv"])
+        if "lagrangian" in state:
+            _penalty(venv).load_state_dict(state["lagrangian"])
         if "normalize" in state:
             norm = _normalizer(venv)
             norm.obs_rms, norm.ret_rms = state["normalize"]["obs_rms"], state["normalize"]["ret_rms"]
@@ -309,17 +348,20 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
         random.setstate(state["python_rng"])
         initial_costs = state["costs"]
         _truncate_log(out / "episodes.csv", done_steps)
+        _truncate_log(out / "lagrangian.csv", done_steps)
     else:
-        venv = _normalized(make_training_env(scenario, shield, seed, n_envs, param_sharing, env_kwargs),
-                           normalize, algo_kwargs)
-        if (out / "episodes.csv").exists() and not resume:
-            (out / "episodes.csv").unlink()
-        defaults = PPO_DEFAULTS if algo == "ppo" and not param_sharing else {}
+        venv = build_env()
+        for log_name in ("episodes.csv", "lagrangian.csv"):
+            if (out / log_name).exists():
+                (out / log_name).unlink()
+        defaults = PPO_DEFAULTS if algo != "sac" and not param_sharing else {}
         kwargs = {"seed": seed, "verbose": 0, "device": "cpu", **defaults, **(algo_kwargs or {})}
         model = cls("MlpPolicy", venv, **kwargs)
     meta = {"algo": algo, "scenario": scenario, "shield": shield, "timesteps": timesteps, "seed": seed,
             "n_envs": n_envs, "param_sharing": param_sharing, "env_kwargs": env_kwargs or {},
             "algo_kwargs": algo_kwargs or {}, "normalize": normalize}
+    if algo == "ppo-lagrangian":
+        meta |= {"cost_limit": cost_limit, "lagrangian_lr": lagrangian_lr}
 
     def sidecar(path: Path, normalizer) -> None:
         info = {"scenario": scenario, "env_kwargs": env_kwargs or {}, "param_sharing": param_sharing,
@@ -334,6 +376,10 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
     remaining = timesteps - done_steps
     if remaining > 0:
         callbacks = _callbacks(out, checkpoint_every, algo, timesteps, progress, initial_costs, sidecar)
+        if _penalty(venv) is not None:
+            from .lagrangian import LagrangianCallback
+
+            extra_callbacks = [LagrangianCallback(_penalty(venv), log_dir=out), *(extra_callbacks or [])]
         if extra_callbacks:
             from stable_baselines3.common.callbacks import CallbackList
 
@@ -341,8 +387,10 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
         model.learn(total_timesteps=remaining, callback=callbacks, reset_num_timesteps=(previous is None))
     sidecar(out / "model.json", _normalizer(venv))
     atomic_write(out / "model.zip", lambda fh: model.save(fh))
+    penalty = _penalty(venv)
     venv.close()
-    return {**meta, "resumed_from": done_steps, "model": str(out / "model.zip"),
+    return {**meta, **({} if penalty is None else {"lambda": penalty.lagrange_multiplier}),
+            "resumed_from": done_steps, "model": str(out / "model.zip"),
             "episodes": str(out / "episodes.csv")} | _episode_summary(out / "episodes.csv")
 
 
