@@ -120,6 +120,14 @@ def _parser() -> argparse.ArgumentParser:
     tr.add_argument("--checkpoint-every", type=_positive_int, default=10_000, help="steps between checkpoints")
     tr.add_argument("--max-steps", type=_positive_int, default=None,
                     help="env steps per episode (default: the env's max_steps)")
+    tr.add_argument("--action-mode", choices=("velocity", "torque", "residual"), default="velocity",
+                    help="what an action means (residual: a correction to the paper's law; default: %(default)s)")
+    tr.add_argument("--normalize", action=argparse.BooleanOptionalAction, default=True,
+                    help="standardise observations and scale rewards (SB3's VecNormalize, saved in model.json)")
+    tr.add_argument("--env-kwargs", type=_json_object, default=None, metavar="JSON",
+                    help="extra env arguments, e.g. '{\"success_bonus\": 1.0}' (see help(pan1_env.parallel_env))")
+    tr.add_argument("--algo-kwargs", type=_json_object, default=None, metavar="JSON",
+                    help="extra arguments of the SB3 algorithm, e.g. '{\"gamma\": 0.995}' (policy_kwargs too)")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     bench = sub.add_parser("benchmark", help="compare policies on the same seeded starts, shield on and off")
@@ -153,6 +161,16 @@ def _parser() -> argparse.ArgumentParser:
                            "(default: algo, shield and the arguments that differ)")
     return parser
 
+
+
+def _json_object(text: str) -> dict:
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise argparse.ArgumentTypeError(f"expected a JSON object, got {text!r}: {err}") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"expected a JSON object such as '{{\"gamma\": 0.995}}', got {text!r}")
+    return value
 
 
 def _positive_int(text: str) -> int:
@@ -347,11 +365,15 @@ def _cmd_train(args) -> int:
         print(f"pan1-env: error: training needs the rl extra (pip install 'pan1-env[rl]'): {err}",
               file=sys.stderr)
         return 2
-    env_kwargs = {} if args.max_steps is None else {"max_steps": args.max_steps}
+    env_kwargs = dict(args.env_kwargs or {})
+    if args.max_steps is not None:
+        env_kwargs["max_steps"] = args.max_steps
+    if args.action_mode != "velocity":
+        env_kwargs["action_mode"] = args.action_mode
     summary = train(args.algo, args.scenario, shield=args.shield, timesteps=args.timesteps, seed=args.seed,
                     out=args.out, resume=args.resume, n_envs=args.n_envs, param_sharing=args.param_sharing,
                     checkpoint_every=args.checkpoint_every, progress=not args.no_progress,
-                    env_kwargs=env_kwargs)
+                    env_kwargs=env_kwargs, normalize=args.normalize, algo_kwargs=args.algo_kwargs)
     print(json.dumps(summary, indent=2))
     return 0
 

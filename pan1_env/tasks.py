@@ -39,23 +39,34 @@ class FormationTask:
     """Bring the end-effectors into the scenario's rigid formation without touching an obstacle.
 
     Reward of agent i: ``−formation_weight · mean_k |‖z_k‖ − d_k| − effort_weight · ‖a_i‖²/k_i
-    − collision_penalty · cost_i``; success: every edge within ``success_tolerance`` of its length.
+    − collision_penalty · cost_i + success_bonus · success``; success: every edge within
+    ``success_tolerance`` of its length.
     The observation layout (:class:`~pan1_env.observation.ObservationLayout`) is the one public
     description of what each agent sees.
     """
 
     def __init__(self, scenario: Scenario, copies: int, layout: ObservationLayout, *, max_joint_speed: float,
                  success_tolerance: float, formation_weight: float, effort_weight: float, collision_penalty: float,
-                 terminate_on_collision: bool, terminate_on_success: bool) -> None:
+                 terminate_on_collision: bool, terminate_on_success: bool, success_bonus: float = 0.0) -> None:
         self.layout = layout
         self.max_joint_speed, self.success_tolerance = max_joint_speed, success_tolerance
-        self.weights = (formation_weight, effort_weight, collision_penalty)
+        self.weights = (formation_weight, effort_weight, collision_penalty, success_bonus)
         self.terminate_on_collision, self.terminate_on_success = terminate_on_collision, terminate_on_success
         self.edges = np.ascontiguousarray(scenario.formation.edges, dtype=np.int64)
         self.distances = np.tile(np.asarray(scenario.formation.distances, dtype=float)[None], (copies, 1))
         self.kp = np.full(copies, float(scenario.kp))
         self.sizes = [layout.size(n) for n in layout.n]
         self.offsets = np.concatenate([[0], np.cumsum(self.sizes)])
+
+    @classmethod
+    def of_env(cls, env, copies: int) -> FormationTask:
+        """The task of a :class:`~pan1_env.environment.Pan1ParallelEnv` (its scenario, layout and
+        reward settings) for ``copies`` copies."""
+        return cls(env.scenario, copies, env.observation_layout, max_joint_speed=env.max_joint_speed,
+                   success_tolerance=env.success_tolerance, formation_weight=env.formation_weight,
+                   effort_weight=env.effort_weight, collision_penalty=env.collision_penalty,
+                   terminate_on_collision=env.terminate_on_collision, terminate_on_success=env.terminate_on_success,
+                   success_bonus=env.success_bonus)
 
     def load_team(self, b: int, scenario: Scenario) -> None:
         """Copy ``b`` now has ``scenario``'s formation."""
@@ -111,7 +122,7 @@ class FormationTask:
                  clearance: np.ndarray | None = None) -> Outcome:
         """The step's outcome from its record, the edge errors after it and each agent's effort
         ``‖a_i‖²/k_i (B, N)``. At a reset (``record`` None) pass the state's ``clearance (B, N)``."""
-        w_form, w_effort, penalty = self.weights
+        w_form, w_effort, penalty, bonus = self.weights
         min_clear = record.min_clearance if record is not None else clearance
         B = len(err)
         formation, formation_error, success = np.empty(B), np.empty(B), np.empty(B, dtype=bool)
@@ -120,7 +131,8 @@ class FormationTask:
                                     success, cost)
         reward = np.empty_like(cost)
         reward[:] = formation[:, None]
-        terms = _terms(reward, {"formation": formation[:, None]}, effort=(w_effort, effort), collision=(penalty, cost))
+        terms = _terms(reward, {"formation": formation[:, None]}, effort=(w_effort, effort), collision=(penalty, cost),
+                       success=(-bonus, success[:, None].astype(float)))
         terminated = _terminated(success, cost, self.terminate_on_success, self.terminate_on_collision)
         return Outcome(reward, terms, cost, success, terminated,
                        {"formation_error": formation_error, "min_clearance": min_clear})

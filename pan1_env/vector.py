@@ -117,11 +117,7 @@ class Pan1VectorEnv(VectorEnv):
         self._random = t._random
         self.engine = Engine(t.scenario, self.num_envs, physics_dt=t.physics_dt, safety_filter=t.safety_filter or False,
                              max_speed=t.max_joint_speed, threads=threads)
-        self.task = FormationTask(t.scenario, self.num_envs, t.observation_layout, max_joint_speed=t.max_joint_speed,
-                                  success_tolerance=t.success_tolerance, formation_weight=t.formation_weight,
-                                  effort_weight=t.effort_weight, collision_penalty=t.collision_penalty,
-                                  terminate_on_collision=t.terminate_on_collision,
-                                  terminate_on_success=t.terminate_on_success)
+        self.task = FormationTask.of_env(t, self.num_envs)
         self.agents = list(t.possible_agents)
         obs_spaces = [t.observation_space(a) for a in self.agents]
         act_sizes = t.n_actuated

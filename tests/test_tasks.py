@@ -14,7 +14,7 @@ from pan1_env.tasks import FormationTask
 def test_formation_outcome_matches_the_documented_reward(B: int, N: int, E: int) -> None:
     rng = np.random.default_rng(B * 100 + E)
     env = parallel_env("paper_pa3_square")
-    weights = {"formation_weight": 1.7, "effort_weight": 0.3, "collision_penalty": 2.0}
+    weights = {"formation_weight": 1.7, "effort_weight": 0.3, "collision_penalty": 2.0, "success_bonus": 0.6}
     task = FormationTask(env.scenario, B, env.observation_layout, max_joint_speed=2.0, success_tolerance=0.05,
                          terminate_on_collision=True, terminate_on_success=False, **weights)
     err = rng.uniform(-0.1, 0.1, (B, E))
@@ -26,7 +26,8 @@ def test_formation_outcome_matches_the_documented_reward(B: int, N: int, E: int)
                         np.ones((B, N), bool))
     out = task.evaluate(record, err, effort)
     cost = (clear < 0).astype(float)
-    reward = -1.7 * np.abs(err).mean(axis=1)[:, None] - 0.3 * effort - 2.0 * cost
+    success = np.abs(err).max(axis=1) < 0.05
+    reward = -1.7 * np.abs(err).mean(axis=1)[:, None] - 0.3 * effort - 2.0 * cost + 0.6 * success[:, None]
     np.testing.assert_allclose(out.reward, reward, rtol=1e-12, atol=1e-15)
     np.testing.assert_array_equal(out.cost, cost)
     np.testing.assert_allclose(sum(np.broadcast_to(t, (B, N)) for t in out.terms.values()), out.reward, rtol=1e-12)
