@@ -11,6 +11,9 @@ the largest arm; SuperSuit steps its copies one by one, so this route is slower)
   each written atomically, and ``run.json`` (the arguments);
 * ``episodes.csv``: one row per finished episode: ``timesteps, return, length, cost, success``
   (cost: arm-steps inside an obstacle; success: formation error below 1 cm at the end);
+* ``eval.csv`` (with ``eval_every``): every ``eval_every`` steps, the deterministic policy on held-out
+  teams (:mod:`pan1_env.baselines.evaluation`): success at 1, 2 and 5 cm, median final error, return,
+  cost, time to formation;
 * ``model.zip``: the final model, and ``model.json`` beside it (and beside every checkpoint): what a
   policy needs to run the model on an env, the env arguments (``action_mode``…) and, with
   ``normalize``, the observation statistics (mean, variance, clip) the model was trained with.
@@ -290,8 +293,8 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
           seed: int = 0, out: str | Path = "runs/train", resume: bool = False, n_envs: int = DEFAULT_N_ENVS,
           param_sharing: bool = False, checkpoint_every: int = 10_000, progress: bool = True,
           env_kwargs: dict[str, Any] | None = None, algo_kwargs: dict[str, Any] | None = None,
-          normalize: bool = True, extra_callbacks: list | None = None, cost_limit: float = 1.0,
-          lagrangian_lr: float = 0.01) -> dict[str, Any]:
+          normalize: bool = True, eval_every: int | None = None, extra_callbacks: list | None = None,
+          cost_limit: float = 1.0, lagrangian_lr: float = 0.01) -> dict[str, Any]:
     """Train and return a summary (see the module docstring). Raises ValueError on bad arguments."""
     if algo not in ALGOS:
         raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
@@ -348,10 +351,11 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
         random.setstate(state["python_rng"])
         initial_costs = state["costs"]
         _truncate_log(out / "episodes.csv", done_steps)
+        _truncate_log(out / "eval.csv", done_steps)
         _truncate_log(out / "lagrangian.csv", done_steps)
     else:
         venv = build_env()
-        for log_name in ("episodes.csv", "lagrangian.csv"):
+        for log_name in ("episodes.csv", "eval.csv", "lagrangian.csv"):
             if (out / log_name).exists():
                 (out / log_name).unlink()
         defaults = PPO_DEFAULTS if algo != "sac" and not param_sharing else {}
@@ -376,6 +380,14 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
     remaining = timesteps - done_steps
     if remaining > 0:
         callbacks = _callbacks(out, checkpoint_every, algo, timesteps, progress, initial_costs, sidecar)
+        if eval_every and not param_sharing:
+            from stable_baselines3.common.callbacks import CallbackList
+
+            from .evaluation import EVAL_SEEDS, eval_callback
+
+            seeds = EVAL_SEEDS if scenario == "random" else EVAL_SEEDS[:1]  # a paper scenario starts one way
+            evaluator = eval_callback(out, eval_every, scenario, shield, env_kwargs, seeds)
+            callbacks = CallbackList([evaluator, callbacks])  # evaluate before a checkpoint at the same step
         if _penalty(venv) is not None:
             from .lagrangian import LagrangianCallback
 

@@ -103,7 +103,8 @@ def _parser() -> argparse.ArgumentParser:
     anim.add_argument("--fps", type=_positive_int, default=20, help="frames per second of the GIF")
 
     tr = sub.add_parser("train", help="train PPO or SAC with Stable-Baselines3 (needs the rl extra)")
-    tr.add_argument("--algo", choices=("ppo", "sac"), default="ppo", help="Stable-Baselines3 algorithm")
+    tr.add_argument("--algo", choices=("ppo", "sac", "ppo-lagrangian"), default="ppo",
+                    help="Stable-Baselines3 algorithm (ppo-lagrangian: PPO with a Lagrangian cost penalty)")
     tr.add_argument("--scenario", default="paper_pa3_square", help="built-in name, .toml path or 'random'")
     tr.add_argument("--shield", action=argparse.BooleanOptionalAction, default=True,
                     help="train behind the RCBF-QP safety shield")
@@ -128,6 +129,12 @@ def _parser() -> argparse.ArgumentParser:
                     help="extra env arguments, e.g. '{\"success_bonus\": 1.0}' (see help(pan1_env.parallel_env))")
     tr.add_argument("--algo-kwargs", type=_json_object, default=None, metavar="JSON",
                     help="extra arguments of the SB3 algorithm, e.g. '{\"gamma\": 0.995}' (policy_kwargs too)")
+    tr.add_argument("--eval-every", type=_positive_int, default=None, metavar="STEPS",
+                    help="evaluate the deterministic policy on held-out teams every STEPS steps (eval.csv)")
+    tr.add_argument("--cost-limit", type=float, default=1.0,
+                    help="ppo-lagrangian: allowed cost (arm-steps in an obstacle) per episode (default: %(default)s)")
+    tr.add_argument("--lagrangian-lr", type=float, default=0.01,
+                    help="ppo-lagrangian: step size of the multiplier update (default: %(default)s)")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     bench = sub.add_parser("benchmark", help="compare policies on the same seeded starts, shield on and off")
@@ -373,7 +380,8 @@ def _cmd_train(args) -> int:
     summary = train(args.algo, args.scenario, shield=args.shield, timesteps=args.timesteps, seed=args.seed,
                     out=args.out, resume=args.resume, n_envs=args.n_envs, param_sharing=args.param_sharing,
                     checkpoint_every=args.checkpoint_every, progress=not args.no_progress,
-                    env_kwargs=env_kwargs, normalize=args.normalize, algo_kwargs=args.algo_kwargs)
+                    env_kwargs=env_kwargs, normalize=args.normalize, algo_kwargs=args.algo_kwargs,
+                    eval_every=args.eval_every, cost_limit=args.cost_limit, lagrangian_lr=args.lagrangian_lr)
     print(json.dumps(summary, indent=2))
     return 0
 
