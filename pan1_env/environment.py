@@ -63,7 +63,9 @@ class Pan1ParallelEnv(ParallelEnv):
       v_0 = −K_P J̄ᵀ ê computed from the true state at the step's start and scaled down as a whole
       to ``max_joint_speed`` (as :class:`pan1_env.baselines.ReferencePolicy` does). The zero action
       is the reference controller (behind the safety filter, the paper's safe controller); the
-      effort term penalises the correction only.
+      effort term penalises the correction only. With ``residual_gate=g`` (m, > 0) arm i's
+      correction is scaled by min(1, (e_i/g)²), e_i the largest length error of its edges, so it
+      vanishes at the formation and the formed shape stays an equilibrium.
 
     ## Observation Space
 
@@ -149,6 +151,7 @@ class Pan1ParallelEnv(ParallelEnv):
     * ``render_mode``: ``None``, ``"rgb_array"`` or ``"human"``.
     * ``terminate_on_collision``, ``terminate_on_success``, ``success_tolerance`` (m, default 0.01).
     * ``formation_weight``, ``effort_weight``, ``collision_penalty``, ``success_bonus``: reward weights.
+    * ``residual_gate``: see ``action_mode="residual"`` (default 0: no gate).
     * ``max_joint_speed`` (rad/s, default 2.0), ``max_torque`` (N·m, default 5.0): action scales.
     * ``n_obstacle_obs``: K, obstacle slots per observation (default: 3).
     * ``random_options``: a :class:`~pan1_env.random_scenario.RandomScenarioOptions` or a dict of
@@ -189,6 +192,7 @@ class Pan1ParallelEnv(ParallelEnv):
         effort_weight: float = 0.0,
         collision_penalty: float = 0.0,
         success_bonus: float = 0.0,
+        residual_gate: float = 0.0,
         max_joint_speed: float = 2.0,
         max_torque: float = 5.0,
         n_obstacle_obs: int = 3,
@@ -209,6 +213,7 @@ class Pan1ParallelEnv(ParallelEnv):
         effort_weight = real("effort_weight", effort_weight)
         collision_penalty = real("collision_penalty", collision_penalty)
         success_bonus = real("success_bonus", success_bonus)
+        residual_gate = real("residual_gate", residual_gate, non_negative=True)
         n_obstacle_obs = positive_int("n_obstacle_obs", n_obstacle_obs, minimum=0)
         if qp_solver not in QP_SOLVERS:
             raise ValueError(f"qp_solver must be one of {QP_SOLVERS}, got {qp_solver!r}")
@@ -253,6 +258,7 @@ class Pan1ParallelEnv(ParallelEnv):
         self.effort_weight = float(effort_weight)
         self.collision_penalty = float(collision_penalty)
         self.success_bonus = float(success_bonus)
+        self.residual_gate = float(residual_gate)
         self.max_joint_speed = float(max_joint_speed)
         self.max_torque = float(max_torque)
         self.n_obstacle_obs = int(n_obstacle_obs)

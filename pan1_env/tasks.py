@@ -47,11 +47,13 @@ class FormationTask:
 
     def __init__(self, scenario: Scenario, copies: int, layout: ObservationLayout, *, max_joint_speed: float,
                  success_tolerance: float, formation_weight: float, effort_weight: float, collision_penalty: float,
-                 terminate_on_collision: bool, terminate_on_success: bool, success_bonus: float = 0.0) -> None:
+                 terminate_on_collision: bool, terminate_on_success: bool, success_bonus: float = 0.0,
+                 residual_gate: float = 0.0) -> None:
         self.layout = layout
         self.max_joint_speed, self.success_tolerance = max_joint_speed, success_tolerance
         self.weights = (formation_weight, effort_weight, collision_penalty, success_bonus)
         self.terminate_on_collision, self.terminate_on_success = terminate_on_collision, terminate_on_success
+        self.residual_gate = residual_gate
         self.edges = np.ascontiguousarray(scenario.formation.edges, dtype=np.int64)
         self.distances = np.tile(np.asarray(scenario.formation.distances, dtype=float)[None], (copies, 1))
         self.kp = np.full(copies, float(scenario.kp))
@@ -66,7 +68,7 @@ class FormationTask:
                    success_tolerance=env.success_tolerance, formation_weight=env.formation_weight,
                    effort_weight=env.effort_weight, collision_penalty=env.collision_penalty,
                    terminate_on_collision=env.terminate_on_collision, terminate_on_success=env.terminate_on_success,
-                   success_bonus=env.success_bonus)
+                   success_bonus=env.success_bonus, residual_gate=env.residual_gate)
 
     def load_team(self, b: int, scenario: Scenario) -> None:
         """Copy ``b`` now has ``scenario``'s formation."""
@@ -96,7 +98,18 @@ class FormationTask:
 
     def add_nominal(self, command: np.ndarray, engine: Engine) -> None:
         """Residual actions: add :meth:`nominal_velocity` to the scaled corrections ``command
-        (B, N, k_max)`` (rad/s) in place and clip to ``±max_joint_speed``."""
+        (B, N, k_max)`` (rad/s) in place and clip to ``±max_joint_speed``. With a ``residual_gate`` g > 0
+        each arm's correction is first scaled by ``min(1, (e_i / g)²)``, e_i the largest length error of
+        the arm's edges: it vanishes at the formation faster than the law's pull grows, so the formed
+        shape stays an equilibrium whatever the policy outputs."""
+        if self.residual_gate > 0:
+            P = engine.positions()
+            z = P[:, self.edges[:, 0]] - P[:, self.edges[:, 1]]
+            err = np.abs(np.sqrt(np.einsum("bec,bec->be", z, z)) - self.distances)  # (B, E)
+            arm_err = np.zeros(P.shape[:2])
+            for end in (0, 1):
+                np.maximum.at(arm_err, (slice(None), self.edges[:, end]), err)
+            command *= np.minimum(1.0, (arm_err / self.residual_gate) ** 2)[..., None]
         command += self.nominal_velocity(engine)
         np.clip(command, -self.max_joint_speed, self.max_joint_speed, out=command)
 

@@ -80,3 +80,23 @@ def test_residual_mode_is_a_listed_action_mode_and_reference_policy_refuses_it()
         parallel_env("paper_pa3_square", action_mode="residul")
     with pytest.raises(ValueError, match="velocit"):
         ReferencePolicy(parallel_env("paper_pa3_square", action_mode="residual"))
+
+
+def test_the_gate_scales_each_arms_correction_by_its_squared_edge_error() -> None:
+    gate = 5.0  # m: larger than the start's edge errors, so every arm's correction is scaled down
+    env = parallel_env("random", action_mode="residual", safety_filter=False, residual_gate=gate)
+    env.reset(seed=3)
+    nominal = env.task.nominal_velocity(env.engine)[0]
+    command, _ = env._command({a: np.full(env.action_space(a).shape, 0.1, np.float32) for a in env.agents})
+    P, f = env.end_effectors(), env.scenario.formation
+    for i in range(len(env.agents)):
+        errors = [abs(np.linalg.norm(P[a] - P[b]) - d) for (a, b), d in zip(f.edges, f.distances, strict=True)
+                  if i in (a, b)]
+        scale = min(1.0, (max(errors) / gate) ** 2)
+        assert 0 < scale < 1
+        k = env.n_actuated[i]
+        expected = np.clip(nominal[i, :k] + scale * float(np.float32(0.1)) * env.max_joint_speed, -env.max_joint_speed,
+                           env.max_joint_speed)
+        np.testing.assert_allclose(command[0, i, :k], expected, rtol=1e-12)
+    with pytest.raises(ValueError, match="residual_gate"):
+        parallel_env("random", residual_gate=-1.0)
