@@ -16,7 +16,8 @@ from .policies import (
     unregister_policy,
 )
 from .reference import ReferencePolicy, decode_observation
+from .shipped import pretrained
 
 __all__ = ["AdversarialPolicy", "ReferencePolicy", "ZeroPolicy", "RandomPolicy", "decode_observation", "Policy",
            "PolicyFactory", "register_policy", "unregister_policy", "registered_policies", "check_policy_name",
-           "make_policy", "BUILTIN_POLICIES"]
+           "make_policy", "BUILTIN_POLICIES", "pretrained"]

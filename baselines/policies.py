@@ -199,5 +199,15 @@ register_policy("random", lambda env, seed: RandomPolicy(env, seed))
 register_policy("adversarial", lambda env, seed: AdversarialPolicy(env))
 register_policy("sb3:", _sb3, metavar="PATH")
 
+
+def _pretrained(env, seed: int | None, name: str | None = None) -> Policy:
+    from .shipped import model_for, pretrained
+
+    return pretrained(model_for(env.scenario.name) if name is None else name, env)
+
+
+register_policy("pretrained", _pretrained)  # the shipped model trained for the env's scenario
+register_policy("pretrained:", _pretrained, metavar="NAME")
+
 BUILTIN_POLICIES = ("reference", "zero", "random", "adversarial")
 """The built-in names besides the ``sb3:PATH`` family."""

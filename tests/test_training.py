@@ -151,3 +151,30 @@ def test_benchmark_rejects_unknown_policy_and_mismatched_model(tmp_path) -> None
         run_benchmark(["paper_pa3_square"], [f"sb3:{tmp_path / 'model.zip'}"], episodes=1, max_steps=5)
     rows = run_benchmark(["paper_pa_mixed_square"], [f"sb3:{tmp_path / 'model.zip'}"], episodes=1, max_steps=5)
     assert np.isfinite(rows[0]["mean_return"]) and "sb3:" in markdown_table(rows)
+
+
+def test_pretrained_models_are_found_by_scenario(tmp_path, monkeypatch) -> None:
+    import shutil
+
+    from pan1_env.baselines import make_policy, shipped
+    from pan1_env.environment import parallel_env
+
+    train("ppo", "paper_pa3_square", shield=True, timesteps=128, seed=0, out=tmp_path / "run", checkpoint_every=128,
+          progress=False, n_envs=2, env_kwargs={"max_steps": 32},
+          algo_kwargs={"n_steps": 64, "batch_size": 64, "n_epochs": 1})
+    models = tmp_path / "pretrained"
+    models.mkdir()
+    shutil.copy(tmp_path / "run" / "model.zip", models / "square.zip")
+    shutil.copy(tmp_path / "run" / "model.json", models / "square.json")
+    monkeypatch.setattr(shipped, "PRETRAINED_DIR", models)
+    assert list(shipped.available()) == ["square"]
+    env = parallel_env("paper_pa3_square", max_steps=32)
+    obs, _ = env.reset(seed=0)
+    by_scenario = make_policy("pretrained", env)(obs)
+    by_name = make_policy("pretrained:square", env)(obs)
+    for a in env.agents:
+        np.testing.assert_array_equal(by_scenario[a], by_name[a])
+    with pytest.raises(ValueError, match="no pretrained model for scenario 'paper_pa_mixed_square'"):
+        make_policy("pretrained", parallel_env("paper_pa_mixed_square"))
+    with pytest.raises(ValueError, match="no pretrained model 'nope'"):
+        make_policy("pretrained:nope", env)
