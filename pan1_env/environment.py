@@ -97,11 +97,13 @@ class Pan1ParallelEnv(ParallelEnv):
 
     Every agent receives the shared formation term plus its own optional terms:
     ``r_i = −formation_weight · mean_k |‖z_k‖ − d_k| − effort_weight · ‖a_i‖² / k
-    − collision_penalty · cost_i + success_bonus · success`` (the mean edge-length error in metres,
-    the squared normalised action, the cost below, and 1 in a step that ends with every edge within
-    ``success_tolerance``). Defaults: 1, 0, 0, 0. The bonus is shaping for learners: the formation
-    term alone rewards the last centimetre little, and a policy that hovers near the shape without
-    settling scores almost as well as one that forms it.
+    − collision_penalty · cost_i + success_bonus · success
+    − intervention_penalty · ‖(v_i − v*_i) / max_joint_speed‖² / k`` (the mean edge-length error in
+    metres, the squared normalised action, the cost below, 1 in a step that ends with every edge
+    within ``success_tolerance``, and how much the safety filter changed the arm's commanded
+    velocity v_i at the step's last sub-step; velocity and residual modes). Defaults: 1, 0, 0, 0, 0.
+    The last two are shaping for learners: the formation term alone rewards the last centimetre
+    little, and the intervention term tells a policy at once when the filter holds its arm back.
 
     ## Cost
 
@@ -150,7 +152,8 @@ class Pan1ParallelEnv(ParallelEnv):
     * ``max_steps``: steps before truncation.
     * ``render_mode``: ``None``, ``"rgb_array"`` or ``"human"``.
     * ``terminate_on_collision``, ``terminate_on_success``, ``success_tolerance`` (m, default 0.01).
-    * ``formation_weight``, ``effort_weight``, ``collision_penalty``, ``success_bonus``: reward weights.
+    * ``formation_weight``, ``effort_weight``, ``collision_penalty``, ``success_bonus``,
+      ``intervention_penalty``: reward weights.
     * ``residual_gate``: see ``action_mode="residual"`` (default 0: no gate).
     * ``max_joint_speed`` (rad/s, default 2.0), ``max_torque`` (N·m, default 5.0): action scales.
     * ``n_obstacle_obs``: K, obstacle slots per observation (default: 3).
@@ -193,6 +196,7 @@ class Pan1ParallelEnv(ParallelEnv):
         collision_penalty: float = 0.0,
         success_bonus: float = 0.0,
         residual_gate: float = 0.0,
+        intervention_penalty: float = 0.0,
         max_joint_speed: float = 2.0,
         max_torque: float = 5.0,
         n_obstacle_obs: int = 3,
@@ -214,6 +218,7 @@ class Pan1ParallelEnv(ParallelEnv):
         collision_penalty = real("collision_penalty", collision_penalty)
         success_bonus = real("success_bonus", success_bonus)
         residual_gate = real("residual_gate", residual_gate, non_negative=True)
+        intervention_penalty = real("intervention_penalty", intervention_penalty)
         n_obstacle_obs = positive_int("n_obstacle_obs", n_obstacle_obs, minimum=0)
         if qp_solver not in QP_SOLVERS:
             raise ValueError(f"qp_solver must be one of {QP_SOLVERS}, got {qp_solver!r}")
@@ -259,6 +264,7 @@ class Pan1ParallelEnv(ParallelEnv):
         self.collision_penalty = float(collision_penalty)
         self.success_bonus = float(success_bonus)
         self.residual_gate = float(residual_gate)
+        self.intervention_penalty = float(intervention_penalty)
         self.max_joint_speed = float(max_joint_speed)
         self.max_torque = float(max_torque)
         self.n_obstacle_obs = int(n_obstacle_obs)
@@ -378,7 +384,7 @@ class Pan1ParallelEnv(ParallelEnv):
         rec = self.engine.step(command, self.substeps, torque=self._torque_mode)
         self.num_steps += 1
         err, obs = self._observations()
-        out = self.task.evaluate(rec, err, effort[None])
+        out = self.task.evaluate(rec, err, effort[None], command=None if self._torque_mode else command)
         self._record = rec
         max_err = float(out.measures["formation_error"][0])
         success = bool(out.success[0])

@@ -39,8 +39,9 @@ class FormationTask:
     """Bring the end-effectors into the scenario's rigid formation without touching an obstacle.
 
     Reward of agent i: ``−formation_weight · mean_k |‖z_k‖ − d_k| − effort_weight · ‖a_i‖²/k_i
-    − collision_penalty · cost_i + success_bonus · success``; success: every edge within
-    ``success_tolerance`` of its length.
+    − collision_penalty · cost_i + success_bonus · success − intervention_penalty · ‖(v_i − v*_i)/v_max‖²/k_i``
+    (v_i the commanded, v*_i the filtered velocity of the step's last sub-step); success: every edge
+    within ``success_tolerance`` of its length.
     The observation layout (:class:`~pan1_env.observation.ObservationLayout`) is the one public
     description of what each agent sees.
     """
@@ -48,10 +49,10 @@ class FormationTask:
     def __init__(self, scenario: Scenario, copies: int, layout: ObservationLayout, *, max_joint_speed: float,
                  success_tolerance: float, formation_weight: float, effort_weight: float, collision_penalty: float,
                  terminate_on_collision: bool, terminate_on_success: bool, success_bonus: float = 0.0,
-                 residual_gate: float = 0.0) -> None:
+                 residual_gate: float = 0.0, intervention_penalty: float = 0.0) -> None:
         self.layout = layout
         self.max_joint_speed, self.success_tolerance = max_joint_speed, success_tolerance
-        self.weights = (formation_weight, effort_weight, collision_penalty, success_bonus)
+        self.weights = (formation_weight, effort_weight, collision_penalty, success_bonus, intervention_penalty)
         self.terminate_on_collision, self.terminate_on_success = terminate_on_collision, terminate_on_success
         self.residual_gate = residual_gate
         self.edges = np.ascontiguousarray(scenario.formation.edges, dtype=np.int64)
@@ -68,7 +69,8 @@ class FormationTask:
                    success_tolerance=env.success_tolerance, formation_weight=env.formation_weight,
                    effort_weight=env.effort_weight, collision_penalty=env.collision_penalty,
                    terminate_on_collision=env.terminate_on_collision, terminate_on_success=env.terminate_on_success,
-                   success_bonus=env.success_bonus, residual_gate=env.residual_gate)
+                   success_bonus=env.success_bonus, residual_gate=env.residual_gate,
+                   intervention_penalty=env.intervention_penalty)
 
     def load_team(self, b: int, scenario: Scenario) -> None:
         """Copy ``b`` now has ``scenario``'s formation."""
@@ -132,10 +134,12 @@ class FormationTask:
         return out
 
     def evaluate(self, record: StepRecord | None, err: np.ndarray, effort: np.ndarray,
-                 clearance: np.ndarray | None = None) -> Outcome:
+                 clearance: np.ndarray | None = None, command: np.ndarray | None = None) -> Outcome:
         """The step's outcome from its record, the edge errors after it and each agent's effort
-        ``‖a_i‖²/k_i (B, N)``. At a reset (``record`` None) pass the state's ``clearance (B, N)``."""
-        w_form, w_effort, penalty, bonus = self.weights
+        ``‖a_i‖²/k_i (B, N)``. At a reset (``record`` None) pass the state's ``clearance (B, N)``. The
+        intervention term needs the commanded velocities ``command (B, N, k_max)`` (rad/s; None in
+        torque mode, where the term is left out)."""
+        w_form, w_effort, penalty, bonus, w_intervention = self.weights
         min_clear = record.min_clearance if record is not None else clearance
         B = len(err)
         formation, formation_error, success = np.empty(B), np.empty(B), np.empty(B, dtype=bool)
@@ -144,8 +148,12 @@ class FormationTask:
                                     success, cost)
         reward = np.empty_like(cost)
         reward[:] = formation[:, None]
+        intervention = 0.0
+        if w_intervention and record is not None and command is not None:
+            change = ((command - record.v_star) / self.max_joint_speed) ** 2  # NaN in the padding
+            intervention = np.nansum(change, axis=-1) / np.isfinite(change).sum(axis=-1)
         terms = _terms(reward, {"formation": formation[:, None]}, effort=(w_effort, effort), collision=(penalty, cost),
-                       success=(-bonus, success[:, None].astype(float)))
+                       success=(-bonus, success[:, None].astype(float)), intervention=(w_intervention, intervention))
         terminated = _terminated(success, cost, self.terminate_on_success, self.terminate_on_collision)
         return Outcome(reward, terms, cost, success, terminated,
                        {"formation_error": formation_error, "min_clearance": min_clear})

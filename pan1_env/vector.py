@@ -186,7 +186,8 @@ class Pan1VectorEnv(VectorEnv):
         self._steps += 1
         err, mats = self.task.observe(self.engine)
         obs = self.task.flat(mats)
-        out = self.task.evaluate(rec, err, effort.reshape(B, -1))
+        out = self.task.evaluate(rec, err, effort.reshape(B, -1),
+                                 command=None if t.action_mode == "torque" else command)
         finite = rec.finite.all(axis=1)
         truncated = (self._steps >= t.max_steps) | ~finite
         infos = self._infos(out, rec)

@@ -51,6 +51,22 @@ def test_engine_step_record_covers_every_arm_of_every_copy() -> None:
     np.testing.assert_array_equal(rec.v_star[0], rec.v_star[2])
 
 
+def test_intervention_term_is_the_filters_change_of_the_command() -> None:
+    env = parallel_env("paper_pa_mixed_square", intervention_penalty=0.5, safety_filter=True)
+    env.reset(seed=0)
+    _, rewards, _, _, infos = env.step({a: np.full(env.action_space(a).shape, 1.0) for a in env.agents})
+    rec = env.last_step
+    for i, agent in enumerate(env.agents):
+        k = env.n_actuated[i]
+        change = np.sum((env.max_joint_speed - rec.v_star[0, i, :k]) ** 2) / k / env.max_joint_speed**2
+        assert infos[agent]["reward_terms"]["intervention"] == pytest.approx(-0.5 * change, rel=1e-12)
+    assert any(infos[a]["reward_terms"]["intervention"] < 0 for a in env.agents)  # the filter acted
+    plain = parallel_env("paper_pa_mixed_square", intervention_penalty=0.5)  # no filter: v* is the command
+    plain.reset(seed=0)
+    _, _, _, _, infos = plain.step({a: np.full(plain.action_space(a).shape, 0.3) for a in plain.agents})
+    assert all(abs(info["reward_terms"]["intervention"]) < 1e-20 for info in infos.values())
+
+
 def test_reward_terms_in_infos_sum_to_the_reward() -> None:
     from pan1_env.reach import PAReachEnv
     from pan1_env.vector import Pan1VectorEnv
