@@ -8,10 +8,17 @@ so the same generator state gives the same scenario. Every draw is checked to be
   by a straight path in the actuated joints, along which the passive joint follows from the zero
   passive momentum (dq₁ = −M₁ₐ/M₁₁ dqₐ), so the target is reached from the start at rest;
 * **collision-free at the start** – every end-effector starts at least ``start_clearance`` outside
-  every obstacle, and no obstacle covers a formation vertex or a base;
+  every obstacle, and no obstacle covers a formation vertex or a base (it stays ``BASE_MARGIN`` clear);
+  with ``bodies="links"`` every link capsule (radius ``link_radius``) starts ``start_clearance`` clear of
+  every obstacle, and with ``inter_arm`` of every other arm's capsules;
+* **moving obstacles clear of the bases** – with ``obstacle_speed`` above 0 each obstacle draws a speed
+  and a path (direction uniform, length in ``obstacle_path_length``) whose every point keeps the
+  obstacle ``BASE_MARGIN + link_radius`` clear of every base, so no base is ever hit;
 * **regular at the start** – J̄ has full rank (Assumption 1), with σ_min(J̄) ≥ ``min_sigma``.
 
-Arms start at rest (Lemma 1 needs it).
+Arms start at rest (Lemma 1 needs it). With the default options (end-effectors only, still
+obstacles) no random number is drawn for the whole-arm options, so the same seed draws the same team
+as before they existed.
 """
 
 from __future__ import annotations
@@ -20,14 +27,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .bodies import closest_point_on_segment, inter_arm_clearance, link_clearance
 from .cascade import reduced_jacobian
 from .dynamics import ArmParams, end_effector, mass_matrix
 from .formation import Formation, shape_positions
 from .safety import Obstacles, clearance
-from .scenario import Scenario
+from .scenario import BODIES, Scenario
 from .validation import positive_int, real, whole_ratio
 
-__all__ = ["RandomScenarioOptions", "random_scenario"]
+__all__ = ["RandomScenarioOptions", "random_scenario", "BASE_MARGIN"]
+
+BASE_MARGIN = 0.05  # m: how far every obstacle (and, moving, its whole path) stays outside each base, plus ρ
 
 
 @dataclass(frozen=True)
@@ -55,6 +65,11 @@ class RandomScenarioOptions:
         physics_dt: physics (RK4) step of the drawn scenario, seconds.
         control_dt: control step of the drawn scenario, seconds.
         horizon: horizon of the drawn scenario, seconds.
+        bodies: what the drawn scenario protects, ``"end_effector"`` or ``"links"``.
+        link_radius: capsule radius ρ of every link, metres (> 0 only with ``bodies="links"``).
+        inter_arm: keep the arms' capsules apart (only with ``bodies="links"``).
+        obstacle_speed: range of obstacle speeds, m/s; ``(0, 0)`` keeps the obstacles still.
+        obstacle_path_length: range of the length of a moving obstacle's path, metres.
     """
 
     n_arms: int = 4
@@ -73,6 +88,11 @@ class RandomScenarioOptions:
     physics_dt: float = 0.001
     control_dt: float = 0.001
     horizon: float = 100.0
+    bodies: str = "end_effector"
+    link_radius: float = 0.0
+    inter_arm: bool = False
+    obstacle_speed: tuple[float, float] = (0.0, 0.0)
+    obstacle_path_length: tuple[float, float] = (0.2, 0.6)
 
     def __post_init__(self) -> None:
         n_arms = positive_int("RandomScenarioOptions.n_arms", self.n_arms, minimum=2)
@@ -108,6 +128,33 @@ class RandomScenarioOptions:
                      "control_dt", "horizon"):
             object.__setattr__(self, name, real(f"RandomScenarioOptions.{name}", getattr(self, name), positive=True))
         whole_ratio("RandomScenarioOptions.control_dt", self.control_dt, "physics_dt", self.physics_dt)
+        self._check_bodies()
+
+    def _check_bodies(self) -> None:
+        if not isinstance(self.bodies, str) or self.bodies not in BODIES:
+            raise ValueError(f"RandomScenarioOptions.bodies must be one of {BODIES}, got {self.bodies!r}")
+        rho = real("RandomScenarioOptions.link_radius", self.link_radius, non_negative=True)
+        object.__setattr__(self, "link_radius", rho)
+        if not isinstance(self.inter_arm, (bool, np.bool_)):
+            raise ValueError(f"RandomScenarioOptions.inter_arm must be True or False, got {self.inter_arm!r}")
+        object.__setattr__(self, "inter_arm", bool(self.inter_arm))
+        if self.bodies != "links" and (rho > 0 or self.inter_arm):
+            raise ValueError("RandomScenarioOptions.link_radius > 0 and inter_arm=True need bodies='links', "
+                             f"got bodies={self.bodies!r}, link_radius={rho}, inter_arm={self.inter_arm}")
+        for name, positive in (("obstacle_speed", False), ("obstacle_path_length", True)):
+            value = getattr(self, name)
+            if not isinstance(value, (tuple, list)) or len(value) != 2:
+                raise ValueError(f"RandomScenarioOptions.{name} must be a range (low, high), got {value!r}")
+            lo = real(f"RandomScenarioOptions.{name}[0]", value[0], positive=positive, non_negative=True)
+            hi = real(f"RandomScenarioOptions.{name}[1]", value[1], positive=positive, non_negative=True)
+            if lo > hi:
+                raise ValueError(f"RandomScenarioOptions.{name} must have low ≤ high, got {value!r}")
+            object.__setattr__(self, name, (lo, hi))
+
+    @property
+    def moving(self) -> bool:
+        """Whether the drawn obstacles move (``obstacle_speed`` above 0)."""
+        return self.obstacle_speed[1] > 0
 
     @property
     def passive(self) -> tuple[bool, ...]:
@@ -180,10 +227,13 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
                for a, q in zip(arms, q0, strict=True)]
         if min(sig) < opt.min_sigma:
             continue
+        if opt.inter_arm and not _arms_apart(arms, q0, opt):
+            continue
         bases = np.array([a.base for a in arms])
         lo = np.minimum(starts.min(0), targets.min(0)) - 0.2
         hi = np.maximum(starts.max(0), targets.max(0)) + 0.2
-        centers, radii = [], []
+        centers, radii, paths, speeds = [], [], [], []
+        rho = opt.link_radius
         for _ in range(50 * max(opt.n_obstacles, 1)):
             if len(radii) == opt.n_obstacles:
                 break
@@ -191,9 +241,18 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
             r = rng.uniform(*opt.obstacle_radius)
             if (clearance(starts, c[None], np.array([r])).min() < opt.start_clearance
                     or np.linalg.norm(targets - c, axis=-1).min() < r + 0.05
-                    or np.linalg.norm(bases - c, axis=-1).min() < r + 0.05
+                    or np.linalg.norm(bases - c, axis=-1).min() < r + BASE_MARGIN + rho
                     or any(np.linalg.norm(c - c2) < r + r2 for c2, r2 in zip(centers, radii, strict=True))):
                 continue
+            if opt.bodies == "links" and not _links_clear(arms, q0, c, r, opt):
+                continue
+            if opt.moving:
+                speed, end = _draw_path(rng, c, opt)
+                x, _ = closest_point_on_segment(c, end, bases)
+                if np.linalg.norm(bases - x, axis=-1).min() < r + BASE_MARGIN + rho:
+                    continue
+                paths.append(end)
+                speeds.append(speed)
             centers.append(c)
             radii.append(r)
         if len(radii) < opt.n_obstacles:
@@ -206,6 +265,31 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
             arms=tuple(arms), q0=tuple(q0), formation=formation,
             obstacles=Obstacles(np.array(centers).reshape(-1, 2), np.array(radii)),
             kp=opt.kp, ke=opt.ke, kappa=opt.kappa, epsilon=opt.epsilon, physics_dt=opt.physics_dt,
-            control_dt=opt.control_dt, horizon=opt.horizon, source="<random>",
+            control_dt=opt.control_dt, horizon=opt.horizon, source="<random>", bodies=opt.bodies,
+            link_radius=opt.link_radius, inter_arm=opt.inter_arm,
+            obstacle_paths=np.array(paths).reshape(-1, 2) if opt.moving else None,
+            obstacle_speeds=np.array(speeds) if opt.moving else None,
         )
     raise RuntimeError(f"no valid random scenario in {max_tries} draws; loosen the options {opt}")
+
+
+def _arms_apart(arms: list[ArmParams], q0: list[np.ndarray], opt: RandomScenarioOptions) -> bool:
+    """Every pair of arms' link capsules at least ``start_clearance`` apart at the start."""
+    return all(inter_arm_clearance(arms[i], q0[i], arms[j], q0[j], opt.link_radius).min() >= opt.start_clearance
+               for i in range(len(arms)) for j in range(i))
+
+
+def _links_clear(arms: list[ArmParams], q0: list[np.ndarray], c: np.ndarray, r: float,
+                 opt: RandomScenarioOptions) -> bool:
+    """Every link capsule at least ``start_clearance`` outside the obstacle (c, r) at the start."""
+    return all(link_clearance(arm, q, c[None], np.array([r]), opt.link_radius).min() >= opt.start_clearance
+               for arm, q in zip(arms, q0, strict=True))
+
+
+def _draw_path(rng: np.random.Generator, c: np.ndarray, opt: RandomScenarioOptions) -> tuple[float, np.ndarray]:
+    """A speed in (lo, hi] and a path end at a uniform direction and a length in ``obstacle_path_length``."""
+    lo, hi = opt.obstacle_speed
+    speed = hi - rng.uniform(0.0, hi - lo)
+    angle = rng.uniform(-np.pi, np.pi)
+    length = rng.uniform(*opt.obstacle_path_length)
+    return float(speed), c + length * np.array([np.cos(angle), np.sin(angle)])

@@ -9,11 +9,12 @@ the README ("Scenario files"); in short::
     description = "..."                   # optional
     [simulation]  physics_dt, control_dt, horizon          (seconds)
     [controller]  kp, ke                                   (K_P, K_e)
-    [safety]      kappa, epsilon, margin = 0, ignore_unreachable_obstacles = true
+    [safety]      kappa, epsilon, margin = 0, ignore_unreachable_obstacles = true,
+                  bodies = "end_effector" | "links", link_radius = 0, inter_arm = false
     [arm_defaults] masses, lengths, com, inertias, passive_first_joint, phi   (optional)
     [[arms]]      base, q0, and any arm_defaults key to override it
     [formation]   shape = "square" | "polygon" with size,  or  edges + distances (0-based arms)
-    [[obstacles]] center, radius
+    [[obstacles]] center, radius, and for a moving obstacle path_end = [x, y] and speed (m/s)
 
 Angles (``q0``, ``phi``) are numbers in radians or strings such as ``"-3*pi/4"``.
 """
@@ -31,6 +32,13 @@ from typing import Any
 
 import numpy as np
 
+from .bodies import (
+    closest_point_on_segment,
+    inter_arm_clearance,
+    link_clearance,
+    obstacle_centers,
+    obstacle_velocities,
+)
 from .dynamics import ArmParams
 from .formation import Formation, FormationError
 from .safety import Obstacles, clearance
@@ -40,7 +48,10 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["Scenario", "ScenarioError", "load", "from_dict", "builtin_names"]
+__all__ = ["Scenario", "ScenarioError", "load", "from_dict", "builtin_names", "BODIES"]
+
+#: What the ``[safety]`` table's ``bodies`` key may protect: the end-effectors (the paper) or every link.
+BODIES = ("end_effector", "links")
 
 
 class ScenarioError(ValueError):
@@ -53,7 +64,14 @@ class ScenarioError(ValueError):
 
 @dataclass(frozen=True)
 class Scenario:
-    """A validated scenario. Arms are numbered from 0 (the paper numbers from 1)."""
+    """A validated scenario. Arms are numbered from 0 (the paper numbers from 1).
+
+    Whole-arm fields (parsed, validated and used by the random generator and :mod:`pan1_env.bodies`;
+    the compiled safety filter does not use them yet, see docs/SCENARIOS.md): ``bodies`` ("end_effector"
+    or "links"), ``link_radius`` ρ (m, the capsule radius of every link), ``inter_arm`` (keep the
+    arms' capsules apart), and ``obstacle_paths (O, 2)`` / ``obstacle_speeds (O,)``: each obstacle
+    goes back and forth between its centre and its path end at its speed (0: still; None: all still).
+    """
 
     name: str
     description: str
@@ -71,6 +89,50 @@ class Scenario:
     safety_margin: float = 0.0
     ignore_unreachable_obstacles: bool = True
     source: str = field(default="<dict>", compare=False)
+    bodies: str = "end_effector"
+    link_radius: float = 0.0
+    inter_arm: bool = False
+    obstacle_paths: np.ndarray | None = None
+    obstacle_speeds: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.bodies not in BODIES:
+            raise ValueError(f"Scenario.bodies must be one of {BODIES}, got {self.bodies!r}")
+        if not (math.isfinite(self.link_radius) and self.link_radius >= 0):
+            raise ValueError(f"Scenario.link_radius must be finite and non-negative, got {self.link_radius!r}")
+        n_obs = len(self.obstacles)
+        if (self.obstacle_paths is None) != (self.obstacle_speeds is None):
+            raise ValueError("Scenario.obstacle_paths and obstacle_speeds go together: give both or neither")
+        if self.obstacle_paths is not None:
+            paths = np.array(self.obstacle_paths, dtype=float).reshape(-1, 2)
+            speeds = np.array(self.obstacle_speeds, dtype=float).reshape(-1)
+            if len(paths) != n_obs or len(speeds) != n_obs or np.any(speeds < 0):
+                raise ValueError(f"Scenario: obstacle_paths (O, 2) and obstacle_speeds (O,) ≥ 0 for the {n_obs} "
+                                 f"obstacles, got shapes {paths.shape} and {speeds.shape}")
+            paths.setflags(write=False)
+            speeds.setflags(write=False)
+            object.__setattr__(self, "obstacle_paths", paths)
+            object.__setattr__(self, "obstacle_speeds", speeds)
+
+    @property
+    def moving_obstacles(self) -> np.ndarray:
+        """``(O,)`` booleans: which obstacles move."""
+        if self.obstacle_speeds is None:
+            return np.zeros(len(self.obstacles), dtype=bool)
+        return self.obstacle_speeds > 0
+
+    def _paths(self) -> tuple[np.ndarray, np.ndarray]:
+        if self.obstacle_paths is None:
+            return self.obstacles.centers, np.zeros(len(self.obstacles))
+        return self.obstacle_paths, self.obstacle_speeds
+
+    def obstacle_centers(self, t: float | np.ndarray) -> np.ndarray:
+        """Obstacle centres at time ``t`` (s): ``(..., O, 2)`` (:func:`pan1_env.bodies.obstacle_centers`)."""
+        return obstacle_centers(self.obstacles.centers, *self._paths(), t)
+
+    def obstacle_velocities(self, t: float | np.ndarray) -> np.ndarray:
+        """Obstacle velocities at time ``t`` (s): ``(..., O, 2)`` (:func:`pan1_env.bodies.obstacle_velocities`)."""
+        return obstacle_velocities(self.obstacles.centers, *self._paths(), t)
 
     @property
     def n_arms(self) -> int:
@@ -269,13 +331,15 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
     ctrl = _table(data, "controller", src, {"kp", "ke"})
     kp = _number(ctrl, "kp", src, "controller")
     ke = _number(ctrl, "ke", src, "controller")
-    saf = _table(data, "safety", src, {"kappa", "epsilon", "margin", "ignore_unreachable_obstacles"})
+    saf = _table(data, "safety", src, {"kappa", "epsilon", "margin", "ignore_unreachable_obstacles", "bodies",
+                                       "link_radius", "inter_arm"})
     kappa = _number(saf, "kappa", src, "safety")
     epsilon = _number(saf, "epsilon", src, "safety")
     margin = _number(saf, "margin", src, "safety", positive=False, default=0.0)
     ignore = saf.get("ignore_unreachable_obstacles", True)
     if not isinstance(ignore, bool):
         raise ScenarioError(src, "safety.ignore_unreachable_obstacles", f"expected true or false, got {ignore!r}")
+    bodies, link_radius, inter_arm = _bodies(saf, src)
 
     defaults = _table(data, "arm_defaults", src, _ARM_PARAM_KEYS, required=False)
     arms_raw = data.get("arms")
@@ -312,15 +376,31 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
     obs_raw = data.get("obstacles", [])
     if not isinstance(obs_raw, list):
         raise ScenarioError(src, "obstacles", "expected an array of tables [[obstacles]]")
-    centers, radii = [], []
+    centers, radii, paths, speeds = [], [], [], []
     for j, entry in enumerate(obs_raw):
         key = f"obstacles[{j}]"
-        _known_keys(entry, key, src, {"center", "radius"})
+        _known_keys(entry, key, src, {"center", "radius", "path_end", "speed"})
         if "center" not in entry:
             raise ScenarioError(src, f"{key}.center", "missing")
         centers.append(_vector(entry["center"], src, f"{key}.center", size=2))
         radii.append(_number(entry, "radius", src, key))
+        paths.append(centers[-1])
+        speeds.append(0.0)
+        if "speed" in entry and "path_end" not in entry:
+            raise ScenarioError(src, f"{key}.speed", "a speed without a path: give path_end = [x, y] too (the "
+                                "obstacle goes back and forth between center and path_end)")
+        if "path_end" in entry:
+            if "speed" not in entry:
+                raise ScenarioError(src, f"{key}.path_end", "a path without a speed: give speed (m/s, > 0) too")
+            paths[-1] = _vector(entry["path_end"], src, f"{key}.path_end", size=2)
+            speeds[-1] = _number(entry, "speed", src, key)
+            if np.array_equal(paths[-1], centers[-1]):
+                raise ScenarioError(src, f"{key}.path_end", f"equals center {centers[-1].tolist()}: a moving "
+                                    "obstacle needs a path of positive length")
     obstacles = Obstacles(np.array(centers).reshape(-1, 2), np.array(radii))
+    moving = any(s > 0 for s in speeds)
+    obstacle_paths = np.array(paths).reshape(-1, 2) if moving else None
+    obstacle_speeds = np.array(speeds) if moving else None
 
     from .dynamics import end_effector
 
@@ -331,13 +411,82 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
             if c[j] <= 0:
                 raise ScenarioError(src, f"arms[{i}].q0", f"the end-effector starts inside or on obstacle {j} "
                                     f"(clearance {c[j]:.4f} m); move the arm or the obstacle")
+    rho = link_radius if bodies == "links" else 0.0
+    _check_paths(obstacles, obstacle_paths, arms, rho, src)
+    if bodies == "links":
+        _check_link_starts(arms, q0, obstacles, rho, inter_arm, src)
 
     return Scenario(
         name=name, description=description, arms=arms, q0=q0, formation=formation,
         obstacles=obstacles, kp=kp, ke=ke, kappa=kappa, epsilon=epsilon, physics_dt=physics_dt,
         control_dt=control_dt, horizon=horizon, safety_margin=margin,
-        ignore_unreachable_obstacles=ignore, source=source,
+        ignore_unreachable_obstacles=ignore, source=source, bodies=bodies, link_radius=link_radius,
+        inter_arm=inter_arm, obstacle_paths=obstacle_paths, obstacle_speeds=obstacle_speeds,
     )
+
+
+def _bodies(saf: Mapping[str, Any], src: str) -> tuple[str, float, bool]:
+    """``bodies``, ``link_radius`` and ``inter_arm`` of the ``[safety]`` table, checked together."""
+    bodies = saf.get("bodies", "end_effector")
+    if not isinstance(bodies, str) or bodies not in BODIES:
+        raise ScenarioError(src, "safety.bodies", f"unknown protected bodies {bodies!r}; allowed values are "
+                            + " or ".join(f'"{b}"' for b in BODIES))
+    link_radius = _number(saf, "link_radius", src, "safety", positive=False, default=0.0)
+    inter_arm = saf.get("inter_arm", False)
+    if not isinstance(inter_arm, bool):
+        raise ScenarioError(src, "safety.inter_arm", f"expected true or false, got {inter_arm!r}")
+    if bodies != "links" and link_radius > 0:
+        raise ScenarioError(src, "safety.link_radius", f"{link_radius} has no effect with bodies = "
+                            f'"{bodies}": set bodies = "links" or leave link_radius out')
+    if bodies != "links" and inter_arm:
+        raise ScenarioError(src, "safety.inter_arm", 'true needs bodies = "links": arms are kept apart link '
+                            "by link")
+    return bodies, link_radius, inter_arm
+
+
+def _check_paths(obstacles: Obstacles, paths: np.ndarray | None, arms: tuple[ArmParams, ...], rho: float,
+                 src: str) -> None:
+    """No moving obstacle comes within a base's clearance anywhere on its path.
+
+    A base's clearance, for obstacle j, is the disk of radius r_j + ρ about the base (ρ = link_radius
+    with bodies = "links", else 0): the obstacle's disk must stay strictly outside it, as a start must
+    be strictly clear (the end-effector check above), because a base cannot move out of the way.
+    """
+    if paths is None:
+        return
+    bases = np.array([arm.base for arm in arms])
+    for j, (c, e, r) in enumerate(zip(obstacles.centers, paths, obstacles.radii, strict=True)):
+        if np.array_equal(c, e):
+            continue
+        x, _ = closest_point_on_segment(c, e, bases)
+        d = np.linalg.norm(bases - x, axis=-1)
+        i = int(np.argmin(d))
+        if d[i] <= r + rho:
+            raise ScenarioError(src, f"obstacles[{j}].path_end", f"the path from center to path_end comes within "
+                                f"{d[i]:.4f} m of arm {i}'s base, inside its clearance r + link_radius = "
+                                f"{r + rho:.4f} m; a base cannot move out of the way")
+
+
+def _check_link_starts(arms: tuple[ArmParams, ...], q0: tuple[np.ndarray, ...], obstacles: Obstacles,
+                       rho: float, inter_arm: bool, src: str) -> None:
+    """Every link capsule (radius ρ) clear of every obstacle at q0 and, with inter_arm, of other arms' capsules."""
+    for i, (arm, q) in enumerate(zip(arms, q0, strict=True)):
+        if len(obstacles):
+            c = link_clearance(arm, q, obstacles.centers, obstacles.radii, rho)
+            link, j = np.unravel_index(int(np.argmin(c)), c.shape)
+            if c[link, j] <= 0:
+                raise ScenarioError(src, f"arms[{i}].q0", f"link {link} starts inside or on obstacle {j} "
+                                    f"(clearance {c[link, j]:.4f} m with link_radius {rho}); move the arm or "
+                                    "the obstacle")
+        if not inter_arm:
+            continue
+        for i2 in range(i):
+            c = inter_arm_clearance(arms[i2], q0[i2], arm, q, rho)
+            l2, link = np.unravel_index(int(np.argmin(c)), c.shape)
+            if c[l2, link] <= 0:
+                raise ScenarioError(src, f"arms[{i}].q0", f"link {link} starts touching link {l2} of arm {i2} "
+                                    f"(clearance {c[l2, link]:.4f} m with link_radius {rho} on both); move one "
+                                    "of the arms")
 
 
 def builtin_names() -> list[str]:
