@@ -116,7 +116,7 @@ def _labels(groups: list[list[dict[str, Any]]]) -> list[str]:
             parts.append("shield" if m["shield"] else "no shield")
         head = " ".join(parts) or "runs"
         extra = [f"{k}={json.dumps(m[k], sort_keys=True) if isinstance(m.get(k), dict | list) else m.get(k)}"
-                 for k in differ]
+                 for k in differ if m.get(k) is not None]  # a setting the run does not have is not a label
         labels.append(", ".join([head, *extra]))
     return labels
 

@@ -31,7 +31,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from .adversarial import AdversarialPolicy
-from .reference import ReferencePolicy
+from .reference import ReferencePolicy, decode_observation
 
 __all__ = ["Policy", "PolicyFactory", "ZeroPolicy", "RandomPolicy", "register_policy", "unregister_policy",
            "registered_policies", "check_policy_name", "make_policy", "BUILTIN_POLICIES"]
@@ -170,6 +170,7 @@ def _sb3_policy(path: Path, env) -> Policy:
     meta = json.loads(path.with_suffix(".json").read_text()) if path.with_suffix(".json").exists() else {}
     norm = meta.get("observation_normalization")
     trained_mode = meta.get("env_kwargs", {}).get("action_mode", "velocity")
+    gate = float(meta.get("env_kwargs", {}).get("residual_gate", 0.0))
     reference = None
     if trained_mode != env.action_mode:
         if (trained_mode, env.action_mode) != ("residual", "velocity"):
@@ -187,7 +188,12 @@ def _sb3_policy(path: Path, env) -> Policy:
         actions = dict(zip(agents, np.split(np.asarray(action, np.float32), splits), strict=True))
         if reference is not None:
             nominal = reference(obs)
-            actions = {a: np.clip(nominal[a] + np.clip(actions[a], -1, 1), -1, 1) for a in agents}
+            for a in agents:
+                correction = np.clip(actions[a], -1, 1)
+                if gate > 0:  # the env's residual gate, from the agent's own neighbour errors
+                    errors = decode_observation(obs[a], env.observation_layout)["neighbour_error"]
+                    correction = correction * min(1.0, (np.max(np.abs(errors), initial=0.0) / gate) ** 2)
+                actions[a] = np.clip(nominal[a] + correction, -1, 1).astype(np.float32)
         return actions
 
     return policy

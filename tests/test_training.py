@@ -81,7 +81,7 @@ def test_normalised_residual_model_runs_as_a_velocity_policy(tmp_path) -> None:
     from pan1_env.environment import parallel_env
 
     train("ppo", "paper_pa3_square", shield=True, timesteps=256, seed=0, out=tmp_path, checkpoint_every=256,
-          progress=False, n_envs=2, env_kwargs={"max_steps": 64, "action_mode": "residual"},
+          progress=False, n_envs=2, env_kwargs={"max_steps": 64, "action_mode": "residual", "residual_gate": 0.5},
           algo_kwargs={"n_steps": 64, "batch_size": 64, "n_epochs": 1})
     meta = json.loads((tmp_path / "model.json").read_text())
     assert meta["env_kwargs"]["action_mode"] == "residual"
@@ -97,10 +97,13 @@ def test_normalised_residual_model_runs_as_a_velocity_policy(tmp_path) -> None:
     residual, _ = model.predict(flat.astype(np.float32), deterministic=True)
     nominal = ReferencePolicy(env)(obs)
     actions = policy(obs)
-    k = env.n_actuated[0]
+    k, P, f = env.n_actuated[0], env.end_effectors(), env.scenario.formation
     for i, a in enumerate(env.possible_agents):
-        expected = np.clip(nominal[a] + np.clip(residual[i * k:(i + 1) * k], -1, 1), -1, 1)
-        np.testing.assert_allclose(actions[a], expected, rtol=1e-6)
+        errors = [abs(np.linalg.norm(P[u] - P[w]) - d) for (u, w), d in zip(f.edges, f.distances, strict=True)
+                  if i in (u, w)]
+        gate = min(1.0, (max(errors) / 0.5) ** 2)
+        expected = np.clip(nominal[a] + gate * np.clip(residual[i * k:(i + 1) * k], -1, 1), -1, 1)
+        np.testing.assert_allclose(actions[a], expected, rtol=1e-5, atol=1e-6)
     with pytest.raises(ValueError, match="residual"):
         make_policy(f"sb3:{tmp_path / 'model.zip'}", parallel_env("paper_pa3_square", action_mode="torque"), 0)
 
