@@ -8,8 +8,10 @@ rebuild of the arms from ``state()`` that uses nothing of pan1_env's kinematics.
 from __future__ import annotations
 
 import copy
+import datetime
 import hashlib
 import importlib.util
+import math
 import subprocess
 import sys
 from importlib import resources
@@ -413,6 +415,31 @@ def test_the_bad_inputs_are_bad_only_for_their_key() -> None:
     scenario.from_dict(_obstacle(_doc(MIXED), path_end=[0.5, 3.12], speed=0.1))
     scenario.from_dict(_links(_doc(MIXED), link_radius=0.09))
     scenario.from_dict(_doc("paper_pa3_square"))  # its arm 3 crosses an obstacle with a link: fine for end-effectors
+
+
+ODD_VALUES = [math.nan, math.inf, -math.inf, -1.0, 0.0, -0.0, 1e-9, 1e9, 2**63 - 1, -(2**63), 3, True, "", "pi/0",
+              "x", "links", "end_effector", [], [math.nan], [1.0], [1.0, 2.0], [1e9, -1e9], [[0, 1]], {}, {"x": 1},
+              datetime.date(2000, 1, 1)]
+
+
+@pytest.mark.parametrize("slot", ["safety.bodies", "safety.link_radius", "safety.inter_arm", "obstacles.path_end",
+                                  "obstacles.speed"])
+@pytest.mark.parametrize("links", [False, True], ids=["end_effector", "links"])
+def test_new_keys_with_odd_values_give_a_scenario_or_a_scenario_error(slot: str, links: bool) -> None:
+    table, key = slot.split(".")
+    for value in ODD_VALUES:
+        doc = _doc(MIXED)
+        if links:
+            doc["safety"].update(bodies="links", link_radius=0.02, inter_arm=True)
+        if table == "obstacles":
+            doc["obstacles"][0].update(path_end=[1.0, 2.7], speed=0.1)
+            doc["obstacles"][0][key] = copy.deepcopy(value)
+        else:
+            doc[table][key] = copy.deepcopy(value)
+        try:
+            scenario.from_dict(doc, source="odd.toml")
+        except ScenarioError as err:
+            assert str(err).startswith(("odd.toml: safety.", "odd.toml: obstacles[0].", "odd.toml: arms[")), str(err)
 
 
 # ------------------------------------------------------------------ random options
