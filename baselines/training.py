@@ -18,6 +18,9 @@ the largest arm; SuperSuit steps its copies one by one, so this route is slower)
   policy needs to run the model on an env, the env arguments (``action_mode``…) and, with
   ``normalize``, the observation statistics (mean, variance, clip) the model was trained with.
 
+``critic_warmup=N`` (PPO) trains only the value function for the first N steps, the actor frozen:
+useful for residual actions, whose initial policy is the reference controller.
+
 ``normalize=True`` (the default) trains through SB3's ``VecNormalize``: observations are
 standardised by running statistics (clipped to ±10) and rewards scaled by the running standard
 deviation of the discounted return. Episode returns in ``episodes.csv`` stay raw.
@@ -293,14 +296,16 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
           seed: int = 0, out: str | Path = "runs/train", resume: bool = False, n_envs: int = DEFAULT_N_ENVS,
           param_sharing: bool = False, checkpoint_every: int = 10_000, progress: bool = True,
           env_kwargs: dict[str, Any] | None = None, algo_kwargs: dict[str, Any] | None = None,
-          normalize: bool = True, eval_every: int | None = None, extra_callbacks: list | None = None,
-          cost_limit: float = 1.0, lagrangian_lr: float = 0.01) -> dict[str, Any]:
+          normalize: bool = True, eval_every: int | None = None, critic_warmup: int = 0,
+          extra_callbacks: list | None = None, cost_limit: float = 1.0, lagrangian_lr: float = 0.01) -> dict[str, Any]:
     """Train and return a summary (see the module docstring). Raises ValueError on bad arguments."""
     if algo not in ALGOS:
         raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
     for name, value in (("timesteps", timesteps), ("n_envs", n_envs), ("checkpoint_every", checkpoint_every)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if isinstance(critic_warmup, bool) or not isinstance(critic_warmup, int) or critic_warmup < 0:
+        raise ValueError(f"critic_warmup must be a whole number of steps ≥ 0, got {critic_warmup!r}")
     if algo == "ppo-lagrangian" and param_sharing:
         raise ValueError("ppo-lagrangian trains on the batched vector env, not with param_sharing")
     import torch
@@ -364,6 +369,8 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
     meta = {"algo": algo, "scenario": scenario, "shield": shield, "timesteps": timesteps, "seed": seed,
             "n_envs": n_envs, "param_sharing": param_sharing, "env_kwargs": env_kwargs or {},
             "algo_kwargs": algo_kwargs or {}, "normalize": normalize}
+    if critic_warmup:
+        meta["critic_warmup"] = critic_warmup
     if algo == "ppo-lagrangian":
         meta |= {"cost_limit": cost_limit, "lagrangian_lr": lagrangian_lr}
 
@@ -388,6 +395,10 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
             seeds = EVAL_SEEDS if scenario == "random" else EVAL_SEEDS[:1]  # a paper scenario starts one way
             evaluator = eval_callback(out, eval_every, scenario, shield, env_kwargs, seeds)
             callbacks = CallbackList([evaluator, callbacks])  # evaluate before a checkpoint at the same step
+        if critic_warmup > 0 and algo != "sac":
+            from stable_baselines3.common.callbacks import CallbackList
+
+            callbacks = CallbackList([_critic_warmup(critic_warmup), callbacks])
         if _penalty(venv) is not None:
             from .lagrangian import LagrangianCallback
 
@@ -404,6 +415,33 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
     return {**meta, **({} if penalty is None else {"lambda": penalty.lagrange_multiplier}),
             "resumed_from": done_steps, "model": str(out / "model.zip"),
             "episodes": str(out / "episodes.csv")} | _episode_summary(out / "episodes.csv")
+
+
+def _critic_warmup(steps: int):
+    """Train only PPO's critic for the first ``steps`` steps: the actor (its network, action head and
+    log σ) is frozen. A residual policy starts at a good controller while the value estimates are
+    random, and its first advantages would otherwise move it away from the controller."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class CriticWarmup(BaseCallback):
+        def _actor(self):
+            policy = self.model.policy
+            return [policy.log_std, *policy.mlp_extractor.policy_net.parameters(), *policy.action_net.parameters()]
+
+        def _on_training_start(self) -> None:
+            self._set(self.num_timesteps >= steps)
+
+        def _on_rollout_end(self) -> None:
+            self._set(self.num_timesteps >= steps)
+
+        def _on_step(self) -> bool:
+            return True
+
+        def _set(self, trainable: bool) -> None:
+            for p in self._actor():
+                p.requires_grad_(trainable)
+
+    return CriticWarmup()
 
 
 def _normalized(venv, normalize: bool, algo_kwargs: dict[str, Any] | None):

@@ -131,6 +131,8 @@ def _parser() -> argparse.ArgumentParser:
                     help="extra arguments of the SB3 algorithm, e.g. '{\"gamma\": 0.995}' (policy_kwargs too)")
     tr.add_argument("--eval-every", type=_positive_int, default=None, metavar="STEPS",
                     help="evaluate the deterministic policy on held-out teams every STEPS steps (eval.csv)")
+    tr.add_argument("--critic-warmup", type=int, default=0, metavar="STEPS",
+                    help="PPO: train only the critic for the first STEPS steps (actor frozen; default: 0)")
     tr.add_argument("--cost-limit", type=float, default=1.0,
                     help="ppo-lagrangian: allowed cost (arm-steps in an obstacle) per episode (default: %(default)s)")
     tr.add_argument("--lagrangian-lr", type=float, default=0.01,
@@ -381,7 +383,8 @@ def _cmd_train(args) -> int:
                     out=args.out, resume=args.resume, n_envs=args.n_envs, param_sharing=args.param_sharing,
                     checkpoint_every=args.checkpoint_every, progress=not args.no_progress,
                     env_kwargs=env_kwargs, normalize=args.normalize, algo_kwargs=args.algo_kwargs,
-                    eval_every=args.eval_every, cost_limit=args.cost_limit, lagrangian_lr=args.lagrangian_lr)
+                    eval_every=args.eval_every, critic_warmup=args.critic_warmup, cost_limit=args.cost_limit,
+                    lagrangian_lr=args.lagrangian_lr)
     print(json.dumps(summary, indent=2))
     return 0
 

@@ -108,6 +108,36 @@ def test_normalised_residual_model_runs_as_a_velocity_policy(tmp_path) -> None:
         make_policy(f"sb3:{tmp_path / 'model.zip'}", parallel_env("paper_pa3_square", action_mode="torque"), 0)
 
 
+def test_critic_warmup_freezes_the_actor_until_its_end(tmp_path) -> None:
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class Initial(BaseCallback):
+        def _on_training_start(self) -> None:
+            self.params = {k: v.clone().numpy() for k, v in self.model.policy.state_dict().items()}
+
+        def _on_step(self) -> bool:
+            return True
+
+    kwargs = dict(shield=True, seed=0, checkpoint_every=1024, progress=False, n_envs=2,
+                  env_kwargs={"max_steps": 32, "action_mode": "residual"},
+                  algo_kwargs={"n_steps": 64, "batch_size": 64, "n_epochs": 2})
+    initial = Initial()
+    train("ppo", "paper_pa3_square", timesteps=256, out=tmp_path / "warm", critic_warmup=10_000,
+          extra_callbacks=[initial], **kwargs)
+    train("ppo", "paper_pa3_square", timesteps=256, out=tmp_path / "none", **kwargs)
+    warm = PPO.load(tmp_path / "warm" / "model.zip", device="cpu").policy.state_dict()
+    none = PPO.load(tmp_path / "none" / "model.zip", device="cpu").policy.state_dict()
+    actor = [k for k in warm if k == "log_std" or k.startswith(("mlp_extractor.policy_net", "action_net"))]
+    critic = [k for k in warm if k.startswith(("mlp_extractor.value_net", "value_net"))]
+    for k in actor:  # frozen through both updates
+        assert np.array_equal(warm[k].numpy(), initial.params[k]), k
+    assert any(not np.array_equal(none[k].numpy(), initial.params[k]) for k in actor)  # without warm-up it moves
+    assert any(not np.array_equal(warm[k].numpy(), initial.params[k]) for k in critic)  # the critic learned
+    with pytest.raises(ValueError, match="critic_warmup"):
+        train("ppo", out=tmp_path / "bad", critic_warmup=-1)
+
+
 def test_unshielded_training_sees_cost(tmp_path) -> None:
     # SAC's first steps are uniform random actions: without the shield, 5.2's PA arm reaches the obstacle
     summary = train("sac", "paper_pa_mixed_square", shield=False, timesteps=600, seed=0, out=tmp_path,
