@@ -20,13 +20,14 @@ from numba.np.arrayobj import make_array, populate_array
 # numpy error model: no zero-division checks in the hot loops (a zero pivot gives inf/NaN, caught by the
 # finiteness checks); fast-math without nnan/ninf, so NaN and inf tests keep working, and without reassoc
 # (with it LLVM let a NaN state through the RK4 step's finiteness check: tests/test_robustness.py).
-# Without contract either: numba links a called kernel (``_advance_arms``) into its caller's module as a
-# weak copy, compiled again there; in the process that compiles them the call goes to the callee's own
-# copy, in a process that loads the caller from the disk cache to the caller's copy. With contract,
-# LLVM fused multiply-adds differently in the two copies, so the first run after a change did not
-# reproduce later runs bit for bit (tests/test_determinism.py). arcp and afn are value-changing too
-# and could in principle differ the same way; the test would show it.
-_JIT = {"cache": True, "error_model": "numpy", "fastmath": {"nsz", "arcp", "afn"}}
+# No value-changing flag that LLVM may apply differently to two copies of the same code: numba links a
+# called kernel (``_advance_arms``) into its caller's module as a weak copy, compiled again there; in the
+# process that compiles them the call goes to the callee's own copy, in a process that loads the caller
+# from the disk cache to the caller's copy. With contract (fused multiply-adds) or arcp (x / y as
+# x · (1 / y)) the two copies rounded differently, so the first run after a change did not reproduce
+# later runs bit for bit (tests/test_determinism.py; arcp's case showed on a 5-link PA arm, which the
+# test covers). With afn kept, fresh and cached kernels agree there.
+_JIT = {"cache": True, "error_model": "numpy", "fastmath": {"nsz", "afn"}}
 
 # The sub-step kernel's lane count: 4 arms at once (one AVX register of doubles), in the serial and
 # the multi-threaded kernel alike (measured on this project's machine: 8 or 16 lanes were no faster
