@@ -150,7 +150,18 @@ def stop_background() -> None:
             child.wait()
 
 
+def _forget_in_fork() -> None:
+    """A forked process (a vector env's worker) does not own its parent's child: it must neither
+    wait for it nor end it; it asks for its own if it needs one."""
+    global _child
+    _child = None
+    _pending.clear()
+    _requested.clear()
+
+
 atexit.register(stop_background)
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_in_fork)
 
 
 _CHILD = "import sys; from pan1_env.kernels.specialise import _main; sys.exit(_main(int(sys.argv[1])))"
