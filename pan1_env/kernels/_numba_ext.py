@@ -110,6 +110,34 @@ def _slp_vectorised(dispatcher):
     return dispatcher
 
 
+def _quick_when(dispatcher, argument: int, level: int = 1):
+    """Compile ``dispatcher``'s signatures whose argument ``argument`` is not None at LLVM optimisation
+    level ``level`` instead of numba's (3), the module passes only (``config.OPT``, read per
+    compilation in numba 0.68; restored after, under numba's compiler lock as in
+    :func:`_slp_vectorised`). For the generic sub-step kernel, a stand-in for a few seconds whose
+    compilation is on a new kind's first step: level 1 saves about 1 s of its 8. The level changes no
+    result (no fast-math flag lets LLVM change a value: ``_JIT``; tests/test_kernels.py)."""
+    from numba.core import config, types
+    from numba.core.compiler_lock import global_compiler_lock
+
+    compile_before = dispatcher.compile
+
+    def compile_quick(sig):
+        args = getattr(sig, "args", sig)
+        if len(args) <= argument or isinstance(args[argument], (types.NoneType, types.Omitted)):
+            return compile_before(sig)
+        with global_compiler_lock:
+            saved = config.OPT
+            config.OPT = type(saved)(level)
+            try:
+                return compile_before(sig)
+            finally:
+                config.OPT = saved
+
+    dispatcher.compile = compile_quick
+    return dispatcher
+
+
 _PACKAGE = Path(__file__).resolve().parent
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._numba_ext import _JIT, _LANES, _check_chunks, _local, _slp_vectorised
+from ._numba_ext import _JIT, _LANES, _check_chunks, _local, _quick_when, _slp_vectorised
 from .physics import (
     _acceleration_lanes,
     _jacobian_lanes,
@@ -431,7 +431,7 @@ def group_advance_generic(links, actuated, lam, lengths, base, phi, passive, q, 
 
 
 group_advance.__doc__ = _ADVANCE_DOC
-_slp_vectorised(_advance_arms)
+_quick_when(_slp_vectorised(_advance_arms), 3)  # the generic kernel's signature (sizes given) at LLVM -O1
 _slp_vectorised(group_advance)
 _slp_vectorised(group_advance_parallel)
 group_advance_parallel.__doc__ = _ADVANCE_DOC + """
