@@ -272,6 +272,8 @@ class Engine:
         piqp = self.filter is not None and self.qp_solver == "piqp"
         if piqp and torque:
             raise ValueError("the torque-mode filter needs qp_solver='active_set'")
+        if any(kind.specialised is False for kind in self.kinds):
+            kernels().specialise.start_background()  # from the second step on: see Engine._specialised
         blank = self._blank  # fresh arrays every step: records handed out are never overwritten
         rec = StepRecord(blank.v_star.copy(), blank.tau.copy(), blank.min_clearance.copy(), blank.min_barrier.copy(),
                          blank.qp_counts.copy(), blank.max_tracking_error.copy(), blank.finite.copy())
@@ -281,8 +283,6 @@ class Engine:
                     self._piqp_substep(kind, command, rec)
             else:
                 self._advance(kind, command, int(substeps), torque, self.filter, rec)
-        if any(kind.specialised is False for kind in self.kinds):
-            kernels().specialise.start_background()  # after the step: see Engine._specialised
         rec.all_finite = bool(rec.finite.all())
         if not rec.all_finite:  # a faulty arm stopped early: include the (finite) state it was left in
             np.minimum(rec.min_clearance, self.clearance(), out=rec.min_clearance)
@@ -354,8 +354,9 @@ class Engine:
         """Whether the kind steps with its own compiled kernel (``group_advance``) rather than the generic
         one, which gives the same results bit for bit: asked at its first serial step and again whenever
         a background compilation has ended (:mod:`pan1_env.kernels.specialise`), until the answer is yes.
-        A kind that is not ready is queued for a background compilation, which :meth:`step` starts
-        when it has finished (so that it does not slow down the step that compiles the generic kernel)."""
+        A kind that is not ready is queued for a background compilation, which the next :meth:`step`
+        starts (so that the child's start does not compete with the step that compiles the generic
+        kernel, nor with the first observations after it)."""
         if kind.specialised:
             return True
         generation = kernels().specialise.background_generation()

@@ -95,6 +95,7 @@ def _slp_vectorised(dispatcher):
         # dispatcher would not take effect (or would for all code). Leave it: same results, slower.
         return dispatcher
     compile_plain = dispatcher.compile
+    dispatcher._compile_without_slp = compile_plain  # for _quick_when
 
     def compile_slp(sig):
         with global_compiler_lock:  # re-entrant; held by numba around every compilation
@@ -111,28 +112,32 @@ def _slp_vectorised(dispatcher):
 
 
 def _quick_when(dispatcher, argument: int, level: int = 1):
-    """Compile ``dispatcher``'s signatures whose argument ``argument`` is not None at LLVM optimisation
-    level ``level`` instead of numba's (3), the module passes only (``config.OPT``, read per
-    compilation in numba 0.68; restored after, under numba's compiler lock as in
-    :func:`_slp_vectorised`). For the generic sub-step kernel, a stand-in for a few seconds whose
-    compilation is on a new kind's first step: level 1 saves about 1 s of its 8. The level changes no
-    result (no fast-math flag lets LLVM change a value: ``_JIT``; tests/test_kernels.py)."""
+    """Compile ``dispatcher``'s signatures whose argument ``argument`` is not None quickly: LLVM's
+    module passes at optimisation level ``level`` instead of numba's 3 (``config.OPT``, read per
+    compilation in numba 0.68), without its loop and SLP vectorisers (``config.LOOP_VECTORIZE``, and
+    bypassing :func:`_slp_vectorised`); the settings are restored after, under numba's compiler lock
+    as there. For the generic sub-step kernel, a stand-in for a few seconds whose compilation is on a
+    new kind's first step: it saves about 1 s of its 8 and the kernel steps no slower (one lane:
+    nothing to vectorise). No result changes (no fast-math flag lets LLVM change a value: ``_JIT``;
+    tests/test_kernels.py compares the generic kernel with the per-kind ones bit for bit)."""
     from numba.core import config, types
     from numba.core.compiler_lock import global_compiler_lock
 
     compile_before = dispatcher.compile
+    compile_quick_path = getattr(dispatcher, "_compile_without_slp", compile_before)
 
     def compile_quick(sig):
         args = getattr(sig, "args", sig)
         if len(args) <= argument or isinstance(args[argument], (types.NoneType, types.Omitted)):
             return compile_before(sig)
         with global_compiler_lock:
-            saved = config.OPT
-            config.OPT = type(saved)(level)
+            config.reload_config()  # as _slp_vectorised: a changed NUMBA_* variable would reset these mid-way
+            saved = config.OPT, config.LOOP_VECTORIZE, config.SLP_VECTORIZE
+            config.OPT, config.LOOP_VECTORIZE, config.SLP_VECTORIZE = type(saved[0])(level), 0, 0
             try:
-                return compile_before(sig)
+                return compile_quick_path(sig)
             finally:
-                config.OPT = saved
+                config.OPT, config.LOOP_VECTORIZE, config.SLP_VECTORIZE = saved
 
     dispatcher.compile = compile_quick
     return dispatcher

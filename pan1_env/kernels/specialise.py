@@ -96,8 +96,9 @@ def specialised_ready(args) -> bool:
 
 def start_background() -> None:
     """Start the background compilation of the next kind asked for, unless one is running. The engine
-    calls it at the end of a step, so that the child's start (an interpreter importing numba) does not
-    compete with the first step's own compilation; later children start as earlier ones end."""
+    calls it at the start of a step, so the first child starts at a new kind's second step and its
+    start (an interpreter importing numba) does not compete with the first step's compilation; later
+    children start as earlier ones end."""
     _start_next()
 
 
