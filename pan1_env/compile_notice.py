@@ -89,7 +89,7 @@ class _KernelCompileNotice(numba_event.Listener):
         self._started[id(event.data["dispatcher"])] = time.perf_counter()
         if kind.startswith("all"):
             notify(f"compiling the generic sub-step kernel ({kind}): once, about 7 s on a 2-core machine; "
-                   f"cached in {cache} for later runs. It steps new arm kinds at once, 2-3x slower than "
+                   f"cached in {cache} for later runs. It steps new arm kinds at once, 3-4x slower than "
                    f"their own kernels, which compile in the background")
         else:
             notify(f"compiling the sub-step kernel for {kind}: once per arm kind, about 10 s "

@@ -4,8 +4,8 @@ per-kind kernel meanwhile.
 
 A per-kind kernel (:func:`~pan1_env.kernels.group_advance`) takes about 8 s to compile on a 2-core
 machine, for every new arm kind; the generic kernel (:func:`~pan1_env.kernels.group_advance_generic`)
-about 8 s once for all kinds of up to :data:`GENERIC_MAX_LINKS` links, and it gives the same results
-bit for bit (tests/test_kernels.py), 2–3× slower. So the first step of a team of new kinds costs one
+about 7 s once for all kinds of up to :data:`GENERIC_MAX_LINKS` links, and it gives the same results
+bit for bit (tests/test_kernels.py), 3–4× slower per arm-sub-step. So the first step of a team of new kinds costs one
 compilation instead of one per kind, and a long run gets the per-kind speed as soon as the background
 compilation has put the kernel into the disk cache (:func:`specialised_ready` says so on the step
 after; the switch changes no result).

@@ -417,7 +417,7 @@ _ONE_LANE = (0,)
 def group_advance_generic(links, actuated, lam, lengths, base, phi, passive, q, v, *args):
     """:func:`group_advance` (same arguments, same results bit for bit) through one kernel compiled for
     every arm kind of at most ``GENERIC_MAX_LINKS`` links: a new kind costs no compilation, and the
-    kernel steps 2–3× slower (one arm at a time, loops of run-time length). The engine uses it while a
+    kernel steps 3–4× slower (one arm at a time, loops of run-time length). The engine uses it while a
     kind's own kernel is neither compiled nor in the disk cache (:mod:`pan1_env.kernels.specialise`).
     It calls :func:`_advance_arms` from Python: a compiled wrapper would compile its code a second time
     (numba links a callee into its caller's module), about 2 s more."""
