@@ -20,7 +20,8 @@ priority (nice 10; at 19 a busy machine starved it for minutes). Numba replaces 
 atomically but writes a new entry's index before its data, so this process looks at the cache only
 after the child has exited: it never reads a half-written entry. The child dies with its parent
 (``PR_SET_PDEATHSIG`` on Linux; at interpreter exit it is terminated and reaped), so it leaves no
-orphan or zombie: a process that ends before the compilation does leaves the work to the next one.
+orphan or zombie (a thread reaps it as soon as it exits): a process that ends before the compilation does
+leaves the work to the next one.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ import pickle
 import signal
 import subprocess
 import sys
+import threading
 
 from .. import compile_notice
 from .substep import GENERIC_MAX_LINKS, group_advance
@@ -130,6 +132,8 @@ def _start_next() -> None:
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
         _child.stdin.write(pickle.dumps(_child_sigs))
         _child.stdin.close()
+        # reaped as soon as it exits, even if no step asks (no zombie while the process idles)
+        threading.Thread(target=_child.wait, name="pan1_env background compilation", daemon=True).start()
     except OSError as error:
         compile_notice.notify(f"could not start the background compilation ({error}); the generic kernel goes on")
         _child = None
