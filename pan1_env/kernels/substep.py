@@ -168,13 +168,16 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                 _jacobian_lanes(ln, c, s, M, passive, n, k, W, J, Jbar)
                 for w in range(W):
                     filtered[w] = use_filter[w] & live[w] & real[w]  # a padded lane's result is never used
-                if lane_qp is None:  # the generic kernel: every filtered lane to the full search (its first test
-                    # is the same feasibility test); numba prunes the other branch, so it compiles neither
-                    _filter_rows_lanes(px, py, Jbar, obstacles, lane_active, filtered, kappa, epsilon, margin, O, k, W,
-                                       arm_h, row_A, row_b, row_h, obst_rows)
-                    for w in range(W):
-                        needs_qp[w] = filtered[w]
-                        q_found[w] = False
+                # numba prunes a branch only on an argument that is None: lane_qp is None in the generic
+                # kernel, sizes in the per-kind ones, so each compiles one of the two QP stages
+                if lane_qp is None:
+                    if sizes is not None:  # the generic kernel: every filtered lane to the full search
+                        # (whose first test is the feasibility test the lane-batched stage starts with)
+                        _filter_rows_lanes(px, py, Jbar, obstacles, lane_active, filtered, kappa, epsilon, margin, O,
+                                           k, W, arm_h, row_A, row_b, row_h, obst_rows)
+                        for w in range(W):
+                            needs_qp[w] = filtered[w]
+                            q_found[w] = False
                 else:
                     _first_projection_lanes(px, py, Jbar, obstacles, lane_active, filtered, kappa, epsilon, margin,
                                             v_max, O, k, W, vdes, arm_h, row_A, row_b, row_h, row_norm, row_act,
