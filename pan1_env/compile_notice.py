@@ -1,10 +1,14 @@
-"""A notice whenever numba compiles a sub-step kernel for an arm kind, so that a first use is never silent.
+"""A notice whenever numba compiles a sub-step kernel, so that a first use is never silent.
 
 The sub-step kernel is specialised for each arm kind (number of links n, number of actuated joints k):
 the first use of a kind compiles it (about 10 s and a few hundred MB on a 2-core machine) and numba
-caches the result on disk, so later processes load it instead. :func:`install` listens to numba's
-compile events (``numba.core.event``, which fire only for a real compilation, not for a cache load) and
-says which kind is being compiled, that it happens once, how long it took and where the cache lives.
+caches the result on disk, so later processes load it instead. Until a kind's own kernel is compiled,
+the engine steps it with the generic kernel (one compilation, about 7 s, for every kind; the same
+results, slower) and compiles the kind's own in a background process
+(:mod:`pan1_env.kernels.specialise`, which says so when it starts one). :func:`install` listens to
+numba's compile events (``numba.core.event``, which fire only for a real compilation, not for a cache
+load) and says which kernel is being compiled, that it happens once, how long it took and where the
+cache lives.
 
 The notice goes to the ``pan1_env`` logger at level INFO when the application's logging shows that
 logger's INFO messages, and to standard error otherwise (:func:`notify`).
@@ -25,6 +29,8 @@ logger = logging.getLogger("pan1_env")
 
 # the dispatchers specialised per arm kind: their first two arguments are kernel_sizes(n, k)
 KERNELS_PER_KIND = ("group_advance", "group_advance_parallel")
+# the sub-step kernel's body, called from Python (its fourth argument (n, k), not None) as the generic kernel
+GENERIC = "_advance_arms"
 
 
 def notify(message: str) -> None:
@@ -56,25 +62,37 @@ class _KernelCompileNotice(numba_event.Listener):
 
     @staticmethod
     def _kind(event) -> tuple[str, str] | None:
+        """What is being compiled, ``"arms of …"`` or ``"all arm kinds …"`` (the generic kernel), and the
+        cache's place; None for any other compilation."""
         dispatcher = event.data.get("dispatcher")
         name = getattr(getattr(dispatcher, "py_func", None), "__name__", "")
-        module = getattr(dispatcher.py_func, "__module__", "") if name in KERNELS_PER_KIND else ""
+        module = getattr(dispatcher.py_func, "__module__", "") if name in (*KERNELS_PER_KIND, GENERIC) else ""
         if not module.startswith("pan1_env.kernels"):
             return None
         args = event.data.get("args") or ()
+        if name == GENERIC:  # compiled on its own only as the generic kernel (else inside a per-kind one)
+            if len(args) < 4 or args[3] is None or "none" in str(args[3]).lower():
+                return None
+            return f"all arm kinds of up to {len(args[0])} links", _cache_dir(dispatcher)
         try:
             n, k = len(args[0]), len(args[1])
         except (IndexError, TypeError):
             return None
         threads = " (multi-threaded)" if name.endswith("_parallel") else ""
-        return describe_kind(n, k) + threads, _cache_dir(dispatcher)
+        return "arms of " + describe_kind(n, k) + threads, _cache_dir(dispatcher)
 
     def on_start(self, event) -> None:
         found = self._kind(event)
-        if found is not None:
-            kind, cache = found
-            self._started[id(event.data["dispatcher"])] = time.perf_counter()
-            notify(f"compiling the sub-step kernel for arms of {kind}: once per arm kind, about 10 s "
+        if found is None:
+            return
+        kind, cache = found
+        self._started[id(event.data["dispatcher"])] = time.perf_counter()
+        if kind.startswith("all"):
+            notify(f"compiling the generic sub-step kernel ({kind}): once, about 7 s on a 2-core machine; "
+                   f"cached in {cache} for later runs. It steps new arm kinds at once, 3-4x slower than "
+                   f"their own kernels, which compile in the background")
+        else:
+            notify(f"compiling the sub-step kernel for {kind}: once per arm kind, about 10 s "
                    f"on a 2-core machine; cached in {cache} for later runs "
                    f"(`pan1-env warmup` compiles ahead of time)")
 
@@ -87,7 +105,9 @@ class _KernelCompileNotice(numba_event.Listener):
         # look at the exception details the event carries
         if getattr(event, "_exc_details", None) is None:
             took = f" in {time.perf_counter() - started:.0f} s" if started is not None else ""
-            notify(f"compiled the sub-step kernel for arms of {found[0]}{took}")
+            what = f"the generic sub-step kernel ({found[0]})" if found[0].startswith("all") else \
+                f"the sub-step kernel for {found[0]}"
+            notify(f"compiled {what}{took}")
 
 
 _INSTALLED = False

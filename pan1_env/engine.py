@@ -110,6 +110,13 @@ class _Kind:
         # the kernel's leading arguments: sizes, parameters and state (arrays updated in place, never replaced)
         self.state_args = (*self.sizes, self.lam, self.lengths, self.base, self.phi, self.passive, self.q, self.v,
                            self.v_prev, self.has_prev)
+        # the serial kernel: None until the first step decides (Engine._specialised), False while the
+        # generic kernel stands in for the kind's own, True from then on
+        self.specialised: bool | None = None
+        self.generation = -1
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "specialised": None}  # another process decides for itself
 
     def rows(self, copies: np.ndarray) -> np.ndarray:
         return (np.asarray(copies)[:, None] * self.A + np.arange(self.A)[None]).ravel()
@@ -265,6 +272,8 @@ class Engine:
         piqp = self.filter is not None and self.qp_solver == "piqp"
         if piqp and torque:
             raise ValueError("the torque-mode filter needs qp_solver='active_set'")
+        if any(kind.specialised is False for kind in self.kinds):
+            kernels().specialise.start_background()  # from the second step on: see Engine._specialised
         blank = self._blank  # fresh arrays every step: records handed out are never overwritten
         rec = StepRecord(blank.v_star.copy(), blank.tau.copy(), blank.min_clearance.copy(), blank.min_barrier.copy(),
                          blank.qp_counts.copy(), blank.max_tracking_error.copy(), blank.finite.copy())
@@ -301,8 +310,10 @@ class Engine:
         chunks = self._chunks(rows)
         if chunks:
             kernels().group_advance_parallel(*args, chunks)
-        else:
+        elif self._specialised(kind, args):
             kernels().group_advance(*args)
+        else:
+            kernels().group_advance_generic(*args)
         if torque:
             kind.has_prev[:] = False
         if not self.team_order:
@@ -337,6 +348,22 @@ class Engine:
         rec.qp_counts[0, kind.ids] += np.eye(3, dtype=np.int64)[result.status] - np.eye(3, dtype=np.int64)[0]
         rec.min_barrier[0, kind.ids] = np.minimum(rec.min_barrier[0, kind.ids],
                                                   np.where(kind.mask, h, np.inf).min(axis=-1))
+
+    @staticmethod
+    def _specialised(kind: _Kind, args: tuple) -> bool:
+        """Whether the kind steps with its own compiled kernel (``group_advance``) rather than the generic
+        one, which gives the same results bit for bit: asked at its first serial step and again whenever
+        a background compilation has ended (:mod:`pan1_env.kernels.specialise`), until the answer is yes.
+        A kind that is not ready is queued for a background compilation, which the next :meth:`step`
+        starts (so that the child's start does not compete with the step that compiles the generic
+        kernel, nor with the first observations after it)."""
+        if kind.specialised:
+            return True
+        generation = kernels().specialise.background_generation()
+        if kind.specialised is None or generation != kind.generation:
+            kind.generation = generation
+            kind.specialised = kernels().specialise.specialised_ready(args)
+        return kind.specialised
 
     def _chunks(self, rows: int) -> int:
         """0 to run a kernel call on one thread, else its number of chunks on numba's thread pool."""

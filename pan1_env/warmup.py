@@ -8,6 +8,7 @@ by ``p`` (passive first joint, a PAn−1 arm) or ``f`` (fully actuated): ``"4p"`
 
 from __future__ import annotations
 
+import os
 import re
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -46,11 +47,6 @@ def warm_up(kinds: Iterable[str] | None = None, scenarios: Iterable[str | Path] 
     """Compile (or load from numba's cache) every kernel the envs use for the given arm kinds and
     scenarios; with neither, for :data:`DEFAULT_SCENARIOS`. ``threaded=True`` also compiles the
     multi-threaded kernel the vector env uses from 256 arms of a kind. Returns the seconds it took."""
-    import numpy as np
-
-    from .environment import parallel_env
-    from .vector import Pan1VectorEnv
-
     kinds = [parse_kind(k) for k in (kinds or ())]
     teams: list[tuple[str, str, dict[str, Any]]] = [(str(s), str(s), {}) for s in (scenarios or ())]
     if kinds:
@@ -59,6 +55,26 @@ def warm_up(kinds: Iterable[str] | None = None, scenarios: Iterable[str | Path] 
     if not teams:
         teams = [(s, s, {}) for s in DEFAULT_SCENARIOS]
     start = time.perf_counter()
+    saved = os.environ.get("PAN1_ENV_KERNELS")
+    os.environ["PAN1_ENV_KERNELS"] = "specialised"  # each kind's own kernel, not the generic stand-in
+    try:
+        _step_teams(teams, threaded, say)
+    finally:
+        if saved is None:
+            del os.environ["PAN1_ENV_KERNELS"]
+        else:
+            os.environ["PAN1_ENV_KERNELS"] = saved
+    took = time.perf_counter() - start
+    say(f"kernels ready in {took:.0f} s (cached on disk: later processes load them in about a second)")
+    return took
+
+
+def _step_teams(teams: list[tuple[str, str, dict[str, Any]]], threaded: bool, say: Callable[[str], None]) -> None:
+    import numpy as np
+
+    from .environment import parallel_env
+    from .vector import Pan1VectorEnv
+
     for label, scenario, kwargs in teams:
         say(f"warming up {label} ...")
         env = parallel_env(scenario, **kwargs)
@@ -70,6 +86,3 @@ def warm_up(kinds: Iterable[str] | None = None, scenarios: Iterable[str | Path] 
             venv.reset(seed=0)
             venv.step(np.zeros(venv.action_space.shape, np.float32))
             venv.close()
-    took = time.perf_counter() - start
-    say(f"kernels ready in {took:.0f} s (cached on disk: later processes load them in about a second)")
-    return took

@@ -2,6 +2,11 @@
 
 import os
 
+# The suite steps each arm kind with its own kernel (compiled once per kind, then loaded from numba's
+# cache), not with the generic kernel and a background compilation per process, which would only add
+# processes: tests/test_specialise.py and tests/test_determinism.py cover those, setting this themselves.
+os.environ.setdefault("PAN1_ENV_KERNELS", "specialised")
+
 try:
     from hypothesis import settings
 except ImportError:  # the RLlib venv runs one module and may lack hypothesis

@@ -11,7 +11,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("pan1_env", "wrappers", "baselines")
 MAX_LINES = 700
-SUBSTEP_KERNELS = {"group_advance", "group_advance_parallel"}
+SUBSTEP_KERNELS = {"group_advance", "group_advance_parallel", "group_advance_generic"}
 
 
 def _modules(package: str) -> list[Path]:

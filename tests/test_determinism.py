@@ -1,7 +1,8 @@
 """Bit-for-bit reproducibility across processes: a freshly compiled engine and the same engine loaded
 from numba's disk cache give identical trajectories.
 
-The first process compiles every kernel into an empty cache directory; the second loads them from it.
+The first process compiles every kernel into an empty cache directory; the second loads them from it;
+a third steps the serial cases with the generic kernel instead (``PAN1_ENV_KERNELS=generic``).
 Each runs a seeded shielded episode of the parallel env and of the vector env (its serial and
 multi-threaded kernels) and prints a digest of the states and observations. (With fused
 multiply-adds left to LLVM, the two differed at rounding level: see ``_JIT`` in
@@ -34,6 +35,16 @@ while env.agents:
         digest.update(obs[a].tobytes())
 q, v = env.unwrapped.joint_state()
 digest.update(q.tobytes() + v.tobytes())
+# a 5-link PA arm (PA4) with a 2-link fully actuated one: longer chains of divisions, where a
+# value-changing fast-math flag (arcp) once made the cached kernel differ from the fresh one
+env = SafetyShield(parallel_env("random", random_options={"n_arms": 2, "links": (5, 2)}, max_steps=60))
+obs, _ = env.reset(seed=4)
+while env.agents:
+    obs, *_ = env.step({a: rng.uniform(-1, 1, env.action_space(a).shape) for a in env.agents})
+    for a in sorted(obs):
+        digest.update(obs[a].tobytes())
+q, v = env.unwrapped.joint_state()
+digest.update(q.tobytes() + v.tobytes())
 for threads in (False, True):
     venv = Pan1VectorEnv("paper_pa3_square", 8, threads=threads, max_steps=40)
     obs, _ = venv.reset(seed=5)
@@ -52,12 +63,16 @@ for f in (kernels.group_advance, kernels.group_advance_parallel, kernels.formati
 
 
 def test_fresh_compile_and_cache_load_agree_bit_for_bit(tmp_path) -> None:
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba-cache"))
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba-cache"), PAN1_ENV_KERNELS="specialised")
     runs = [subprocess.run([sys.executable, "-c", _RUN], env=env, capture_output=True, text=True, timeout=900)
             for _ in range(2)]
+    # the generic kernel (which the engine uses while a kind's own kernel is not compiled) agrees too
+    runs.append(subprocess.run([sys.executable, "-c", _RUN], env=dict(env, PAN1_ENV_KERNELS="generic"),
+                               capture_output=True, text=True, timeout=900))
     for r in runs:
         assert r.returncode == 0, r.stderr[-2000:]
-    (fresh, *compiled), (cached, *loaded) = (r.stdout.strip().split("\n") for r in runs)
+    (fresh, *compiled), (cached, *loaded), (generic, *_) = (r.stdout.strip().split("\n") for r in runs)
+    assert generic == fresh
     # every kernel was compiled in the first process and loaded from the cache in the second
     assert all(line.split()[0] == "0" and line.split()[1] != "0" for line in compiled), compiled
     assert all(line.split()[0] != "0" and line.split()[1] == "0" for line in loaded), loaded
@@ -65,7 +80,7 @@ def test_fresh_compile_and_cache_load_agree_bit_for_bit(tmp_path) -> None:
     # the first use of each arm kind is announced, with the cache's place; a cache load is silent
     cache = str(tmp_path / "numba-cache")
     for kind in ("2 links, fully actuated", "2 links, passive first joint (PA1)", "4 links, passive first joint (PA3)",
-                 "4 links, passive first joint (PA3) (multi-threaded)"):
+                 "4 links, passive first joint (PA3) (multi-threaded)", "5 links, passive first joint (PA4)"):
         notice = f"pan1_env: compiling the sub-step kernel for arms of {kind}: once per arm kind"
         assert notice in runs[0].stderr and cache in runs[0].stderr, runs[0].stderr[-2000:]
         assert f"pan1_env: compiled the sub-step kernel for arms of {kind} in " in runs[0].stderr

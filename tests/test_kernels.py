@@ -493,7 +493,7 @@ def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
             if kernel == "slp":
                 kernels.group_advance(*kernels.kernel_sizes(3, 2), *args)
             else:
-                plain(*kernels.kernel_sizes(3, 2), kernels._LANES, 0, A, *args)
+                plain(*kernels.kernel_sizes(3, 2), kernels._LANES, None, True, 0, A, *args)
             runs.append([qk, vk, *out])
         finite, counts = runs[0][-1], runs[0][-3]
         assert not finite[3] and finite.sum() == A - 1
@@ -502,3 +502,50 @@ def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
         for got, expected in zip(runs[0], runs[1], strict=True):
             np.testing.assert_array_equal(_bits(got), _bits(expected))
     assert config.SLP_VECTORIZE == before, "compiling the kernel must leave numba's own setting as it was"
+
+
+@pytest.mark.parametrize("n, passive", [(2, False), (3, True), (4, True)])
+def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> None:
+    """kernels.group_advance_generic (one kernel for every arm kind, n and k at run time, one lane, no
+    lane-batched first QP candidate) gives the per-kind kernel's results bit for bit: velocity mode
+    shielded with a speed bound, torque mode shielded, both unfiltered, with an arm that goes
+    non-finite and a group that is not a multiple of the lanes."""
+    rng = np.random.default_rng(60 + n)
+    A = 11
+    batch, q, v = _group(rng, n, passive, count=A)
+    k = v.shape[1]
+    t, centers, radii = _binding_obstacles(rng, batch, q, v)
+    mask = rng.random((A, 3)) < 0.8
+    for torque, filter_on, v_max in ((False, True, 2.0), (True, True, 3.0), (False, False, np.inf),
+                                     (True, False, np.inf)):
+        command = rng.normal(scale=5.0 if torque else 2.5, size=v.shape)
+        command[3] = 1e300
+        runs = []
+        for kernel in (kernels.group_advance, kernels.group_advance_generic):
+            qk, vk = q.copy(), v.copy()
+            out = [np.zeros((A, k)), np.zeros(A, bool), np.empty((A, k)), np.full((A, n), 7.0), np.empty((A, n)),
+                   np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64), np.zeros(A),
+                   np.zeros(A, bool)]
+            for _ in range(2):  # the second call starts from the first's v_prev / has_prev
+                kernel(*kernels.kernel_sizes(n, k), batch.lam, batch.lengths, batch.base, batch.phi, passive, qk, vk,
+                       out[0], out[1], command, torque, filter_on, np.broadcast_to(centers, (A, 3, 2)).copy(),
+                       np.broadcast_to(radii, (A, 3)).copy(), mask, 0.5, 5.0, 0.01, 100.0, 1e-2, 5, v_max, *out[2:])
+            runs.append([qk, vk, *out])
+        finite, counts = runs[0][-1], runs[0][-3]
+        assert not finite[3]
+        if filter_on:
+            assert (counts[:, kernels.STATUS_SOLVED] > 0).any(), "the filter should change some commands"
+        for got, expected in zip(runs[1], runs[0], strict=True):
+            np.testing.assert_array_equal(_bits(got), _bits(expected))
+
+
+def test_generic_kernel_checks_its_sizes() -> None:
+    rng = np.random.default_rng(0)
+    batch, q, v = _group(rng, 9, True, count=1)
+    args = (batch.lam, batch.lengths, batch.base, batch.phi, True, q, v)
+    with pytest.raises(ValueError, match="n ≤ 8"):
+        kernels.group_advance_generic(*kernels.kernel_sizes(9, 8), *args)
+    batch, q, v = _group(rng, 3, True, count=1)
+    with pytest.raises(ValueError, match="kernel_sizes"):
+        kernels.group_advance_generic(*kernels.kernel_sizes(3, 3), batch.lam, batch.lengths, batch.base, batch.phi,
+                                      True, q, v)

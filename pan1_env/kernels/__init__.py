@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from .. import compile_notice
 from ..compiled import kernel_sizes  # the first two arguments of group_advance
+from . import specialise
 from ._numba_ext import _JIT, _LANES, _local, _slp_vectorised
 from .observe import (
     edge_length_errors,
@@ -39,13 +40,16 @@ from .observe import (
 )
 from .physics import _SERIES_MAX, _SERIES_SHORT, _rotate_lanes, _spd_solve, group_end_effectors, group_terms
 from .qp import STATUS_FALLBACK, STATUS_NOMINAL, STATUS_SOLVED, _first_projection_lanes, qp_project
-from .substep import _advance_arms, group_advance, group_advance_parallel
+from .substep import GENERIC_MAX_LINKS, _advance_arms, group_advance, group_advance_generic, group_advance_parallel
 
 __all__ = [
     "kernel_sizes",
     "group_terms",
     "group_advance",
     "group_advance_parallel",
+    "group_advance_generic",
+    "GENERIC_MAX_LINKS",
+    "specialise",
     "group_end_effectors",
     "group_observations",
     "group_observations_parallel",

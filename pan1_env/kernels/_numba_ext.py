@@ -20,13 +20,14 @@ from numba.np.arrayobj import make_array, populate_array
 # numpy error model: no zero-division checks in the hot loops (a zero pivot gives inf/NaN, caught by the
 # finiteness checks); fast-math without nnan/ninf, so NaN and inf tests keep working, and without reassoc
 # (with it LLVM let a NaN state through the RK4 step's finiteness check: tests/test_robustness.py).
-# Without contract either: numba links a called kernel (``_advance_arms``) into its caller's module as a
-# weak copy, compiled again there; in the process that compiles them the call goes to the callee's own
-# copy, in a process that loads the caller from the disk cache to the caller's copy. With contract,
-# LLVM fused multiply-adds differently in the two copies, so the first run after a change did not
-# reproduce later runs bit for bit (tests/test_determinism.py). arcp and afn are value-changing too
-# and could in principle differ the same way; the test would show it.
-_JIT = {"cache": True, "error_model": "numpy", "fastmath": {"nsz", "arcp", "afn"}}
+# No value-changing flag that LLVM may apply differently to two copies of the same code: numba links a
+# called kernel (``_advance_arms``) into its caller's module as a weak copy, compiled again there; in the
+# process that compiles them the call goes to the callee's own copy, in a process that loads the caller
+# from the disk cache to the caller's copy. With contract (fused multiply-adds) or arcp (x / y as
+# x · (1 / y)) the two copies rounded differently, so the first run after a change did not reproduce
+# later runs bit for bit (tests/test_determinism.py; arcp's case showed on a 5-link PA arm, which the
+# test covers). With afn kept, fresh and cached kernels agree there.
+_JIT = {"cache": True, "error_model": "numpy", "fastmath": {"nsz", "afn"}}
 
 # The sub-step kernel's lane count: 4 arms at once (one AVX register of doubles), in the serial and
 # the multi-threaded kernel alike (measured on this project's machine: 8 or 16 lanes were no faster
@@ -94,6 +95,7 @@ def _slp_vectorised(dispatcher):
         # dispatcher would not take effect (or would for all code). Leave it: same results, slower.
         return dispatcher
     compile_plain = dispatcher.compile
+    dispatcher._compile_without_slp = compile_plain  # for _quick_when
 
     def compile_slp(sig):
         with global_compiler_lock:  # re-entrant; held by numba around every compilation
@@ -106,6 +108,38 @@ def _slp_vectorised(dispatcher):
                 config.SLP_VECTORIZE = saved
 
     dispatcher.compile = compile_slp
+    return dispatcher
+
+
+def _quick_when(dispatcher, argument: int, level: int = 1):
+    """Compile ``dispatcher``'s signatures whose argument ``argument`` is not None quickly: LLVM's
+    module passes at optimisation level ``level`` instead of numba's 3 (``config.OPT``, read per
+    compilation in numba 0.68), without its loop and SLP vectorisers (``config.LOOP_VECTORIZE``, and
+    bypassing :func:`_slp_vectorised`); the settings are restored after, under numba's compiler lock
+    as there. For the generic sub-step kernel, a stand-in for a few seconds whose compilation is on a
+    new kind's first step: it saves about 1 s of its 8 and the kernel steps no slower (one lane:
+    nothing to vectorise). No result changes (no fast-math flag lets LLVM change a value: ``_JIT``;
+    tests/test_kernels.py compares the generic kernel with the per-kind ones bit for bit)."""
+    from numba.core import config, types
+    from numba.core.compiler_lock import global_compiler_lock
+
+    compile_before = dispatcher.compile
+    compile_quick_path = getattr(dispatcher, "_compile_without_slp", compile_before)
+
+    def compile_quick(sig):
+        args = getattr(sig, "args", sig)
+        if len(args) <= argument or isinstance(args[argument], (types.NoneType, types.Omitted)):
+            return compile_before(sig)
+        with global_compiler_lock:
+            config.reload_config()  # as _slp_vectorised: a changed NUMBA_* variable would reset these mid-way
+            saved = config.OPT, config.LOOP_VECTORIZE, config.SLP_VECTORIZE
+            config.OPT, config.LOOP_VECTORIZE, config.SLP_VECTORIZE = type(saved[0])(level), 0, 0
+            try:
+                return compile_quick_path(sig)
+            finally:
+                config.OPT, config.LOOP_VECTORIZE, config.SLP_VECTORIZE = saved
+
+    dispatcher.compile = compile_quick
     return dispatcher
 
 

@@ -90,12 +90,13 @@ _OBSERVATIONS_DOC = """Local observations of the arms ``ids`` (all with n links)
     """
 
 
-@njit(**_JIT)
 def group_observations(q, qd, P, base, err, centers, radii, ids, neighbour, neighbour_edge, present, K, inv_vmax,
                        bound, out):
-    lo = q.shape[0] * 0  # an int64 like the parallel twin's chunk bounds: both run one compiled _observation_rows
-    _observation_rows(lo, q.shape[0], q, qd, P, base, err, centers, radii, ids, neighbour, neighbour_edge, present,
-                      K, inv_vmax, bound, out)
+    # _observation_rows called from Python (no compiled wrapper: one compilation less at a first step,
+    # since numba compiles a callee's code again inside each caller); the parallel twin and
+    # formation_observations run the same compiled rows
+    _observation_rows(0, q.shape[0], q, qd, P, base, err, centers, radii, ids, neighbour, neighbour_edge, present, K,
+                      inv_vmax, bound, out)
 
 
 @njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
@@ -173,8 +174,9 @@ def formation_observations(P, edges, distances, err, q, qd, base, centers, radii
                            present, K, inv_vmax, bound, out):
     """:func:`edge_length_errors` into ``err (B, E)``, then :func:`group_observations` from them, in one call."""
     edge_length_errors(P, edges, distances, err)
-    group_observations(q, qd, P, base, err, centers, radii, ids, neighbour, neighbour_edge, present, K, inv_vmax,
-                       bound, out)
+    lo = q.shape[0] * 0  # an int64, as group_observations passes it
+    _observation_rows(lo, q.shape[0], q, qd, P, base, err, centers, radii, ids, neighbour, neighbour_edge, present,
+                      K, inv_vmax, bound, out)
 
 
 

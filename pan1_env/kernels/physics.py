@@ -51,11 +51,14 @@ def _rotate_lanes(c0, s0, thd, h, n, W, c, s):
         for w in range(W):
             d = h * thd[a, w]
             d2 = d * d
-            short_c = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0))
-            short_s = d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0)))
-            long_c = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0 * (1.0 - d2 / 56.0 * (1.0 - d2 / 90.0))))
-            long_s = d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0 * (1.0 - d2 / 72.0
-                                                                                 * (1.0 - d2 / 110.0)))))
+            # the coefficients as products with reciprocals, 1/12 etc. rounded once: a division per term
+            # would cost more than the rest of the series (_JIT leaves arcp off, so LLVM keeps divisions)
+            short_c = 1.0 - d2 * 0.5 * (1.0 - d2 * (1.0 / 12.0) * (1.0 - d2 * (1.0 / 30.0)))
+            short_s = d * (1.0 - d2 * (1.0 / 6.0) * (1.0 - d2 * (1.0 / 20.0) * (1.0 - d2 * (1.0 / 42.0))))
+            long_c = 1.0 - d2 * 0.5 * (1.0 - d2 * (1.0 / 12.0) * (1.0 - d2 * (1.0 / 30.0) * (
+                1.0 - d2 * (1.0 / 56.0) * (1.0 - d2 * (1.0 / 90.0)))))
+            long_s = d * (1.0 - d2 * (1.0 / 6.0) * (1.0 - d2 * (1.0 / 20.0) * (1.0 - d2 * (1.0 / 42.0) * (
+                1.0 - d2 * (1.0 / 72.0) * (1.0 - d2 * (1.0 / 110.0))))))
             ad = abs(d)
             cd = short_c if ad <= _SERIES_SHORT else long_c
             sd = short_s if ad <= _SERIES_SHORT else long_s

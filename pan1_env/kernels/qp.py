@@ -300,3 +300,21 @@ def _first_projection_lanes(px, py, Jbar, obstacles, active, filtered, kappa, ep
             _check_row(A, b, norm, act, cand, best_viol, k, W, found)
 
 
+
+
+@njit(**_JIT, forceinline=True)
+def _filter_rows_lanes(px, py, Jbar, obstacles, active, filtered, kappa, epsilon, margin, O, k, W, arm_h, A, b, h,
+                       rows):
+    """The generic kernel's lighter stand-in for :func:`_first_projection_lanes`: the RCBF rows into
+    ``rows (O, k + 2, W)`` (A_j and b_j; the norm is not needed) and the smallest active barrier into
+    ``arm_h``, no candidate. The caller hands every filtered lane to :func:`_project_one`, which
+    starts with the same feasibility test as the first pass there, so the answers are the same; a
+    smaller kernel compiles faster, which is the generic kernel's purpose."""
+    for j in range(O):
+        _rcbf_row_lanes(j, px, py, Jbar, obstacles, kappa, epsilon, margin, k, W, A, b, h)
+        for w in range(W):
+            act = active[j, w] & filtered[w]
+            arm_h[w] = h[w] if act and h[w] < arm_h[w] else arm_h[w]
+            for t in range(k):
+                rows[j, t, w] = A[t, w]
+            rows[j, k, w] = b[w]

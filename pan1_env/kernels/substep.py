@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._numba_ext import _JIT, _LANES, _check_chunks, _local, _slp_vectorised
+from ._numba_ext import _JIT, _LANES, _check_chunks, _local, _quick_when, _slp_vectorised
 from .physics import (
     _acceleration_lanes,
     _jacobian_lanes,
@@ -15,18 +15,23 @@ from .physics import (
     _position_lanes,
     _rotate_lanes,
 )
-from .qp import STATUS_NOMINAL, STATUS_SOLVED, _first_projection_lanes, _project_one
+from .qp import STATUS_NOMINAL, STATUS_SOLVED, _filter_rows_lanes, _first_projection_lanes, _project_one
 
 
 @njit(**_JIT)
-def _advance_arms(links, actuated, lanes, lo, hi, lam, lengths, base, phi, _passive, q, v, v_prev, has_prev, command,
-                  torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
-                  v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out):
+def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, base, phi, _passive, q, v, v_prev,
+                  has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt,
+                  n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out):
     """Arms ``lo … hi−1`` of :func:`group_advance` (the loop body, with its own scratch space).
 
-    ``n``, ``k`` and the lane count W are compile-time constants (the lengths of the tuples
-    ``links``, ``actuated`` and ``lanes``): with the loops over links, joints and lanes of known
-    length, LLVM unrolls them and packs the lanes into vector registers.
+    With ``sizes`` None (the per-kind kernels), ``n``, ``k`` and the lane count W are compile-time
+    constants (the lengths of the tuples ``links``, ``actuated`` and ``lanes``): with the loops over
+    links, joints and lanes of known length, LLVM unrolls them and packs the lanes into vector
+    registers. With ``sizes = (n, k)`` and ``lane_qp`` None (the generic kernel) n and k are read at
+    run time and the tuples only size the scratch arrays, and the QP skips its lane-batched first
+    candidate (:func:`_filter_rows_lanes` instead of :func:`_first_projection_lanes`); the
+    operations on each value and their order are the same, so are the results, bit for bit (no
+    fast-math flag lets LLVM round differently: ``_JIT``).
 
     The arms go W at a time (the last group padded with copies of the last arm, never written
     back). Each group's parameters and state are copied into stack arrays (:func:`_local`) with the
@@ -43,13 +48,17 @@ def _advance_arms(links, actuated, lanes, lo, hi, lam, lengths, base, phi, _pass
 
     An arm whose state goes non-finite stops there (its lane is frozen at the last finite state and
     its outputs are those of the failing sub-step), as its own loop would; the other lanes go on."""
-    n = len(links)
-    k = len(actuated)
+    if sizes is None:  # the per-kind kernel (numba prunes the other branch by the argument's type)
+        n = len(links)
+        k = len(actuated)
+    else:  # the generic kernel: n and k at run time, at most the tuples' lengths (which size the scratch)
+        n, k = sizes
     W = len(lanes)
-    passive = k < n  # a compile-time constant (the argument, checked by the callers, is the same)
+    passive = k < n  # a compile-time constant in the per-kind kernel (the argument, checked by callers, agrees)
     kk = max(k, 1)
     O = radii.shape[1]
     m = O + 2 * k
+    inv_dt = 1.0 / dt  # divisions by dt as products (_JIT leaves arcp off, so LLVM keeps divisions)
     tau_off = tau_out.shape[1] - k  # 0 for (A, k) torques; n − k for full (A, n) rows (passive entries untouched)
     # Scratch space in this function's stack frame (shapes from the size tuples, so fixed at compile
     # time), the lanes last. Only what depends on the number of obstacles lives on the heap.
@@ -159,9 +168,20 @@ def _advance_arms(links, actuated, lanes, lo, hi, lam, lengths, base, phi, _pass
                 _jacobian_lanes(ln, c, s, M, passive, n, k, W, J, Jbar)
                 for w in range(W):
                     filtered[w] = use_filter[w] & live[w] & real[w]  # a padded lane's result is never used
-                _first_projection_lanes(px, py, Jbar, obstacles, lane_active, filtered, kappa, epsilon, margin, v_max,
-                                        O, k, W, vdes, arm_h, row_A, row_b, row_h, row_norm, row_act, obst_rows,
-                                        needs_qp, q_best, q_best_viol, q_Ab, q_bb, q_cand, q_found)
+                # numba prunes a branch only on an argument that is None: lane_qp is None in the generic
+                # kernel, sizes in the per-kind ones, so each compiles one of the two QP stages
+                if lane_qp is None:
+                    if sizes is not None:  # the generic kernel: every filtered lane to the full search
+                        # (whose first test is the feasibility test the lane-batched stage starts with)
+                        _filter_rows_lanes(px, py, Jbar, obstacles, lane_active, filtered, kappa, epsilon, margin, O,
+                                           k, W, arm_h, row_A, row_b, row_h, obst_rows)
+                        for w in range(W):
+                            needs_qp[w] = filtered[w]
+                            q_found[w] = False
+                else:
+                    _first_projection_lanes(px, py, Jbar, obstacles, lane_active, filtered, kappa, epsilon, margin,
+                                            v_max, O, k, W, vdes, arm_h, row_A, row_b, row_h, row_norm, row_act,
+                                            obst_rows, needs_qp, q_best, q_best_viol, q_Ab, q_bb, q_cand, q_found)
                 for w in range(W):
                     if needs_qp[w] and q_found[w]:
                         status[w] = STATUS_SOLVED
@@ -193,7 +213,7 @@ def _advance_arms(links, actuated, lanes, lo, hi, lam, lengths, base, phi, _pass
                     arm_track[w] = err if live[w] and err > arm_track[w] else arm_track[w]
                 for t in range(k):
                     for w in range(W):
-                        vdot = (vs[t, w] - vp[t, w]) / dt if prev_ok[w] else 0.0
+                        vdot = (vs[t, w] - vp[t, w]) * inv_dt if prev_ok[w] else 0.0
                         acc[t, w] = vdot - ke * (vi[t, w] - vs[t, w])
                 for r in range(k):
                     for w in range(W):
@@ -213,7 +233,7 @@ def _advance_arms(links, actuated, lanes, lo, hi, lam, lengths, base, phi, _pass
                         for r in range(k):
                             tr = Hc[r, w]
                             for t in range(k):
-                                tr += Mc[r, t, w] * (vs[t, w] - vi[t, w]) / dt
+                                tr += Mc[r, t, w] * (vs[t, w] - vi[t, w]) * inv_dt
                             tau[r, w] = tr
                     elif not use_filter[w]:
                         for t in range(k):
@@ -369,7 +389,7 @@ def group_advance(links, actuated, lam, lengths, base, phi, passive, q, v, v_pre
                   v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out):
     _check_sizes(links, actuated, passive, q, v)
     lo = q.shape[0] * 0  # an int64, like the parallel kernel's chunk bounds
-    _advance_arms(links, actuated, _LANES, lo, q.shape[0], lam, lengths, base, phi, passive, q, v, v_prev,
+    _advance_arms(links, actuated, _LANES, None, True, lo, q.shape[0], lam, lengths, base, phi, passive, q, v, v_prev,
                   has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt,
                   n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out)
 
@@ -383,14 +403,38 @@ def group_advance_parallel(links, actuated, lam, lengths, base, phi, passive, q,
     _check_chunks(n_chunks)
     A = q.shape[0]
     for c in prange(n_chunks):
-        _advance_arms(links, actuated, _LANES, c * A // n_chunks, (c + 1) * A // n_chunks, lam, lengths,
+        _advance_arms(links, actuated, _LANES, None, True, c * A // n_chunks, (c + 1) * A // n_chunks, lam, lengths,
                       base, phi, passive, q, v, v_prev, has_prev, command, torque_mode, filter_on, centers, radii,
                       mask, kappa, epsilon, margin, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out,
                       min_clear, min_h, qp_counts, max_track, finite_out)
 
 
+# The generic kernel: arms of any kind up to GENERIC_MAX_LINKS links, n and k read at run time, one
+# lane; compiled once for all kinds (the per-kind kernel's helpers are compiled again for every kind,
+# since n, k and W are constants in their types). Scratch arrays are sized for the largest kind.
+GENERIC_MAX_LINKS = 8
+_GENERIC_SIZES = (0,) * GENERIC_MAX_LINKS
+_ONE_LANE = (0,)
+
+
+def group_advance_generic(links, actuated, lam, lengths, base, phi, passive, q, v, *args):
+    """:func:`group_advance` (same arguments, same results bit for bit) through one kernel compiled for
+    every arm kind of at most ``GENERIC_MAX_LINKS`` links: a new kind costs no compilation, and the
+    kernel steps 3–4× slower (one arm at a time, loops of run-time length). The engine uses it while a
+    kind's own kernel is neither compiled nor in the disk cache (:mod:`pan1_env.kernels.specialise`).
+    It calls :func:`_advance_arms` from Python: a compiled wrapper would compile its code a second time
+    (numba links a callee into its caller's module), about 2 s more."""
+    n, k = len(links), len(actuated)
+    if q.shape[1] != n or v.shape[1] != k or not 1 <= k <= n <= GENERIC_MAX_LINKS or k != n - bool(passive):
+        raise ValueError(f"group_advance_generic: arms of n ≤ {GENERIC_MAX_LINKS} links (q.shape[1]) and k actuated "
+                         "joints (v.shape[1]), links, actuated = kernel_sizes(n, k): k = n − 1 with a passive first "
+                         "joint, else k = n")
+    _advance_arms(_GENERIC_SIZES, _GENERIC_SIZES, _ONE_LANE, (n, k), None, 0, q.shape[0], lam, lengths, base, phi,
+                  bool(passive), q, v, *args)
+
+
 group_advance.__doc__ = _ADVANCE_DOC
-_slp_vectorised(_advance_arms)
+_quick_when(_slp_vectorised(_advance_arms), 3)  # the generic kernel's signature (sizes given) at LLVM -O1
 _slp_vectorised(group_advance)
 _slp_vectorised(group_advance_parallel)
 group_advance_parallel.__doc__ = _ADVANCE_DOC + """
