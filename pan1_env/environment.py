@@ -65,7 +65,10 @@ class Pan1ParallelEnv(ParallelEnv):
       is the reference controller (behind the safety filter, the paper's safe controller); the
       effort term penalises the correction only. With ``residual_gate=g`` (m, > 0) arm i's
       correction is scaled by min(1, (e_i/g)²), e_i the largest length error of its edges, so it
-      vanishes at the formation and the formed shape stays an equilibrium.
+      vanishes at the formation and the formed shape stays an equilibrium. With ``blocked_gate=c``
+      (> 0) it is also scaled by min(1, b_i/c), b_i how much the safety filter changed the arm's
+      previous command (the intervention term's measure, 0 at a reset): the correction acts only
+      where the filter holds the paper's law back.
 
     ## Observation Space
 
@@ -154,7 +157,7 @@ class Pan1ParallelEnv(ParallelEnv):
     * ``terminate_on_collision``, ``terminate_on_success``, ``success_tolerance`` (m, default 0.01).
     * ``formation_weight``, ``effort_weight``, ``collision_penalty``, ``success_bonus``,
       ``intervention_penalty``: reward weights.
-    * ``residual_gate``: see ``action_mode="residual"`` (default 0: no gate).
+    * ``residual_gate``, ``blocked_gate``: see ``action_mode="residual"`` (default 0: no gate).
     * ``max_joint_speed`` (rad/s, default 2.0), ``max_torque`` (N·m, default 5.0): action scales.
     * ``n_obstacle_obs``: K, obstacle slots per observation (default: 3).
     * ``random_options``: a :class:`~pan1_env.random_scenario.RandomScenarioOptions` or a dict of
@@ -197,6 +200,7 @@ class Pan1ParallelEnv(ParallelEnv):
         success_bonus: float = 0.0,
         residual_gate: float = 0.0,
         intervention_penalty: float = 0.0,
+        blocked_gate: float = 0.0,
         max_joint_speed: float = 2.0,
         max_torque: float = 5.0,
         n_obstacle_obs: int = 3,
@@ -219,6 +223,7 @@ class Pan1ParallelEnv(ParallelEnv):
         success_bonus = real("success_bonus", success_bonus)
         residual_gate = real("residual_gate", residual_gate, non_negative=True)
         intervention_penalty = real("intervention_penalty", intervention_penalty)
+        blocked_gate = real("blocked_gate", blocked_gate, non_negative=True)
         n_obstacle_obs = positive_int("n_obstacle_obs", n_obstacle_obs, minimum=0)
         if qp_solver not in QP_SOLVERS:
             raise ValueError(f"qp_solver must be one of {QP_SOLVERS}, got {qp_solver!r}")
@@ -265,6 +270,7 @@ class Pan1ParallelEnv(ParallelEnv):
         self.success_bonus = float(success_bonus)
         self.residual_gate = float(residual_gate)
         self.intervention_penalty = float(intervention_penalty)
+        self.blocked_gate = float(blocked_gate)
         self.max_joint_speed = float(max_joint_speed)
         self.max_torque = float(max_torque)
         self.n_obstacle_obs = int(n_obstacle_obs)

@@ -49,12 +49,13 @@ class FormationTask:
     def __init__(self, scenario: Scenario, copies: int, layout: ObservationLayout, *, max_joint_speed: float,
                  success_tolerance: float, formation_weight: float, effort_weight: float, collision_penalty: float,
                  terminate_on_collision: bool, terminate_on_success: bool, success_bonus: float = 0.0,
-                 residual_gate: float = 0.0, intervention_penalty: float = 0.0) -> None:
+                 residual_gate: float = 0.0, intervention_penalty: float = 0.0, blocked_gate: float = 0.0) -> None:
         self.layout = layout
         self.max_joint_speed, self.success_tolerance = max_joint_speed, success_tolerance
         self.weights = (formation_weight, effort_weight, collision_penalty, success_bonus, intervention_penalty)
         self.terminate_on_collision, self.terminate_on_success = terminate_on_collision, terminate_on_success
-        self.residual_gate = residual_gate
+        self.residual_gate, self.blocked_gate = residual_gate, blocked_gate
+        self.blocked = np.zeros((copies, layout.n.size))  # the filter's change of each arm's last command
         self.edges = np.ascontiguousarray(scenario.formation.edges, dtype=np.int64)
         self.distances = np.tile(np.asarray(scenario.formation.distances, dtype=float)[None], (copies, 1))
         self.kp = np.full(copies, float(scenario.kp))
@@ -70,7 +71,7 @@ class FormationTask:
                    effort_weight=env.effort_weight, collision_penalty=env.collision_penalty,
                    terminate_on_collision=env.terminate_on_collision, terminate_on_success=env.terminate_on_success,
                    success_bonus=env.success_bonus, residual_gate=env.residual_gate,
-                   intervention_penalty=env.intervention_penalty)
+                   intervention_penalty=env.intervention_penalty, blocked_gate=env.blocked_gate)
 
     def load_team(self, b: int, scenario: Scenario) -> None:
         """Copy ``b`` now has ``scenario``'s formation."""
@@ -103,7 +104,12 @@ class FormationTask:
         (B, N, k_max)`` (rad/s) in place and clip to ``±max_joint_speed``. With a ``residual_gate`` g > 0
         each arm's correction is first scaled by ``min(1, (e_i / g)²)``, e_i the largest length error of
         the arm's edges: it vanishes at the formation faster than the law's pull grows, so the formed
-        shape stays an equilibrium whatever the policy outputs."""
+        shape stays an equilibrium whatever the policy outputs. With a ``blocked_gate`` c > 0 it is also
+        scaled by ``min(1, blocked_i / c)``, ``blocked_i`` the filter's change of the arm's previous
+        command (the intervention term's measure): the correction acts only where the filter holds the
+        paper's law back."""
+        if self.blocked_gate > 0:
+            command *= np.minimum(1.0, self.blocked / self.blocked_gate)[..., None]
         if self.residual_gate > 0:
             P = engine.positions()
             z = P[:, self.edges[:, 0]] - P[:, self.edges[:, 1]]
@@ -149,9 +155,12 @@ class FormationTask:
         reward = np.empty_like(cost)
         reward[:] = formation[:, None]
         intervention = 0.0
-        if w_intervention and record is not None and command is not None:
+        if record is None:
+            self.blocked[:] = 0.0
+        elif command is not None and (w_intervention or self.blocked_gate):
             change = ((command - record.v_star) / self.max_joint_speed) ** 2  # NaN in the padding
             intervention = np.nansum(change, axis=-1) / np.isfinite(change).sum(axis=-1)
+            self.blocked[:] = intervention
         terms = _terms(reward, {"formation": formation[:, None]}, effort=(w_effort, effort), collision=(penalty, cost),
                        success=(-bonus, success[:, None].astype(float)), intervention=(w_intervention, intervention))
         terminated = _terminated(success, cost, self.terminate_on_success, self.terminate_on_collision)

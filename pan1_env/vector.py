@@ -219,6 +219,7 @@ class Pan1VectorEnv(VectorEnv):
                 self.engine.load_team(int(b), team)
                 self.task.load_team(int(b), team)
             self._steps[b] = 0
+        self.task.blocked[which] = 0.0  # no filter change yet in a new episode
         self.engine.reset(which)
 
     def _infos(self, out, rec) -> dict[str, Any]:

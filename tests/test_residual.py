@@ -100,3 +100,27 @@ def test_the_gate_scales_each_arms_correction_by_its_squared_edge_error() -> Non
         np.testing.assert_allclose(command[0, i, :k], expected, rtol=1e-12)
     with pytest.raises(ValueError, match="residual_gate"):
         parallel_env("random", residual_gate=-1.0)
+
+
+def test_the_blocked_gate_opens_only_where_the_filter_changed_the_last_command() -> None:
+    env = parallel_env("paper_pa_mixed_square", action_mode="residual", safety_filter=True, blocked_gate=0.5)
+    env.reset(seed=0)
+    full = {a: np.full(env.action_space(a).shape, 0.5, np.float32) for a in env.agents}
+    nominal = env.task.nominal_velocity(env.engine)[0]
+    command, _ = env._command(full)  # after a reset nothing was blocked: the paper's law alone
+    np.testing.assert_allclose(command[0], nominal, atol=1e-12)
+    env.step(full)
+    rec, k = env.last_step, env.n_actuated
+    sent = np.zeros_like(rec.v_star[0])
+    for i in range(len(env.agents)):  # what was commanded at that step: the nominal alone (gate shut)
+        sent[i, : k[i]] = nominal[i, : k[i]]
+    blocked = [np.sum((sent[i, : k[i]] - rec.v_star[0, i, : k[i]]) ** 2) / k[i] / env.max_joint_speed**2
+               for i in range(len(env.agents))]
+    nominal = env.task.nominal_velocity(env.engine)[0]
+    command, _ = env._command(full)
+    for i in range(len(env.agents)):
+        scale = min(1.0, blocked[i] / 0.5)
+        expected = np.clip(nominal[i, : k[i]] + scale * float(np.float32(0.5)) * env.max_joint_speed,
+                           -env.max_joint_speed, env.max_joint_speed)
+        np.testing.assert_allclose(command[0, i, : k[i]], expected, rtol=1e-9, atol=1e-12)
+    assert any(b > 0 for b in blocked) and any(b == 0 for b in blocked)  # the filter held some arms only
