@@ -19,7 +19,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-__all__ = ["pretrained", "available", "model_for", "PRETRAINED_DIR"]
+__all__ = ["pretrained", "available", "model_for", "package_model", "training_command", "PRETRAINED_DIR"]
 
 PRETRAINED_DIR = Path(__file__).resolve().parent / "pretrained"
 
@@ -48,3 +48,48 @@ def pretrained(name: str, env):
     if name not in models:
         raise ValueError(f"no pretrained model {name!r}; shipped: {sorted(models) or 'none'}")
     return _sb3_policy(PRETRAINED_DIR / f"{name}.zip", env)
+
+
+def training_command(run: dict[str, Any], out: str = "runs/train") -> str:
+    """The ``pan1-env train`` command that reproduces a run from its ``run.json`` into ``out``
+    (evaluation and checkpoint settings, which do not change the model, left out)."""
+    parts = ["pan1-env train", f"--algo {run['algo']}", f"--scenario {run['scenario']}",
+             "--shield" if run["shield"] else "--no-shield", f"--timesteps {run['timesteps']}",
+             f"--seed {run['seed']}", f"--n-envs {run['n_envs']}"]
+    if run.get("param_sharing"):
+        parts.append("--param-sharing")
+    if not run.get("normalize", True):
+        parts.append("--no-normalize")
+    if run.get("critic_warmup"):
+        parts.append(f"--critic-warmup {run['critic_warmup']}")
+    for flag, key in (("--env-kwargs", "env_kwargs"), ("--algo-kwargs", "algo_kwargs")):
+        if run.get(key):
+            parts.append(f"{flag} '{json.dumps(run[key], sort_keys=True)}'")
+    return " ".join([*parts, f"--out {out}"])
+
+
+def package_model(run_dir: str | Path, name: str, steps: int | None = None, dest: str | Path | None = None,
+                  evaluation: dict[str, Any] | None = None) -> Path:
+    """Copy a training run's final model (or its checkpoint at ``steps``) into the shipped models as
+    ``name``, with its ``model.json`` and provenance: the run's arguments, the command that reproduces
+    it, the steps, the package version and, when given, its held-out ``evaluation``. Returns the zip."""
+    import shutil
+    from importlib.metadata import PackageNotFoundError, version
+
+    run_dir = Path(run_dir)
+    model = run_dir / "model.zip" if steps is None else run_dir / "checkpoints" / f"model_{steps}_steps.zip"
+    if not model.exists() or not model.with_suffix(".json").exists():
+        raise ValueError(f"{model} (and the .json beside it) not found: is {run_dir} a training run?")
+    run = json.loads((run_dir / "run.json").read_text())
+    try:
+        package_version = version("pan1-env")
+    except PackageNotFoundError:  # pragma: no cover - a source tree that is not installed
+        package_version = "unknown"
+    meta = json.loads(model.with_suffix(".json").read_text())
+    meta["provenance"] = {"run": run, "command": training_command(run, f"runs/{name}"), "steps": steps or run["timesteps"],
+                          "package_version": package_version, "evaluation": evaluation}
+    dest = PRETRAINED_DIR if dest is None else Path(dest)
+    dest.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(model, dest / f"{name}.zip")
+    (dest / f"{name}.json").write_text(json.dumps(meta, indent=1) + "\n")
+    return dest / f"{name}.zip"

@@ -187,20 +187,25 @@ def test_benchmark_rejects_unknown_policy_and_mismatched_model(tmp_path) -> None
 
 
 def test_pretrained_models_are_found_by_scenario(tmp_path, monkeypatch) -> None:
-    import shutil
+    import shlex
 
     from pan1_env.baselines import make_policy, shipped
+    from pan1_env.cli import _parser
     from pan1_env.environment import parallel_env
 
-    train("ppo", "paper_pa3_square", shield=True, timesteps=128, seed=0, out=tmp_path / "run", checkpoint_every=128,
-          progress=False, n_envs=2, env_kwargs={"max_steps": 32},
+    train("ppo", "paper_pa3_square", shield=True, timesteps=128, seed=3, out=tmp_path / "run", checkpoint_every=128,
+          progress=False, n_envs=2, env_kwargs={"max_steps": 32, "success_bonus": 0.5},
           algo_kwargs={"n_steps": 64, "batch_size": 64, "n_epochs": 1})
     models = tmp_path / "pretrained"
-    models.mkdir()
-    shutil.copy(tmp_path / "run" / "model.zip", models / "square.zip")
-    shutil.copy(tmp_path / "run" / "model.json", models / "square.json")
     monkeypatch.setattr(shipped, "PRETRAINED_DIR", models)
+    shipped.package_model(tmp_path / "run", "square", evaluation={"success_1cm": 1.0})
     assert list(shipped.available()) == ["square"]
+    provenance = shipped.available()["square"]["provenance"]
+    args = _parser().parse_args(shlex.split(provenance["command"])[1:])  # the command reproduces the run
+    assert (args.algo, args.scenario, args.shield, args.timesteps, args.seed, args.n_envs) == \
+        ("ppo", "paper_pa3_square", True, 128, 3, 2)
+    assert args.env_kwargs == {"max_steps": 32, "success_bonus": 0.5} and args.algo_kwargs["n_steps"] == 64
+    assert provenance["steps"] == 128 and provenance["evaluation"] == {"success_1cm": 1.0}
     env = parallel_env("paper_pa3_square", max_steps=32)
     obs, _ = env.reset(seed=0)
     by_scenario = make_policy("pretrained", env)(obs)
@@ -211,3 +216,5 @@ def test_pretrained_models_are_found_by_scenario(tmp_path, monkeypatch) -> None:
         make_policy("pretrained", parallel_env("paper_pa_mixed_square"))
     with pytest.raises(ValueError, match="no pretrained model 'nope'"):
         make_policy("pretrained:nope", env)
+    with pytest.raises(ValueError, match="training run"):
+        shipped.package_model(tmp_path, "x")
