@@ -171,6 +171,8 @@ def _sb3_policy(path: Path, env) -> Policy:
     norm = meta.get("observation_normalization")
     trained_mode = meta.get("env_kwargs", {}).get("action_mode", "velocity")
     gate = float(meta.get("env_kwargs", {}).get("residual_gate", 0.0))
+    blocked_gate = float(meta.get("env_kwargs", {}).get("blocked_gate", 0.0))
+    last: dict[str, np.ndarray] = {}  # the velocity actions sent at the previous step (blocked gate)
     reference = None
     if trained_mode != env.action_mode:
         if (trained_mode, env.action_mode) != ("residual", "velocity"):
@@ -188,12 +190,19 @@ def _sb3_policy(path: Path, env) -> Policy:
         actions = dict(zip(agents, np.split(np.asarray(action, np.float32), splits), strict=True))
         if reference is not None:
             nominal = reference(obs)
+            parts = {a: decode_observation(obs[a], env.observation_layout) for a in agents}
+            if all(not np.any(p["qd_scaled"]) for p in parts.values()):
+                last.clear()  # every arm at rest: an episode's start, where nothing was blocked yet
             for a in agents:
                 correction = np.clip(actions[a], -1, 1)
                 if gate > 0:  # the env's residual gate, from the agent's own neighbour errors
-                    errors = decode_observation(obs[a], env.observation_layout)["neighbour_error"]
+                    errors = parts[a]["neighbour_error"]
                     correction = correction * min(1.0, (np.max(np.abs(errors), initial=0.0) / gate) ** 2)
-                actions[a] = np.clip(nominal[a] + correction, -1, 1).astype(np.float32)
+                if blocked_gate > 0:  # the filter's change of the last command, seen as the velocity reached
+                    k = len(correction)
+                    blocked = np.mean((last[a] - parts[a]["qd_scaled"][-k:]) ** 2) if a in last else 0.0
+                    correction = correction * min(1.0, blocked / blocked_gate)
+                actions[a] = last[a] = np.clip(nominal[a] + correction, -1, 1).astype(np.float32)
         return actions
 
     return policy
