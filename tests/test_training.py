@@ -218,3 +218,35 @@ def test_pretrained_models_are_found_by_scenario(tmp_path, monkeypatch) -> None:
         make_policy("pretrained:nope", env)
     with pytest.raises(ValueError, match="training run"):
         shipped.package_model(tmp_path, "x")
+
+
+def test_a_blocked_gate_model_acts_only_after_the_filter_held_an_arm_back(tmp_path) -> None:
+    from stable_baselines3 import PPO
+
+    from pan1_env.baselines import ReferencePolicy, decode_observation, make_policy
+    from pan1_env.environment import parallel_env
+    from pan1_env.wrappers import SafetyShield
+
+    train("ppo", "paper_pa_mixed_square", shield=True, timesteps=128, seed=0, out=tmp_path, checkpoint_every=128,
+          progress=False, n_envs=2, env_kwargs={"max_steps": 32, "action_mode": "residual", "blocked_gate": 0.05},
+          algo_kwargs={"n_steps": 64, "batch_size": 64, "n_epochs": 1, "policy_kwargs": {"log_std_init": 0.0}})
+    env = SafetyShield(parallel_env("paper_pa_mixed_square", max_steps=32))
+    policy, reference = make_policy(f"sb3:{tmp_path / 'model.zip'}", env), ReferencePolicy(env)
+    obs, _ = env.reset(seed=0)
+    first, nominal = policy(obs), reference(obs)
+    for a in env.agents:  # at rest nothing was blocked yet: the reference law alone
+        np.testing.assert_array_equal(first[a], nominal[a])
+    obs, *_ = env.step(first)
+    meta = json.loads((tmp_path / "model.json").read_text())["observation_normalization"]
+    flat = np.concatenate([obs[a] for a in env.possible_agents])
+    flat = np.clip((flat - meta["mean"]) / np.sqrt(np.asarray(meta["var"]) + meta["epsilon"]), -10, 10)
+    raw, _ = PPO.load(tmp_path / "model.zip", device="cpu").predict(flat.astype(np.float32), deterministic=True)
+    actions, nominal = policy(obs), reference(obs)
+    offset = 0
+    for a in env.possible_agents:
+        k = env.action_space(a).shape[0]
+        qd = decode_observation(obs[a], env.observation_layout)["qd_scaled"][-k:]
+        scale = min(1.0, np.mean((first[a] - qd) ** 2) / 0.05)
+        expected = np.clip(nominal[a] + scale * np.clip(raw[offset:offset + k], -1, 1), -1, 1)
+        np.testing.assert_allclose(actions[a], expected, rtol=1e-5, atol=1e-6)
+        offset += k
