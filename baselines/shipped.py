@@ -86,8 +86,9 @@ def package_model(run_dir: str | Path, name: str, steps: int | None = None, dest
     except PackageNotFoundError:  # pragma: no cover - a source tree that is not installed
         package_version = "unknown"
     meta = json.loads(model.with_suffix(".json").read_text())
-    meta["provenance"] = {"run": run, "command": training_command(run, f"runs/{name}"), "steps": steps or run["timesteps"],
-                          "package_version": package_version, "evaluation": evaluation}
+    meta["provenance"] = {"run": run, "command": training_command(run, f"runs/{name}"),
+                          "steps": steps or run["timesteps"], "package_version": package_version,
+                          "evaluation": evaluation}
     dest = PRETRAINED_DIR if dest is None else Path(dest)
     dest.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(model, dest / f"{name}.zip")
