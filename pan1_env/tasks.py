@@ -14,6 +14,7 @@ import numpy as np
 
 from .compiled import kernels
 from .engine import Engine, StepRecord
+from .formation import edge_errors, edge_length_errors, edge_vectors, formation_gradient, incidence_matrix
 from .observation import OBS_BOUND, OBSTACLE_FEATURES, ObservationLayout
 from .scenario import Scenario
 
@@ -57,6 +58,7 @@ class FormationTask:
         self.residual_gate, self.blocked_gate = residual_gate, blocked_gate
         self.blocked = np.zeros((copies, layout.n.size))  # the filter's change of each arm's last command
         self.edges = np.ascontiguousarray(scenario.formation.edges, dtype=np.int64)
+        self.incidence = incidence_matrix(self.edges, scenario.n_arms)  # for the residual mode's law and gate
         self.distances = np.tile(np.asarray(scenario.formation.distances, dtype=float)[None], (copies, 1))
         self.kp = np.full(copies, float(scenario.kp))
         self.sizes = [layout.size(n) for n in layout.n]
@@ -83,12 +85,8 @@ class FormationTask:
         ``v_i0 = −K_P J̄_iᵀ ê_i``, ``ê_i = Σ_j 2 (p_i − p_j)(‖p_i − p_j‖² − d_ij²)`` (Eq. 39), each arm's
         vector scaled down as a whole to ``max_joint_speed`` when an entry exceeds it (so it stays a
         descent direction of V), as :class:`~pan1_env.baselines.ReferencePolicy` does from observations."""
-        P = engine.positions()
-        z = P[:, self.edges[:, 0]] - P[:, self.edges[:, 1]]  # (B, E, 2)
-        pull = 2.0 * z * (np.einsum("bec,bec->be", z, z) - self.distances**2)[..., None]
-        e_hat = np.zeros_like(P)
-        np.add.at(e_hat, (slice(None), self.edges[:, 0]), pull)
-        np.add.at(e_hat, (slice(None), self.edges[:, 1]), -pull)
+        z = edge_vectors(self.incidence, engine.positions())  # (B, E, 2)
+        e_hat = formation_gradient(self.incidence, z, edge_errors(z, self.distances))  # (B, N, 2)
         out = np.zeros((engine.copies, engine.n_arms, engine.k_max))
         for kind in engine.kinds:
             _, Jbar, _ = engine.kind_terms(kind)
@@ -111,12 +109,8 @@ class FormationTask:
         if self.blocked_gate > 0:
             command *= np.minimum(1.0, self.blocked / self.blocked_gate)[..., None]
         if self.residual_gate > 0:
-            P = engine.positions()
-            z = P[:, self.edges[:, 0]] - P[:, self.edges[:, 1]]
-            err = np.abs(np.sqrt(np.einsum("bec,bec->be", z, z)) - self.distances)  # (B, E)
-            arm_err = np.zeros(P.shape[:2])
-            for end in (0, 1):
-                np.maximum.at(arm_err, (slice(None), self.edges[:, end]), err)
+            err = np.abs(edge_length_errors(edge_vectors(self.incidence, engine.positions()), self.distances))
+            arm_err = np.max(np.abs(self.incidence)[None] * err[:, None, :], axis=-1, initial=0.0)  # (B, N)
             command *= np.minimum(1.0, (arm_err / self.residual_gate) ** 2)[..., None]
         command += self.nominal_velocity(engine)
         np.clip(command, -self.max_joint_speed, self.max_joint_speed, out=command)
