@@ -306,6 +306,8 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
             raise ValueError(f"{name} must be a positive integer, got {value!r}")
     if isinstance(critic_warmup, bool) or not isinstance(critic_warmup, int) or critic_warmup < 0:
         raise ValueError(f"critic_warmup must be a whole number of steps ≥ 0, got {critic_warmup!r}")
+    if critic_warmup and algo == "sac":
+        raise ValueError("critic_warmup is for PPO's actor and critic; SAC has no warm-up here")
     if algo == "ppo-lagrangian" and param_sharing:
         raise ValueError("ppo-lagrangian trains on the batched vector env, not with param_sharing")
     import torch
@@ -386,27 +388,22 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
     atomic_write(out / "run.json", lambda fh: fh.write(json.dumps(meta, indent=2) + "\n"), mode="w")
     remaining = timesteps - done_steps
     if remaining > 0:
-        callbacks = _callbacks(out, checkpoint_every, algo, timesteps, progress, initial_costs, sidecar)
-        if eval_every and not param_sharing:
-            from stable_baselines3.common.callbacks import CallbackList
+        from stable_baselines3.common.callbacks import CallbackList
 
+        callbacks = [_callbacks(out, checkpoint_every, algo, timesteps, progress, initial_costs, sidecar)]
+        if eval_every and not param_sharing:
             from .evaluation import EVAL_SEEDS, eval_callback
 
             seeds = EVAL_SEEDS if scenario == "random" else EVAL_SEEDS[:1]  # a paper scenario starts one way
-            evaluator = eval_callback(out, eval_every, scenario, shield, env_kwargs, seeds)
-            callbacks = CallbackList([evaluator, callbacks])  # evaluate before a checkpoint at the same step
-        if critic_warmup > 0 and algo != "sac":
-            from stable_baselines3.common.callbacks import CallbackList
-
-            callbacks = CallbackList([_critic_warmup(critic_warmup), callbacks])
+            # evaluate before a checkpoint at the same step
+            callbacks.insert(0, eval_callback(out, eval_every, scenario, shield, env_kwargs, seeds))
+        if critic_warmup > 0:
+            callbacks.insert(0, _critic_warmup(critic_warmup))
         if _penalty(venv) is not None:
             from .lagrangian import LagrangianCallback
 
-            extra_callbacks = [LagrangianCallback(_penalty(venv), log_dir=out), *(extra_callbacks or [])]
-        if extra_callbacks:
-            from stable_baselines3.common.callbacks import CallbackList
-
-            callbacks = CallbackList([callbacks, *extra_callbacks])
+            callbacks.append(LagrangianCallback(_penalty(venv), log_dir=out))
+        callbacks = CallbackList([*callbacks, *(extra_callbacks or [])])
         model.learn(total_timesteps=remaining, callback=callbacks, reset_num_timesteps=(previous is None))
     sidecar(out / "model.json", _normalizer(venv))
     atomic_write(out / "model.zip", lambda fh: model.save(fh))

@@ -136,6 +136,8 @@ def test_critic_warmup_freezes_the_actor_until_its_end(tmp_path) -> None:
     assert any(not np.array_equal(warm[k].numpy(), initial.params[k]) for k in critic)  # the critic learned
     with pytest.raises(ValueError, match="critic_warmup"):
         train("ppo", out=tmp_path / "bad", critic_warmup=-1)
+    with pytest.raises(ValueError, match="critic_warmup"):
+        train("sac", out=tmp_path / "bad", critic_warmup=100)
 
 
 def test_unshielded_training_sees_cost(tmp_path) -> None:
