@@ -82,6 +82,8 @@ def run_benchmark(scenarios: Sequence[str], policies: Sequence[str], episodes: i
                 base = parallel_env(scenario, **kwargs)
                 env = SafetyShield(base) if shield else base
                 policy = make_policy(name, env, seed)
+                if progress is not None:  # a row can take minutes: say what runs
+                    progress(f"{scenario} / {name} / shield {'on' if shield else 'off'}: {episodes} episodes …")
                 results = [_episode(env, policy, seed + k, shield) for k in range(episodes)]
                 times = [r["time_to_formation"] for r in results if r["success"]]
                 arm_steps = sum(r["arm_steps"] for r in results)

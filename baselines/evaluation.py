@@ -73,9 +73,10 @@ def summarise(result: dict[str, np.ndarray]) -> dict[str, float]:
 
 
 def eval_callback(out: Path, every: int, scenario: str, shield: bool, env_kwargs: dict[str, Any] | None,
-                  seeds: Sequence[int] = EVAL_SEEDS):
+                  seeds: Sequence[int] = EVAL_SEEDS, progress: bool = False):
     """The SB3 callback that evaluates the model every ``every`` steps (at the first rollout boundary
-    after) and appends to ``out/eval.csv``; built lazily because SB3 is an extra."""
+    after) and appends to ``out/eval.csv``; built lazily because SB3 is an extra. With ``progress`` it
+    says so beside the progress bar (an evaluation takes seconds)."""
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import VecNormalize
 
@@ -93,6 +94,10 @@ def eval_callback(out: Path, every: int, scenario: str, shield: bool, env_kwargs
             return True
 
         def run(self) -> None:
+            if progress:
+                from tqdm import tqdm
+
+                tqdm.write(f"evaluating at {self.num_timesteps} steps on {len(seeds)} held-out episodes …")
             env = self.model.get_env()
             norm = env if isinstance(env, VecNormalize) else None
 

@@ -396,7 +396,7 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
 
             seeds = EVAL_SEEDS if scenario == "random" else EVAL_SEEDS[:1]  # a paper scenario starts one way
             # evaluate before a checkpoint at the same step
-            callbacks.insert(0, eval_callback(out, eval_every, scenario, shield, env_kwargs, seeds))
+            callbacks.insert(0, eval_callback(out, eval_every, scenario, shield, env_kwargs, seeds, progress))
         if critic_warmup > 0:
             callbacks.insert(0, _critic_warmup(critic_warmup))
         if _penalty(venv) is not None:

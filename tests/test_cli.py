@@ -128,3 +128,13 @@ def test_console_summary_is_formatted_for_people(capsys) -> None:
     _print_summary({**metrics, "time_to_edge_error_1cm_s": None, "max_momentum_drift": None})
     out = capsys.readouterr().out
     assert "time to 1 cm: never" in out and "max momentum drift: —" in out
+
+
+def test_train_rejects_json_options_that_are_not_objects(capsys) -> None:
+    import pytest
+
+    for option, text in (("--env-kwargs", "[1]"), ("--algo-kwargs", "{gamma: 1}")):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["train", "--out", "unused", option, text])
+        assert exit_info.value.code == 2
+        assert f"argument {option}: expected a JSON object" in capsys.readouterr().err

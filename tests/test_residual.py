@@ -124,3 +124,11 @@ def test_the_blocked_gate_opens_only_where_the_filter_changed_the_last_command()
                            -env.max_joint_speed, env.max_joint_speed)
         np.testing.assert_allclose(command[0, i, : k[i]], expected, rtol=1e-9, atol=1e-12)
     assert any(b > 0 for b in blocked) and any(b == 0 for b in blocked)  # the filter held some arms only
+
+
+@pytest.mark.parametrize("name, value", [("residual_gate", -0.1), ("blocked_gate", -1.0), ("blocked_gate", np.nan),
+                                         ("success_bonus", np.inf), ("intervention_penalty", np.nan),
+                                         ("intervention_penalty", "high")])
+def test_bad_shaping_and_gate_arguments_are_clear_errors(name, value) -> None:
+    with pytest.raises(ValueError, match=name):
+        parallel_env("paper_pa3_square", action_mode="residual", **{name: value})
