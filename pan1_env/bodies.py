@@ -235,19 +235,22 @@ def inter_arm_clearance(arm_i: ArmParams, q_i: np.ndarray, arm_j: ArmParams, q_j
 
 def _legs(centers: np.ndarray, path_ends: np.ndarray, speeds: np.ndarray,
           t: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    c0 = np.asarray(centers, dtype=float).reshape(-1, 2)
-    step = np.asarray(path_ends, dtype=float).reshape(-1, 2) - c0
-    speeds = np.asarray(speeds, dtype=float).reshape(-1)
+    c0 = np.asarray(centers, dtype=float)
+    step = np.asarray(path_ends, dtype=float) - c0
+    speeds = np.asarray(speeds, dtype=float)
     length = np.linalg.norm(step, axis=-1)
     moving = (speeds > 0) & (length > 0)
     safe = np.where(moving, length, 1.0)
     arc = np.mod(np.asarray(t, dtype=float)[..., None] * speeds, 2.0 * safe)  # (..., O), in [0, 2ℓ)
-    return c0, step / safe[:, None], np.where(moving, arc, 0.0), np.where(moving, length, 0.0)
+    return c0, step / safe[..., None], np.where(moving, arc, 0.0), np.where(moving, length, 0.0)
 
 
 def obstacle_centers(centers: np.ndarray, path_ends: np.ndarray, speeds: np.ndarray,
                      t: np.ndarray | float) -> np.ndarray:
     """Centres at time ``t`` (s, scalar or ``(...)``) of obstacles going back and forth: ``(..., O, 2)``.
+
+    ``centers``, ``path_ends`` ``(O, 2)`` and ``speeds`` ``(O,)``, or with leading axes that broadcast
+    against t's (one team per time, as in a batch of copies).
 
     Obstacle j starts at ``centers[j]`` heading for ``path_ends[j]`` at ``speeds[j]`` m/s, turns
     there, comes back, turns at its centre and so on: its arc length along the path is the triangle
@@ -267,6 +270,6 @@ def obstacle_velocities(centers: np.ndarray, path_ends: np.ndarray, speeds: np.n
     velocity of the leg that starts there); zero for still obstacles.
     """
     c0, unit, arc, length = _legs(centers, path_ends, speeds, t)
-    speeds = np.asarray(speeds, dtype=float).reshape(-1)
+    speeds = np.asarray(speeds, dtype=float)
     sign = np.where(length > 0, np.where(arc < length, 1.0, -1.0), 0.0)
     return (sign * speeds)[..., None] * unit

@@ -21,15 +21,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .bodies import closest_point_on_segment, obstacle_centers
 from .compiled import kernel_sizes, kernels
 from .dynamics import ArmBatch
 from .safety import QP_SOLVERS, clearance, project_velocity, rcbf_constraints
 from .scenario import Scenario
 from .validation import real
 
-__all__ = ["Engine", "FilterParams", "StepRecord", "filter_parameters", "PARALLEL_THRESHOLD"]
+__all__ = ["Engine", "FilterParams", "StepRecord", "filter_parameters", "PARALLEL_THRESHOLD", "SENSING_RADIUS", "SKIN"]
 
 PARALLEL_THRESHOLD = 256  # arms of one kind from which the kernel runs on numba's thread pool
+#: m: with whole-arm safety, a body's filter takes a row for a capsule only when their clearance is at
+#: most this plus what the gap can close in a sub-step (:func:`pan1_env.kernels.capsules.whole_arm_rows`)
+SENSING_RADIUS = 0.1
+#: m: with whole-arm safety the filter keeps every capsule this much (plus an obstacle's travel in one
+#: sub-step) farther out than its radius, against what a sub-step's discretisation lets through
+SKIN = 0.002
 _UNUSED_RCBF = (1.0, 1.0, 0.0)  # κ, ε, margin passed to the kernel with the filter off (it reads none)
 
 
@@ -71,7 +78,7 @@ class StepRecord:
 
     v_star: np.ndarray  # (B, N, k_max) v* of the last sub-step (NaN in unfiltered torque mode, and as padding)
     tau: np.ndarray  # (B, N, n_max) joint torques of the last sub-step (passive entry 0; NaN padding)
-    min_clearance: np.ndarray  # (B, N) smallest end-effector clearance after any sub-step (inf: no obstacle)
+    min_clearance: np.ndarray  # (B, N) smallest clearance of the arm's protected bodies after any sub-step (inf: none)
     min_barrier: np.ndarray  # (B, N) smallest filtered barrier value h seen (inf: no row)
     qp_counts: np.ndarray  # (B, N, 3) sub-steps per QP status: nominal, solved, fallback
     max_tracking_error: np.ndarray  # (B, N) largest ‖v − v*‖ at the start of a sub-step
@@ -85,7 +92,8 @@ class StepRecord:
 
     @property
     def fallback(self) -> np.ndarray:
-        """``(B, N)``: the filter's QP was infeasible and the braking fallback ran in some sub-step."""
+        """``(B, N)``: the filter's QP was infeasible and its fallback ran in some sub-step (braking; with
+        whole-arm safety the relaxed QPs of docs/SCENARIOS.md)."""
         return self.qp_counts[..., 2] > 0
 
 
@@ -114,6 +122,7 @@ class _Kind:
         # generic kernel stands in for the kind's own, True from then on
         self.specialised: bool | None = None
         self.generation = -1
+        self.whole: tuple | None = None  # the kernel's whole-arm argument (Engine._whole_arm_setup)
 
     def __getstate__(self) -> dict:
         return {**self.__dict__, "specialised": None}  # another process decides for itself
@@ -172,6 +181,17 @@ class Engine:
         B, O = self.copies, len(scenario.obstacles)
         self.teams: list[Scenario] = [scenario] * B
         self.bases, self.centers, self.radii = np.empty((B, self.n_arms, 2)), np.empty((B, O, 2)), np.empty((B, O))
+        # whole-arm safety (links, other arms, moving obstacles): the kernel's capsule path; the
+        # obstacles' motion per copy, and each copy's time since its reset
+        self.link_bodies, self.inter_arm = scenario.bodies == "links", scenario.inter_arm
+        self.link_radius = scenario.link_radius
+        self.whole_arm = self.link_bodies or self.inter_arm or scenario.obstacle_paths is not None
+        if self.whole_arm and qp_solver == "piqp":
+            raise ValueError("qp_solver='piqp' filters end-effectors only; whole-arm safety needs 'active_set'")
+        self.start_centers, self.path_ends, self.speeds = np.empty((B, O, 2)), np.empty((B, O, 2)), np.zeros((B, O))
+        self.elapsed = np.zeros(B)  # s since each copy's reset: where moving obstacles are
+        if self.whole_arm:
+            self._whole_arm_setup()
         for b in range(B):
             self.load_team(b, scenario)
         self.set_safety_filter(safety_filter)
@@ -198,12 +218,63 @@ class Engine:
             raise ValueError("the scenario's team structure does not match the engine's")
         if scenario.ke != self.ke or len(scenario.obstacles) != self.radii.shape[1]:
             raise ValueError("a loaded team must keep the tracker gain K_e and the number of obstacles")
+        if (scenario.bodies == "links", scenario.inter_arm, scenario.link_radius) != \
+                (self.link_bodies, self.inter_arm, self.link_radius) or \
+                (scenario.obstacle_paths is not None and not self.whole_arm):
+            raise ValueError("a loaded team must keep the protected bodies, link_radius and inter_arm, and may have "
+                             "moving obstacles only if the engine's first team had them")
         mask = scenario.obstacle_mask()
         for kind in self.kinds:
             kind.load(b, scenario, mask)
         self.teams[b] = scenario
         self.bases[b] = [a.base for a in scenario.arms]
         self.centers[b], self.radii[b] = scenario.obstacles.centers, scenario.obstacles.radii
+        self.start_centers[b] = scenario.obstacles.centers
+        self.path_ends[b] = scenario.obstacles.centers if scenario.obstacle_paths is None else scenario.obstacle_paths
+        self.speeds[b] = 0.0 if scenario.obstacle_speeds is None else scenario.obstacle_speeds
+        if self.whole_arm:
+            self._load_capsules(b, scenario, mask)
+
+    def _whole_arm_setup(self) -> None:
+        """Capsule arrays per kind (:mod:`pan1_env.kernels.capsules`): the world obstacles, then, with
+        ``inter_arm``, ``n_max`` slots for the links of every other arm; and the end-effector obstacles'
+        stand-ins the kernel gets instead (none)."""
+        N, O, L = self.n_arms, self.radii.shape[1], self.n_max
+        C = O + ((N - 1) * L if self.inter_arm else 0)
+        for kind in self.kinds:
+            rows = len(kind.q)
+            kind.caps, kind.start_time = np.zeros((rows, C, kernels().capsules.CAPSULE_COLUMNS)), np.zeros(rows)
+            kind.others = np.array([[j for j in range(N) if j != i] for i in kind.ids], dtype=np.int64)
+            kind.whole = (kind.caps, kind.start_time, self.link_radius, self.link_bodies, SENSING_RADIUS, SKIN)
+            kind.no_obstacles = (np.empty((rows, 0, 2)), np.empty((rows, 0)), np.empty((rows, 0), dtype=bool))
+
+    def _load_capsules(self, b: int, scenario: Scenario, mask: np.ndarray) -> None:
+        """Copy b's capsules: its obstacles (start, path, radius, share 1) and the other arms' link slots
+        (radius ρ, share ½, considered when the two arms' reaches can meet; segments set every step)."""
+        K = kernels().capsules
+        O, L = self.radii.shape[1], self.n_max
+        step = self.path_ends[b] - self.start_centers[b]
+        length = np.linalg.norm(step, axis=-1)
+        unit = step / np.where(length > 0, length, 1.0)[:, None]
+        for kind in self.kinds:
+            caps = kind.caps.reshape(self.copies, kind.A, *kind.caps.shape[1:])[b]
+            caps[:] = 0.0
+            caps[:, :O, [K.CAP_AX, K.CAP_AY]] = caps[:, :O, [K.CAP_BX, K.CAP_BY]] = self.start_centers[b]
+            caps[:, :O, K.CAP_RADIUS] = self.radii[b]
+            caps[:, :O, K.CAP_SHARE] = 1.0
+            caps[:, :O, [K.CAP_UX, K.CAP_UY]] = unit
+            caps[:, :O, K.CAP_PATH], caps[:, :O, K.CAP_SPEED] = length, self.speeds[b]
+            caps[:, :O, K.CAP_ACTIVE] = mask[kind.ids]
+            caps[:, :O, K.CAP_ARM] = -1.0
+            if not self.inter_arm:
+                continue
+            for r, i in enumerate(kind.ids):
+                for slot, j in enumerate(kind.others[r]):
+                    cols = slice(O + slot * L, O + slot * L + self.n_links[j])
+                    near = np.linalg.norm(scenario.arms[i].base - scenario.arms[j].base) <= \
+                        scenario.arms[i].reach + scenario.arms[j].reach + 2.0 * self.link_radius
+                    caps[r, cols, K.CAP_RADIUS], caps[r, cols, K.CAP_SHARE] = self.link_radius, 0.5
+                    caps[r, cols, K.CAP_ACTIVE], caps[r, cols, K.CAP_ARM] = float(near), float(j)
 
     def reset(self, copies: np.ndarray | None = None, q0: list[np.ndarray] | None = None) -> None:
         """Put the ``copies`` (default: all) at rest at their team's start (or, for one copy, at ``q0``)."""
@@ -215,6 +286,8 @@ class Engine:
                 row = np.asarray(row, dtype=float)
                 if row.shape != (self.n_links[i],) or not np.all(np.isfinite(row)):
                     raise ValueError(f"q0[{i}] must be {self.n_links[i]} finite joint angles, got {row.tolist()}")
+        self.elapsed[copies] = 0.0
+        self.centers[copies] = self.start_centers[copies]
         for kind in self.kinds:
             rows = kind.rows(copies)
             kind.q[rows] = kind.q0[rows] if q0 is None else [q0[i] for i in kind.ids]
@@ -244,11 +317,41 @@ class Engine:
             qd[:, kind.ids, : kind.n] = kind.qd.reshape(B, kind.A, kind.n)
         return q, qd
 
+    def joint_positions(self) -> np.ndarray:
+        """Base, joints and end-effector of every arm, ``(B, N, n_max + 1, 2)``; an arm of fewer links
+        repeats its end-effector (its padding links have length 0)."""
+        P = np.empty((self.copies, self.n_arms, self.n_max + 1, 2))
+        for kind in self.kinds:
+            kernels().capsules.kind_joints(kind.q, kind.lengths, kind.base, kind.phi, kind.ids, P)
+        return P
+
     def clearance(self) -> np.ndarray:
-        """Smallest ‖p_i − o_j‖ − r_j over obstacles for every arm, ``(B, N)`` (inf with none)."""
-        if self.radii.shape[1] == 0:
-            return np.full((self.copies, self.n_arms), np.inf)
-        return clearance(self.positions(), self.centers[:, None], self.radii[:, None]).min(axis=-1)
+        """Smallest clearance of every arm's protected bodies, ``(B, N)`` (inf with nothing to hit): the
+        end-effector's ‖p_i − o_j‖ − r_j, or with whole-arm safety every body's to the obstacles where
+        they are now and, with ``inter_arm``, to the other arms' capsules (:mod:`pan1_env.bodies`)."""
+        B, N, O = self.copies, self.n_arms, self.radii.shape[1]
+        if not self.whole_arm:
+            if O == 0:
+                return np.full((B, N), np.inf)
+            return clearance(self.positions(), self.centers[:, None], self.radii[:, None]).min(axis=-1)
+        P = self.joint_positions()
+        a, b = (P[:, :, :-1], P[:, :, 1:]) if self.link_bodies else (P[:, :, -1:], P[:, :, -1:])
+        clear = np.full((B, N), np.inf)
+        if O:
+            x, _ = closest_point_on_segment(a[:, :, :, None], b[:, :, :, None], self.centers[:, None, None])
+            d = np.linalg.norm(x - self.centers[:, None, None], axis=-1) - self.radii[:, None, None]
+            clear = d.min(axis=(2, 3)) - (self.link_radius if self.link_bodies else 0.0)
+        return np.minimum(clear, self.inter_arm_clearance(P))
+
+    def inter_arm_clearance(self, P: np.ndarray | None = None) -> np.ndarray:
+        """Smallest d − 2ρ between each arm's link capsules and any other arm's, ``(B, N)`` (inf without
+        ``inter_arm``); ``P`` from :meth:`joint_positions`."""
+        B, N = self.copies, self.n_arms
+        if not self.inter_arm or N < 2:
+            return np.full((B, N), np.inf)
+        clear = np.full((B, N), np.inf)
+        kernels().capsules.inter_arm_clearance(self.joint_positions() if P is None else P, self.link_radius, clear)
+        return clear
 
     def kind_terms(self, kind: _Kind) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """End-effectors ``(B·A, 2)``, reduced Jacobians J̄ ``(B·A, 2, k)`` and passive momenta of a kind."""
@@ -277,16 +380,48 @@ class Engine:
         blank = self._blank  # fresh arrays every step: records handed out are never overwritten
         rec = StepRecord(blank.v_star.copy(), blank.tau.copy(), blank.min_clearance.copy(), blank.min_barrier.copy(),
                          blank.qp_counts.copy(), blank.max_tracking_error.copy(), blank.finite.copy())
-        for kind in self.kinds:
-            if piqp and kind.mask.any():
-                for _ in range(int(substeps)):
-                    self._piqp_substep(kind, command, rec)
-            else:
-                self._advance(kind, command, int(substeps), torque, self.filter, rec)
+        if self.inter_arm:
+            # every arm's filter sees the others' capsules as they are at each sub-step: one kernel call per
+            # sub-step, the capsules and the clearance between arms refreshed in between
+            finite, P = rec.finite.copy(), self.joint_positions()
+            for _ in range(int(substeps)):
+                self._refresh_capsules(P)
+                for kind in self.kinds:
+                    self._advance(kind, command, 1, torque, self.filter, rec)
+                finite &= rec.finite
+                self._tick(1)
+                P = self.joint_positions()
+                np.minimum(rec.min_clearance, self.inter_arm_clearance(P), out=rec.min_clearance)
+            rec.finite[:] = finite
+        else:
+            if self.whole_arm:
+                self._refresh_capsules()
+            for kind in self.kinds:
+                if piqp and kind.mask.any():
+                    for _ in range(int(substeps)):
+                        self._piqp_substep(kind, command, rec)
+                else:
+                    self._advance(kind, command, int(substeps), torque, self.filter, rec)
+            if self.whole_arm:
+                self._tick(int(substeps))
         rec.all_finite = bool(rec.finite.all())
         if not rec.all_finite:  # a faulty arm stopped early: include the (finite) state it was left in
             np.minimum(rec.min_clearance, self.clearance(), out=rec.min_clearance)
         return rec
+
+    def _tick(self, substeps: int) -> None:
+        """Advance every copy's clock by ``substeps`` sub-steps, and the obstacles with it."""
+        self.elapsed += substeps * self.physics_dt
+        self.centers[:] = obstacle_centers(self.start_centers, self.path_ends, self.speeds, self.elapsed)
+
+    def _refresh_capsules(self, P: np.ndarray | None = None) -> None:
+        """Before a kernel call: every copy's time, and (``inter_arm``) the other arms' link segments
+        from their joints ``P`` (:meth:`joint_positions`, as they are now), which each arm's filter holds
+        for the call (one sub-step)."""
+        for kind in self.kinds:
+            kind.start_time[:] = np.repeat(self.elapsed, kind.A)
+            if self.inter_arm:
+                kernels().capsules.refresh_arm_capsules(P, kind.others, self.radii.shape[1], kind.caps)
 
     def _advance(self, kind: _Kind, command: np.ndarray, substeps: int, torque: bool, params: FilterParams | None,
                  rec: StepRecord) -> None:
@@ -305,8 +440,9 @@ class Engine:
                    rec.max_tracking_error[:, ids].reshape(rows), np.ones(rows, dtype=bool))
             cmd = np.ascontiguousarray(command[:, kind.ids, :k].reshape(rows, k))
         rcbf = _UNUSED_RCBF if params is None else (params.kappa, params.epsilon, params.margin)
-        args = (*kind.state_args, cmd, torque, params is not None, kind.centers, kind.radii, kind.mask, *rcbf,
-                self.ke, self.physics_dt, substeps, self.max_speed, out[0], out[1], kind.qd, kind.p, *out[2:])
+        obstacles = (kind.centers, kind.radii, kind.mask) if kind.whole is None else kind.no_obstacles
+        args = (*kind.state_args, cmd, torque, params is not None, *obstacles, *rcbf, self.ke, self.physics_dt,
+                substeps, self.max_speed, out[0], out[1], kind.qd, kind.p, *out[2:], kind.whole)
         chunks = self._chunks(rows)
         if chunks:
             kernels().group_advance_parallel(*args, chunks)

@@ -425,8 +425,8 @@ class Pan1ParallelEnv(ParallelEnv):
         q, qd = self.engine.joint_state(pad=0.0)
         q, qd, P = np.nan_to_num(q[0], nan=0.0), np.nan_to_num(qd[0], nan=0.0), self.engine.positions()[0]
         parts = [np.concatenate([q[i], qd[i], P[i]]) for i in range(self.scenario.n_arms)]
-        obs = self.scenario.obstacles
-        parts.append(np.concatenate([obs.centers, obs.radii[:, None]], axis=1).ravel())
+        obs = self.scenario.obstacles  # centres where they are now (moving obstacles)
+        parts.append(np.concatenate([self.engine.centers[0], obs.radii[:, None]], axis=1).ravel())
         return np.clip(np.concatenate(parts), -OBS_BOUND, OBS_BOUND).astype(np.float32)
 
     def render(self):

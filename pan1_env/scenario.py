@@ -66,8 +66,7 @@ class ScenarioError(ValueError):
 class Scenario:
     """A validated scenario. Arms are numbered from 0 (the paper numbers from 1).
 
-    Whole-arm fields (parsed, validated and used by the random generator and :mod:`pan1_env.bodies`;
-    the compiled safety filter does not use them yet, see docs/SCENARIOS.md): ``bodies`` ("end_effector"
+    Whole-arm fields (the engine's filter protects what they say, docs/SCENARIOS.md): ``bodies`` ("end_effector"
     or "links"), ``link_radius`` ρ (m, the capsule radius of every link), ``inter_arm`` (keep the
     arms' capsules apart), and ``obstacle_paths (O, 2)`` / ``obstacle_speeds (O,)``: each obstacle
     goes back and forth between its centre and its path end at its speed (0: still; None: all still).
@@ -146,15 +145,18 @@ class Scenario:
     def obstacle_mask(self) -> np.ndarray:
         """``(N, O)`` booleans: which obstacles each arm's safety filter considers.
 
-        With ``ignore_unreachable_obstacles`` an obstacle farther from an arm's base than its reach
-        plus the radius is dropped for that arm: it can never be hit, and its RCBF row would only
-        slow the arm down far from it (docs/PAPER_REPRODUCTION.md, Section 5.2).
+        With ``ignore_unreachable_obstacles`` an obstacle that never comes within an arm's reach plus
+        its radius (plus ``link_radius``) of the arm's base, anywhere on its path, is dropped for that
+        arm: it can never be hit, and its RCBF row would only slow the arm down far from it
+        (docs/PAPER_REPRODUCTION.md, Section 5.2).
         """
         mask = np.ones((self.n_arms, len(self.obstacles)), dtype=bool)
         if self.ignore_unreachable_obstacles:
+            centers, ends = self.obstacles.centers, self._paths()[0]
             for i, arm in enumerate(self.arms):
-                dist = np.linalg.norm(self.obstacles.centers - arm.base, axis=-1)
-                mask[i] = dist <= arm.reach + self.obstacles.radii
+                nearest, _ = closest_point_on_segment(centers, ends, arm.base)
+                dist = np.linalg.norm(nearest - arm.base, axis=-1)
+                mask[i] = dist <= arm.reach + self.obstacles.radii + self.link_radius
         return mask
 
 

@@ -266,7 +266,7 @@ def test_segments_match_the_independent_rebuild_from_state(source: str) -> None:
             a, b = bodies.link_segments(arm, parts["q"][i])
             np.testing.assert_allclose(a, arm_joints[i][:-1], atol=1e-12)
             np.testing.assert_allclose(b, arm_joints[i][1:], atol=1e-12)
-        np.testing.assert_allclose(parts["centers"], sc.obstacles.centers, atol=1e-6)
+        np.testing.assert_allclose(parts["centers"], sc.obstacle_centers(env.engine.elapsed[0]), atol=1e-6)
         env.step({a: rng.uniform(-1, 1, env.action_space(a).shape) for a in env.agents})
 
 
@@ -322,8 +322,9 @@ def test_scenario_with_moving_obstacles_parses_and_moves() -> None:
     np.testing.assert_array_equal(plain.obstacle_centers(5.0), plain.obstacles.centers)
 
 
-def test_env_does_not_use_the_whole_arm_keys_yet() -> None:
-    """Documented status: an env built from such a scenario runs, and its obstacles stay at their centres."""
+def test_env_moves_obstacles_and_state_reports_where_they_are() -> None:
+    """An env built from a scenario with a moving obstacle moves it along its path: after 20 steps of
+    0.01 s at 0.1 m/s from (1, 3.3) towards (1, 2.7), state() has it at (1, 3.28)."""
     from pan1_env.environment import parallel_env
 
     doc = _doc("paper_pa_mixed_square")
@@ -333,7 +334,7 @@ def test_env_does_not_use_the_whole_arm_keys_yet() -> None:
     env.reset(seed=0)
     for _ in range(20):
         env.step({a: np.zeros(env.action_space(a).shape) for a in env.agents})
-    np.testing.assert_allclose(env.state()[-3:-1], [1.0, 3.3], atol=1e-6)
+    np.testing.assert_allclose(env.state()[-3:-1], [1.0, 3.28], atol=1e-6)
 
 
 # ------------------------------------------------------------------ scenario files: bad inputs

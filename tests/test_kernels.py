@@ -73,7 +73,7 @@ def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False
             command, torque, filter_on, np.broadcast_to(centers, (A, *centers.shape)).copy(),
             np.broadcast_to(radii, (A, len(radii))).copy(), mask, kappa, eps, margin, ke, dt, n_sub,
             v_max, out["v_star"], out["tau"], out["qd"], out["p"], out["clear"], out["min_h"], out["counts"],
-            out["track"], out["finite"])
+            out["track"], out["finite"], None)
     if parallel:
         kernels.group_advance_parallel(*args, n_chunks)
     else:
@@ -343,7 +343,7 @@ def test_per_arm_obstacles_equal_one_arm_at_a_time() -> None:
     q_all, v_all = q.copy(), v.copy()
     kernels.group_advance(*kernels.kernel_sizes(q.shape[1], k), batch.lam, batch.lengths, batch.base, batch.phi, True,
                           q_all, v_all, np.zeros((A, k)), np.zeros(A, bool), command, False, True, centers, radii,
-                          np.ones((A, 2), bool), 0.5, 5.0, 0.0, 100.0, 1e-3, 3, 2.0, *args.values())
+                          np.ones((A, 2), bool), 0.5, 5.0, 0.0, 100.0, 1e-3, 3, 2.0, *args.values(), None)
     for i in range(A):
         one = ArmBatch(lam=batch.lam[i : i + 1], lengths=batch.lengths[i : i + 1], base=batch.base[i : i + 1],
                        phi=batch.phi[i : i + 1], passive_first_joint=True)
@@ -489,7 +489,7 @@ def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
                    np.zeros(A, bool)]
             args = [batch.lam, batch.lengths, batch.base, batch.phi, True, qk, vk, out[0], out[1], command, torque,
                     True, np.broadcast_to(centers, (A, 3, 2)).copy(), np.broadcast_to(radii, (A, 3)).copy(), mask,
-                    0.5, 5.0, 0.01, 100.0, 1e-2, 5, v_max, *out[2:]]
+                    0.5, 5.0, 0.01, 100.0, 1e-2, 5, v_max, *out[2:], None]
             if kernel == "slp":
                 kernels.group_advance(*kernels.kernel_sizes(3, 2), *args)
             else:
@@ -529,7 +529,8 @@ def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> Non
             for _ in range(2):  # the second call starts from the first's v_prev / has_prev
                 kernel(*kernels.kernel_sizes(n, k), batch.lam, batch.lengths, batch.base, batch.phi, passive, qk, vk,
                        out[0], out[1], command, torque, filter_on, np.broadcast_to(centers, (A, 3, 2)).copy(),
-                       np.broadcast_to(radii, (A, 3)).copy(), mask, 0.5, 5.0, 0.01, 100.0, 1e-2, 5, v_max, *out[2:])
+                       np.broadcast_to(radii, (A, 3)).copy(), mask, 0.5, 5.0, 0.01, 100.0, 1e-2, 5, v_max, *out[2:],
+                       None)
             runs.append([qk, vk, *out])
         finite, counts = runs[0][-1], runs[0][-3]
         assert not finite[3]

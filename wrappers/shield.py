@@ -18,13 +18,17 @@ exceed 1. ``intervened`` counts speed limiting as an intervention too.
 
 Obstacles beyond an arm's reach (farther from its base than its reach plus their radius) cannot be
 hit and are left out of its QP. If the QP is infeasible the fallback is braking (v* = 0: no barrier
-decreases). ``infos[agent]["shield"]`` reports, for the step: ``requested`` (the action sent),
+of a still obstacle decreases). A scenario with whole-arm safety (``bodies = "links"``, ``inter_arm``
+or moving obstacles) protects every link from the obstacles where they are at each sub-step and from
+the other arms' capsules, and its fallback drops the robust term, then violates the rows least
+(docs/SCENARIOS.md, "Whole-arm safety"). ``infos[agent]["shield"]`` reports, for the step:
+``requested`` (the action sent),
 ``applied`` (the action actually applied at the last sub-step, in the same normalised units; in
 residual mode the whole filtered velocity v*/``max_joint_speed``, reference included),
 ``intervened`` (the QP changed the action at some sub-step), ``min_barrier`` (the smallest barrier
-value h = ‖p − o‖² − r² seen by the filter; inf when the arm has no obstacle in reach), ``status``
+value h = ‖p − o‖² − r² seen by the filter, or of its whole-arm pairs; inf when there is none), ``status``
 (the worst QP status over the sub-steps: ``"nominal"``, ``"solved"`` or ``"fallback"``),
-``fallback`` (the braking fallback was used) and ``qp_counts`` (sub-steps per status).
+``fallback`` (the QP was infeasible and the fallback was used) and ``qp_counts`` (sub-steps per status).
 
 With ``tracking_bound=δ̄`` the filter uses the tightened barrier h − Γ(δ̄), Γ(δ̄) = ε δ̄² / (4 κ)
 (docs/MODEL.md §5): as long as the tracking error stays below δ̄ the arm stays in the *original* set

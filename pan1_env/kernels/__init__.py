@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from .. import compile_notice
 from ..compiled import kernel_sizes  # the first two arguments of group_advance
-from . import specialise
+from . import capsules, specialise
 from ._numba_ext import _JIT, _LANES, _local, _slp_vectorised
 from .observe import (
     edge_length_errors,
@@ -50,6 +50,7 @@ __all__ = [
     "group_advance_generic",
     "GENERIC_MAX_LINKS",
     "specialise",
+    "capsules",
     "group_end_effectors",
     "group_observations",
     "group_observations_parallel",

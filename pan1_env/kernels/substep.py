@@ -7,6 +7,7 @@ import numpy as np
 from numba import njit, prange
 
 from ._numba_ext import _JIT, _LANES, _check_chunks, _local, _quick_when, _slp_vectorised
+from .capsules import CAP_ACTIVE, least_violation, whole_arm_clearance, whole_arm_rows
 from .physics import (
     _acceleration_lanes,
     _jacobian_lanes,
@@ -15,13 +16,21 @@ from .physics import (
     _position_lanes,
     _rotate_lanes,
 )
-from .qp import STATUS_NOMINAL, STATUS_SOLVED, _filter_rows_lanes, _first_projection_lanes, _project_one
+from .qp import (
+    STATUS_FALLBACK,
+    STATUS_NOMINAL,
+    STATUS_SOLVED,
+    _filter_rows_lanes,
+    _first_projection_lanes,
+    _project_one,
+)
 
 
 @njit(**_JIT)
 def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, base, phi, _passive, q, v, v_prev,
                   has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt,
-                  n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out):
+                  n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out,
+                  whole):
     """Arms ``lo … hi−1`` of :func:`group_advance` (the loop body, with its own scratch space).
 
     With ``sizes`` None (the per-kind kernels), ``n``, ``k`` and the lane count W are compile-time
@@ -47,7 +56,13 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     state reached serve its clearance and the next sub-step's filter, tracker and first RK4 stage.
 
     An arm whose state goes non-finite stops there (its lane is frozen at the last finite state and
-    its outputs are those of the failing sub-step), as its own loop would; the other lanes go on."""
+    its outputs are those of the failing sub-step), as its own loop would; the other lanes go on.
+
+    ``whole`` None (numba prunes the branches that read it) keeps the end-effector filter above; a
+    tuple ``(capsules, start_time, link_radius, links, sensing, skin)`` switches to whole-arm safety
+    (:mod:`.capsules`): each filtered lane's rows are its bodies against its capsules at the
+    sub-step's time, solved by the full search, and the clearance after a sub-step is its bodies' to
+    the world obstacles (the engine passes no end-effector obstacles then)."""
     if sizes is None:  # the per-kind kernel (numba prunes the other branch by the argument's type)
         n = len(links)
         k = len(actuated)
@@ -96,6 +111,13 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
         _local(kx, f8)
     # RK4: trial state, stage derivative, weighted sums
     qt, vt, dv, sq, sv = _local(nw, f8), _local(kw, f8), _local(kw, f8), _local(nw, f8), _local(kw, f8)
+    if whole is not None:  # whole-arm scratch: one lane's rows (bodies × capsules, speed bounds) and joints
+        caps, start_time, rho, link_bodies, sensing, skin = whole
+        m_whole = (n if link_bodies else 1) * caps.shape[1] + 2 * k
+        wA, wb, wact = np.zeros((m_whole, kk)), np.zeros(m_whole), np.zeros(m_whole, dtype=np.bool_)
+        wrows, wviol, wnorm, wP = np.empty(m_whole, dtype=np.int64), np.empty(m_whole), np.empty(m_whole), \
+            np.empty((n + 1, 2))
+        wb0, wn0 = np.empty(m_whole), np.empty(m_whole)
     if v_max < np.inf:
         for t in range(k):  # the full search's speed bounds ±v_t ≤ v_max, the same in every lane
             Arows[O + 2 * t, t] = 1.0
@@ -132,6 +154,10 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                 lane_active[j, w] = mask[i, j]
                 if filter_on and mask[i, j]:
                     uf = True
+            if whole is not None:
+                for j in range(caps.shape[1]):
+                    if filter_on and caps[i, j, CAP_ACTIVE] != 0.0:
+                        uf = True
             use_filter[w] = uf
             prev_ok[w] = has_prev[i]
             live[w] = True
@@ -163,7 +189,32 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                     vs[t, w] = vdes[t, w]
             for w in range(W):
                 status[w] = STATUS_NOMINAL
-            if any_filter:
+            if any_filter and whole is not None:
+                for w in range(W):
+                    if use_filter[w] and live[w] and real[w]:
+                        m_w, h_w = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, skin, dt,
+                                                  ln, bx, by, c, s, qd, M, caps, start_time[arm[w]] + _s * dt, kappa,
+                                                  epsilon, margin, v_max, wA, wb, wact, wP)
+                        arm_h[w] = min(arm_h[w], h_w)
+                        for t in range(k):
+                            qv0[t] = vdes[t, w]
+                        status[w] = _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand,
+                                                 qL, qy, wviol, wnorm)
+                        if status[w] == STATUS_FALLBACK:
+                            # infeasible: the fallback first drops the robust term (ε → ∞: the plain CBF
+                            # condition, which a moving obstacle or a crowd of capsules can leave feasible),
+                            # then takes the velocity that violates the rows least (braking does not keep a
+                            # moving obstacle out); reported as a fallback either way
+                            m_w, _ = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, skin, dt,
+                                                    ln, bx, by, c, s, qd, M, caps, start_time[arm[w]] + _s * dt,
+                                                    kappa, np.inf, margin, v_max, wA, wb, wact, wP)
+                            if _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand, qL, qy,
+                                            wviol, wnorm) == STATUS_FALLBACK:
+                                least_violation(qv0, wA, wb, wact, m_w, k, 2 * k if v_max < np.inf else 0, qvs, wb0,
+                                                wn0, wrows, qidx, qG, qr, qlam, qcand, qL, qy, wviol, wnorm)
+                        for t in range(k):
+                            vs[t, w] = qvs[t]
+            elif any_filter:
                 _position_lanes(ln, bx, by, c, s, n, W, px, py)
                 _jacobian_lanes(ln, c, s, M, passive, n, k, W, J, Jbar)
                 for w in range(W):
@@ -309,6 +360,12 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                     dy = py[w] - obstacles[1, j, w]
                     cl = np.sqrt(dx * dx + dy * dy) - obstacles[2, j, w]
                     arm_clear[w] = cl if live[w] and cl < arm_clear[w] else arm_clear[w]
+            if whole is not None:
+                for w in range(W):
+                    if live[w]:
+                        cl = whole_arm_clearance(arm[w], w, n, link_bodies, rho, ln, bx, by, c, s, caps,
+                                                 start_time[arm[w]] + (_s + 1) * dt, wP)
+                        arm_clear[w] = min(arm_clear[w], cl)
         # joint velocities and end-effector at the (last finite) state; a stopped arm's angles from q
         for w in range(W):
             if not live[w]:
@@ -363,6 +420,14 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     safe set's boundary, and a nearly degenerate RCBF row, tiny ‖L_g0 h‖ with b < 0, has a huge
     exact optimum). A problem the box makes infeasible takes the braking fallback.
 
+    ``whole``: None for the end-effector filter above (the paper's); a tuple ``(capsules (A, C,
+    CAPSULE_COLUMNS), start_time (A,), link_radius, links, sensing, skin)`` for whole-arm safety
+    (:mod:`pan1_env.kernels.capsules`): the obstacle arrays are then empty, each filtered arm's rows
+    are its bodies against its capsules at the sub-step's time (``start_time`` + elapsed sub-steps),
+    solved by the full search, with a fallback that drops the robust term, then takes the least
+    violating velocity, and
+    ``min_clear`` is its bodies' clearance to the world obstacles.
+
     Outputs (per arm): ``v_star_out``/``tau_out`` of the last sub-step (``tau_out`` either
     ``(A, k)`` actuated torques or full ``(A, n)`` rows, whose passive entry is left as passed in), ``qd_out`` the joint
     velocities q̇ = g0 v and ``p_out`` the end-effector at the final state, ``min_clear`` the
@@ -386,19 +451,20 @@ def _check_sizes(links, actuated, passive, q, v):
 @njit(**_JIT)
 def group_advance(links, actuated, lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode,
                   filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
-                  v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out):
+                  v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out, whole):
     _check_sizes(links, actuated, passive, q, v)
     lo = q.shape[0] * 0  # an int64, like the parallel kernel's chunk bounds
     _advance_arms(links, actuated, _LANES, None, True, lo, q.shape[0], lam, lengths, base, phi, passive, q, v, v_prev,
                   has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt,
-                  n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out)
+                  n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out,
+                  whole)
 
 
 @njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
 def group_advance_parallel(links, actuated, lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command,
                            torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
                            v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track,
-                           finite_out, n_chunks):
+                           finite_out, whole, n_chunks):
     _check_sizes(links, actuated, passive, q, v)
     _check_chunks(n_chunks)
     A = q.shape[0]
@@ -406,7 +472,7 @@ def group_advance_parallel(links, actuated, lam, lengths, base, phi, passive, q,
         _advance_arms(links, actuated, _LANES, None, True, c * A // n_chunks, (c + 1) * A // n_chunks, lam, lengths,
                       base, phi, passive, q, v, v_prev, has_prev, command, torque_mode, filter_on, centers, radii,
                       mask, kappa, epsilon, margin, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out,
-                      min_clear, min_h, qp_counts, max_track, finite_out)
+                      min_clear, min_h, qp_counts, max_track, finite_out, whole)
 
 
 # The generic kernel: arms of any kind up to GENERIC_MAX_LINKS links, n and k read at run time, one

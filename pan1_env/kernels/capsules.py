@@ -1,0 +1,313 @@
+"""Whole-arm safety in the sub-step kernel: an arm's protected bodies (every link's capsule, or its
+end-effector) against capsule obstacles (still or moving disks, other arms' links), one lane at a time.
+
+The formulas are :mod:`pan1_env.bodies`' (the numpy reference, tested against this): for a body
+point x on link ℓ at parameter τ and the closest point y of an obstacle capsule of radius r,
+
+    h = ‖x − y‖² − (r + ρ)²,   ∇_q h = 2 (x − y)ᵀ J_x,   L_g0 h = ∇_q h · g0,   ∂h/∂t = −2 (x − y)·ẏ
+
+(ρ the body's radius: ``link_radius`` for a link, 0 for the end-effector; the closest pair held fixed,
+the gradient of the clamped distance, see :mod:`pan1_env.bodies`). The RCBF row, as for the
+end-effector rows (docs/MODEL.md §4), with the obstacle's motion and the pair's share σ of the rate
+budget (σ = 1 for a world obstacle, ½ for a capsule of another arm that filters too):
+
+    −L_g0 h · v ≤ σ κ (h − margin) + ∂h/∂t − ‖L_g0 h‖² / ε
+
+A capsule is a row of ``capsules (A, C, CAPSULE_COLUMNS)``: its segment's end points at time 0 (equal
+for a disk), radius, share, the unit direction, length and speed of its back-and-forth path
+(:func:`pan1_env.bodies.obstacle_centers`), whether the arm's filter considers it, and its kind
+(a world obstacle, or another arm's link, whose segment the engine refreshes every control step).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ._numba_ext import _JIT
+from .qp import STATUS_FALLBACK, _project_one
+
+CAP_AX, CAP_AY, CAP_BX, CAP_BY, CAP_RADIUS, CAP_SHARE, CAP_UX, CAP_UY, CAP_PATH, CAP_SPEED, CAP_ACTIVE, CAP_ARM = \
+    range(12)
+CAPSULE_COLUMNS = 12  #: columns of a capsule row; ``CAP_ARM`` is −1 for a world obstacle, else the other arm's index
+
+
+@njit(**_JIT, forceinline=True)
+def _unit(x):
+    return min(max(x, 0.0), 1.0)
+
+
+@njit(**_JIT, forceinline=True)
+def _closest_pair(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y):
+    """Parameters (s, t) ∈ [0, 1]² of a closest pair of the segments a1 + s d1 and a2 + t d2 (either may
+    have length 0): :func:`pan1_env.bodies.segment_distance`'s construction (Ericson §5.1.9)."""
+    rx, ry = a1x - a2x, a1y - a2y
+    A = d1x * d1x + d1y * d1y
+    E = d2x * d2x + d2y * d2y
+    F = d2x * rx + d2y * ry
+    if A <= 0.0:
+        return 0.0, (_unit(F / E) if E > 0.0 else 0.0)
+    C = d1x * rx + d1y * ry
+    if E <= 0.0:
+        return _unit(-C / A), 0.0
+    B = d1x * d2x + d1y * d2y
+    denom = A * E - B * B
+    s = _unit((B * F - C * E) / denom) if denom > 1e-12 * A * E else 0.0
+    t = (B * s + F) / E
+    if t < 0.0:
+        return _unit(-C / A), 0.0
+    if t > 1.0:
+        return _unit((B - C) / A), 1.0
+    return s, t
+
+
+@njit(**_JIT, forceinline=True)
+def _capsule_motion(caps, i, j, time):
+    """Displacement (dx, dy) from its start and velocity (vx, vy) of capsule j of arm i at ``time``:
+    the triangle wave of :func:`pan1_env.bodies.obstacle_centers` along its path."""
+    speed, length = caps[i, j, CAP_SPEED], caps[i, j, CAP_PATH]
+    if not (speed > 0.0 and length > 0.0):
+        return 0.0, 0.0, 0.0, 0.0
+    arc = (speed * time) % (2.0 * length)
+    u = length - abs(length - arc)
+    sign = 1.0 if arc < length else -1.0
+    ux, uy = caps[i, j, CAP_UX], caps[i, j, CAP_UY]
+    return u * ux, u * uy, sign * speed * ux, sign * speed * uy
+
+
+@njit(**_JIT, forceinline=True)
+def _joints(lengths, bx, by, c, s, n, w, P):
+    """Joint positions P[0] = base, …, P[n] = end-effector of lane w, into ``P (n + 1, 2)``."""
+    x, y = bx[w], by[w]
+    P[0, 0], P[0, 1] = x, y
+    for a in range(n):
+        x += lengths[a, w] * s[a, w]
+        y += lengths[a, w] * c[a, w]
+        P[a + 1, 0], P[a + 1, 1] = x, y
+
+
+@njit(**_JIT, forceinline=True)
+def _body(P, n, links, body):
+    """Body ``body``'s segment (start, direction) and link: link ``body`` with ``links``, else the
+    end-effector (a point: the end of link n − 1)."""
+    if links:
+        return P[body, 0], P[body, 1], P[body + 1, 0] - P[body, 0], P[body + 1, 1] - P[body, 1], body
+    return P[n, 0], P[n, 1], 0.0, 0.0, n - 1
+
+
+@njit(**_JIT)
+def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, skin, dt, lengths, bx, by, c, s, qd, M, caps, time,
+                   kappa, epsilon, margin, v_max, A, b, active, P):
+    """The whole-arm RCBF rows of arm i (lane w of the kernel's scratch) at ``time``, then its speed
+    bounds (finite ``v_max``), into ``A``, ``b``, ``active``: returns (rows written, smallest barrier h).
+
+    Only pairs that are close get a row: clearance d − r − ρ at most ``sensing`` plus twice what the
+    gap can close in the sub-step ``dt`` (no point of the arm moves faster than its reach times
+    Σ|q̇_a|, the obstacle at its speed). A far pair's RCBF row is not inactive: its robust term
+    ‖L_g0 h‖²/ε grows with the distance like κ h does, and with many bodies and capsules the rows of
+    far pairs pushed in conflicting directions and made the QP infeasible. A row that cannot bind inside
+    the speed box (Σ_t |A_t| v_max ≤ b) is left out too: the box rows are in the same QP, so that does
+    not change its optimum. The smallest barrier is taken over the pairs within sensing range.
+
+    The rows keep each capsule ``skin`` plus the obstacle's travel in one sub-step farther out than its
+    radius: the condition holds at the sub-step's start, and within the sub-step an obstacle may turn
+    round on its path and the arm lags the filtered velocity, which without the skin let capsules
+    graze obstacles by fractions of a millimetre."""
+    C = caps.shape[1]
+    m = 0
+    h_min = np.inf
+    cull = v_max < np.inf
+    reach_speed = 0.0
+    for a in range(n):
+        reach_speed += abs(qd[a, w])
+    arm_reach = 0.0
+    for a in range(n):
+        arm_reach += lengths[a, w]
+    reach_speed *= arm_reach
+    _joints(lengths, bx, by, c, s, n, w, P)
+    for body in range(n if links else 1):
+        a1x, a1y, d1x, d1y, ell = _body(P, n, links, body)
+        radius = rho if links else 0.0
+        half_body = 0.5 * np.sqrt(d1x * d1x + d1y * d1y)
+        for j in range(C):
+            if caps[i, j, CAP_ACTIVE] == 0.0:
+                continue
+            ox, oy, vx, vy = _capsule_motion(caps, i, j, time)
+            a2x, a2y = caps[i, j, CAP_AX] + ox, caps[i, j, CAP_AY] + oy
+            d2x, d2y = caps[i, j, CAP_BX] - caps[i, j, CAP_AX], caps[i, j, CAP_BY] - caps[i, j, CAP_AY]
+            reach = caps[i, j, CAP_RADIUS] + radius + skin + caps[i, j, CAP_SPEED] * dt
+            within = reach + sensing + 2.0 * (reach_speed + caps[i, j, CAP_SPEED]) * dt
+            # the segments' midpoints, less their half lengths, bound their distance from below: skip a
+            # pair that is surely out of sensing range before the closest-pair computation
+            mx, my = a1x + 0.5 * (d1x - d2x) - a2x, a1y + 0.5 * (d1y - d2y) - a2y
+            half = half_body + 0.5 * np.sqrt(d2x * d2x + d2y * d2y)
+            if mx * mx + my * my > (within + half) * (within + half) and sensing < np.inf:
+                continue
+            sp, tp = _closest_pair(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y)
+            rx = a1x + sp * d1x - (a2x + tp * d2x)
+            ry = a1y + sp * d1y - (a2y + tp * d2y)
+            h = rx * rx + ry * ry - reach * reach
+            h_min = min(h_min, h)
+            if np.sqrt(rx * rx + ry * ry) > within:
+                continue
+            # ∇_q h = 2 (x − y)ᵀ J_x, J_x of the point at parameter sp on link ell (the end for a point body):
+            # ∂x/∂q_a = Σ_{a ≤ α ≤ ell} w_α L_α [cos, −sin](θ_α + φ), w_α = 1 below ell and sp (or 1) at ell
+            tau = sp if links else 1.0
+            lg2 = 0.0
+            grad0 = 0.0
+            jx, jy = 0.0, 0.0
+            for a in range(ell, -1, -1):
+                weight = tau if a == ell else 1.0
+                jx += weight * lengths[a, w] * c[a, w]
+                jy -= weight * lengths[a, w] * s[a, w]
+                grad = 2.0 * (rx * jx + ry * jy)
+                if passive and a == 0:
+                    grad0 = grad
+                elif passive:
+                    A[m, a - 1] = -grad
+                else:
+                    A[m, a] = -grad
+            for a in range(ell + 1, n):  # links beyond the body do not move it
+                A[m, a - 1 if passive else a] = 0.0
+            if passive:  # L_g0 h = ∇_a h − ∇_0 h M_0a / M_00 (g0 = [−M_0a / M_00 ; I])
+                for t in range(k):
+                    A[m, t] = A[m, t] + grad0 * M[0, t + 1, w] / M[0, 0, w]
+            bound = 0.0
+            for t in range(k):
+                lg2 += A[m, t] * A[m, t]
+                bound += abs(A[m, t])
+            bm = caps[i, j, CAP_SHARE] * kappa * (h - margin) - 2.0 * (rx * vx + ry * vy) - lg2 / epsilon
+            if cull and bound * v_max <= bm:
+                continue
+            b[m] = bm
+            active[m] = True
+            m += 1
+    if cull:
+        for t0 in range(k):
+            for sign in (1.0, -1.0):
+                for t in range(k):
+                    A[m, t] = sign if t == t0 else 0.0
+                b[m] = v_max
+                active[m] = True
+                m += 1
+    return m, h_min
+
+
+@njit(**_JIT)
+def whole_arm_clearance(i, w, n, links, rho, lengths, bx, by, c, s, caps, time, P):
+    """Smallest signed clearance d − r − ρ of arm i's bodies (lane w) to the world obstacles of
+    ``caps`` (active for its filter or not) at ``time``; other arms' capsules are left to the engine,
+    which measures them from every arm's state."""
+    C = caps.shape[1]
+    clear = np.inf
+    _joints(lengths, bx, by, c, s, n, w, P)
+    for body in range(n if links else 1):
+        a1x, a1y, d1x, d1y, _ = _body(P, n, links, body)
+        radius = rho if links else 0.0
+        for j in range(C):
+            if caps[i, j, CAP_ARM] >= 0.0:
+                continue
+            ox, oy, _, _ = _capsule_motion(caps, i, j, time)
+            a2x, a2y = caps[i, j, CAP_AX] + ox, caps[i, j, CAP_AY] + oy
+            d2x, d2y = caps[i, j, CAP_BX] - caps[i, j, CAP_AX], caps[i, j, CAP_BY] - caps[i, j, CAP_AY]
+            sp, tp = _closest_pair(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y)
+            rx = a1x + sp * d1x - (a2x + tp * d2x)
+            ry = a1y + sp * d1y - (a2y + tp * d2y)
+            clear = min(clear, np.sqrt(rx * rx + ry * ry) - caps[i, j, CAP_RADIUS] - radius)
+    return clear
+
+
+@njit(**_JIT)
+def least_violation(v0, A, b, active, m, k, n_box, v_out, b_given, norms, rows, idx, G, r, lam, cand, L, y, viol,
+                    rnorm):
+    """The fallback's last resort for an infeasible whole-arm QP: the velocity closest to ``v0`` among
+    those that violate the barrier rows least, uniformly: every row j < m − ``n_box`` relaxed to
+    A_j v ≤ b_j + t ‖A_j‖ with the smallest t ≥ 0 that makes the QP feasible (found by bisection; the
+    last ``n_box`` rows, the speed bounds, are kept). v = 0 is feasible at t = max_j −b_j/‖A_j‖, so this
+    always answers. A row of zero norm cannot be acted on and is dropped. Writes ``v_out``; ``b`` is
+    left relaxed, ``b_given`` and ``norms`` are scratch. Returns t."""
+    hi = 0.0
+    for j in range(m):
+        b_given[j] = b[j]
+        nrm = 0.0
+        for t in range(k):
+            nrm += A[j, t] * A[j, t]
+        norms[j] = np.sqrt(nrm) if j < m - n_box else 0.0
+        if j < m - n_box and nrm == 0.0:
+            active[j] = False
+        elif j < m - n_box:
+            hi = max(hi, -b[j] / norms[j])
+    lo = 0.0
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        for j in range(m):
+            b[j] = b_given[j] + mid * norms[j]
+        if _project_one(v0, A, b, active, m, k, v_out, rows, idx, G, r, lam, cand, L, y, viol, rnorm) \
+                == STATUS_FALLBACK:
+            lo = mid
+        else:
+            hi = mid
+    for j in range(m):
+        b[j] = b_given[j] + hi * norms[j]
+    if _project_one(v0, A, b, active, m, k, v_out, rows, idx, G, r, lam, cand, L, y, viol, rnorm) == STATUS_FALLBACK:
+        for t in range(k):
+            v_out[t] = 0.0
+    return hi
+
+
+@njit(**_JIT)
+def inter_arm_clearance(P, rho, out):
+    """Running minimum into ``out (B, N)`` of every arm's clearance d − 2ρ to the other arms' link
+    capsules, from the joints ``P (B, N, L + 1, 2)`` of :meth:`pan1_env.engine.Engine.joint_positions`
+    (padding links of length 0 at an arm's end-effector change nothing)."""
+    B, N, L = P.shape[0], P.shape[1], P.shape[2] - 1
+    for b in range(B):
+        for i in range(N):
+            for j in range(i + 1, N):
+                best = np.inf
+                for li in range(L):
+                    a1x, a1y = P[b, i, li, 0], P[b, i, li, 1]
+                    d1x, d1y = P[b, i, li + 1, 0] - a1x, P[b, i, li + 1, 1] - a1y
+                    for lj in range(L):
+                        a2x, a2y = P[b, j, lj, 0], P[b, j, lj, 1]
+                        d2x, d2y = P[b, j, lj + 1, 0] - a2x, P[b, j, lj + 1, 1] - a2y
+                        sp, tp = _closest_pair(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y)
+                        rx = a1x + sp * d1x - (a2x + tp * d2x)
+                        ry = a1y + sp * d1y - (a2y + tp * d2y)
+                        best = min(best, rx * rx + ry * ry)
+                clear = np.sqrt(best) - 2.0 * rho
+                out[b, i] = min(out[b, i], clear)
+                out[b, j] = min(out[b, j], clear)
+
+
+@njit(**_JIT)
+def kind_joints(q, lengths, base, phi, ids, P):
+    """Joints of the arms of one kind (rows ``b·A + r`` of ``q (B·A, n)`` …, arm ``ids[r]`` of copy b)
+    into ``P (B, N, L + 1, 2)``: base, joints, end-effector, then the end-effector repeated up to L."""
+    A, n, L = ids.shape[0], q.shape[1], P.shape[2] - 1
+    for row in range(q.shape[0]):
+        b, i = row // A, ids[row % A]
+        x, y, ang = base[row, 0], base[row, 1], phi[row]
+        P[b, i, 0, 0], P[b, i, 0, 1] = x, y
+        for a in range(L):
+            if a < n:
+                ang += q[row, a]
+                x += lengths[row, a] * np.sin(ang)
+                y += lengths[row, a] * np.cos(ang)
+            P[b, i, a + 1, 0], P[b, i, a + 1, 1] = x, y
+
+
+@njit(**_JIT)
+def refresh_arm_capsules(P, others, first, caps):
+    """Every other arm's link segments, from ``P (B, N, L + 1, 2)``, into the capsule slots of the arms
+    of one kind: row ``b·A + r`` of ``caps`` holds, from column ``first`` on, L slots for each arm of
+    ``others[r]`` in order."""
+    A, L = others.shape[0], P.shape[2] - 1
+    for row in range(caps.shape[0]):
+        b, r = row // A, row % A
+        col = first
+        for j in others[r]:
+            for a in range(L):
+                caps[row, col, CAP_AX], caps[row, col, CAP_AY] = P[b, j, a, 0], P[b, j, a, 1]
+                caps[row, col, CAP_BX], caps[row, col, CAP_BY] = P[b, j, a + 1, 0], P[b, j, a + 1, 1]
+                col += 1

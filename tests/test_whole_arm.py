@@ -1,0 +1,297 @@
+"""Whole-arm safety in the engine: the compiled capsule rows against the numpy reference
+(pan1_env.bodies), and the shield keeping every link capsule clear, checked by an independent geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pan1_env import bodies
+from pan1_env.cascade import passive_velocity_map
+from pan1_env.compiled import kernels
+from pan1_env.dynamics import ArmParams, link_angles, mass_matrix
+
+
+def _arm(rng: np.random.Generator, n: int, passive: bool) -> ArmParams:
+    return ArmParams(masses=rng.uniform(0.5, 1.5, n), lengths=rng.uniform(0.3, 0.6, n),
+                     com=rng.uniform(0.1, 0.3, n), inertias=rng.uniform(0.01, 0.05, n),
+                     base=rng.uniform(-0.5, 0.5, 2), passive_first_joint=passive)
+
+
+def _lanes(arm: ArmParams, q: np.ndarray) -> dict:
+    """One lane (W = 1) of the kernel's scratch for an arm at q."""
+    ang = link_angles(q) + arm.phi
+    return dict(lengths=arm.lengths[:, None].copy(), bx=np.array([arm.base[0]]), by=np.array([arm.base[1]]),
+                c=np.cos(ang)[:, None].copy(), s=np.sin(ang)[:, None].copy(), M=mass_matrix(arm, q)[:, :, None].copy())
+
+
+def _rows(arm: ArmParams, q: np.ndarray, caps: np.ndarray, *, links: bool = True, rho: float = 0.0,
+          time: float = 0.0, kappa: float = 1.0, epsilon: float = 10.0, margin: float = 0.0, v_max: float = np.inf,
+          sensing: float = np.inf, skin: float = 0.0, dt: float = 0.0, qd: np.ndarray | None = None):
+    """kernels.capsules.whole_arm_rows for one arm at q (one lane): (A, b, h_min) of the rows written."""
+    n = arm.n_links
+    k = n - 1 if arm.passive_first_joint else n
+    m_max = (n if links else 1) * caps.shape[1] + 2 * k
+    A, b, active, P = np.zeros((m_max, k)), np.zeros(m_max), np.zeros(m_max, bool), np.empty((n + 1, 2))
+    lane = _lanes(arm, q)
+    qd = np.zeros((n, 1)) if qd is None else np.asarray(qd, float).reshape(n, 1)
+    m, h_min = kernels().capsules.whole_arm_rows(
+        0, 0, n, k, arm.passive_first_joint, links, rho, sensing, skin, dt, lane["lengths"], lane["bx"], lane["by"],
+        lane["c"], lane["s"], qd, lane["M"], caps, time, kappa, epsilon, margin, v_max, A, b, active, P)
+    return A[:m], b[:m], h_min
+
+
+def _capsules(K, segments_a, segments_b, radii, shares, paths=None, speeds=None) -> np.ndarray:
+    C = len(radii)
+    caps = np.zeros((1, C, K.CAPSULE_COLUMNS))
+    caps[0, :, [K.CAP_AX, K.CAP_AY]] = np.asarray(segments_a).T
+    caps[0, :, [K.CAP_BX, K.CAP_BY]] = np.asarray(segments_b).T
+    caps[0, :, K.CAP_RADIUS], caps[0, :, K.CAP_SHARE], caps[0, :, K.CAP_ACTIVE] = radii, shares, 1.0
+    caps[0, :, K.CAP_ARM] = -1.0
+    if paths is not None:
+        step = np.asarray(paths) - np.asarray(segments_a)
+        length = np.linalg.norm(step, axis=-1)
+        caps[0, :, [K.CAP_UX, K.CAP_UY]] = (step / length[:, None]).T
+        caps[0, :, K.CAP_PATH], caps[0, :, K.CAP_SPEED] = length, speeds
+    return caps
+
+
+@pytest.mark.parametrize("n, passive", [(3, True), (4, True), (3, False)])
+def test_link_obstacle_rows_match_the_numpy_barrier(n: int, passive: bool) -> None:
+    """Every (link, moving disk) row of the kernel is −L_g0 h ≤ κ(h − margin) + ∂h/∂t − ‖L_g0 h‖²/ε with
+    h, L_g0 h and ∂h/∂t of bodies.link_obstacle_barrier, at the obstacles' positions at that time."""
+    K = kernels().capsules
+    rng = np.random.default_rng(n + 10 * passive)
+    arm = _arm(rng, n, passive)
+    k = n - 1 if passive else n
+    q = rng.uniform(-1.5, 1.5, n)
+    centers = arm.base + rng.uniform(-1.0, 1.0, (5, 2))
+    ends = centers + rng.uniform(-0.4, 0.4, (5, 2))
+    radii, speeds, rho = rng.uniform(0.05, 0.2, 5), rng.uniform(0.1, 0.5, 5), 0.03
+    time, kappa, epsilon, margin = 2.7, 0.8, 20.0, 0.01
+    caps = _capsules(K, centers, centers, radii, np.ones(5), ends, speeds)
+    A, b, h_min = _rows(arm, q, caps, rho=rho, time=time, kappa=kappa, epsilon=epsilon, margin=margin)
+    m = len(b)
+    now = bodies.obstacle_centers(centers, ends, speeds, time)
+    ref = bodies.link_obstacle_barrier(arm, q, now, radii, rho, bodies.obstacle_velocities(centers, ends, speeds,
+                                                                                            time))
+    assert m == n * 5
+    row = ref.row.reshape(m, k)
+    h = ref.h.reshape(m)
+    np.testing.assert_allclose(A[:m], -row, rtol=1e-10, atol=1e-12)
+    expected_b = kappa * (h - margin) + ref.dh_dt.reshape(m) - np.sum(row ** 2, axis=-1) / epsilon
+    np.testing.assert_allclose(b[:m], expected_b, rtol=1e-10, atol=1e-12)
+    assert h_min == pytest.approx(h.min(), rel=1e-12)
+    assert np.allclose(row, ref.grad_q.reshape(m, n) @ passive_velocity_map(arm, q))
+
+
+def test_inter_arm_rows_take_half_the_rate_budget() -> None:
+    """A capsule of another arm (a segment, share ½): the row of bodies.inter_arm_barrier with κ/2."""
+    K = kernels().capsules
+    rng = np.random.default_rng(3)
+    arm_i, arm_j = _arm(rng, 3, True), _arm(rng, 4, True)
+    qi, qj = rng.uniform(-1.5, 1.5, 3), rng.uniform(-1.5, 1.5, 4)
+    P = bodies.link_segments(arm_j, qj)
+    rho, kappa, epsilon = 0.04, 1.2, 10.0
+    caps = _capsules(K, P[0], P[1], np.full(4, rho), np.full(4, 0.5))
+    A, b, _ = _rows(arm_i, qi, caps, rho=rho, kappa=kappa, epsilon=epsilon)
+    m = len(b)
+    ref = bodies.inter_arm_barrier(arm_i, qi, arm_j, qj, rho)
+    row = ref.row_i.reshape(12, 2)
+    np.testing.assert_allclose(A[:m], -row, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(b[:m], 0.5 * kappa * ref.h.reshape(12) - np.sum(row ** 2, axis=-1) / epsilon,
+                               rtol=1e-9, atol=1e-12)
+
+
+def test_end_effector_body_gives_the_paper_row() -> None:
+    """With bodies = end-effector, a still disk's row is the paper's RCBF row (safety.rcbf_constraints)."""
+    from pan1_env.cascade import reduced_jacobian
+    from pan1_env.dynamics import end_effector
+    from pan1_env.safety import rcbf_constraints
+
+    K = kernels().capsules
+    rng = np.random.default_rng(5)
+    arm = _arm(rng, 3, True)
+    q = rng.uniform(-1.5, 1.5, 3)
+    centers, radii = arm.base + rng.uniform(-1.0, 1.0, (3, 2)), rng.uniform(0.05, 0.2, 3)
+    caps = _capsules(K, centers, centers, radii, np.ones(3))
+    A, b, _ = _rows(arm, q, caps, links=False, kappa=0.7, epsilon=5.0, margin=0.02)
+    m = len(b)
+    rows, b_ref, _ = rcbf_constraints(end_effector(arm, q)[None], reduced_jacobian(arm, q)[None], centers, radii,
+                                      0.7, 5.0, margin=0.02)
+    assert m == 3
+    np.testing.assert_allclose(A[:m], rows[0], rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(b[:m], b_ref[0], rtol=1e-10, atol=1e-12)
+
+
+def test_rows_that_cannot_bind_in_the_speed_box_are_culled() -> None:
+    """With a speed bound, a far obstacle's row is dropped (it holds for every v in the box) and the
+    2k box rows follow; a near one stays."""
+    K = kernels().capsules
+    rng = np.random.default_rng(8)
+    arm = _arm(rng, 3, True)
+    q = np.zeros(3)
+    tip = bodies.link_segments(arm, q)[1][-1]
+    centers = np.array([tip + [0.12, 0.0], arm.base + [30.0, 0.0]])
+    caps = _capsules(K, centers, centers, np.array([0.1, 0.1]), np.ones(2))
+    A, b, _ = _rows(arm, q, caps, v_max=2.0)
+    m = len(b)
+    far = bodies.link_obstacle_barrier(arm, q, centers[1:], [0.1]).row.reshape(3, 2)
+    assert np.all(np.abs(far).sum(-1) * 2.0 <= 1.0 * 900.0)  # the far rows hold in the box
+    assert m == 1 + 4, "the near disk's last link row (the others hold in the box) and the four box rows"
+    np.testing.assert_array_equal(A[m - 4: m], [[1, 0], [-1, 0], [0, 1], [0, -1]])
+
+
+def test_far_pairs_get_no_row() -> None:
+    """Only pairs within the sensing radius plus twice what the gap closes in a sub-step get a row: a
+    disk 0.15 m from the arm has none with sensing 0.1 m at rest, one per link it is near once the arm
+    moves fast enough to close the rest in a sub-step."""
+    K = kernels().capsules
+    rng = np.random.default_rng(9)
+    arm = _arm(rng, 3, True)
+    q = np.zeros(3)
+    tip = bodies.link_segments(arm, q)[1][-1]
+    center = tip + [0.0, 0.25]  # straight above the arm (which points up at q = 0): 0.15 m from the tip's capsule
+    caps = _capsules(K, [center], [center], np.array([0.1]), np.ones(1))
+    clear = bodies.link_clearance(arm, q, [center], [0.1])
+    assert clear.min() == pytest.approx(0.15)
+    assert len(_rows(arm, q, caps, sensing=0.1, dt=0.01)[1]) == 0
+    speed = np.array([0.0, 0.0, 5.0 / arm.reach])  # reach · Σ|q̇| = 5 m/s: the gap may close by 2 · 5 · 0.01 m
+    _, b, h_min = _rows(arm, q, caps, sensing=0.1, dt=0.01, qd=speed)
+    assert len(b) == int(np.sum(clear <= 0.1 + 0.1))
+    assert h_min == pytest.approx(((clear + 0.1) ** 2 - 0.1 ** 2).min())
+
+
+# ---------------------------------------------------------------- the shield, checked by tests/geometry.py
+WHOLE = {"bodies": "links", "link_radius": 0.03, "inter_arm": True}
+RHO = WHOLE["link_radius"]
+
+
+def _penetration(core) -> float:
+    """Deepest penetration of any link capsule into an obstacle or another arm's capsule, rebuilt from
+    ``state()`` by the independent geometry (0 when clear); state() is float32, hence the 1e-6 m slack."""
+    import geometry
+
+    arms, parts = geometry.arms_from_state(core.state(), core.scenario)
+    depths = [p.max(initial=0.0) for p in geometry.obstacle_penetration(arms, parts["centers"], parts["radii"], RHO)]
+    depths += [p.max(initial=0.0) for p in geometry.inter_arm_penetration(arms, RHO).values()]
+    return max(depths) - 1e-6
+
+
+def _policy(kind: str, env, rng: np.random.Generator):
+    """Uniform random actions, or bang-bang ones (±1 per joint) held for 40 steps."""
+    held: dict = {}
+
+    def act(t: int) -> dict:
+        if kind == "random":
+            return {a: rng.uniform(-1, 1, env.action_space(a).shape) for a in env.agents}
+        if t % 40 == 0:
+            held.update({a: rng.choice([-1.0, 1.0], env.action_space(a).shape) for a in env.agents})
+        return {a: held[a] for a in env.agents}
+    return act
+
+
+def _whole_arm_episode(seed: int, kind: str, *, shield: bool, speed=(0.0, 0.0), mode: str = "velocity",
+                       steps: int = 250) -> tuple[int, int, int]:
+    """(steps in which a penetration begins, of those steps whose shield report says fallback, steps with
+    a fallback). A penetration begins in a step that ends with a capsule inside something it was not
+    inside at the step's start; once inside, the shield's rows push it out over the next steps."""
+    from pan1_env.environment import parallel_env
+    from pan1_env.wrappers import SafetyShield
+
+    core = parallel_env("random", random_options={**WHOLE, "obstacle_speed": speed}, action_mode=mode,
+                        control_dt=0.01, physics_dt=0.01, max_steps=steps)
+    env = SafetyShield(core) if shield else core
+    env.reset(seed=seed)
+    assert _penetration(core) <= 0.0, "starts are drawn clear"
+    act = _policy(kind, env, np.random.default_rng(seed))
+    hits = hits_in_fallback = fallbacks = t = 0
+    inside = False
+    while env.agents:
+        _, _, _, _, infos = env.step(act(t))
+        fallback = any(info.get("shield", {}).get("fallback", False) for info in infos.values())
+        now_inside = _penetration(core) > 0.0
+        begins = now_inside and not inside
+        hits, hits_in_fallback = hits + begins, hits_in_fallback + (begins and fallback)
+        fallbacks += fallback
+        if now_inside:
+            assert any(info["cost"] > 0 for info in infos.values()), "a penetration costs"
+        inside, t = now_inside, t + 1
+    return hits, hits_in_fallback, fallbacks
+
+
+@pytest.mark.parametrize("mode", ["velocity", "torque"])
+@pytest.mark.parametrize("kind", ["random", "bang-bang"])
+def test_shield_keeps_every_link_clear_of_still_obstacles_and_other_arms(kind: str, mode: str) -> None:
+    """Still obstacles, links and inter-arm rows, control_dt = physics_dt = 0.01: no link capsule ever
+    enters an obstacle or another arm's capsule, by a geometry computed apart from the package."""
+    for seed in range(4):
+        hits, _, _ = _whole_arm_episode(seed, kind, shield=True, mode=mode)
+        assert hits == 0, f"seed {seed}: {hits} steps with a penetration"
+
+
+def test_without_the_shield_the_same_policies_penetrate() -> None:
+    hits = sum(_whole_arm_episode(seed, kind, shield=False)[0] > 0 for seed in range(4)
+               for kind in ("random", "bang-bang"))
+    assert hits >= 3
+
+
+@pytest.mark.parametrize("kind", ["random", "bang-bang"])
+def test_moving_obstacles_penetrate_only_in_fallback_steps(kind: str) -> None:
+    """Obstacles moving at 0.05–0.2 m/s: a penetration begins only in a step the shield reports as a
+    fallback, and in at most 2 % of episodes (here: none of 6; the soak test measures the rate)."""
+    episodes_hit = 0
+    for seed in range(6):
+        hits, hits_in_fallback, _ = _whole_arm_episode(seed, kind, shield=True, speed=(0.05, 0.2))
+        assert hits == hits_in_fallback, f"seed {seed}: a penetration outside a fallback step"
+        episodes_hit += hits > 0
+    assert episodes_hit == 0
+
+
+def test_engine_clearance_agrees_with_the_independent_geometry() -> None:
+    """Engine.clearance() (links to obstacles where they are now, and to other arms) against geometry.py,
+    after some unshielded steps with moving obstacles."""
+    import geometry
+
+    from pan1_env.environment import parallel_env
+
+    core = parallel_env("random", random_options={**WHOLE, "obstacle_speed": (0.1, 0.3)}, control_dt=0.01,
+                        physics_dt=0.01)
+    core.reset(seed=11)
+    rng = np.random.default_rng(0)
+    for _ in range(60):
+        core.step({a: rng.uniform(-1, 1, core.action_space(a).shape) for a in core.agents})
+    arms, parts = geometry.arms_from_state(core.state(), core.scenario)
+    to_obstacles = geometry.obstacle_clearances(arms, parts["centers"], parts["radii"], RHO)
+    between = geometry.inter_arm_clearances(arms, RHO)
+    expected = [min(to_obstacles[i].min(initial=np.inf),
+                    *(c.min() for (a, b), c in between.items() if i in (a, b))) for i in range(len(arms))]
+    np.testing.assert_allclose(core.engine.clearance()[0], expected, atol=1e-5)
+    np.testing.assert_allclose(parts["centers"], core.scenario.obstacle_centers(0.6), atol=1e-6)
+
+
+def test_paper_scenarios_keep_the_end_effector_kernel() -> None:
+    """The paper's scenarios protect end-effectors, as published: the engine takes the kernel's
+    end-effector path (no capsules), so their reproduction is unchanged."""
+    from pan1_env.environment import parallel_env
+
+    for name in ("paper_pa3_square", "paper_pa_mixed_square"):
+        engine = parallel_env(name).engine
+        assert not engine.whole_arm and all(kind.whole is None for kind in engine.kinds)
+
+
+def test_least_violation_relaxes_conflicting_rows_uniformly() -> None:
+    """Rows x ≤ −1 and −x ≤ −1 (x ≥ 1) cannot both hold: relaxed by t‖A_j‖ they first can at t = 1, with
+    x = 0; the speed bounds |v| ≤ 2 are kept, so from v0 = (3, 3) the answer is (0, 2). A zero row
+    with b < 0 (nothing the arm can do about it) is dropped."""
+    K = kernels().capsules
+    A = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 0.0], [1, 0], [-1, 0], [0, 1], [0, -1]])
+    b = np.array([-1.0, -1.0, -5.0, 2, 2, 2, 2])
+    active = np.ones(7, bool)
+    m, k = 7, 2
+    v = np.empty(2)
+    scratch = (np.empty(m), np.empty(m), np.empty(m, np.int64), np.empty(k, np.int64), np.empty((k, k)), np.empty(k),
+               np.empty(k), np.empty(k), np.empty((k, k)), np.empty(k), np.empty(m), np.empty(m))
+    t = K.least_violation(np.array([3.0, 3.0]), A, b, active, m, k, 4, v, *scratch)
+    assert t == pytest.approx(1.0, abs=1e-6)  # the QP accepts rows within its feasibility tolerance
+    np.testing.assert_allclose(v, [0.0, 2.0], atol=1e-6)
