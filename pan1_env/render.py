@@ -2,10 +2,12 @@
 
 A frame shows each arm's links and joints (a PA arm's passive joint as a hollow red ring), its
 end-effector labelled with the arm's number 1..N (as in the figures and tables; agent ``arm_i`` is
-arm i + 1), the obstacles (red disks) with the safety filter's boundary (dashed), the formation's
-edges between the end-effectors (green when within 1 cm of their length, orange otherwise) and the
-target shape (grey, dashed) fitted to the end-effectors by the best rigid motion. Matplotlib is
-imported only when the first frame is drawn; ``rgb_array`` needs no display.
+arm i + 1), the obstacles (red disks, where they are now) with the safety filter's boundary (dashed)
+and a moving obstacle's path (thin, dashed), the formation's edges between the end-effectors (green
+when within 1 cm of their length, orange otherwise) and the target shape (grey, dashed) fitted to the
+end-effectors by the best rigid motion. With ``bodies = "links"`` each link is also shaded as the
+capsule of radius ``link_radius`` that the filter keeps clear, so a frame shows what is protected.
+Matplotlib is imported only when the first frame is drawn; ``rgb_array`` needs no display.
 """
 
 from __future__ import annotations
@@ -25,6 +27,16 @@ def fit_shape(target: np.ndarray, points: np.ndarray) -> np.ndarray:
     d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
     R = Vt.T @ np.diag([1.0, d]) @ U.T
     return (target - tc) @ R.T + pc
+
+
+def _capsule(a: np.ndarray, b: np.ndarray, radius: float, n: int = 16) -> np.ndarray:
+    """The outline ``(2n, 2)`` of the capsule of ``radius`` about segment a–b: a half circle round each end,
+    so the drawn shape is exactly the set the filter keeps clear (a stroke's width would be in points)."""
+    d = np.asarray(b, dtype=float) - a
+    theta = np.arctan2(d[1], d[0])  # 0 for a zero-length link: a disk
+    arc = np.linspace(-np.pi / 2, np.pi / 2, n)
+    ends = [(b, theta + arc), (a, theta + np.pi + arc)]
+    return np.concatenate([c + radius * np.stack([np.cos(t), np.sin(t)], axis=-1) for c, t in ends])
 
 
 class Renderer:
@@ -52,12 +64,20 @@ class Renderer:
         if self._limits is None or getattr(self, "_scenario", None) is not sc:
             self._scenario = sc
             pts = [a.base for a in sc.arms] + list(sc.obstacles.centers)
+            pts += [] if sc.obstacle_paths is None else list(sc.obstacle_paths)  # whole paths in view
             reach = max(a.reach for a in sc.arms)
             pts = np.array(pts)
             self._limits = (pts.min(0) - reach, pts.max(0) + reach)
         lo, hi = self._limits
         margin = sc.safety_margin
-        for c, r in zip(sc.obstacles.centers, sc.obstacles.radii, strict=True):
+        if sc.obstacle_paths is not None:  # a moving obstacle goes back and forth along its path
+            moving = sc.moving_obstacles
+            for path in np.stack([sc.obstacles.centers[moving], sc.obstacle_paths[moving]], axis=1):
+                ax.plot(*path.T, "--", color="tab:red", lw=0.8, alpha=0.7, gid="obstacle_path")
+        # where the obstacles are now: the engine moves them (a stand-in env without one: the scenario's centres)
+        engine = getattr(env, "engine", None)
+        centers = sc.obstacles.centers if engine is None else engine.centers[0]
+        for c, r in zip(centers, sc.obstacles.radii, strict=True):
             ax.add_patch(mpatches.Circle(c, r, color="tab:red", alpha=0.55, lw=0))
             ax.add_patch(mpatches.Circle(c, np.sqrt(r * r + margin), fill=False, ls="--", color="tab:red", lw=1))
         q, _ = env.joint_state()
@@ -66,6 +86,10 @@ class Renderer:
         for i, arm in enumerate(sc.arms):
             pts = joint_positions(arm, q[i, : arm.n_links])
             col = colors[i % len(colors)]
+            if sc.bodies == "links" and sc.link_radius > 0:
+                for p0, p1 in zip(pts[:-1], pts[1:], strict=True):
+                    ax.add_patch(mpatches.Polygon(_capsule(p0, p1, sc.link_radius), color=col, alpha=0.3,
+                                                  lw=0, gid="capsule"))
             ax.plot(pts[:, 0], pts[:, 1], "-", color=col, lw=3, solid_capstyle="round")
             ax.plot(pts[1:-1, 0], pts[1:-1, 1], "o", color="k", ms=4)
             ax.plot(*arm.base, "s", color="k", ms=7)
