@@ -13,7 +13,9 @@ so the same generator state gives the same scenario. Every draw is checked to be
   every obstacle, and with ``inter_arm`` of every other arm's capsules;
 * **moving obstacles clear of the bases** – with ``obstacle_speed`` above 0 each obstacle draws a speed
   and a path (direction uniform, length in ``obstacle_path_length``) whose every point keeps the
-  obstacle ``BASE_MARGIN + link_radius`` clear of every base, so no base is ever hit;
+  obstacle ``BASE_MARGIN + link_radius`` clear of every base, so no base is ever hit, and, for a PA
+  arm, clear of the disk its first link sweeps (radius L₀ more): that link moves only as the passive
+  joint reacts, so an obstacle running into it could find the arm unable to get out of the way;
 * **regular at the start** – J̄ has full rank (Assumption 1), with σ_min(J̄) ≥ ``min_sigma``.
 
 Arms start at rest (Lemma 1 needs it). With the default options (end-effectors only, still
@@ -234,6 +236,9 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
         hi = np.maximum(starts.max(0), targets.max(0)) + 0.2
         centers, radii, paths, speeds = [], [], [], []
         rho = opt.link_radius
+        # a PA arm's first link moves only as the passive joint reacts to the others: a moving obstacle
+        # that sweeps into it can find the arm unable to get out of the way (an infeasible filter)
+        passive_sweep = np.array([a.lengths[0] if a.passive_first_joint else 0.0 for a in arms])
         for _ in range(50 * max(opt.n_obstacles, 1)):
             if len(radii) == opt.n_obstacles:
                 break
@@ -249,7 +254,7 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
             if opt.moving:
                 speed, end = _draw_path(rng, c, opt)
                 x, _ = closest_point_on_segment(c, end, bases)
-                if np.linalg.norm(bases - x, axis=-1).min() < r + BASE_MARGIN + rho:
+                if np.any(np.linalg.norm(bases - x, axis=-1) < r + BASE_MARGIN + rho + passive_sweep):
                     continue
                 paths.append(end)
                 speeds.append(speed)

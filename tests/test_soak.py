@@ -75,3 +75,60 @@ def test_soak_one_million_shielded_arm_steps(capsys) -> None:
     assert total["cost"] == 0.0 and total["min_clearance_m"] >= 0.0
     assert total["non_finite"] == 0 and total["faults"] == 0
     assert total["rss_growth_after_warmup_mb"] < 100.0
+
+
+WHOLE_ARM = {"bodies": "links", "link_radius": 0.03, "inter_arm": True, "obstacle_speed": (0.05, 0.2)}
+
+
+def test_soak_whole_arm_moving_obstacles(capsys) -> None:
+    """10⁶ shielded arm-steps on random whole-arm teams (link capsules, arms kept apart, obstacles moving
+    at 0.05–0.2 m/s), control_dt = physics_dt = 0.01 s: half the copies take uniform random actions,
+    half bang-bang ones held for 40 steps; every copy draws a new team when its 250-step episode ends.
+    A penetration (a capsule entering an obstacle or another arm's capsule: the step's cost) may begin
+    only in a step whose shield report says fallback, and in at most 2 % of the episodes."""
+    from pan1_env.vector import Pan1VectorEnv
+
+    B, steps = 128, 2000
+    venv = Pan1VectorEnv("random", B, random_options=WHOLE_ARM, control_dt=0.01, physics_dt=0.01, max_steps=250)
+    venv.reset(seed=7_000_000)
+    rng = np.random.default_rng(0)
+    bang = np.arange(B) >= B // 2
+    held = rng.choice([-1.0, 1.0], size=venv.action_space.shape)
+    inside = np.zeros(B, dtype=bool)  # a capsule is inside something at the end of the last step
+    hit_this_episode = np.zeros(B, dtype=bool)
+    stats = {"arm_steps": 0, "episodes": 0, "episodes_with_penetration": 0, "penetrations_begun": 0,
+             "begun_outside_fallback": 0, "fallback_copy_steps": 0, "intervention_copy_steps": 0, "non_finite": 0,
+             "min_clearance_m": float("inf")}
+    rss_after_warmup = None
+    for t in range(steps):
+        actions = rng.uniform(-1.0, 1.0, venv.action_space.shape)
+        if t % 40 == 0:
+            held = rng.choice([-1.0, 1.0], size=venv.action_space.shape)
+        actions[bang] = held[bang]
+        obs, _, terminated, truncated, infos = venv.step(actions)
+        now_inside = infos["cost"] > 0
+        begins = now_inside & ~inside
+        stats["penetrations_begun"] += int(begins.sum())
+        stats["begun_outside_fallback"] += int((begins & ~infos["shield_fallback"]).sum())
+        stats["fallback_copy_steps"] += int(infos["shield_fallback"].sum())
+        stats["intervention_copy_steps"] += int(infos["shield_intervened"].sum())
+        stats["non_finite"] += int((~np.isfinite(obs)).any(axis=1).sum()) + int("fault" in infos)
+        stats["min_clearance_m"] = min(stats["min_clearance_m"], float(infos["min_clearance"].min()))
+        stats["arm_steps"] += B * venv.engine.n_arms
+        hit_this_episode |= now_inside
+        done = terminated | truncated
+        stats["episodes"] += int(done.sum())
+        stats["episodes_with_penetration"] += int((hit_this_episode & done).sum())
+        hit_this_episode[done] = False
+        inside = now_inside & ~done  # a new team starts clear
+        if rss_after_warmup is None and t == steps // 10:
+            rss_after_warmup = _peak_rss_mb()
+    stats["peak_rss_mb"] = _peak_rss_mb()
+    stats["rss_growth_after_warmup_mb"] = stats["peak_rss_mb"] - rss_after_warmup
+    with capsys.disabled():
+        print("\nwhole-arm soak:", json.dumps(stats))
+    assert stats["arm_steps"] >= ARM_STEPS and stats["episodes"] >= 100
+    assert stats["begun_outside_fallback"] == 0
+    assert stats["episodes_with_penetration"] <= 0.02 * stats["episodes"]
+    assert stats["non_finite"] == 0
+    assert stats["rss_growth_after_warmup_mb"] < 100.0
