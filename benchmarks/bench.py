@@ -12,6 +12,8 @@ Prints a Markdown table of medians (each over several repeats) and the ratios th
 * the vector env (:class:`pan1_env.vector.Pan1VectorEnv`, shielded) at B = 1, 64, 1024, 16384:
   arm-steps per second (one arm advanced one env step = 5 physics sub-steps, each with its QP) and
   physics arm-steps per second, against B separate shielded Gymnasium envs stepped in a loop;
+* whole-arm safety (link capsules, other arms, moving obstacles) against end-effector safety, per
+  arm-sub-step of the shielded vector env at B = 1024 on the same random teams;
 * the exact compiled QP against qpsolvers + PIQP, per solve, on the same random filter problems;
 * the shielded step for teams of 4, 16 and 64 arms (random polygons of PA3 arms), and 64 against 4;
 * ``pan1-env reproduce`` of each paper scenario (the simulation loop, nominal and safe);
@@ -171,6 +173,52 @@ def bench_vector(repeats: int, sizes: tuple[int, ...]) -> list[tuple[str, float,
     return rows
 
 
+def bench_whole_arm(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
+    """Whole-arm safety against end-effector safety, per arm-sub-step of the shielded vector env on the
+    same random teams (B copies of 4 arms, 5 sub-steps of 10 ms per step): links only, links and
+    inter-arm rows, and links, inter-arm rows and moving obstacles (WholeArmFormation-v0's options)."""
+    from pan1_env.vector import Pan1VectorEnv
+
+    variants = {
+        "end-effectors (RandomFormation-v0's bodies)": {},
+        "links": {"bodies": "links", "link_radius": 0.03},
+        "links + other arms": {"bodies": "links", "link_radius": 0.03, "inter_arm": True},
+        "links + other arms + moving obstacles": {"bodies": "links", "link_radius": 0.03, "inter_arm": True,
+                                                  "obstacle_speed": (0.05, 0.2)},
+    }
+    steppers = {}
+    for name, options in variants.items():
+        print(f"bench: vector env at B = {B}, {name} ...", file=sys.stderr, flush=True)
+        venv = Pan1VectorEnv("random", B, random_options=options, physics_dt=0.01)
+        venv.reset(seed=0)
+        venv.action_space.seed(0)
+        actions = [venv.action_space.sample() for _ in range(4)]
+        state = {"i": 0}
+
+        def step(venv=venv, actions=actions, state=state):
+            venv.step(actions[state["i"] % 4])
+            state["i"] += 1
+
+        for _ in range(3):
+            step()
+        steppers[name] = (step, B * venv.engine.n_arms * venv.template.substeps, B * venv.engine.n_arms)
+    times = {name: [] for name in variants}
+    for _ in range(repeats):  # in alternation, so that a slow spell of the machine hits every variant
+        for name, (step, _, _) in steppers.items():
+            times[name].append(_median_time(step, 1, 5))
+    rows = []
+    base = None
+    for name, (_, sub_steps, arms) in steppers.items():
+        t = statistics.median(times[name])
+        per_sub = t / sub_steps
+        base = per_sub if base is None else base
+        rows.append((f"whole-arm: {name}, per arm-sub-step (B = {B})", per_sub, ""))
+        if per_sub is not base:
+            rows.append(("  ratio to end-effectors (target ≤ 3)", per_sub / base, "ratio"))
+        rows.append(("  shielded arm-steps per second (target ≥ 500,000 for the last)", arms / t, "rate"))
+    return rows
+
+
 def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
     """The compiled sub-step kernel alone, one thread, per arm-sub-step: 4096 PA3 arms (the vector
     env's state at B = 1024 after a few random steps) advanced 5 sub-steps of 10 ms, from the same state
@@ -203,7 +251,7 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
                     kind.mask, kappa, epsilon, margin, ke, t.physics_dt, t.substeps,
                     np.inf if torque else t.max_joint_speed, np.empty((A, k)), np.empty((A, k)), np.empty((A, n)),
                     np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64),
-                    np.zeros(A), np.ones(A, bool))
+                    np.zeros(A), np.ones(A, bool), None)
             if threads > 1:
                 kernels.group_advance_parallel(*args, 4 * threads)
             else:
@@ -409,6 +457,7 @@ def main() -> int:
     rows += bench_one_arm_vs_acrobot(repeats, inner)
     rows += bench_vector(repeats, (1, 64, 1024) if args.quick else (1, 64, 1024, 16384))
     rows += bench_kernel(repeats)
+    rows += bench_whole_arm(repeats)
     rows += bench_qp(300 if args.quick else 2000)
     rows += bench_team_scaling(repeats, inner)
     rows += bench_reproduce(10.0 if args.quick else 100.0)
