@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .bodies import closest_point_on_segment, obstacle_centers
+from .bodies import closest_point_on_segment, obstacle_centers, obstacle_velocities
 from .compiled import kernel_sizes, kernels
 from .dynamics import ArmBatch
 from .safety import QP_SOLVERS, clearance, project_velocity, rcbf_constraints
@@ -316,6 +316,10 @@ class Engine:
             q[:, kind.ids, : kind.n] = kind.q.reshape(B, kind.A, kind.n)
             qd[:, kind.ids, : kind.n] = kind.qd.reshape(B, kind.A, kind.n)
         return q, qd
+
+    def obstacle_velocities(self) -> np.ndarray:
+        """Every copy's obstacle velocities now, ``(B, O, 2)`` (zeros for still obstacles)."""
+        return obstacle_velocities(self.start_centers, self.path_ends, self.speeds, self.elapsed)
 
     def joint_positions(self) -> np.ndarray:
         """Base, joints and end-effector of every arm, ``(B, N, n_max + 1, 2)``; an arm of fewer links

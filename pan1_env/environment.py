@@ -72,7 +72,8 @@ class Pan1ParallelEnv(ParallelEnv):
 
     ## Observation Space
 
-    ``Box(-inf, inf, (3n + 2 + 4D + 5K,), float32)`` per agent, *local* to the agent:
+    ``Box(-inf, inf, (3n + 2 + 4D + 5K,), float32)`` per agent (``+ 2K`` with moving obstacles), *local* to
+    the agent:
 
     | slice | content |
     |---|---|
@@ -82,6 +83,7 @@ class Pan1ParallelEnv(ParallelEnv):
     | ``[3n, 3n+2)`` | own end-effector relative to own base, p − p0 (m) |
     | next ``4D`` | D neighbour slots ``[present, dx, dy, err]`` |
     | next ``5K`` | K obstacle slots ``[present, dx, dy, r, h]`` |
+    | last ``2K`` | only with moving obstacles: the same slots' obstacle velocities ``[vx, vy]`` (m/s) |
 
     D is the formation graph's largest degree (N − 1 for random scenarios); for neighbour j,
     (dx, dy) = p_j − p_i and err = ‖p_j − p_i‖ − d_ij (m). The K obstacles are the nearest by
@@ -91,7 +93,8 @@ class Pan1ParallelEnv(ParallelEnv):
     Neighbours appear in the order of the formation's edges. This is everything the paper's
     distributed controller needs besides the arm's own parameters (see
     :class:`pan1_env.baselines.ReferencePolicy`). ``state()`` returns the global state: for every
-    arm q and q̇ (padded with zeros to the largest n) and p, then every obstacle's centre and radius.
+    arm q and q̇ (padded with zeros to the largest n) and p, then every obstacle's centre (where it is
+    now) and radius.
 
     Arms with different n have different spaces. For parameter sharing pad them to one size, e.g.
     with SuperSuit: ``supersuit.pad_observations_v0(env)`` and ``supersuit.pad_action_space_v0(env)``.

@@ -3,7 +3,8 @@
 :class:`ObservationLayout` fixes, from a scenario's structure, what each agent sees and where
 (the table in :class:`~pan1_env.environment.Pan1ParallelEnv`'s docstring):
 ``[cos q, sin q, q̇ / v_max, p − p0, D neighbour slots (present, dx, dy, err), K obstacle slots
-(present, dx, dy, r, h)]``. :meth:`ObservationLayout.build` computes every agent's observation
+(present, dx, dy, r, h)]``, and with moving obstacles the K slots' velocities (vx, vy) at the end.
+:meth:`ObservationLayout.build` computes every agent's observation
 from batched state arrays with a leading batch axis B (the parallel env passes B = 1, the vector
 env B copies), one compiled call (:func:`pan1_env.kernels.group_observations`) per group of
 equal-sized agents, with no per-agent Python loop.
@@ -43,6 +44,8 @@ class ObservationLayout:
         neighbour_edge: ``(N, D)`` edge index per slot (0 in absent slots).
         neighbour_present: ``(N, D)`` 1.0 where the slot is used.
         groups: ``(n, arm indices)`` for each distinct n, in increasing n.
+        obstacle_velocity: the scenario has moving obstacles: the observation ends with the K obstacle
+            slots' velocities ``[vx, vy]`` (m/s).
     """
 
     n: np.ndarray
@@ -52,6 +55,7 @@ class ObservationLayout:
     neighbour_edge: np.ndarray
     neighbour_present: np.ndarray
     groups: tuple[tuple[int, np.ndarray], ...]
+    obstacle_velocity: bool = False
 
     @classmethod
     def from_scenario(cls, scenario: Scenario, slots: int, n_obstacle_obs: int) -> ObservationLayout:
@@ -73,7 +77,8 @@ class ObservationLayout:
         n = np.array([a.n_links for a in scenario.arms])
         groups = tuple((int(m), np.flatnonzero(n == m)) for m in np.unique(n))
         return cls(n=n, slots=int(slots), n_obstacle_obs=int(n_obstacle_obs), neighbour=neighbour,
-                   neighbour_edge=edge, neighbour_present=present, groups=groups)
+                   neighbour_edge=edge, neighbour_present=present, groups=groups,
+                   obstacle_velocity=scenario.obstacle_paths is not None)
 
     @cached_property
     def _neighbour_mask(self) -> np.ndarray:
@@ -85,7 +90,8 @@ class ObservationLayout:
 
     def size(self, n: int) -> int:
         """Observation length of an agent with n links."""
-        return 3 * n + 2 + NEIGHBOUR_FEATURES * self.slots + OBSTACLE_FEATURES * self.n_obstacle_obs
+        velocities = 2 * self.n_obstacle_obs if self.obstacle_velocity else 0
+        return 3 * n + 2 + NEIGHBOUR_FEATURES * self.slots + OBSTACLE_FEATURES * self.n_obstacle_obs + velocities
 
     def segments(self, n: int) -> dict[str, slice]:
         """Where each part of an n-link agent's observation lies, as slices of its vector.
@@ -93,13 +99,17 @@ class ObservationLayout:
         ``cos_q``, ``sin_q``, ``qd_scaled`` (q̇ / max_joint_speed), ``ee_rel_base`` (p − p0),
         ``neighbours`` (:attr:`slots` × :data:`NEIGHBOUR_FEATURES` entries ``[present, dx, dy, err]``)
         and ``obstacles`` (:attr:`n_obstacle_obs` × :data:`OBSTACLE_FEATURES` entries
-        ``[present, dx, dy, r, h]``), in this order, covering :meth:`size` entries.
+        ``[present, dx, dy, r, h]``), in this order, then with :attr:`obstacle_velocity`
+        ``obstacle_velocities`` (the same slots' ``[vx, vy]``), covering :meth:`size` entries.
         """
         nb = 3 * n + 2
         ob = nb + NEIGHBOUR_FEATURES * self.slots
-        return {"cos_q": slice(0, n), "sin_q": slice(n, 2 * n), "qd_scaled": slice(2 * n, 3 * n),
-                "ee_rel_base": slice(3 * n, nb), "neighbours": slice(nb, ob),
-                "obstacles": slice(ob, ob + OBSTACLE_FEATURES * self.n_obstacle_obs)}
+        end = ob + OBSTACLE_FEATURES * self.n_obstacle_obs
+        parts = {"cos_q": slice(0, n), "sin_q": slice(n, 2 * n), "qd_scaled": slice(2 * n, 3 * n),
+                 "ee_rel_base": slice(3 * n, nb), "neighbours": slice(nb, ob), "obstacles": slice(ob, end)}
+        if self.obstacle_velocity:
+            parts["obstacle_velocities"] = slice(end, end + 2 * self.n_obstacle_obs)
+        return parts
 
     def n_links(self, size: int) -> int:
         """The number of links of an agent whose observation has ``size`` entries (inverse of :meth:`size`)."""
@@ -123,31 +133,43 @@ class ObservationLayout:
 
     def build_with_errors(self, q: np.ndarray, qd: np.ndarray, P: np.ndarray, base: np.ndarray, edges: np.ndarray,
                           distances: np.ndarray, centers: np.ndarray, radii: np.ndarray,
-                          max_joint_speed: float, n_chunks: int = 0) -> tuple[np.ndarray, list[np.ndarray]]:
+                          max_joint_speed: float, n_chunks: int = 0, *,
+                          velocities: np.ndarray | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
         """The edges' length errors ‖z_k‖ − d_k ``(B, E)`` and :meth:`build`'s observations, computed
         together (``edges (E, 2)`` int64, ``distances (B, E)``; other arguments as :meth:`build`)."""
         _check_chunks(n_chunks)
         kern = kernels()
         err = np.empty(distances.shape)
+        velocities = self._velocities(velocities, radii)
         if n_chunks:
             kern.edge_length_errors(P, edges, distances, err)
-            return err, self.build(q, qd, P, base, err, centers, radii, max_joint_speed, n_chunks)
+            return err, self.build(q, qd, P, base, err, centers, radii, max_joint_speed, n_chunks,
+                                   velocities=velocities)
         out = []
         for r, (ids, size) in enumerate(self._group_sizes):
             obs = np.empty((P.shape[0], len(ids), size), dtype=np.float32)
             if r == 0:
-                kern.formation_observations(P, edges, distances, err, q, qd, base, centers, radii, ids, self.neighbour,
-                                            self.neighbour_edge, self._neighbour_mask, self.n_obstacle_obs,
-                                            1.0 / max_joint_speed, OBS_BOUND, obs)
+                kern.formation_observations(P, edges, distances, err, q, qd, base, centers, radii, velocities, ids,
+                                            self.neighbour, self.neighbour_edge, self._neighbour_mask,
+                                            self.n_obstacle_obs, 1.0 / max_joint_speed, OBS_BOUND, obs)
             else:
-                kern.group_observations(q, qd, P, base, err, centers, radii, ids, self.neighbour, self.neighbour_edge,
-                                        self._neighbour_mask, self.n_obstacle_obs, 1.0 / max_joint_speed, OBS_BOUND,
-                                        obs)
+                kern.group_observations(q, qd, P, base, err, centers, radii, velocities, ids, self.neighbour,
+                                        self.neighbour_edge, self._neighbour_mask, self.n_obstacle_obs,
+                                        1.0 / max_joint_speed, OBS_BOUND, obs)
             out.append(obs)
         return err, out
 
+    def _velocities(self, velocities: np.ndarray | None, radii: np.ndarray) -> np.ndarray:
+        """The kernels' velocity argument: ``(B, O, 2)`` with :attr:`obstacle_velocity`, else ``(B, 0, 2)``."""
+        if not self.obstacle_velocity:
+            return np.empty((radii.shape[0], 0, 2))
+        if velocities is None or np.shape(velocities) != (*radii.shape, 2):
+            raise ValueError(f"this layout observes obstacle velocities: pass velocities of shape {(*radii.shape, 2)}")
+        return np.ascontiguousarray(velocities, dtype=float)
+
     def build(self, q: np.ndarray, qd: np.ndarray, P: np.ndarray, base: np.ndarray, edge_errors: np.ndarray,
-              centers: np.ndarray, radii: np.ndarray, max_joint_speed: float, n_chunks: int = 0) -> list[np.ndarray]:
+              centers: np.ndarray, radii: np.ndarray, max_joint_speed: float, n_chunks: int = 0, *,
+              velocities: np.ndarray | None = None) -> list[np.ndarray]:
         """Every agent's observation, one float32 array ``(B, A, size(n))`` per group of :attr:`groups`.
 
         Args:
@@ -156,15 +178,18 @@ class ObservationLayout:
             edge_errors: ``(B, E)`` ‖z_k‖ − d_k.
             centers: ``(B, O, 2)``, radii: ``(B, O)``: each team's obstacles.
             max_joint_speed: scale of q̇.
+            velocities: ``(B, O, 2)`` the obstacles' velocities, for a layout with
+                :attr:`obstacle_velocity` (required there, ignored otherwise).
             n_chunks: 0 for the single-threaded kernel; otherwise the teams are split into this
                 many chunks on numba's thread pool (for large B).
         """
         _check_chunks(n_chunks)
         kern = kernels()
+        velocities = self._velocities(velocities, radii)
         out = []
         for ids, size in self._group_sizes:
             obs = np.empty((P.shape[0], len(ids), size), dtype=np.float32)
-            args = (q, qd, P, base, edge_errors, centers, radii, ids, self.neighbour, self.neighbour_edge,
+            args = (q, qd, P, base, edge_errors, centers, radii, velocities, ids, self.neighbour, self.neighbour_edge,
                     self._neighbour_mask, self.n_obstacle_obs, 1.0 / max_joint_speed, OBS_BOUND, obs)
             if n_chunks:
                 kern.group_observations_parallel(*args, n_chunks)

@@ -119,9 +119,10 @@ class FormationTask:
         """The edges' length errors ``(B, E)`` and every agent's observation, one float32 array
         ``(B, A, size)`` per group of :attr:`ObservationLayout.groups`."""
         q, qd = engine.joint_state()
+        velocities = engine.obstacle_velocities() if self.layout.obstacle_velocity else None
         return self.layout.build_with_errors(q, qd, engine.positions(), engine.bases, self.edges, self.distances,
                                              engine.centers, engine.radii, self.max_joint_speed,
-                                             engine._chunks(engine.copies * engine.n_arms))
+                                             engine._chunks(engine.copies * engine.n_arms), velocities=velocities)
 
     def flat(self, mats: list[np.ndarray]) -> np.ndarray:
         """The agents' observations concatenated in agent order, ``(B, Σ size)``."""

@@ -295,3 +295,31 @@ def test_least_violation_relaxes_conflicting_rows_uniformly() -> None:
     t = K.least_violation(np.array([3.0, 3.0]), A, b, active, m, k, 4, v, *scratch)
     assert t == pytest.approx(1.0, abs=1e-6)  # the QP accepts rows within its feasibility tolerance
     np.testing.assert_allclose(v, [0.0, 2.0], atol=1e-6)
+
+
+def test_observations_carry_the_slots_obstacle_velocities() -> None:
+    """With moving obstacles an agent's observation ends with its K obstacle slots' velocities: the slot
+    at (dx, dy) from the end-effector holds the obstacle there, and the velocity beside it is that
+    obstacle's (Scenario.obstacle_velocities at the env's time); without, the layout is unchanged."""
+    from pan1_env.environment import parallel_env
+
+    env = parallel_env("random", random_options={**WHOLE, "obstacle_speed": (0.05, 0.2)}, control_dt=0.01,
+                       physics_dt=0.01)
+    plain = parallel_env("random")
+    obs, _ = env.reset(seed=2)
+    for _ in range(37):
+        obs, *_ = env.step({a: np.zeros(env.action_space(a).shape) for a in env.agents})
+    sc, layout = env.scenario, env.observation_layout
+    K = layout.n_obstacle_obs
+    centers, velocities = sc.obstacle_centers(0.37), sc.obstacle_velocities(0.37)
+    assert np.abs(velocities).max() > 0.04
+    for i, agent in enumerate(env.agents):
+        n = sc.arms[i].n_links
+        seg = layout.segments(n)
+        assert env.observation_space(agent).shape == (plain.observation_space(agent).shape[0] + 2 * K,)
+        slots = obs[agent][seg["obstacles"]].reshape(K, 5)
+        p = env.engine.positions()[0, i]
+        for slot, v in zip(slots, obs[agent][seg["obstacle_velocities"]].reshape(K, 2), strict=True):
+            j = int(np.argmin(np.linalg.norm(centers - (p + slot[1:3]), axis=-1)))
+            np.testing.assert_allclose(centers[j], p + slot[1:3], atol=1e-5)
+            np.testing.assert_allclose(v, velocities[j], atol=1e-6)

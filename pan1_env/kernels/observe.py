@@ -10,11 +10,12 @@ from ._numba_ext import _JIT, _check_chunks
 
 
 @njit(**_JIT, inline="always")
-def _obstacle_slots(out, row, col, c, px, py, centers, radii, team, K, bound, clear, taken):
+def _obstacle_slots(out, row, col, c, px, py, centers, radii, velocities, vcol, team, K, bound, clear, taken):
     """Write K obstacle slots (present, dx, dy, r, h) at ``out[row, col, c:]`` for an end-effector at
     (px, py), from the obstacles ``centers[team]``, ``radii[team]``: the K obstacles of smallest
-    clearance ‖p − o‖ − r (ties: lower index first), zeros where absent. Inlined, and indices rather
-    than views: a view of a heap array costs two atomic reference-count updates."""
+    clearance ‖p − o‖ − r (ties: lower index first), zeros where absent. With ``vcol`` ≥ 0 the same
+    slots' obstacle velocities ``velocities[team]`` go to ``out[row, col, vcol:vcol + 2K]``. Inlined,
+    and indices rather than views: a view of a heap array costs two atomic reference-count updates."""
     O = radii.shape[1]
     for j in range(O):
         dx = centers[team, j, 0] - px
@@ -29,7 +30,13 @@ def _obstacle_slots(out, row, col, c, px, py, centers, radii, team, K, bound, cl
         if best < 0:
             for f in range(5):
                 out[row, col, c + f] = 0.0
+            if vcol >= 0:
+                out[row, col, vcol + 2 * _slot] = 0.0
+                out[row, col, vcol + 2 * _slot + 1] = 0.0
         else:
+            if vcol >= 0:
+                out[row, col, vcol + 2 * _slot] = min(max(velocities[team, best, 0], -bound), bound)
+                out[row, col, vcol + 2 * _slot + 1] = min(max(velocities[team, best, 1], -bound), bound)
             taken[best] = True
             dx = centers[team, best, 0] - px
             dy = centers[team, best, 1] - py
@@ -43,13 +50,15 @@ def _obstacle_slots(out, row, col, c, px, py, centers, radii, team, K, bound, cl
 
 
 @njit(**_JIT)
-def _observation_rows(lo, hi, q, qd, P, base, err, centers, radii, ids, neighbour, neighbour_edge, present, K,
-                      inv_vmax, bound, out):
+def _observation_rows(lo, hi, q, qd, P, base, err, centers, radii, velocities, ids, neighbour, neighbour_edge,
+                      present, K, inv_vmax, bound, out):
     """Teams ``lo … hi−1`` of :func:`group_observations` (the loop body, with its own scratch space)."""
     D = neighbour.shape[1]
     O = radii.shape[1]
     size = out.shape[2]
-    n = (size - 2 - 4 * D - 5 * K) // 3
+    moving = velocities.shape[1] > 0
+    n = (size - 2 - 4 * D - (7 if moving else 5) * K) // 3
+    vcol = size - 2 * K if moving else -1
     clear = np.empty(O)
     taken = np.empty(O, dtype=np.bool_)
     for bi in range(lo, hi):
@@ -77,7 +86,7 @@ def _observation_rows(lo, hi, q, qd, P, base, err, centers, radii, ids, neighbou
                     out[bi, r, c + 2] = 0.0
                     out[bi, r, c + 3] = 0.0
                 c += 4
-            _obstacle_slots(out, bi, r, c, px, py, centers, radii, bi, K, bound, clear, taken)
+            _obstacle_slots(out, bi, r, c, px, py, centers, radii, velocities, vcol, bi, K, bound, clear, taken)
 
 
 
@@ -85,28 +94,29 @@ _OBSERVATIONS_DOC = """Local observations of the arms ``ids`` (all with n links)
     ``out (B, A, size)``.
 
     Layout and inputs as :meth:`pan1_env.observation.ObservationLayout.build`; the K obstacle slots
-    hold the K obstacles of smallest clearance ‖p − o‖ − r (ties: lower index first); entries are
-    clipped to ±``bound``; absent slots are zeros.
+    hold the K obstacles of smallest clearance ‖p − o‖ − r (ties: lower index first); with obstacle
+    ``velocities (B, O, 2)`` (an empty ``(B, 0, 2)`` for none) the last 2K entries are the slots'
+    obstacle velocities; entries are clipped to ±``bound``; absent slots are zeros.
     """
 
 
-def group_observations(q, qd, P, base, err, centers, radii, ids, neighbour, neighbour_edge, present, K, inv_vmax,
-                       bound, out):
+def group_observations(q, qd, P, base, err, centers, radii, velocities, ids, neighbour, neighbour_edge, present, K,
+                       inv_vmax, bound, out):
     # _observation_rows called from Python (no compiled wrapper: one compilation less at a first step,
     # since numba compiles a callee's code again inside each caller); the parallel twin and
     # formation_observations run the same compiled rows
-    _observation_rows(0, q.shape[0], q, qd, P, base, err, centers, radii, ids, neighbour, neighbour_edge, present, K,
-                      inv_vmax, bound, out)
+    _observation_rows(0, q.shape[0], q, qd, P, base, err, centers, radii, velocities, ids, neighbour, neighbour_edge,
+                      present, K, inv_vmax, bound, out)
 
 
 @njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
-def group_observations_parallel(q, qd, P, base, err, centers, radii, ids, neighbour, neighbour_edge, present, K,
-                                inv_vmax, bound, out, n_chunks):
+def group_observations_parallel(q, qd, P, base, err, centers, radii, velocities, ids, neighbour, neighbour_edge,
+                                present, K, inv_vmax, bound, out, n_chunks):
     _check_chunks(n_chunks)
     B = q.shape[0]
     for c in prange(n_chunks):
-        _observation_rows(c * B // n_chunks, (c + 1) * B // n_chunks, q, qd, P, base, err, centers, radii, ids,
-                          neighbour, neighbour_edge, present, K, inv_vmax, bound, out)
+        _observation_rows(c * B // n_chunks, (c + 1) * B // n_chunks, q, qd, P, base, err, centers, radii, velocities,
+                          ids, neighbour, neighbour_edge, present, K, inv_vmax, bound, out)
 
 
 group_observations.__doc__ = _OBSERVATIONS_DOC
@@ -155,6 +165,7 @@ def reach_observations(q, qd, p, base, goal, centers, radii, K, inv_vmax, bound,
     clear = np.empty(O)
     taken = np.empty(O, dtype=np.bool_)
     rows = out.reshape((1, out.shape[0], out.shape[1]))  # the layout _obstacle_slots indexes
+    still = np.empty((q.shape[0], 0, 2))  # no velocities (vcol −1 below)
     for i in range(q.shape[0]):
         for a in range(n):
             out[i, a] = np.cos(q[i, a])
@@ -166,17 +177,17 @@ def reach_observations(q, qd, p, base, goal, centers, radii, K, inv_vmax, bound,
         out[i, 3 * n + 1] = min(max(py - base[i, 1], -bound), bound)
         out[i, 3 * n + 2] = min(max(goal[i, 0] - px, -bound), bound)
         out[i, 3 * n + 3] = min(max(goal[i, 1] - py, -bound), bound)
-        _obstacle_slots(rows, 0, i, 3 * n + 4, px, py, centers, radii, i, K, bound, clear, taken)
+        _obstacle_slots(rows, 0, i, 3 * n + 4, px, py, centers, radii, still, -1, i, K, bound, clear, taken)
 
 
 @njit(**_JIT)
-def formation_observations(P, edges, distances, err, q, qd, base, centers, radii, ids, neighbour, neighbour_edge,
-                           present, K, inv_vmax, bound, out):
+def formation_observations(P, edges, distances, err, q, qd, base, centers, radii, velocities, ids, neighbour,
+                           neighbour_edge, present, K, inv_vmax, bound, out):
     """:func:`edge_length_errors` into ``err (B, E)``, then :func:`group_observations` from them, in one call."""
     edge_length_errors(P, edges, distances, err)
     lo = q.shape[0] * 0  # an int64, as group_observations passes it
-    _observation_rows(lo, q.shape[0], q, qd, P, base, err, centers, radii, ids, neighbour, neighbour_edge, present,
-                      K, inv_vmax, bound, out)
+    _observation_rows(lo, q.shape[0], q, qd, P, base, err, centers, radii, velocities, ids, neighbour, neighbour_edge,
+                      present, K, inv_vmax, bound, out)
 
 
 
