@@ -387,16 +387,22 @@ class Engine:
         if self.inter_arm:
             # every arm's filter sees the others' capsules as they are at each sub-step: one kernel call per
             # sub-step, the capsules and the clearance between arms refreshed in between
-            finite, P = rec.finite.copy(), self.joint_positions()
+            # (each kind's outputs gathered once: the kernel accumulates minima, maxima and counts over calls)
+            calls = [self._kernel_args(kind, command, 1, torque, self.filter, rec) for kind in self.kinds]
+            finite = [out[-1].copy() for _, out in calls]  # the kernel marks an arm finite afresh each call
+            between, P = np.full((self.copies, self.n_arms), np.inf), self.joint_positions()
             for _ in range(int(substeps)):
                 self._refresh_capsules(P)
-                for kind in self.kinds:
-                    self._advance(kind, command, 1, torque, self.filter, rec)
-                finite &= rec.finite
+                for kind, (args, out), ok in zip(self.kinds, calls, finite, strict=True):
+                    self._call(kind, args)
+                    ok &= out[-1]
                 self._tick(1)
                 P = self.joint_positions()
-                np.minimum(rec.min_clearance, self.inter_arm_clearance(P), out=rec.min_clearance)
-            rec.finite[:] = finite
+                kernels().capsules.inter_arm_clearance(P, self.link_radius, between)
+            for kind, (_, out), ok in zip(self.kinds, calls, finite, strict=True):
+                out[-1][:] = ok
+                self._finish(kind, out, torque, rec)
+            np.minimum(rec.min_clearance, between, out=rec.min_clearance)
         else:
             if self.whole_arm:
                 self._refresh_capsules()
@@ -430,15 +436,23 @@ class Engine:
     def _advance(self, kind: _Kind, command: np.ndarray, substeps: int, torque: bool, params: FilterParams | None,
                  rec: StepRecord) -> None:
         """The kernel call: every arm of a kind in every copy, ``substeps`` sub-steps."""
+        args, out = self._kernel_args(kind, command, substeps, torque, params, rec)
+        self._call(kind, args)
+        self._finish(kind, out, torque, rec)
+
+    def _kernel_args(self, kind: _Kind, command: np.ndarray, substeps: int, torque: bool,
+                     params: FilterParams | None, rec: StepRecord) -> tuple[tuple, tuple]:
+        """The kernel's arguments for a kind, and its outputs: views of the record when one kind is the
+        team in order, else gathered copies of the record's rows (the kernel accumulates into them)."""
         B, A, n, k = self.copies, kind.A, kind.n, kind.k
         rows = B * A
-        if self.team_order:  # the kernel writes straight into the record (it accumulates minima and counts)
+        if self.team_order:
             out = (rec.v_star.reshape(rows, k), rec.tau.reshape(rows, n), rec.min_clearance.reshape(rows),
                    rec.min_barrier.reshape(rows), rec.qp_counts.reshape(rows, 3),
                    rec.max_tracking_error.reshape(rows), rec.finite.reshape(rows))
             cmd = np.ascontiguousarray(command.reshape(rows, k))
         else:
-            ids = kind.ids  # gathered copies of the record's rows (the kernel accumulates into them)
+            ids = kind.ids
             out = (np.empty((rows, k)), rec.tau[:, ids, :n].reshape(rows, n), rec.min_clearance[:, ids].reshape(rows),
                    rec.min_barrier[:, ids].reshape(rows), np.zeros((rows, 3), dtype=np.int64),
                    rec.max_tracking_error[:, ids].reshape(rows), np.ones(rows, dtype=bool))
@@ -447,13 +461,20 @@ class Engine:
         obstacles = (kind.centers, kind.radii, kind.mask) if kind.whole is None else kind.no_obstacles
         args = (*kind.state_args, cmd, torque, params is not None, *obstacles, *rcbf, self.ke, self.physics_dt,
                 substeps, self.max_speed, out[0], out[1], kind.qd, kind.p, *out[2:], kind.whole)
-        chunks = self._chunks(rows)
+        return args, out
+
+    def _call(self, kind: _Kind, args: tuple) -> None:
+        chunks = self._chunks(len(kind.q))
         if chunks:
             kernels().group_advance_parallel(*args, chunks)
         elif self._specialised(kind, args):
             kernels().group_advance(*args)
         else:
             kernels().group_advance_generic(*args)
+
+    def _finish(self, kind: _Kind, out: tuple, torque: bool, rec: StepRecord) -> None:
+        """After a kind's kernel call(s): scatter gathered outputs back into the record."""
+        B, A = self.copies, kind.A
         if torque:
             kind.has_prev[:] = False
         if not self.team_order:

@@ -30,6 +30,7 @@ from .qp import STATUS_FALLBACK, _project_one
 CAP_AX, CAP_AY, CAP_BX, CAP_BY, CAP_RADIUS, CAP_SHARE, CAP_UX, CAP_UY, CAP_PATH, CAP_SPEED, CAP_ACTIVE, CAP_ARM = \
     range(12)
 CAPSULE_COLUMNS = 12  #: columns of a capsule row; ``CAP_ARM`` is −1 for a world obstacle, else the other arm's index
+NEAR_COLUMNS = 10  #: :func:`whole_arm_rows`' scratch: segment now, velocity, half length, reach, range, share
 
 
 @njit(**_JIT, forceinline=True)
@@ -97,7 +98,7 @@ def _body(P, n, links, body):
 
 @njit(**_JIT)
 def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, skin, dt, lengths, bx, by, c, s, qd, M, caps, time,
-                   kappa, epsilon, margin, v_max, A, b, active, P):
+                   kappa, epsilon, margin, v_max, A, b, active, P, near):
     """The whole-arm RCBF rows of arm i (lane w of the kernel's scratch) at ``time``, then its speed
     bounds (finite ``v_max``), into ``A``, ``b``, ``active``: returns (rows written, smallest barrier h).
 
@@ -112,36 +113,48 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, skin, dt, lengths, 
     The rows keep each capsule ``skin`` plus the obstacle's travel in one sub-step farther out than its
     radius: the condition holds at the sub-step's start, and within the sub-step an obstacle may turn
     round on its path and the arm lags the filtered velocity, which without the skin let capsules
-    graze obstacles by fractions of a millimetre."""
+    graze obstacles by fractions of a millimetre.
+
+    ``near (C, NEAR_COLUMNS)`` is scratch: the capsules that may come within range of any point of the arm (every
+    point lies within the arm's reach of its base), where they are now, found once for all bodies."""
     C = caps.shape[1]
     m = 0
     h_min = np.inf
     cull = v_max < np.inf
     reach_speed = 0.0
-    for a in range(n):
-        reach_speed += abs(qd[a, w])
     arm_reach = 0.0
     for a in range(n):
+        reach_speed += abs(qd[a, w])
         arm_reach += lengths[a, w]
     reach_speed *= arm_reach
+    n_near = 0
+    for j in range(C):
+        if caps[i, j, CAP_ACTIVE] == 0.0:
+            continue
+        ox, oy, vx, vy = _capsule_motion(caps, i, j, time)
+        a2x, a2y = caps[i, j, CAP_AX] + ox, caps[i, j, CAP_AY] + oy
+        d2x, d2y = caps[i, j, CAP_BX] - caps[i, j, CAP_AX], caps[i, j, CAP_BY] - caps[i, j, CAP_AY]
+        half = 0.5 * np.sqrt(d2x * d2x + d2y * d2y)
+        reach = caps[i, j, CAP_RADIUS] + (rho if links else 0.0) + skin + caps[i, j, CAP_SPEED] * dt
+        within = reach + sensing + 2.0 * (reach_speed + caps[i, j, CAP_SPEED]) * dt
+        # the capsule's midpoint, less its half length, bounds its distance to any point of the arm
+        mx, my = a2x + 0.5 * d2x - bx[w], a2y + 0.5 * d2y - by[w]
+        if sensing < np.inf and mx * mx + my * my > (within + half + arm_reach) ** 2:
+            continue
+        near[n_near, 0], near[n_near, 1], near[n_near, 2], near[n_near, 3] = a2x, a2y, d2x, d2y
+        near[n_near, 4], near[n_near, 5], near[n_near, 6] = vx, vy, half
+        near[n_near, 7], near[n_near, 8], near[n_near, 9] = reach, within, caps[i, j, CAP_SHARE]
+        n_near += 1
     _joints(lengths, bx, by, c, s, n, w, P)
     for body in range(n if links else 1):
         a1x, a1y, d1x, d1y, ell = _body(P, n, links, body)
-        radius = rho if links else 0.0
         half_body = 0.5 * np.sqrt(d1x * d1x + d1y * d1y)
-        for j in range(C):
-            if caps[i, j, CAP_ACTIVE] == 0.0:
-                continue
-            ox, oy, vx, vy = _capsule_motion(caps, i, j, time)
-            a2x, a2y = caps[i, j, CAP_AX] + ox, caps[i, j, CAP_AY] + oy
-            d2x, d2y = caps[i, j, CAP_BX] - caps[i, j, CAP_AX], caps[i, j, CAP_BY] - caps[i, j, CAP_AY]
-            reach = caps[i, j, CAP_RADIUS] + radius + skin + caps[i, j, CAP_SPEED] * dt
-            within = reach + sensing + 2.0 * (reach_speed + caps[i, j, CAP_SPEED]) * dt
-            # the segments' midpoints, less their half lengths, bound their distance from below: skip a
-            # pair that is surely out of sensing range before the closest-pair computation
+        for x in range(n_near):
+            a2x, a2y, d2x, d2y = near[x, 0], near[x, 1], near[x, 2], near[x, 3]
+            reach, within = near[x, 7], near[x, 8]
+            # the segments' midpoints, less their half lengths, bound their distance from below
             mx, my = a1x + 0.5 * (d1x - d2x) - a2x, a1y + 0.5 * (d1y - d2y) - a2y
-            half = half_body + 0.5 * np.sqrt(d2x * d2x + d2y * d2y)
-            if mx * mx + my * my > (within + half) * (within + half) and sensing < np.inf:
+            if sensing < np.inf and mx * mx + my * my > (within + half_body + near[x, 6]) ** 2:
                 continue
             sp, tp = _closest_pair(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y)
             rx = a1x + sp * d1x - (a2x + tp * d2x)
@@ -176,7 +189,7 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, skin, dt, lengths, 
             for t in range(k):
                 lg2 += A[m, t] * A[m, t]
                 bound += abs(A[m, t])
-            bm = caps[i, j, CAP_SHARE] * kappa * (h - margin) - 2.0 * (rx * vx + ry * vy) - lg2 / epsilon
+            bm = near[x, 9] * kappa * (h - margin) - 2.0 * (rx * near[x, 4] + ry * near[x, 5]) - lg2 / epsilon
             if cull and bound * v_max <= bm:
                 continue
             b[m] = bm
@@ -259,11 +272,22 @@ def least_violation(v0, A, b, active, m, k, n_box, v_out, b_given, norms, rows, 
 def inter_arm_clearance(P, rho, out):
     """Running minimum into ``out (B, N)`` of every arm's clearance d − 2ρ to the other arms' link
     capsules, from the joints ``P (B, N, L + 1, 2)`` of :meth:`pan1_env.engine.Engine.joint_positions`
-    (padding links of length 0 at an arm's end-effector change nothing)."""
+    (padding links of length 0 at an arm's end-effector change nothing). A pair of arms whose bounding
+    disks (about each base) are farther apart than both running minima is skipped."""
     B, N, L = P.shape[0], P.shape[1], P.shape[2] - 1
+    extent = np.empty(N)
     for b in range(B):
+        for i in range(N):  # every point of arm i lies within extent[i] of its base (segments are convex)
+            far = 0.0
+            for a in range(1, L + 1):
+                far = max(far, (P[b, i, a, 0] - P[b, i, 0, 0]) ** 2 + (P[b, i, a, 1] - P[b, i, 0, 1]) ** 2)
+            extent[i] = np.sqrt(far)
         for i in range(N):
             for j in range(i + 1, N):
+                gap = np.sqrt((P[b, i, 0, 0] - P[b, j, 0, 0]) ** 2 + (P[b, i, 0, 1] - P[b, j, 0, 1]) ** 2) \
+                    - extent[i] - extent[j] - 2.0 * rho
+                if gap >= out[b, i] and gap >= out[b, j]:
+                    continue  # this pair cannot lower either running minimum
                 best = np.inf
                 for li in range(L):
                     a1x, a1y = P[b, i, li, 0], P[b, i, li, 1]

@@ -7,7 +7,7 @@ import numpy as np
 from numba import njit, prange
 
 from ._numba_ext import _JIT, _LANES, _check_chunks, _local, _quick_when, _slp_vectorised
-from .capsules import CAP_ACTIVE, least_violation, whole_arm_clearance, whole_arm_rows
+from .capsules import CAP_ACTIVE, NEAR_COLUMNS, least_violation, whole_arm_clearance, whole_arm_rows
 from .physics import (
     _acceleration_lanes,
     _jacobian_lanes,
@@ -117,7 +117,7 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
         wA, wb, wact = np.zeros((m_whole, kk)), np.zeros(m_whole), np.zeros(m_whole, dtype=np.bool_)
         wrows, wviol, wnorm, wP = np.empty(m_whole, dtype=np.int64), np.empty(m_whole), np.empty(m_whole), \
             np.empty((n + 1, 2))
-        wb0, wn0 = np.empty(m_whole), np.empty(m_whole)
+        wb0, wn0, wnear = np.empty(m_whole), np.empty(m_whole), np.empty((caps.shape[1], NEAR_COLUMNS))
     if v_max < np.inf:
         for t in range(k):  # the full search's speed bounds ±v_t ≤ v_max, the same in every lane
             Arows[O + 2 * t, t] = 1.0
@@ -194,7 +194,7 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                     if use_filter[w] and live[w] and real[w]:
                         m_w, h_w = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, skin, dt,
                                                   ln, bx, by, c, s, qd, M, caps, start_time[arm[w]] + _s * dt, kappa,
-                                                  epsilon, margin, v_max, wA, wb, wact, wP)
+                                                  epsilon, margin, v_max, wA, wb, wact, wP, wnear)
                         arm_h[w] = min(arm_h[w], h_w)
                         for t in range(k):
                             qv0[t] = vdes[t, w]
@@ -207,7 +207,7 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                             # moving obstacle out); reported as a fallback either way
                             m_w, _ = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, skin, dt,
                                                     ln, bx, by, c, s, qd, M, caps, start_time[arm[w]] + _s * dt,
-                                                    kappa, np.inf, margin, v_max, wA, wb, wact, wP)
+                                                    kappa, np.inf, margin, v_max, wA, wb, wact, wP, wnear)
                             if _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand, qL, qy,
                                             wviol, wnorm) == STATUS_FALLBACK:
                                 least_violation(qv0, wA, wb, wact, m_w, k, 2 * k if v_max < np.inf else 0, qvs, wb0,
