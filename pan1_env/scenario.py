@@ -99,6 +99,8 @@ class Scenario:
             raise ValueError(f"Scenario.bodies must be one of {BODIES}, got {self.bodies!r}")
         if not (math.isfinite(self.link_radius) and self.link_radius >= 0):
             raise ValueError(f"Scenario.link_radius must be finite and non-negative, got {self.link_radius!r}")
+        if self.inter_arm and self.bodies != "links":
+            raise ValueError('Scenario.inter_arm keeps link capsules apart: it needs bodies="links"')
         n_obs = len(self.obstacles)
         if (self.obstacle_paths is None) != (self.obstacle_speeds is None):
             raise ValueError("Scenario.obstacle_paths and obstacle_speeds go together: give both or neither")

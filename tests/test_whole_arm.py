@@ -37,7 +37,7 @@ def _rows(arm: ArmParams, q: np.ndarray, caps: np.ndarray, *, links: bool = True
     qd = np.zeros((n, 1)) if qd is None else np.asarray(qd, float).reshape(n, 1)
     m, h_min = kernels().capsules.whole_arm_rows(
         0, 0, n, k, arm.passive_first_joint, links, rho, sensing, skin, dt, lane["lengths"], lane["bx"], lane["by"],
-        lane["c"], lane["s"], qd, lane["M"], caps, time, kappa, epsilon, margin, v_max, A, b, active, P,
+        lane["c"], lane["s"], qd, lane["M"], caps, time, kappa, epsilon, margin, v_max, np.zeros(k), A, b, active, P,
         np.empty((caps.shape[1], kernels().capsules.NEAR_COLUMNS)))
     return A[:m], b[:m], h_min
 
@@ -193,23 +193,26 @@ def _policy(kind: str, env, rng: np.random.Generator):
 
 
 def _whole_arm_episode(seed: int, kind: str, *, shield: bool, speed=(0.0, 0.0), mode: str = "velocity",
-                       steps: int = 250) -> tuple[int, int, int]:
+                       steps: int = 250, options: dict | None = None, shield_kwargs: dict | None = None
+                       ) -> tuple[int, int, int, float]:
     """(steps in which a penetration begins, of those steps whose shield report says fallback, steps with
-    a fallback). A penetration begins in a step that ends with a capsule inside something it was not
-    inside at the step's start; once inside, the shield's rows push it out over the next steps."""
+    a fallback, the smallest clearance any arm reported). A penetration begins in a step that ends with a
+    capsule inside something it was not inside at the step's start; once inside, the shield's rows push
+    it out over the next steps."""
     from pan1_env.environment import parallel_env
     from pan1_env.wrappers import SafetyShield
 
-    core = parallel_env("random", random_options={**WHOLE, "obstacle_speed": speed}, action_mode=mode,
-                        control_dt=0.01, physics_dt=0.01, max_steps=steps)
-    env = SafetyShield(core) if shield else core
+    core = parallel_env("random", random_options={**WHOLE, "obstacle_speed": speed, **(options or {})},
+                        action_mode=mode, control_dt=0.01, physics_dt=0.01, max_steps=steps)
+    env = SafetyShield(core, **(shield_kwargs or {})) if shield else core
     env.reset(seed=seed)
     assert _penetration(core) <= 0.0, "starts are drawn clear"
     act = _policy(kind, env, np.random.default_rng(seed))
     hits = hits_in_fallback = fallbacks = t = 0
-    inside = False
+    inside, closest = False, np.inf
     while env.agents:
         _, _, _, _, infos = env.step(act(t))
+        closest = min(closest, *(info["min_clearance"] for info in infos.values()))
         fallback = any(info.get("shield", {}).get("fallback", False) for info in infos.values())
         now_inside = _penetration(core) > 0.0
         begins = now_inside and not inside
@@ -218,7 +221,7 @@ def _whole_arm_episode(seed: int, kind: str, *, shield: bool, speed=(0.0, 0.0), 
         if now_inside:
             assert any(info["cost"] > 0 for info in infos.values()), "a penetration costs"
         inside, t = now_inside, t + 1
-    return hits, hits_in_fallback, fallbacks
+    return hits, hits_in_fallback, fallbacks, closest
 
 
 @pytest.mark.parametrize("mode", ["velocity", "torque"])
@@ -227,7 +230,7 @@ def test_shield_keeps_every_link_clear_of_still_obstacles_and_other_arms(kind: s
     """Still obstacles, links and inter-arm rows, control_dt = physics_dt = 0.01: no link capsule ever
     enters an obstacle or another arm's capsule, by a geometry computed apart from the package."""
     for seed in range(4):
-        hits, _, _ = _whole_arm_episode(seed, kind, shield=True, mode=mode)
+        hits, *_ = _whole_arm_episode(seed, kind, shield=True, mode=mode)
         assert hits == 0, f"seed {seed}: {hits} steps with a penetration"
 
 
@@ -243,7 +246,7 @@ def test_moving_obstacles_penetrate_only_in_fallback_steps(kind: str) -> None:
     fallback, and in at most 2 % of episodes (here: none of 6; the soak test measures the rate)."""
     episodes_hit = 0
     for seed in range(6):
-        hits, hits_in_fallback, _ = _whole_arm_episode(seed, kind, shield=True, speed=(0.05, 0.2))
+        hits, hits_in_fallback, *_ = _whole_arm_episode(seed, kind, shield=True, speed=(0.05, 0.2))
         assert hits == hits_in_fallback, f"seed {seed}: a penetration outside a fallback step"
         episodes_hit += hits > 0
     assert episodes_hit == 0
@@ -324,3 +327,73 @@ def test_observations_carry_the_slots_obstacle_velocities() -> None:
             j = int(np.argmin(np.linalg.norm(centers - (p + slot[1:3]), axis=-1)))
             np.testing.assert_allclose(centers[j], p + slot[1:3], atol=1e-5)
             np.testing.assert_allclose(v, velocities[j], atol=1e-6)
+
+
+def test_an_aggressive_filter_near_moving_obstacles_still_penetrates_only_in_fallbacks() -> None:
+    """κ = 5, ε = 10⁴ lets capsules come within millimetres of obstacles (the defaults keep about 5 cm),
+    so the moving obstacles' ∂h/∂t and the skin are what keeps them out: a wrong sign or a stale time
+    shows here."""
+    episodes_hit, closest = 0, np.inf
+    for seed in range(3):
+        for kind in ("random", "bang-bang"):
+            hits, in_fallback, _, clear = _whole_arm_episode(seed, kind, shield=True, speed=(0.1, 0.2),
+                                                             shield_kwargs={"kappa": 5.0, "epsilon": 1e4})
+            assert hits == in_fallback, f"seed {seed}, {kind}: a penetration began outside a fallback step"
+            episodes_hit, closest = episodes_hit + (hits > 0), min(closest, clear)
+    assert closest < 0.01, "the aggressive filter should let capsules come close (else this tests nothing)"
+    assert episodes_hit <= 1
+
+
+def test_mixed_link_counts_keep_every_capsule_clear() -> None:
+    """Arms of 2, 3, 4 and 3 links (several kernel kinds, padded capsule slots), still obstacles, arms kept
+    apart: no penetration by the independent geometry."""
+    for seed in range(3):
+        hits, *_ = _whole_arm_episode(seed, "bang-bang", shield=True, options={"links": (2, 3, 4, 3)})
+        assert hits == 0
+
+
+def test_sub_steps_in_one_call_match_one_call_each() -> None:
+    """Moving obstacles: a step of 5 sub-steps gives the state of 5 steps of one sub-step (the rows see
+    the obstacles at each sub-step's own time)."""
+    from pan1_env.engine import Engine
+    from pan1_env.random_scenario import RandomScenarioOptions, random_scenario
+
+    team = random_scenario(np.random.default_rng(4), RandomScenarioOptions(
+        bodies="links", link_radius=0.03, obstacle_speed=(0.2, 0.3), physics_dt=0.01, control_dt=0.05))
+    engines = [Engine(team, safety_filter=True, max_speed=2.0) for _ in range(2)]
+    command = np.random.default_rng(0).uniform(-2, 2, (1, team.n_arms, 3))
+    counts = []
+    for _ in range(8):
+        counts.append(engines[0].step(command, 5).qp_counts)
+        for _ in range(5):
+            engines[1].step(command, 1)
+    assert sum(c[..., 1:].sum() for c in counts) > 0, "the filter should act"
+    for a, b in zip(engines[0].kinds, engines[1].kinds, strict=True):
+        np.testing.assert_allclose(a.q, b.q, atol=1e-9)
+    np.testing.assert_allclose(engines[0].centers, engines[1].centers, atol=1e-12)
+
+
+def test_reset_rewinds_the_obstacles() -> None:
+    """A reset puts a copy's clock and moving obstacles back at their start, in the parallel env and in the
+    vector env's autoreset."""
+    from pan1_env.environment import parallel_env
+    from pan1_env.vector import Pan1VectorEnv
+
+    env = parallel_env("random", random_options={**WHOLE, "obstacle_speed": (0.1, 0.2)}, control_dt=0.01,
+                       physics_dt=0.01)
+    env.reset(seed=3)
+    start = env.engine.centers.copy()
+    for _ in range(20):
+        env.step({a: np.zeros(env.action_space(a).shape) for a in env.agents})
+    assert np.abs(env.engine.centers - start).max() > 0.01
+    env.reset(seed=3)
+    np.testing.assert_array_equal(env.engine.centers, start)
+    assert env.engine.elapsed[0] == 0.0
+    venv = Pan1VectorEnv("random", 2, random_options={**WHOLE, "obstacle_speed": (0.1, 0.2)}, control_dt=0.01,
+                         physics_dt=0.01, max_steps=5)
+    venv.reset(seed=0)
+    for _ in range(5):
+        venv.step(np.zeros(venv.action_space.shape, np.float32))
+    np.testing.assert_array_equal(venv.engine.elapsed, 0.0)  # both copies ended and started anew
+    for b, team in enumerate(venv.engine.teams):
+        np.testing.assert_allclose(venv.engine.centers[b], team.obstacles.centers)

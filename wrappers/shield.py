@@ -26,7 +26,8 @@ the other arms' capsules, and its fallback drops the robust term, then violates 
 ``applied`` (the action actually applied at the last sub-step, in the same normalised units; in
 residual mode the whole filtered velocity v*/``max_joint_speed``, reference included),
 ``intervened`` (the QP changed the action at some sub-step), ``min_barrier`` (the smallest barrier
-value h = ‖p − o‖² − r² seen by the filter, or of its whole-arm pairs; inf when there is none), ``status``
+value h = ‖p − o‖² − r² seen by the filter; with whole-arm safety the smallest of its pairs in sensing
+range, against the capsules inflated by the skin; inf when there is none), ``status``
 (the worst QP status over the sub-steps: ``"nominal"``, ``"solved"`` or ``"fallback"``),
 ``fallback`` (the QP was infeasible and the fallback was used) and ``qp_counts`` (sub-steps per status).
 

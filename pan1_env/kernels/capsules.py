@@ -98,17 +98,19 @@ def _body(P, n, links, body):
 
 @njit(**_JIT)
 def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, skin, dt, lengths, bx, by, c, s, qd, M, caps, time,
-                   kappa, epsilon, margin, v_max, A, b, active, P, near):
+                   kappa, epsilon, margin, v_max, v0, A, b, active, P, near):
     """The whole-arm RCBF rows of arm i (lane w of the kernel's scratch) at ``time``, then its speed
     bounds (finite ``v_max``), into ``A``, ``b``, ``active``: returns (rows written, smallest barrier h).
 
     Only pairs that are close get a row: clearance d − r − ρ at most ``sensing`` plus twice what the
     gap can close in the sub-step ``dt`` (no point of the arm moves faster than its reach times
-    Σ|q̇_a|, the obstacle at its speed). A far pair's RCBF row is not inactive: its robust term
+    Σ|q̇_a|, bounded by the joint speeds now and by those the command ``v0`` can reach within the
+    speed bound; the obstacle at its speed). A far pair's RCBF row is not inactive: its robust term
     ‖L_g0 h‖²/ε grows with the distance like κ h does, and with many bodies and capsules the rows of
     far pairs pushed in conflicting directions and made the QP infeasible. A row that cannot bind inside
     the speed box (Σ_t |A_t| v_max ≤ b) is left out too: the box rows are in the same QP, so that does
-    not change its optimum. The smallest barrier is taken over the pairs within sensing range.
+    not change its optimum. The smallest barrier (of the skin-inflated capsules) is taken over the pairs
+    within sensing range.
 
     The rows keep each capsule ``skin`` plus the obstacle's travel in one sub-step farther out than its
     radius: the condition holds at the sub-step's start, and within the sub-step an obstacle may turn
@@ -121,12 +123,22 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, skin, dt, lengths, 
     m = 0
     h_min = np.inf
     cull = v_max < np.inf
-    reach_speed = 0.0
+    # a bound on the joint speeds Σ|q̇_a| during the sub-step: now, and what the filtered command can
+    # reach within it (in torque mode the arm is driven to v* in one sub-step): |v_t| ≤ v_max, the
+    # passive joint q̇_0 = −Σ_t M_0,t+1/M_00 v_t; without a speed bound, the command's own speeds
+    joint_speed = 0.0
     arm_reach = 0.0
     for a in range(n):
-        reach_speed += abs(qd[a, w])
+        joint_speed += abs(qd[a, w])
         arm_reach += lengths[a, w]
-    reach_speed *= arm_reach
+    coupling = 1.0
+    if passive:
+        for t in range(k):
+            coupling += abs(M[0, t + 1, w] / M[0, 0, w])
+    commanded = 0.0
+    for t in range(k):
+        commanded += min(abs(v0[t]), v_max)
+    reach_speed = arm_reach * max(joint_speed, coupling * commanded)
     n_near = 0
     for j in range(C):
         if caps[i, j, CAP_ACTIVE] == 0.0:
@@ -159,10 +171,10 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, skin, dt, lengths, 
             sp, tp = _closest_pair(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y)
             rx = a1x + sp * d1x - (a2x + tp * d2x)
             ry = a1y + sp * d1y - (a2y + tp * d2y)
-            h = rx * rx + ry * ry - reach * reach
-            h_min = min(h_min, h)
             if np.sqrt(rx * rx + ry * ry) > within:
                 continue
+            h = rx * rx + ry * ry - reach * reach
+            h_min = min(h_min, h)
             # ∇_q h = 2 (x − y)ᵀ J_x, J_x of the point at parameter sp on link ell (the end for a point body):
             # ∂x/∂q_a = Σ_{a ≤ α ≤ ell} w_α L_α [cos, −sin](θ_α + φ), w_α = 1 below ell and sp (or 1) at ell
             tau = sp if links else 1.0
@@ -235,10 +247,11 @@ def least_violation(v0, A, b, active, m, k, n_box, v_out, b_given, norms, rows, 
                     rnorm):
     """The fallback's last resort for an infeasible whole-arm QP: the velocity closest to ``v0`` among
     those that violate the barrier rows least, uniformly: every row j < m − ``n_box`` relaxed to
-    A_j v ≤ b_j + t ‖A_j‖ with the smallest t ≥ 0 that makes the QP feasible (found by bisection; the
-    last ``n_box`` rows, the speed bounds, are kept). v = 0 is feasible at t = max_j −b_j/‖A_j‖, so this
-    always answers. A row of zero norm cannot be acted on and is dropped. Writes ``v_out``; ``b`` is
-    left relaxed, ``b_given`` and ``norms`` are scratch. Returns t."""
+    A_j v ≤ b_j + t ‖A_j‖ with the smallest t ≥ 0 that makes the QP feasible (20 steps of bisection; the
+    last ``n_box`` rows, the speed bounds, are kept). Only the 2k most demanding barrier rows take part.
+    v = 0 is feasible at t = max_j −b_j/‖A_j‖, so this always answers. A row of zero norm cannot be acted
+    on and is dropped. Writes ``v_out``; ``b`` and ``active`` are left changed, ``b_given`` and ``norms``
+    are scratch. Returns t."""
     hi = 0.0
     for j in range(m):
         b_given[j] = b[j]
@@ -250,8 +263,21 @@ def least_violation(v0, A, b, active, m, k, n_box, v_out, b_given, norms, rows, 
             active[j] = False
         elif j < m - n_box:
             hi = max(hi, -b[j] / norms[j])
+    # the search tries sets of up to k rows: keep the 2k most demanding barrier rows (smallest b_j/‖A_j‖),
+    # so that a crowd of rows cannot make the ~20 solves below slow (a fallback, not the guarantee)
+    for _ in range(m - n_box - 2 * k):
+        worst, worst_j = -np.inf, -1
+        kept = 0
+        for j in range(m - n_box):
+            if active[j]:
+                kept += 1
+                if b[j] / norms[j] > worst:
+                    worst, worst_j = b[j] / norms[j], j
+        if kept <= 2 * k:
+            break
+        active[worst_j] = False
     lo = 0.0
-    for _ in range(40):
+    for _ in range(20):
         mid = 0.5 * (lo + hi)
         for j in range(m):
             b[j] = b_given[j] + mid * norms[j]

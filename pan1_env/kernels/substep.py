@@ -192,12 +192,12 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
             if any_filter and whole is not None:
                 for w in range(W):
                     if use_filter[w] and live[w] and real[w]:
-                        m_w, h_w = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, skin, dt,
-                                                  ln, bx, by, c, s, qd, M, caps, start_time[arm[w]] + _s * dt, kappa,
-                                                  epsilon, margin, v_max, wA, wb, wact, wP, wnear)
-                        arm_h[w] = min(arm_h[w], h_w)
                         for t in range(k):
                             qv0[t] = vdes[t, w]
+                        m_w, h_w = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, skin, dt,
+                                                  ln, bx, by, c, s, qd, M, caps, start_time[arm[w]] + _s * dt, kappa,
+                                                  epsilon, margin, v_max, qv0, wA, wb, wact, wP, wnear)
+                        arm_h[w] = min(arm_h[w], h_w)
                         status[w] = _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand,
                                                  qL, qy, wviol, wnorm)
                         if status[w] == STATUS_FALLBACK:
@@ -207,7 +207,7 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                             # moving obstacle out); reported as a fallback either way
                             m_w, _ = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, skin, dt,
                                                     ln, bx, by, c, s, qd, M, caps, start_time[arm[w]] + _s * dt,
-                                                    kappa, np.inf, margin, v_max, wA, wb, wact, wP, wnear)
+                                                    kappa, np.inf, margin, v_max, qv0, wA, wb, wact, wP, wnear)
                             if _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand, qL, qy,
                                             wviol, wnorm) == STATUS_FALLBACK:
                                 least_violation(qv0, wA, wb, wact, m_w, k, 2 * k if v_max < np.inf else 0, qvs, wb0,
