@@ -133,6 +133,20 @@ def bench_one_arm_vs_acrobot(repeats: int, inner: int) -> list[tuple[str, float,
     ]
 
 
+def _vector_stepper(venv):
+    """A step of ``venv`` (reset with seed 0) cycling through four seeded random actions."""
+    venv.reset(seed=0)
+    venv.action_space.seed(0)
+    actions = [venv.action_space.sample() for _ in range(4)]
+    state = {"i": 0}
+
+    def step():
+        venv.step(actions[state["i"] % 4])
+        state["i"] += 1
+
+    return step
+
+
 def bench_vector(repeats: int, sizes: tuple[int, ...]) -> list[tuple[str, float, str]]:
     from pan1_env.registration import CentralizedEnv
     from pan1_env.vector import Pan1VectorEnv
@@ -142,15 +156,7 @@ def bench_vector(repeats: int, sizes: tuple[int, ...]) -> list[tuple[str, float,
     per_arm, fastest = {}, {}
     for B in sizes:
         venv = Pan1VectorEnv("paper_pa3_square", B)
-        venv.reset(seed=0)
-        venv.action_space.seed(0)
-        actions = [venv.action_space.sample() for _ in range(4)]
-        state = {"i": 0}
-
-        def step(venv=venv, actions=actions, state=state):
-            venv.step(actions[state["i"] % 4])
-            state["i"] += 1
-
+        step = _vector_stepper(venv)
         step()
         inner = max(1, 2048 // B)
         samples = _sample_times(step, repeats if B < 16384 else 3, inner)
@@ -190,15 +196,7 @@ def bench_whole_arm(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]
     for name, options in variants.items():
         print(f"bench: vector env at B = {B}, {name} ...", file=sys.stderr, flush=True)
         venv = Pan1VectorEnv("random", B, random_options=options, physics_dt=0.01)
-        venv.reset(seed=0)
-        venv.action_space.seed(0)
-        actions = [venv.action_space.sample() for _ in range(4)]
-        state = {"i": 0}
-
-        def step(venv=venv, actions=actions, state=state):
-            venv.step(actions[state["i"] % 4])
-            state["i"] += 1
-
+        step = _vector_stepper(venv)
         for _ in range(3):
             step()
         steppers[name] = (step, B * venv.engine.n_arms * venv.template.substeps, B * venv.engine.n_arms)
