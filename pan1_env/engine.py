@@ -43,16 +43,26 @@ _UNUSED_RCBF = (1.0, 1.0, 0.0)  # κ, ε, margin passed to the kernel with the f
 @dataclass(frozen=True)
 class FilterParams:
     """The RCBF-QP safety filter's parameters (docs/MODEL.md §5): κ and ε of the robust barrier
-    condition, and ``margin`` (m²) subtracted from every barrier h = ‖p − o‖² − r²."""
+    condition, and ``margin`` (m²) subtracted from every barrier h = ‖p − o‖² − r².
+
+    ``sensing_radius`` (m): None (the paper's filter: an end-effector row for every obstacle in reach),
+    or the range within which the whole-arm filter gives a body a row (docs/SCENARIOS.md, *Whole-arm
+    safety*; default there :data:`SENSING_RADIUS`). Given for an end-effector scenario, the engine
+    filters through the whole-arm rows with the end-effector as the body: far obstacles then hold no
+    arm back."""
 
     kappa: float
     epsilon: float
     margin: float = 0.0
+    sensing_radius: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "kappa", real("FilterParams: kappa", self.kappa, positive=True))
         object.__setattr__(self, "epsilon", real("FilterParams: epsilon", self.epsilon, positive=True))
         object.__setattr__(self, "margin", real("FilterParams: margin", self.margin, non_negative=True))
+        if self.sensing_radius is not None:
+            object.__setattr__(self, "sensing_radius", real("FilterParams: sensing_radius", self.sensing_radius,
+                                                            positive=True))
 
     @classmethod
     def of(cls, scenario: Scenario) -> FilterParams:
@@ -209,6 +219,17 @@ class Engine:
         """Switch the filter off (``False``) or on (``True``: the scenario's parameters, or a
         :class:`FilterParams`); it acts from the next sub-step."""
         self.filter = filter_parameters(safety_filter, self.teams[0])
+        sensing = None if self.filter is None else self.filter.sensing_radius
+        if sensing is not None and self.qp_solver == "piqp":
+            raise ValueError("a sensing_radius filters through the whole-arm rows, which need qp_solver='active_set'")
+        if sensing is not None and not self.whole_arm:  # the end-effector as the body of the whole-arm rows
+            self.whole_arm = True
+            self._whole_arm_setup()
+            for b, team in enumerate(self.teams):
+                self._load_capsules(b, team, team.obstacle_mask())
+        for kind in self.kinds:
+            if kind.whole is not None:
+                kind.whole = (*kind.whole[:4], SENSING_RADIUS if sensing is None else sensing, SKIN)
 
     def load_team(self, b: int, scenario: Scenario) -> None:
         """Put ``scenario``'s team (same arm kinds in the same order) into copy ``b``; it starts there

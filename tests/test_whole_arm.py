@@ -397,3 +397,60 @@ def test_reset_rewinds_the_obstacles() -> None:
     np.testing.assert_array_equal(venv.engine.elapsed, 0.0)  # both copies ended and started anew
     for b, team in enumerate(venv.engine.teams):
         np.testing.assert_allclose(venv.engine.centers[b], team.obstacles.centers)
+
+
+def test_a_sensing_radius_frees_the_reference_and_keeps_it_safe() -> None:
+    """FilterParams(sensing_radius=…) on end-effector teams: the engine filters through the whole-arm rows
+    with the end-effector as the body, so far obstacles no longer hold arms still. On 8 held-out random
+    teams the reference (residual mode, zero action) forms more shapes than behind the paper's filter,
+    with cost 0 in both."""
+    from pan1_env.engine import FilterParams
+    from pan1_env.vector import Pan1VectorEnv
+
+    seeds = list(range(1_000_000, 1_000_008))
+    results = {}
+    for name, params in (("paper", True), ("sensing", FilterParams(0.5, 5.0, 0.0, sensing_radius=0.1))):
+        venv = Pan1VectorEnv("random", len(seeds), safety_filter=params, action_mode="residual", max_steps=1200)
+        if name == "sensing":
+            assert venv.engine.whole_arm and all(kind.whole[4] == 0.1 for kind in venv.engine.kinds)
+        venv.reset(seed=seeds)
+        cost = 0.0
+        for _ in range(1200):
+            _, _, _, truncated, infos = venv.step(np.zeros(venv.action_space.shape, np.float32))
+            cost += infos["cost"].sum()
+        results[name] = (int((infos["final_info"]["formation_error"] < 0.01).sum()), cost)
+    assert results["paper"][1] == 0 and results["sensing"][1] == 0
+    assert results["sensing"][0] > results["paper"][0], results
+
+
+def test_shield_with_a_sensing_radius_stops_the_adversary() -> None:
+    from pan1_env.baselines import AdversarialPolicy
+    from pan1_env.environment import parallel_env
+    from pan1_env.wrappers import SafetyShield
+
+    for name in ("paper_pa3_square", "random"):
+        base = parallel_env(name, max_steps=200)
+        env, adversary = SafetyShield(base, sensing_radius=0.1), AdversarialPolicy(base)
+        obs, _ = env.reset(seed=1)
+        assert base.engine.whole_arm
+        cost = clearance = 0.0
+        clearance = np.inf
+        while env.agents:
+            obs, _, _, _, infos = env.step(adversary(obs))
+            cost += sum(info["cost"] for info in infos.values())
+            clearance = min(clearance, *(info["min_clearance"] for info in infos.values()))
+        assert cost == 0.0 and clearance >= 0.0
+        assert clearance < 0.05, "the adversary should press the arms against the obstacles"
+
+
+def test_bad_sensing_radius() -> None:
+    from pan1_env.engine import Engine, FilterParams
+    from pan1_env.environment import parallel_env
+    from pan1_env.scenario import load
+    from pan1_env.wrappers import SafetyShield
+
+    for bad in (-0.1, 0.0, np.inf, "far"):
+        with pytest.raises(ValueError, match="SafetyShield: sensing_radius must be"):
+            SafetyShield(parallel_env("paper_pa3_square"), sensing_radius=bad)
+    with pytest.raises(ValueError, match="need qp_solver='active_set'"):
+        Engine(load("paper_pa3_square"), qp_solver="piqp", safety_filter=FilterParams(0.5, 5.0, sensing_radius=0.1))

@@ -31,6 +31,11 @@ range, against the capsules inflated by the skin; inf when there is none), ``sta
 (the worst QP status over the sub-steps: ``"nominal"``, ``"solved"`` or ``"fallback"``),
 ``fallback`` (the QP was infeasible and the fallback was used) and ``qp_counts`` (sub-steps per status).
 
+With ``sensing_radius=s`` (m) an end-effector scenario is filtered through the whole-arm rows with the
+end-effector as the body: an obstacle gets a row only within s (plus what the gap can close in a
+sub-step), so the robust term of far obstacles cannot hold an arm still (the paper's filter, the
+default, keeps a row for every obstacle in reach; docs/TRAINING.md measures the difference).
+
 With ``tracking_bound=δ̄`` the filter uses the tightened barrier h − Γ(δ̄), Γ(δ̄) = ε δ̄² / (4 κ)
 (docs/MODEL.md §5): as long as the tracking error stays below δ̄ the arm stays in the *original* set
 h ≥ 0, not only in the inflated one h ≥ −Γ(δ̄).
@@ -54,9 +59,9 @@ _NOMINAL, _SOLVED, _FALLBACK = (s.name.lower() for s in (QPStatus.NOMINAL, QPSta
 
 
 def shield_parameters(scenario, kappa: float | None, epsilon: float | None, margin: float | None,
-                      tracking_bound: float | None) -> FilterParams:
-    """Validated filter parameters: κ, ε (default: the scenario's) and the barrier margin (explicit,
-    or Γ(δ̄) from ``tracking_bound``; default: the scenario's)."""
+                      tracking_bound: float | None, sensing_radius: float | None = None) -> FilterParams:
+    """Validated filter parameters: κ, ε (default: the scenario's), the barrier margin (explicit,
+    or Γ(δ̄) from ``tracking_bound``; default: the scenario's) and the sensing radius (default: none)."""
     kappa = real("SafetyShield: kappa", scenario.kappa if kappa is None else kappa, positive=True)
     epsilon = real("SafetyShield: epsilon", scenario.epsilon if epsilon is None else epsilon, positive=True)
     if margin is not None and tracking_bound is not None:
@@ -64,14 +69,16 @@ def shield_parameters(scenario, kappa: float | None, epsilon: float | None, marg
     if tracking_bound is not None:
         margin = robust_margin(real("SafetyShield: tracking_bound", tracking_bound, non_negative=True), kappa, epsilon)
     margin = real("SafetyShield: margin", scenario.safety_margin if margin is None else margin, non_negative=True)
-    return FilterParams(kappa, epsilon, margin)
+    if sensing_radius is not None:
+        sensing_radius = real("SafetyShield: sensing_radius", sensing_radius, positive=True)
+    return FilterParams(kappa, epsilon, margin, sensing_radius)
 
 
-def _switch_on(core, kappa, epsilon, margin, tracking_bound) -> None:
+def _switch_on(core, kappa, epsilon, margin, tracking_bound, sensing_radius) -> None:
     """Switch the filter on through the env's public :meth:`set_safety_filter`."""
     if core.safety_filter is not None:
         raise ValueError("this env is already shielded; wrap it once")
-    core.set_safety_filter(shield_parameters(core.scenario, kappa, epsilon, margin, tracking_bound))
+    core.set_safety_filter(shield_parameters(core.scenario, kappa, epsilon, margin, tracking_bound, sensing_radius))
 
 
 def _shield_infos(core, actions: dict[str, np.ndarray]) -> dict[str, dict[str, Any]]:
@@ -114,12 +121,13 @@ class SafetyShield(BaseParallelWrapper):
     """
 
     def __init__(self, env, kappa: float | None = None, epsilon: float | None = None,
-                 margin: float | None = None, tracking_bound: float | None = None) -> None:
+                 margin: float | None = None, tracking_bound: float | None = None,
+                 sensing_radius: float | None = None) -> None:
         super().__init__(env)
         core = env.unwrapped
         if not hasattr(core, "set_safety_filter"):
             raise TypeError(f"SafetyShield wraps a pan1_env parallel env, got {type(core).__name__}")
-        _switch_on(core, kappa, epsilon, margin, tracking_bound)
+        _switch_on(core, kappa, epsilon, margin, tracking_bound, sensing_radius)
 
     def step(self, actions):
         obs, rewards, terms, truncs, infos = self.env.step(actions)
@@ -136,13 +144,14 @@ class GymSafetyShield(gymnasium.Wrapper):
     """
 
     def __init__(self, env: gymnasium.Env, kappa: float | None = None, epsilon: float | None = None,
-                 margin: float | None = None, tracking_bound: float | None = None) -> None:
+                 margin: float | None = None, tracking_bound: float | None = None,
+                 sensing_radius: float | None = None) -> None:
         super().__init__(env)
         inner = env.unwrapped
         if not hasattr(inner, "parallel"):
             hint = " (PAReachEnv has the filter built in: safety_filter=True)" if hasattr(inner, "arm_index") else ""
             raise TypeError(f"GymSafetyShield wraps a pan1_env team Gymnasium env, got {type(inner).__name__}{hint}")
-        _switch_on(inner.parallel, kappa, epsilon, margin, tracking_bound)
+        _switch_on(inner.parallel, kappa, epsilon, margin, tracking_bound, sensing_radius)
 
     def step(self, action):
         obs, reward, terminated, truncated, info = self.env.step(action)
