@@ -56,6 +56,7 @@ __all__ = [
     "link_point_jacobian",
     "link_obstacle_barrier",
     "link_clearance",
+    "capsule_clearance",
     "inter_arm_barrier",
     "inter_arm_clearance",
     "obstacle_centers",
@@ -174,13 +175,21 @@ def link_obstacle_barrier(arm: ArmParams, q: np.ndarray, centers: np.ndarray, ra
     return LinkBarrier(*(v.reshape(batch + v.shape[1:]) for v in out))
 
 
+def capsule_clearance(a: np.ndarray, b: np.ndarray, centers: np.ndarray, radii: np.ndarray,
+                      link_radius: float = 0.0) -> np.ndarray:
+    """Signed clearance d(segment, c) − r − ρ of segments ``a, b (..., L, 2)`` inflated by ρ to disks
+    ``centers (..., O, 2)``, ``radii (..., O)`` (leading axes broadcast): ``(..., L, O)``."""
+    centers = np.asarray(centers, dtype=float)[..., None, :, :]
+    x, _ = closest_point_on_segment(a[..., :, None, :], b[..., :, None, :], centers)
+    return np.linalg.norm(x - centers, axis=-1) - np.asarray(radii, dtype=float)[..., None, :] - link_radius
+
+
 def link_clearance(arm: ArmParams, q: np.ndarray, centers: np.ndarray, radii: np.ndarray,
                    link_radius: float = 0.0) -> np.ndarray:
     """Signed clearance d(segment, c) − r − ρ of every link capsule to every obstacle: ``(..., n, O)``."""
     a, b = link_segments(arm, q)
-    centers = np.asarray(centers, dtype=float).reshape(-1, 2)
-    x, _ = closest_point_on_segment(a[..., :, None, :], b[..., :, None, :], centers)
-    return np.linalg.norm(x - centers, axis=-1) - np.asarray(radii, dtype=float).reshape(-1) - link_radius
+    return capsule_clearance(a, b, np.asarray(centers, dtype=float).reshape(-1, 2),
+                             np.asarray(radii, dtype=float).reshape(-1), link_radius)
 
 
 class InterArmBarrier(NamedTuple):

@@ -70,16 +70,19 @@ class _KernelCompileNotice(numba_event.Listener):
         if not module.startswith("pan1_env.kernels"):
             return None
         args = event.data.get("args") or ()
+        # the whole-arm argument (last, or before the parallel kernel's chunk count) is a tuple of arrays,
+        # else None; its branch about doubles the compiled code (on_start's estimate)
+        whole = ", whole-arm safety" if any(str(a).startswith("Tuple(array") for a in args[-2:]) else ""
         if name == GENERIC:  # compiled on its own only as the generic kernel (else inside a per-kind one)
             if len(args) < 4 or args[3] is None or "none" in str(args[3]).lower():
                 return None
-            return f"all arm kinds of up to {len(args[0])} links", _cache_dir(dispatcher)
+            return f"all arm kinds of up to {len(args[0])} links{whole}", _cache_dir(dispatcher)
         try:
             n, k = len(args[0]), len(args[1])
         except (IndexError, TypeError):
             return None
         threads = " (multi-threaded)" if name.endswith("_parallel") else ""
-        return "arms of " + describe_kind(n, k) + threads, _cache_dir(dispatcher)
+        return "arms of " + describe_kind(n, k) + threads + whole, _cache_dir(dispatcher)
 
     def on_start(self, event) -> None:
         found = self._kind(event)
@@ -87,12 +90,14 @@ class _KernelCompileNotice(numba_event.Listener):
             return
         kind, cache = found
         self._started[id(event.data["dispatcher"])] = time.perf_counter()
+        twice = "whole-arm safety" in kind
         if kind.startswith("all"):
-            notify(f"compiling the generic sub-step kernel ({kind}): once, about 7 s on a 2-core machine; "
+            notify(f"compiling the generic sub-step kernel ({kind}): once, about {14 if twice else 7} s on a "
+                   f"2-core machine; "
                    f"cached in {cache} for later runs. It steps new arm kinds at once, 3-4x slower than "
                    f"their own kernels, which compile in the background")
         else:
-            notify(f"compiling the sub-step kernel for {kind}: once per arm kind, about 10 s "
+            notify(f"compiling the sub-step kernel for {kind}: once per arm kind, about {20 if twice else 10} s "
                    f"on a 2-core machine; cached in {cache} for later runs "
                    f"(`pan1-env warmup` compiles ahead of time)")
 

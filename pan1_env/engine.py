@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .bodies import closest_point_on_segment, obstacle_centers, obstacle_velocities
+from .bodies import capsule_clearance, obstacle_centers, obstacle_velocities
 from .compiled import kernel_sizes, kernels
 from .dynamics import ArmBatch
 from .safety import QP_SOLVERS, clearance, project_velocity, rcbf_constraints
@@ -251,8 +251,7 @@ class Engine:
         self.bases[b] = [a.base for a in scenario.arms]
         self.centers[b], self.radii[b] = scenario.obstacles.centers, scenario.obstacles.radii
         self.start_centers[b] = scenario.obstacles.centers
-        self.path_ends[b] = scenario.obstacles.centers if scenario.obstacle_paths is None else scenario.obstacle_paths
-        self.speeds[b] = 0.0 if scenario.obstacle_speeds is None else scenario.obstacle_speeds
+        self.path_ends[b], self.speeds[b] = scenario.obstacle_motion()
         if self.whole_arm:
             self._load_capsules(b, scenario, mask)
 
@@ -363,9 +362,8 @@ class Engine:
         a, b = (P[:, :, :-1], P[:, :, 1:]) if self.link_bodies else (P[:, :, -1:], P[:, :, -1:])
         clear = np.full((B, N), np.inf)
         if O:
-            x, _ = closest_point_on_segment(a[:, :, :, None], b[:, :, :, None], self.centers[:, None, None])
-            d = np.linalg.norm(x - self.centers[:, None, None], axis=-1) - self.radii[:, None, None]
-            clear = d.min(axis=(2, 3)) - (self.link_radius if self.link_bodies else 0.0)
+            clear = capsule_clearance(a, b, self.centers[:, None], self.radii[:, None],
+                                      self.link_radius if self.link_bodies else 0.0).min(axis=(2, 3))
         return np.minimum(clear, self.inter_arm_clearance(P))
 
     def inter_arm_clearance(self, P: np.ndarray | None = None) -> np.ndarray:
@@ -417,13 +415,14 @@ class Engine:
                 for kind, (args, out), ok in zip(self.kinds, calls, finite, strict=True):
                     self._call(kind, args)
                     ok &= out[-1]
-                self._tick(1)
+                self.elapsed += self.physics_dt  # the kernel places the obstacles from the clock itself
                 P = self.joint_positions()
                 kernels().capsules.inter_arm_clearance(P, self.link_radius, between)
             for kind, (_, out), ok in zip(self.kinds, calls, finite, strict=True):
                 out[-1][:] = ok
                 self._finish(kind, out, torque, rec)
             np.minimum(rec.min_clearance, between, out=rec.min_clearance)
+            self._place_obstacles()
         else:
             if self.whole_arm:
                 self._refresh_capsules()
@@ -443,6 +442,10 @@ class Engine:
     def _tick(self, substeps: int) -> None:
         """Advance every copy's clock by ``substeps`` sub-steps, and the obstacles with it."""
         self.elapsed += substeps * self.physics_dt
+        self._place_obstacles()
+
+    def _place_obstacles(self) -> None:
+        """``centers`` (which observations and :meth:`clearance` read) where the clock puts the obstacles."""
         self.centers[:] = obstacle_centers(self.start_centers, self.path_ends, self.speeds, self.elapsed)
 
     def _refresh_capsules(self, P: np.ndarray | None = None) -> None:

@@ -122,18 +122,19 @@ class Scenario:
             return np.zeros(len(self.obstacles), dtype=bool)
         return self.obstacle_speeds > 0
 
-    def _paths(self) -> tuple[np.ndarray, np.ndarray]:
+    def obstacle_motion(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every obstacle's path end ``(O, 2)`` and speed ``(O,)``: its centre and 0 for a still one."""
         if self.obstacle_paths is None:
             return self.obstacles.centers, np.zeros(len(self.obstacles))
         return self.obstacle_paths, self.obstacle_speeds
 
     def obstacle_centers(self, t: float | np.ndarray) -> np.ndarray:
         """Obstacle centres at time ``t`` (s): ``(..., O, 2)`` (:func:`pan1_env.bodies.obstacle_centers`)."""
-        return obstacle_centers(self.obstacles.centers, *self._paths(), t)
+        return obstacle_centers(self.obstacles.centers, *self.obstacle_motion(), t)
 
     def obstacle_velocities(self, t: float | np.ndarray) -> np.ndarray:
         """Obstacle velocities at time ``t`` (s): ``(..., O, 2)`` (:func:`pan1_env.bodies.obstacle_velocities`)."""
-        return obstacle_velocities(self.obstacles.centers, *self._paths(), t)
+        return obstacle_velocities(self.obstacles.centers, *self.obstacle_motion(), t)
 
     @property
     def n_arms(self) -> int:
@@ -154,7 +155,7 @@ class Scenario:
         """
         mask = np.ones((self.n_arms, len(self.obstacles)), dtype=bool)
         if self.ignore_unreachable_obstacles:
-            centers, ends = self.obstacles.centers, self._paths()[0]
+            centers, ends = self.obstacles.centers, self.obstacle_motion()[0]
             for i, arm in enumerate(self.arms):
                 nearest, _ = closest_point_on_segment(centers, ends, arm.base)
                 dist = np.linalg.norm(nearest - arm.base, axis=-1)

@@ -454,3 +454,20 @@ def test_bad_sensing_radius() -> None:
             SafetyShield(parallel_env("paper_pa3_square"), sensing_radius=bad)
     with pytest.raises(ValueError, match="need qp_solver='active_set'"):
         Engine(load("paper_pa3_square"), qp_solver="piqp", safety_filter=FilterParams(0.5, 5.0, sensing_radius=0.1))
+
+
+def test_a_moving_layout_needs_the_obstacle_velocities() -> None:
+    """ObservationLayout of a scenario with moving obstacles: build without velocities, or with the wrong
+    shape, is a clear error."""
+    from pan1_env.environment import parallel_env
+
+    env = parallel_env("random", random_options={**WHOLE, "obstacle_speed": (0.1, 0.2)}, control_dt=0.01,
+                       physics_dt=0.01)
+    env.reset(seed=0)
+    layout, eng = env.observation_layout, env.engine
+    q, qd = eng.joint_state()
+    args = (q, qd, eng.positions(), eng.bases, np.zeros((1, 0)), eng.centers, eng.radii, 2.0)
+    for bad in (None, np.zeros((1, 2, 2)), np.zeros((3, 2))):
+        with pytest.raises(ValueError, match="pass velocities of shape"):
+            layout.build(*args, velocities=bad)
+    assert len(layout.build(*args, velocities=eng.obstacle_velocities())) == len(layout.groups)

@@ -63,17 +63,28 @@ def _closest_pair(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y):
 
 
 @njit(**_JIT, forceinline=True)
-def _capsule_motion(caps, i, j, time):
-    """Displacement (dx, dy) from its start and velocity (vx, vy) of capsule j of arm i at ``time``:
-    the triangle wave of :func:`pan1_env.bodies.obstacle_centers` along its path."""
+def _gap(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y):
+    """(s, rx, ry): the parameter s on the first segment of the closest pair (:func:`_closest_pair`) and
+    the vector from the second segment's closest point to the first's."""
+    sp, tp = _closest_pair(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y)
+    return sp, a1x + sp * d1x - (a2x + tp * d2x), a1y + sp * d1y - (a2y + tp * d2y)
+
+
+@njit(**_JIT, forceinline=True)
+def _capsule_now(caps, i, j, time):
+    """Capsule j of arm i at ``time``: its segment's start and direction (a2x, a2y, d2x, d2y) and its
+    velocity (vx, vy), the start moved along the path by the triangle wave of
+    :func:`pan1_env.bodies.obstacle_centers`."""
+    ax, ay = caps[i, j, CAP_AX], caps[i, j, CAP_AY]
+    dx, dy = caps[i, j, CAP_BX] - ax, caps[i, j, CAP_BY] - ay
     speed, length = caps[i, j, CAP_SPEED], caps[i, j, CAP_PATH]
     if not (speed > 0.0 and length > 0.0):
-        return 0.0, 0.0, 0.0, 0.0
+        return ax, ay, dx, dy, 0.0, 0.0
     arc = (speed * time) % (2.0 * length)
     u = length - abs(length - arc)
     sign = 1.0 if arc < length else -1.0
     ux, uy = caps[i, j, CAP_UX], caps[i, j, CAP_UY]
-    return u * ux, u * uy, sign * speed * ux, sign * speed * uy
+    return ax + u * ux, ay + u * uy, dx, dy, sign * speed * ux, sign * speed * uy
 
 
 @njit(**_JIT, forceinline=True)
@@ -143,9 +154,7 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, skin, dt, lengths, 
     for j in range(C):
         if caps[i, j, CAP_ACTIVE] == 0.0:
             continue
-        ox, oy, vx, vy = _capsule_motion(caps, i, j, time)
-        a2x, a2y = caps[i, j, CAP_AX] + ox, caps[i, j, CAP_AY] + oy
-        d2x, d2y = caps[i, j, CAP_BX] - caps[i, j, CAP_AX], caps[i, j, CAP_BY] - caps[i, j, CAP_AY]
+        a2x, a2y, d2x, d2y, vx, vy = _capsule_now(caps, i, j, time)
         half = 0.5 * np.sqrt(d2x * d2x + d2y * d2y)
         reach = caps[i, j, CAP_RADIUS] + (rho if links else 0.0) + skin + caps[i, j, CAP_SPEED] * dt
         within = reach + sensing + 2.0 * (reach_speed + caps[i, j, CAP_SPEED]) * dt
@@ -168,9 +177,7 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, skin, dt, lengths, 
             mx, my = a1x + 0.5 * (d1x - d2x) - a2x, a1y + 0.5 * (d1y - d2y) - a2y
             if sensing < np.inf and mx * mx + my * my > (within + half_body + near[x, 6]) ** 2:
                 continue
-            sp, tp = _closest_pair(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y)
-            rx = a1x + sp * d1x - (a2x + tp * d2x)
-            ry = a1y + sp * d1y - (a2y + tp * d2y)
+            sp, rx, ry = _gap(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y)
             if np.sqrt(rx * rx + ry * ry) > within:
                 continue
             h = rx * rx + ry * ry - reach * reach
@@ -225,19 +232,15 @@ def whole_arm_clearance(i, w, n, links, rho, lengths, bx, by, c, s, caps, time, 
     which measures them from every arm's state."""
     C = caps.shape[1]
     clear = np.inf
+    radius = rho if links else 0.0
     _joints(lengths, bx, by, c, s, n, w, P)
-    for body in range(n if links else 1):
-        a1x, a1y, d1x, d1y, _ = _body(P, n, links, body)
-        radius = rho if links else 0.0
-        for j in range(C):
-            if caps[i, j, CAP_ARM] >= 0.0:
-                continue
-            ox, oy, _, _ = _capsule_motion(caps, i, j, time)
-            a2x, a2y = caps[i, j, CAP_AX] + ox, caps[i, j, CAP_AY] + oy
-            d2x, d2y = caps[i, j, CAP_BX] - caps[i, j, CAP_AX], caps[i, j, CAP_BY] - caps[i, j, CAP_AY]
-            sp, tp = _closest_pair(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y)
-            rx = a1x + sp * d1x - (a2x + tp * d2x)
-            ry = a1y + sp * d1y - (a2y + tp * d2y)
+    for j in range(C):  # each obstacle placed once, then measured against every body
+        if caps[i, j, CAP_ARM] >= 0.0:
+            continue
+        a2x, a2y, d2x, d2y, _, _ = _capsule_now(caps, i, j, time)
+        for body in range(n if links else 1):
+            a1x, a1y, d1x, d1y, _ = _body(P, n, links, body)
+            _, rx, ry = _gap(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y)
             clear = min(clear, np.sqrt(rx * rx + ry * ry) - caps[i, j, CAP_RADIUS] - radius)
     return clear
 
@@ -321,9 +324,7 @@ def inter_arm_clearance(P, rho, out):
                     for lj in range(L):
                         a2x, a2y = P[b, j, lj, 0], P[b, j, lj, 1]
                         d2x, d2y = P[b, j, lj + 1, 0] - a2x, P[b, j, lj + 1, 1] - a2y
-                        sp, tp = _closest_pair(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y)
-                        rx = a1x + sp * d1x - (a2x + tp * d2x)
-                        ry = a1y + sp * d1y - (a2y + tp * d2y)
+                        _, rx, ry = _gap(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y)
                         best = min(best, rx * rx + ry * ry)
                 clear = np.sqrt(best) - 2.0 * rho
                 out[b, i] = min(out[b, i], clear)

@@ -425,8 +425,7 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     (:mod:`pan1_env.kernels.capsules`): the obstacle arrays are then empty, each filtered arm's rows
     are its bodies against its capsules at the sub-step's time (``start_time`` + elapsed sub-steps),
     solved by the full search, with a fallback that drops the robust term, then takes the least
-    violating velocity, and
-    ``min_clear`` is its bodies' clearance to the world obstacles.
+    violating velocity, and ``min_clear`` is its bodies' clearance to the world obstacles.
 
     Outputs (per arm): ``v_star_out``/``tau_out`` of the last sub-step (``tau_out`` either
     ``(A, k)`` actuated torques or full ``(A, n)`` rows, whose passive entry is left as passed in), ``qd_out`` the joint
