@@ -31,6 +31,9 @@ logger = logging.getLogger("pan1_env")
 KERNELS_PER_KIND = ("group_advance", "group_advance_parallel")
 # the sub-step kernel's body, called from Python (its fourth argument (n, k), not None) as the generic kernel
 GENERIC = "_advance_arms"
+# the engine's whole-arm geometry passes between kernel calls (pan1_env.kernels.capsules): a few seconds
+# together on a first whole-arm step, announced once
+GEOMETRY = ("kind_joints", "refresh_arm_capsules", "inter_arm_clearance", "inter_arm_clearance_parallel")
 
 
 def notify(message: str) -> None:
@@ -59,6 +62,7 @@ class _KernelCompileNotice(numba_event.Listener):
 
     def __init__(self) -> None:
         self._started: dict[int, float] = {}
+        self._geometry_told = False
 
     @staticmethod
     def _kind(event) -> tuple[str, str] | None:
@@ -84,7 +88,22 @@ class _KernelCompileNotice(numba_event.Listener):
         threads = " (multi-threaded)" if name.endswith("_parallel") else ""
         return "arms of " + describe_kind(n, k) + threads + whole, _cache_dir(dispatcher)
 
+    def _geometry(self, event) -> bool:
+        """Whether the event compiles one of the whole-arm geometry helpers; says so at the first."""
+        dispatcher = event.data.get("dispatcher")
+        func = getattr(dispatcher, "py_func", None)
+        if getattr(func, "__name__", "") not in GEOMETRY or getattr(func, "__module__", "") != \
+                "pan1_env.kernels.capsules":
+            return False
+        if not self._geometry_told:
+            self._geometry_told = True
+            notify(f"compiling the whole-arm geometry helpers (joints, capsules, clearance between arms): once, "
+                   f"a few seconds; cached in {_cache_dir(dispatcher)} for later runs")
+        return True
+
     def on_start(self, event) -> None:
+        if self._geometry(event):
+            return
         found = self._kind(event)
         if found is None:
             return

@@ -200,6 +200,7 @@ class Engine:
             raise ValueError("qp_solver='piqp' filters end-effectors only; whole-arm safety needs 'active_set'")
         self.start_centers, self.path_ends, self.speeds = np.empty((B, O, 2)), np.empty((B, O, 2)), np.zeros((B, O))
         self.elapsed = np.zeros(B)  # s since each copy's reset: where moving obstacles are
+        self.filter: FilterParams | None = None  # set_safety_filter's, below
         if self.whole_arm:
             self._whole_arm_setup()
         for b in range(B):
@@ -229,7 +230,7 @@ class Engine:
                 self._load_capsules(b, team, team.obstacle_mask())
         for kind in self.kinds:
             if kind.whole is not None:
-                kind.whole = (*kind.whole[:4], SENSING_RADIUS if sensing is None else sensing, SKIN)
+                kind.whole = self._whole_args(kind)
 
     def load_team(self, b: int, scenario: Scenario) -> None:
         """Put ``scenario``'s team (same arm kinds in the same order) into copy ``b``; it starts there
@@ -265,8 +266,15 @@ class Engine:
             rows = len(kind.q)
             kind.caps, kind.start_time = np.zeros((rows, C, kernels().capsules.CAPSULE_COLUMNS)), np.zeros(rows)
             kind.others = np.array([[j for j in range(N) if j != i] for i in kind.ids], dtype=np.int64)
-            kind.whole = (kind.caps, kind.start_time, self.link_radius, self.link_bodies, SENSING_RADIUS, SKIN)
+            kind.joints = np.zeros((rows, L + 1, 2))
+            kind.whole = self._whole_args(kind)
             kind.no_obstacles = (np.empty((rows, 0, 2)), np.empty((rows, 0)), np.empty((rows, 0), dtype=bool))
+
+    def _whole_args(self, kind: _Kind) -> tuple:
+        """The kernel's ``whole`` argument for a kind (:func:`pan1_env.kernels.substep.group_advance`)."""
+        sensing = None if self.filter is None else self.filter.sensing_radius
+        return (kind.caps, kind.start_time, self.link_radius, self.link_bodies,
+                SENSING_RADIUS if sensing is None else sensing, SKIN, kind.joints)
 
     def _load_capsules(self, b: int, scenario: Scenario, mask: np.ndarray) -> None:
         """Copy b's capsules: its obstacles (start, path, radius, share 1) and the other arms' link slots
@@ -349,6 +357,17 @@ class Engine:
             kernels().capsules.kind_joints(kind.q, kind.lengths, kind.base, kind.phi, kind.ids, P)
         return P
 
+    def _kernel_joints(self) -> np.ndarray:
+        """:meth:`joint_positions` as the last kernel call of every kind left them (a view with one kind
+        in team order)."""
+        B, N, L = self.copies, self.n_arms, self.n_max
+        if self.team_order:
+            return self.kinds[0].joints.reshape(B, N, L + 1, 2)
+        P = np.empty((B, N, L + 1, 2))
+        for kind in self.kinds:
+            P[:, kind.ids] = kind.joints.reshape(B, kind.A, L + 1, 2)
+        return P
+
     def clearance(self) -> np.ndarray:
         """Smallest clearance of every arm's protected bodies, ``(B, N)`` (inf with nothing to hit): the
         end-effector's ‖p_i − o_j‖ − r_j, or with whole-arm safety every body's to the obstacles where
@@ -365,6 +384,15 @@ class Engine:
             clear = capsule_clearance(a, b, self.centers[:, None], self.radii[:, None],
                                       self.link_radius if self.link_bodies else 0.0).min(axis=(2, 3))
         return np.minimum(clear, self.inter_arm_clearance(P))
+
+    def _inter_arm_clearance(self, P: np.ndarray, out: np.ndarray) -> None:
+        """Running minimum of the clearance between arms into ``out (B, N)``, on numba's threads for
+        large batches (:meth:`_chunks`)."""
+        chunks = self._chunks(P.shape[0] * P.shape[1])
+        if chunks:
+            kernels().capsules.inter_arm_clearance_parallel(P, self.link_radius, out, chunks)
+        else:
+            kernels().capsules.inter_arm_clearance(P, self.link_radius, out)
 
     def inter_arm_clearance(self, P: np.ndarray | None = None) -> np.ndarray:
         """Smallest d − 2ρ between each arm's link capsules and any other arm's, ``(B, N)`` (inf without
@@ -405,19 +433,24 @@ class Engine:
                          blank.qp_counts.copy(), blank.max_tracking_error.copy(), blank.finite.copy())
         if self.inter_arm:
             # every arm's filter sees the others' capsules as they are at each sub-step: one kernel call per
-            # sub-step, the capsules and the clearance between arms refreshed in between
-            # (each kind's outputs gathered once: the kernel accumulates minima, maxima and counts over calls)
+            # sub-step, the capsules refreshed in between from the joints the kernel left (each kind's
+            # outputs gathered once: the kernel accumulates minima, maxima and counts over calls). The
+            # clearance between arms after each sub-step is measured here, seeded with the obstacle
+            # clearance so far (pairs that cannot lower it are skipped).
             calls = [self._kernel_args(kind, command, 1, torque, self.filter, rec) for kind in self.kinds]
             finite = [out[-1].copy() for _, out in calls]  # the kernel marks an arm finite afresh each call
-            between, P = np.full((self.copies, self.n_arms), np.inf), self.joint_positions()
+            P = self.joint_positions()
+            between = np.full((self.copies, self.n_arms), np.inf)
             for _ in range(int(substeps)):
                 self._refresh_capsules(P)
                 for kind, (args, out), ok in zip(self.kinds, calls, finite, strict=True):
                     self._call(kind, args)
                     ok &= out[-1]
                 self.elapsed += self.physics_dt  # the kernel places the obstacles from the clock itself
-                P = self.joint_positions()
-                kernels().capsules.inter_arm_clearance(P, self.link_radius, between)
+                P = self._kernel_joints()
+                for kind, (_, out) in zip(self.kinds, calls, strict=True):
+                    between[:, kind.ids] = np.minimum(between[:, kind.ids], out[2].reshape(self.copies, kind.A))
+                self._inter_arm_clearance(P, between)
             for kind, (_, out), ok in zip(self.kinds, calls, finite, strict=True):
                 out[-1][:] = ok
                 self._finish(kind, out, torque, rec)

@@ -3,6 +3,10 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -471,3 +475,24 @@ def test_a_moving_layout_needs_the_obstacle_velocities() -> None:
         with pytest.raises(ValueError, match="pass velocities of shape"):
             layout.build(*args, velocities=bad)
     assert len(layout.build(*args, velocities=eng.obstacle_velocities())) == len(layout.groups)
+
+
+_GEOMETRY = """
+import numpy as np
+from pan1_env import kernels
+K = kernels.capsules
+P = np.zeros((1, 2, 3, 2))
+K.kind_joints(np.zeros((2, 2)), np.ones((2, 2)), np.zeros((2, 2)), np.zeros(2), np.arange(2), P)
+K.inter_arm_clearance(P, 0.03, np.full((1, 2), np.inf))
+"""
+
+
+def test_the_geometry_helpers_say_once_that_they_compile(tmp_path) -> None:
+    """A first whole-arm step compiles the engine's geometry passes for a few seconds: one notice on an
+    empty cache, none once they are cached."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    first = subprocess.run([sys.executable, "-c", _GEOMETRY], env=env, capture_output=True, text=True, timeout=600)
+    assert first.returncode == 0, first.stderr[-2000:]
+    assert first.stderr.count("compiling the whole-arm geometry helpers") == 1, first.stderr
+    again = subprocess.run([sys.executable, "-c", _GEOMETRY], env=env, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0 and "compil" not in again.stderr, again.stderr[-2000:]

@@ -7,7 +7,14 @@ import numpy as np
 from numba import njit, prange
 
 from ._numba_ext import _JIT, _LANES, _check_chunks, _local, _quick_when, _slp_vectorised
-from .capsules import CAP_ACTIVE, NEAR_COLUMNS, least_violation, whole_arm_clearance, whole_arm_rows
+from .capsules import (
+    CAP_ACTIVE,
+    NEAR_COLUMNS,
+    _joints,
+    least_violation,
+    whole_arm_clearance,
+    whole_arm_rows,
+)
 from .physics import (
     _acceleration_lanes,
     _jacobian_lanes,
@@ -59,10 +66,12 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     its outputs are those of the failing sub-step), as its own loop would; the other lanes go on.
 
     ``whole`` None (numba prunes the branches that read it) keeps the end-effector filter above; a
-    tuple ``(capsules, start_time, link_radius, links, sensing, skin)`` switches to whole-arm safety
-    (:mod:`.capsules`): each filtered lane's rows are its bodies against its capsules at the
+    tuple ``(capsules, start_time, link_radius, links, sensing, skin, joints)`` switches to whole-arm
+    safety (:mod:`.capsules`): each filtered lane's rows are its bodies against its capsules at the
     sub-step's time, solved by the full search, and the clearance after a sub-step is its bodies' to
-    the world obstacles (the engine passes no end-effector obstacles then)."""
+    the world obstacles (the engine passes no end-effector obstacles then). ``joints (A, L + 1, 2)``
+    receives every arm's base, joints and end-effector at the final state (the end-effector repeated
+    up to L), from which the engine refreshes the other arms' capsules between calls."""
     if sizes is None:  # the per-kind kernel (numba prunes the other branch by the argument's type)
         n = len(links)
         k = len(actuated)
@@ -112,7 +121,7 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     # RK4: trial state, stage derivative, weighted sums
     qt, vt, dv, sq, sv = _local(nw, f8), _local(kw, f8), _local(kw, f8), _local(nw, f8), _local(kw, f8)
     if whole is not None:  # whole-arm scratch: one lane's rows (bodies × capsules, speed bounds) and joints
-        caps, start_time, rho, link_bodies, sensing, skin = whole
+        caps, start_time, rho, link_bodies, sensing, skin, joints_out = whole
         m_whole = (n if link_bodies else 1) * caps.shape[1] + 2 * k
         wA, wb, wact = np.zeros((m_whole, kk)), np.zeros(m_whole), np.zeros(m_whole, dtype=np.bool_)
         wrows, wviol, wnorm, wP = np.empty(m_whole, dtype=np.int64), np.empty(m_whole), np.empty(m_whole), \
@@ -391,6 +400,11 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                     qd_out[i, a] = qd[a, w]
                 p_out[i, 0] = px[w]
                 p_out[i, 1] = py[w]
+                if whole is not None:
+                    _joints(ln, bx, by, c, s, n, w, wP)
+                    for a in range(joints_out.shape[1]):
+                        joints_out[i, a, 0] = wP[min(a, n), 0]
+                        joints_out[i, a, 1] = wP[min(a, n), 1]
 
 
 _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a held command (in place).
@@ -421,11 +435,13 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     exact optimum). A problem the box makes infeasible takes the braking fallback.
 
     ``whole``: None for the end-effector filter above (the paper's); a tuple ``(capsules (A, C,
-    CAPSULE_COLUMNS), start_time (A,), link_radius, links, sensing, skin)`` for whole-arm safety
+    CAPSULE_COLUMNS), start_time (A,), link_radius, links, sensing, skin, joints (A, L + 1, 2))`` for
+    whole-arm safety
     (:mod:`pan1_env.kernels.capsules`): the obstacle arrays are then empty, each filtered arm's rows
     are its bodies against its capsules at the sub-step's time (``start_time`` + elapsed sub-steps),
     solved by the full search, with a fallback that drops the robust term, then takes the least
-    violating velocity, and ``min_clear`` is its bodies' clearance to the world obstacles.
+    violating velocity, ``min_clear`` is its bodies' clearance to the world obstacles, and ``joints``
+    gets the arms' base, joints and end-effector at the final state.
 
     Outputs (per arm): ``v_star_out``/``tau_out`` of the last sub-step (``tau_out`` either
     ``(A, k)`` actuated torques or full ``(A, n)`` rows, whose passive entry is left as passed in), ``qd_out`` the joint
