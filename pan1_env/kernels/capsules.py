@@ -130,8 +130,8 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, skin, dt, lengths, 
     round on its path and the arm lags the filtered velocity, which without the skin let capsules
     graze obstacles by fractions of a millimetre.
 
-    ``near (C, NEAR_COLUMNS)`` is scratch: the capsules that may come within range of any point of the arm (every
-    point lies within the arm's reach of its base), where they are now, found once for all bodies."""
+    ``near (C, NEAR_COLUMNS)`` is scratch: the capsules whose bounding box comes within range of the
+    bodies' box, where they are now, found once for all bodies."""
     C = caps.shape[1]
     m = 0
     h_min = np.inf
@@ -152,23 +152,28 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, skin, dt, lengths, 
     for t in range(k):
         commanded += min(abs(v0[t]), v_max)
     reach_speed = arm_reach * max(joint_speed, coupling * commanded)
+    _joints(lengths, bx, by, c, s, n, w, P)
+    # the bodies' bounding box: a capsule whose segment's box is farther than its range along an axis is
+    # out of range of every body (the gap along an axis bounds the distance from below)
+    first = 0 if links else n
+    lox, hix, loy, hiy = P[first, 0], P[first, 0], P[first, 1], P[first, 1]
+    for a in range(first + 1, n + 1):
+        lox, hix = min(lox, P[a, 0]), max(hix, P[a, 0])
+        loy, hiy = min(loy, P[a, 1]), max(hiy, P[a, 1])
     n_near = 0
     for j in range(C):
         if caps[i, j, CAP_ACTIVE] == 0.0:
             continue
         a2x, a2y, d2x, d2y, vx, vy = _capsule_now(caps, i, j, time)
-        half = 0.5 * np.sqrt(d2x * d2x + d2y * d2y)
         reach = caps[i, j, CAP_RADIUS] + (rho if links else 0.0) + skin + caps[i, j, CAP_SPEED] * dt
         within = reach + sensing + 2.0 * (reach_speed + caps[i, j, CAP_SPEED]) * dt
-        # the capsule's midpoint, less its half length, bounds its distance to any point of the arm
-        mx, my = a2x + 0.5 * d2x - bx[w], a2y + 0.5 * d2y - by[w]
-        if sensing < np.inf and mx * mx + my * my > (within + half + arm_reach) ** 2:
+        if min(a2x, a2x + d2x) - within > hix or max(a2x, a2x + d2x) + within < lox or \
+                min(a2y, a2y + d2y) - within > hiy or max(a2y, a2y + d2y) + within < loy:
             continue
         near[n_near, 0], near[n_near, 1], near[n_near, 2], near[n_near, 3] = a2x, a2y, d2x, d2y
-        near[n_near, 4], near[n_near, 5], near[n_near, 6] = vx, vy, half
+        near[n_near, 4], near[n_near, 5], near[n_near, 6] = vx, vy, 0.5 * np.sqrt(d2x * d2x + d2y * d2y)
         near[n_near, 7], near[n_near, 8], near[n_near, 9] = reach, within, caps[i, j, CAP_SHARE]
         n_near += 1
-    _joints(lengths, bx, by, c, s, n, w, P)
     for body in range(n if links else 1):
         a1x, a1y, d1x, d1y, ell = _body(P, n, links, body)
         half_body = 0.5 * np.sqrt(d1x * d1x + d1y * d1y)
@@ -299,23 +304,30 @@ def least_violation(v0, A, b, active, m, k, n_box, v_out, b_given, norms, rows, 
     return hi
 
 
+@njit(**_JIT, forceinline=True)
+def _box_gap(lox1, hix1, loy1, hiy1, lox2, hix2, loy2, hiy2):
+    """The larger of two boxes' gaps along x and y (≤ 0 if they overlap): a lower bound on the distance
+    between any point of one and any point of the other."""
+    return max(lox2 - hix1, lox1 - hix2, loy2 - hiy1, loy1 - hiy2)
+
+
 @njit(**_JIT)
 def _inter_arm_copies(P, rho, out, lo, hi):
     """:func:`inter_arm_clearance` for copies ``lo … hi−1``."""
     N, L = P.shape[1], P.shape[2] - 1
-    extent = np.empty(N)
+    box = np.empty((N, 4))
     for b in range(lo, hi):
-        for i in range(N):  # every point of arm i lies within extent[i] of its base (segments are convex)
-            far = 0.0
+        for i in range(N):  # every arm's bounding box (its segments lie in that of its joints)
+            box[i, 0], box[i, 1], box[i, 2], box[i, 3] = P[b, i, 0, 0], P[b, i, 0, 0], P[b, i, 0, 1], P[b, i, 0, 1]
             for a in range(1, L + 1):
-                far = max(far, (P[b, i, a, 0] - P[b, i, 0, 0]) ** 2 + (P[b, i, a, 1] - P[b, i, 0, 1]) ** 2)
-            extent[i] = np.sqrt(far)
+                box[i, 0], box[i, 1] = min(box[i, 0], P[b, i, a, 0]), max(box[i, 1], P[b, i, a, 0])
+                box[i, 2], box[i, 3] = min(box[i, 2], P[b, i, a, 1]), max(box[i, 3], P[b, i, a, 1])
         for i in range(N):
             for j in range(i + 1, N):
-                gap = np.sqrt((P[b, i, 0, 0] - P[b, j, 0, 0]) ** 2 + (P[b, i, 0, 1] - P[b, j, 0, 1]) ** 2) \
-                    - extent[i] - extent[j] - 2.0 * rho
-                if gap >= out[b, i] and gap >= out[b, j]:
-                    continue  # this pair cannot lower either running minimum
+                limit = max(out[b, i], out[b, j]) + 2.0 * rho  # a gap this large cannot lower either minimum
+                if _box_gap(box[i, 0], box[i, 1], box[i, 2], box[i, 3],
+                            box[j, 0], box[j, 1], box[j, 2], box[j, 3]) >= limit:
+                    continue
                 best = np.inf
                 for li in range(L):
                     a1x, a1y = P[b, i, li, 0], P[b, i, li, 1]
@@ -323,6 +335,10 @@ def _inter_arm_copies(P, rho, out, lo, hi):
                     for lj in range(L):
                         a2x, a2y = P[b, j, lj, 0], P[b, j, lj, 1]
                         d2x, d2y = P[b, j, lj + 1, 0] - a2x, P[b, j, lj + 1, 1] - a2y
+                        if _box_gap(min(a1x, a1x + d1x), max(a1x, a1x + d1x), min(a1y, a1y + d1y),
+                                    max(a1y, a1y + d1y), min(a2x, a2x + d2x), max(a2x, a2x + d2x),
+                                    min(a2y, a2y + d2y), max(a2y, a2y + d2y)) >= min(limit, np.sqrt(best)):
+                            continue
                         _, rx, ry = _gap(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y)
                         best = min(best, rx * rx + ry * ry)
                 clear = np.sqrt(best) - 2.0 * rho
@@ -334,9 +350,10 @@ def _inter_arm_copies(P, rho, out, lo, hi):
 def inter_arm_clearance(P, rho, out):
     """Running minimum into ``out (B, N)`` of every arm's clearance d − 2ρ to the other arms' link
     capsules, from the joints ``P (B, N, L + 1, 2)`` of :meth:`pan1_env.engine.Engine.joint_positions`
-    (padding links of length 0 at an arm's end-effector change nothing). A pair of arms whose bounding
-    disks (about each base) are farther apart than both running minima is skipped, so seeding ``out``
-    with a smaller clearance (to the obstacles, say) saves work without changing the minimum."""
+    (padding links of length 0 at an arm's end-effector change nothing). A pair of arms, or of links,
+    whose bounding boxes are farther apart than both running minima (or than the pair's closest links
+    so far) is skipped, so seeding ``out`` with a smaller clearance (to the obstacles, say) saves work
+    without changing the minimum."""
     _inter_arm_copies(P, rho, out, 0, P.shape[0])
 
 
