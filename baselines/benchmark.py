@@ -7,6 +7,8 @@ arm heads for its nearest obstacle), ``sb3:PATH`` (a Stable-Baselines3 model tra
 Gymnasium view of the same scenario, run deterministically) and any name added with
 :func:`~pan1_env.baselines.policies.register_policy`; each is built on the (shielded or plain) env.
 
+A scenario is a built-in name, a ``.toml`` path, ``random`` or one of the Gymnasium ids
+(``pan1_env/WholeArmStaticFormation-v0`` runs random teams with that id's options).
 For each scenario × policy × shield setting, episodes ``seed, seed+1, …`` are run to their end
 (``max_steps``). Per row: ``success_rate`` (formation error < 1 cm at the end), ``mean_time_to_formation_s``
 (over successful episodes, the time after which the error stays below 1 cm, as ``reproduce``'s
@@ -66,6 +68,7 @@ def run_benchmark(scenarios: Sequence[str], policies: Sequence[str], episodes: i
                   progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
     """Run every scenario × policy × shield combination on episodes seeded ``seed … seed+episodes−1``."""
     from pan1_env.environment import parallel_env
+    from pan1_env.registration import env_arguments
     from pan1_env.wrappers import SafetyShield
 
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
@@ -79,7 +82,8 @@ def run_benchmark(scenarios: Sequence[str], policies: Sequence[str], episodes: i
     for scenario in scenarios:
         for name in policies:
             for shield in shield_settings:
-                base = parallel_env(scenario, **kwargs)
+                name_or_path, task_kwargs = env_arguments(scenario)
+                base = parallel_env(name_or_path, **(task_kwargs | kwargs))
                 env = SafetyShield(base) if shield else base
                 policy = make_policy(name, env, seed)
                 if progress is not None:  # a row can take minutes: say what runs

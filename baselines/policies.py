@@ -218,10 +218,10 @@ register_policy("sb3:", _sb3, metavar="PATH")
 def _pretrained(env, seed: int | None, name: str | None = None) -> Policy:
     from .shipped import model_for, pretrained
 
-    return pretrained(model_for(env.scenario.name) if name is None else name, env)
+    return pretrained(model_for(env) if name is None else name, env)
 
 
-register_policy("pretrained", _pretrained)  # the shipped model trained for the env's scenario
+register_policy("pretrained", _pretrained)  # the shipped model trained for the env's task
 register_policy("pretrained:", _pretrained, metavar="NAME")
 
 BUILTIN_POLICIES = ("reference", "zero", "random", "adversarial")

@@ -30,12 +30,28 @@ def available() -> dict[str, dict[str, Any]]:
             if p.with_suffix(".zip").exists()}
 
 
-def model_for(scenario_name: str) -> str:
-    """The name of the model trained for ``scenario_name`` (ValueError if none ships)."""
-    matches = [name for name, meta in available().items() if meta.get("scenario") == scenario_name]
+def model_for(env) -> str:
+    """The name of the shipped model trained for ``env``'s task (ValueError if none ships): the same
+    scenario and, where the model's run set them, the same random-team options and time steps; a model
+    trained on residual actions still serves a velocity-mode env (the adapter adds the reference law)."""
+    from pan1_env.random_scenario import RandomScenarioOptions
+
+    env = getattr(env, "unwrapped", env)
+    name = env.scenario.name if not getattr(env, "_random", False) else "random"
+
+    def same_task(meta: dict[str, Any]) -> bool:
+        kwargs = meta.get("env_kwargs", {})
+        if meta.get("scenario") != name:
+            return False
+        if name == "random" and RandomScenarioOptions(**kwargs.get("random_options", {})) != env.random_options:
+            return False
+        return all(getattr(env, key) == kwargs[key] for key in ("physics_dt", "control_dt") if key in kwargs)
+
+    matches = [model for model, meta in available().items() if same_task(meta)]
     if not matches:
-        shipped = {name: meta.get("scenario") for name, meta in available().items()}
-        raise ValueError(f"no pretrained model for scenario {scenario_name!r}; shipped: {shipped or 'none'}")
+        shipped = {model: meta.get("scenario") for model, meta in available().items()}
+        raise ValueError(f"no pretrained model for scenario {name!r} with these options; shipped: "
+                         f"{shipped or 'none'} (pretrained:NAME picks one by name)")
     return matches[0]
 
 

@@ -105,7 +105,9 @@ def _parser() -> argparse.ArgumentParser:
     tr = sub.add_parser("train", help="train PPO or SAC with Stable-Baselines3 (needs the rl extra)")
     tr.add_argument("--algo", choices=("ppo", "sac", "ppo-lagrangian"), default="ppo",
                     help="Stable-Baselines3 algorithm (ppo-lagrangian: PPO with a Lagrangian cost penalty)")
-    tr.add_argument("--scenario", default="paper_pa3_square", help="built-in name, .toml path or 'random'")
+    tr.add_argument("--scenario", default="paper_pa3_square",
+                    help="built-in name, .toml path, 'random' or a Gymnasium id such as "
+                         "pan1_env/WholeArmStaticFormation-v0 (its options, under --env-kwargs)")
     tr.add_argument("--shield", action=argparse.BooleanOptionalAction, default=True,
                     help="train behind the RCBF-QP safety shield")
     tr.add_argument("--timesteps", type=_positive_int, default=100_000, help="total environment steps")
@@ -141,7 +143,8 @@ def _parser() -> argparse.ArgumentParser:
 
     bench = sub.add_parser("benchmark", help="compare policies on the same seeded starts, shield on and off")
     bench.add_argument("--scenarios", default="paper_pa3_square,paper_pa_mixed_square",
-                       help="comma-separated scenario names or paths")
+                       help="comma-separated scenario names, paths, 'random' or Gymnasium ids "
+                            "(pan1_env/WholeArmStaticFormation-v0)")
     bench.add_argument("--policies", default="reference,zero,random",
                        help="comma-separated: reference, zero, random, adversarial, sb3:PATH, or names "
                             "registered with pan1_env.baselines.register_policy")

@@ -9,9 +9,9 @@ concatenation of every agent's action, its reward the mean of the agents' reward
 * ``pan1_env/PaperPA3Square-v0`` (Section 5.1),
 * ``pan1_env/PaperMixedPA-v0`` (Section 5.2),
 * ``pan1_env/RandomFormation-v0`` (a new random team every reset),
-* ``pan1_env/WholeArmFormation-v0`` (the same task with whole-arm safety: every link a capsule of
-  radius 0.03 m kept out of the obstacles and the other arms, obstacles moving at 0.05–0.2 m/s;
-  physics sub-steps of 0.01 s),
+* ``pan1_env/WholeArmStaticFormation-v0`` (the same task with whole-arm safety: every link a capsule
+  of radius 0.03 m kept out of the obstacles and the other arms; physics sub-steps of 0.01 s),
+* ``pan1_env/WholeArmFormation-v0`` (the same with obstacles moving at 0.05–0.2 m/s),
 
 each with ``max_episode_steps`` equal to the env's ``max_steps`` at default arguments, and the
 one-arm task ``pan1_env/PAReach-v0`` (:class:`~pan1_env.reach.PAReachEnv`, 200 steps).
@@ -26,15 +26,16 @@ import numpy as np
 
 from .validation import float_array, forwards_keywords
 
-__all__ = ["CentralizedEnv", "register_envs", "ENV_IDS", "REACH_ENV_ID", "DEFAULT_REACH_STEPS"]
+__all__ = ["CentralizedEnv", "register_envs", "env_arguments", "ENV_IDS", "REACH_ENV_ID", "DEFAULT_REACH_STEPS"]
 
+_WHOLE_ARM = {"bodies": "links", "link_radius": 0.03, "inter_arm": True}
 ENV_IDS = {
     "pan1_env/PaperPA3Square-v0": {"scenario": "paper_pa3_square"},
     "pan1_env/PaperMixedPA-v0": {"scenario": "paper_pa_mixed_square"},
     "pan1_env/RandomFormation-v0": {"scenario": "random"},
+    "pan1_env/WholeArmStaticFormation-v0": {"scenario": "random", "physics_dt": 0.01, "random_options": _WHOLE_ARM},
     "pan1_env/WholeArmFormation-v0": {"scenario": "random", "physics_dt": 0.01,
-                                      "random_options": {"bodies": "links", "link_radius": 0.03, "inter_arm": True,
-                                                         "obstacle_speed": (0.05, 0.2)}},
+                                      "random_options": _WHOLE_ARM | {"obstacle_speed": (0.05, 0.2)}},
 }
 REACH_ENV_ID = "pan1_env/PAReach-v0"
 DEFAULT_MAX_EPISODE_STEPS = 2000  # 100 s at the default control_dt of 0.05 s
@@ -102,6 +103,16 @@ class CentralizedEnv(gymnasium.Env):
 
     def close(self) -> None:
         self.parallel.close()
+
+
+def env_arguments(name: str) -> tuple[str, dict[str, Any]]:
+    """A scenario (built-in name, ``.toml`` path or ``"random"``) or one of :data:`ENV_IDS`, as the
+    parallel env's ``scenario`` and its further arguments: ``"pan1_env/WholeArmFormation-v0"`` →
+    ``("random", {"physics_dt": 0.01, "random_options": {...}})``, ``"random"`` → ``("random", {})``."""
+    if name not in ENV_IDS:
+        return name, {}
+    kwargs = {key: dict(value) if isinstance(value, dict) else value for key, value in ENV_IDS[name].items()}
+    return kwargs.pop("scenario"), kwargs
 
 
 def register_envs() -> None:

@@ -252,3 +252,39 @@ def test_a_blocked_gate_model_acts_only_after_the_filter_held_an_arm_back(tmp_pa
         expected = np.clip(nominal[a] + scale * np.clip(raw[offset:offset + k], -1, 1), -1, 1)
         np.testing.assert_allclose(actions[a], expected, rtol=1e-5, atol=1e-6)
         offset += k
+
+
+def test_the_pretrained_model_is_picked_by_the_envs_task(tmp_path, monkeypatch) -> None:
+    from pan1_env.baselines import shipped
+    from pan1_env.environment import parallel_env
+    from pan1_env.registration import env_arguments
+
+    monkeypatch.setattr(shipped, "PRETRAINED_DIR", tmp_path)
+    whole_arm = env_arguments("pan1_env/WholeArmStaticFormation-v0")[1]
+    for name, kwargs in (("plain", {}), ("whole_arm", whole_arm)):
+        (tmp_path / f"{name}.zip").write_bytes(b"")  # model_for reads only the metadata
+        (tmp_path / f"{name}.json").write_text(json.dumps({"scenario": "random", "env_kwargs": kwargs}))
+    assert shipped.model_for(parallel_env("random")) == "plain"
+    assert shipped.model_for(parallel_env("random", **whole_arm)) == "whole_arm"
+    for other in ({"random_options": {"n_obstacles": 2}}, whole_arm | {"physics_dt": 0.005}):
+        with pytest.raises(ValueError, match="no pretrained model for scenario 'random' with these options"):
+            shipped.model_for(parallel_env("random", **other))
+
+
+def test_gymnasium_ids_name_tasks_for_training_and_the_benchmark(tmp_path) -> None:
+    from pan1_env.registration import ENV_IDS, env_arguments
+
+    assert env_arguments("paper_pa3_square") == ("paper_pa3_square", {})
+    scenario, kwargs = env_arguments("pan1_env/WholeArmFormation-v0")
+    assert scenario == "random" and kwargs["random_options"]["obstacle_speed"] == (0.05, 0.2)
+    kwargs["random_options"]["link_radius"] = 1.0  # a copy: the registered options stay as they are
+    assert ENV_IDS["pan1_env/WholeArmFormation-v0"]["random_options"]["link_radius"] == 0.03
+    out = tmp_path / "run"
+    train("ppo", "pan1_env/WholeArmStaticFormation-v0", timesteps=64, seed=0, out=out, checkpoint_every=64,
+          progress=False, n_envs=2, env_kwargs={"max_steps": 16}, algo_kwargs={"n_steps": 32, "batch_size": 64})
+    run = json.loads((out / "run.json").read_text())
+    assert run["scenario"] == "random" and run["env_kwargs"]["random_options"]["bodies"] == "links"
+    assert run["env_kwargs"]["physics_dt"] == 0.01 and run["env_kwargs"]["max_steps"] == 16
+    rows = run_benchmark(["pan1_env/WholeArmStaticFormation-v0"], ["zero"], episodes=1, max_steps=3,
+                         shield_settings=(True,))
+    assert rows[0]["scenario"] == "pan1_env/WholeArmStaticFormation-v0" and rows[0]["total_cost"] == 0.0
