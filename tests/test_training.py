@@ -288,3 +288,30 @@ def test_gymnasium_ids_name_tasks_for_training_and_the_benchmark(tmp_path) -> No
     rows = run_benchmark(["pan1_env/WholeArmStaticFormation-v0"], ["zero"], episodes=1, max_steps=3,
                          shield_settings=(True,))
     assert rows[0]["scenario"] == "pan1_env/WholeArmStaticFormation-v0" and rows[0]["total_cost"] == 0.0
+
+
+@pytest.mark.parametrize("name", sorted(__import__("pan1_env.baselines.shipped", fromlist=["x"]).available()))
+def test_each_shipped_model_is_picked_for_its_task_and_runs_there(name) -> None:
+    import shlex
+
+    from pan1_env.baselines import make_policy, shipped
+    from pan1_env.cli import _parser
+    from pan1_env.environment import parallel_env
+    from pan1_env.wrappers import SafetyShield
+
+    meta = shipped.available()[name]
+    task = {key: value for key, value in meta["env_kwargs"].items()
+            if key in ("random_options", "physics_dt", "control_dt")}
+    env = SafetyShield(parallel_env(meta["scenario"], max_steps=4, **task))  # velocity mode: the adapter
+    assert shipped.model_for(env) == name
+    policy = make_policy("pretrained", env)
+    obs, _ = env.reset(seed=0)
+    for _ in range(4):
+        actions = policy(obs)
+        assert all(env.action_space(a).contains(actions[a]) for a in env.agents)
+        obs, _, _, _, infos = env.step(actions)
+        assert all(infos[a]["cost"] == 0.0 for a in infos)
+    provenance = meta["provenance"]
+    args = _parser().parse_args(shlex.split(provenance["command"])[1:])  # the command that made it parses
+    assert (args.scenario, args.seed, args.timesteps) == (meta["scenario"], provenance["run"]["seed"],
+                                                          provenance["run"]["timesteps"])
