@@ -79,32 +79,36 @@ def run_benchmark(scenarios: Sequence[str], policies: Sequence[str], episodes: i
     kwargs = dict(env_kwargs or {})
     if max_steps is not None:
         kwargs["max_steps"] = max_steps
+    # every env and policy is built before the first episode, so that a bad name or a missing model
+    # fails at once rather than after the rows before it have run for minutes
+    runs = []
     for scenario in scenarios:
+        name_or_path, scenario_kwargs = env_arguments(scenario, kwargs)
         for name in policies:
             for shield in shield_settings:
-                name_or_path, task_kwargs = env_arguments(scenario)
-                base = parallel_env(name_or_path, **(task_kwargs | kwargs))
+                base = parallel_env(name_or_path, **scenario_kwargs)
                 env = SafetyShield(base) if shield else base
-                policy = make_policy(name, env, seed)
-                if progress is not None:  # a row can take minutes: say what runs
-                    progress(f"{scenario} / {name} / shield {'on' if shield else 'off'}: {episodes} episodes …")
-                results = [_episode(env, policy, seed + k, shield) for k in range(episodes)]
-                times = [r["time_to_formation"] for r in results if r["success"]]
-                arm_steps = sum(r["arm_steps"] for r in results)
-                row = {
-                    "scenario": scenario, "policy": name, "shield": shield, "episodes": episodes,
-                    "success_rate": float(np.mean([r["success"] for r in results])),
-                    "mean_time_to_formation_s": float(np.mean(times)) if times else None,
-                    "mean_return": float(np.mean([r["return"] for r in results])),
-                    "total_cost": float(sum(r["cost"] for r in results)),
-                    "min_clearance_m": _finite_or_none(min(r["min_clearance"] for r in results)),
-                    "intervention_rate": (sum(r["interventions"] for r in results) / arm_steps) if shield else None,
-                    "fallback_steps": sum(r["fallbacks"] for r in results) if shield else None,
-                }
-                rows.append(row)
-                if progress is not None:
-                    progress(f"{scenario} / {name} / shield {'on' if shield else 'off'}: "
-                             f"success {row['success_rate']:.0%}, cost {row['total_cost']:g}")
+                runs.append((scenario, name, shield, env, make_policy(name, env, seed)))
+    for scenario, name, shield, env, policy in runs:
+        if progress is not None:  # a row can take minutes: say what runs
+            progress(f"{scenario} / {name} / shield {'on' if shield else 'off'}: {episodes} episodes …")
+        results = [_episode(env, policy, seed + k, shield) for k in range(episodes)]
+        times = [r["time_to_formation"] for r in results if r["success"]]
+        arm_steps = sum(r["arm_steps"] for r in results)
+        row = {
+            "scenario": scenario, "policy": name, "shield": shield, "episodes": episodes,
+            "success_rate": float(np.mean([r["success"] for r in results])),
+            "mean_time_to_formation_s": float(np.mean(times)) if times else None,
+            "mean_return": float(np.mean([r["return"] for r in results])),
+            "total_cost": float(sum(r["cost"] for r in results)),
+            "min_clearance_m": _finite_or_none(min(r["min_clearance"] for r in results)),
+            "intervention_rate": (sum(r["interventions"] for r in results) / arm_steps) if shield else None,
+            "fallback_steps": sum(r["fallbacks"] for r in results) if shield else None,
+        }
+        rows.append(row)
+        if progress is not None:
+            progress(f"{scenario} / {name} / shield {'on' if shield else 'off'}: "
+                     f"success {row['success_rate']:.0%}, cost {row['total_cost']:g}")
     return rows
 
 

@@ -10,7 +10,7 @@ command, seed and package version that produced it, and its held-out evaluation.
     actions = policy(observations)
 
 The policy registry's ``pretrained`` name (``pan1-env benchmark --policies pretrained``) picks the
-model trained for the env's scenario.
+model trained for the env's task (:func:`model_for`).
 """
 
 from __future__ import annotations
@@ -30,28 +30,74 @@ def available() -> dict[str, dict[str, Any]]:
             if p.with_suffix(".zip").exists()}
 
 
+def _task(scenario: str, options: Any, action_mode: str, control_dt: float | None, physics_dt: float | None,
+          ke: float | None = None) -> tuple:
+    """What a model must have been trained on to serve an env: the scenario (its name; for random teams
+    the options they are drawn with), the action mode it serves (a residual model runs on a velocity env)
+    and the time steps, defaults resolved."""
+    from dataclasses import asdict
+
+    from pan1_env.environment import DEFAULT_CONTROL_DT, default_physics_dt
+    from pan1_env.random_scenario import RandomScenarioOptions
+    from pan1_env.scenario import load
+
+    if scenario == "random":
+        options = options if isinstance(options, RandomScenarioOptions) else RandomScenarioOptions(**(options or {}))
+        ke = options.ke
+        # the options' own time steps are the drawn scenario's, which the envs replace by their arguments
+        scenario = ("random", tuple(sorted((key, value) for key, value in asdict(options).items()
+                                           if key not in ("physics_dt", "control_dt"))))
+    elif ke is None:
+        try:
+            template = load(scenario)
+            scenario, ke = template.name, template.ke
+        except Exception:  # noqa: BLE001 - a model for a scenario file that is not here serves no env
+            return (scenario,)
+    mode = "velocity" if action_mode == "residual" else action_mode
+    control_dt = DEFAULT_CONTROL_DT if control_dt is None else control_dt
+    physics_dt = default_physics_dt(control_dt, ke, mode) if physics_dt is None else physics_dt
+    return scenario, mode, round(control_dt, 9), round(physics_dt, 9)
+
+
+def _env_task(env) -> tuple:
+    env = getattr(env, "unwrapped", env)
+    env = getattr(env, "parallel", env)  # the Gymnasium view holds the parallel env
+    random = getattr(env, "_random", False)
+    return _task("random" if random else env.scenario.name, env.random_options if random else None,
+                 env.action_mode, env.control_dt, env.physics_dt, None if random else env.scenario.ke)
+
+
+def _model_task(meta: dict[str, Any]) -> tuple:
+    kwargs = meta.get("env_kwargs", {})
+    return _task(meta.get("scenario"), kwargs.get("random_options"), kwargs.get("action_mode", "velocity"),
+                 kwargs.get("control_dt"), kwargs.get("physics_dt"))
+
+
+def describe(meta: dict[str, Any]) -> str:
+    """A shipped model's task in words: the Gymnasium id whose task it is, else its scenario."""
+    from pan1_env.registration import ENV_IDS, env_arguments
+
+    task = _model_task(meta)
+    for env_id in ENV_IDS:
+        scenario, kwargs = env_arguments(env_id)
+        if _task(scenario, kwargs.get("random_options"), "velocity", kwargs.get("control_dt"),
+                 kwargs.get("physics_dt"))[:2] == task[:2]:
+            return env_id
+    return str(meta.get("scenario"))
+
+
 def model_for(env) -> str:
     """The name of the shipped model trained for ``env``'s task (ValueError if none ships): the same
-    scenario and, where the model's run set them, the same random-team options and time steps; a model
-    trained on residual actions still serves a velocity-mode env (the adapter adds the reference law)."""
-    from pan1_env.random_scenario import RandomScenarioOptions
-
-    env = getattr(env, "unwrapped", env)
-    name = env.scenario.name if not getattr(env, "_random", False) else "random"
-
-    def same_task(meta: dict[str, Any]) -> bool:
-        kwargs = meta.get("env_kwargs", {})
-        if meta.get("scenario") != name:
-            return False
-        if name == "random" and RandomScenarioOptions(**kwargs.get("random_options", {})) != env.random_options:
-            return False
-        return all(getattr(env, key) == kwargs[key] for key in ("physics_dt", "control_dt") if key in kwargs)
-
-    matches = [model for model, meta in available().items() if same_task(meta)]
+    scenario (for random teams, the same options), action mode and time steps. A model trained on
+    residual actions serves a velocity-mode env (the adapter adds the reference law)."""
+    task = _env_task(env)
+    models = available()
+    matches = [name for name, meta in models.items() if _model_task(meta) == task]
     if not matches:
-        shipped = {model: meta.get("scenario") for model, meta in available().items()}
-        raise ValueError(f"no pretrained model for scenario {name!r} with these options; shipped: "
-                         f"{shipped or 'none'} (pretrained:NAME picks one by name)")
+        label = task[0] if isinstance(task[0], str) else "random teams with these options"
+        shipped = ", ".join(f"{name} ({describe(meta)})" for name, meta in models.items()) or "none"
+        raise ValueError(f"no pretrained model for {label} in {task[1]} mode with control_dt={task[2]}, "
+                         f"physics_dt={task[3]}; shipped: {shipped}")
     return matches[0]
 
 

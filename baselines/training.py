@@ -301,9 +301,7 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
     """Train and return a summary (see the module docstring). Raises ValueError on bad arguments."""
     from pan1_env.registration import env_arguments
 
-    scenario, task_kwargs = env_arguments(scenario)  # a Gymnasium id: its scenario and options
-    if task_kwargs:
-        env_kwargs = task_kwargs | (env_kwargs or {})
+    scenario, env_kwargs = env_arguments(scenario, env_kwargs)  # a Gymnasium id: its scenario and options
     if algo not in ALGOS:
         raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
     for name, value in (("timesteps", timesteps), ("n_envs", n_envs), ("checkpoint_every", checkpoint_every)):

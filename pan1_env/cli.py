@@ -106,8 +106,8 @@ def _parser() -> argparse.ArgumentParser:
     tr.add_argument("--algo", choices=("ppo", "sac", "ppo-lagrangian"), default="ppo",
                     help="Stable-Baselines3 algorithm (ppo-lagrangian: PPO with a Lagrangian cost penalty)")
     tr.add_argument("--scenario", default="paper_pa3_square",
-                    help="built-in name, .toml path, 'random' or a Gymnasium id such as "
-                         "pan1_env/WholeArmStaticFormation-v0 (its options, under --env-kwargs)")
+                    help="built-in name, .toml path, 'random' or a team id of pan1_env.ENV_IDS such as "
+                         "pan1_env/WholeArmStaticFormation-v0 (--env-kwargs go on top of its options)")
     tr.add_argument("--shield", action=argparse.BooleanOptionalAction, default=True,
                     help="train behind the RCBF-QP safety shield")
     tr.add_argument("--timesteps", type=_positive_int, default=100_000, help="total environment steps")
@@ -143,10 +143,11 @@ def _parser() -> argparse.ArgumentParser:
 
     bench = sub.add_parser("benchmark", help="compare policies on the same seeded starts, shield on and off")
     bench.add_argument("--scenarios", default="paper_pa3_square,paper_pa_mixed_square",
-                       help="comma-separated scenario names, paths, 'random' or Gymnasium ids "
-                            "(pan1_env/WholeArmStaticFormation-v0)")
+                       help="comma-separated scenario names, paths, 'random' or team ids of "
+                            "pan1_env.ENV_IDS (pan1_env/WholeArmStaticFormation-v0)")
     bench.add_argument("--policies", default="reference,zero,random",
-                       help="comma-separated: reference, zero, random, adversarial, sb3:PATH, or names "
+                       help="comma-separated: reference, zero, random, adversarial, sb3:PATH, pretrained "
+                            "(the shipped model trained for each scenario's task), pretrained:NAME, or names "
                             "registered with pan1_env.baselines.register_policy")
     bench.add_argument("--episodes", type=_positive_int, default=5,
                        help="episodes per scenario, policy and shield setting")

@@ -10,7 +10,7 @@ concatenation of every agent's action, its reward the mean of the agents' reward
 * ``pan1_env/PaperMixedPA-v0`` (Section 5.2),
 * ``pan1_env/RandomFormation-v0`` (a new random team every reset),
 * ``pan1_env/WholeArmStaticFormation-v0`` (the same task with whole-arm safety: every link a capsule
-  of radius 0.03 m kept out of the obstacles and the other arms; physics sub-steps of 0.01 s),
+  of radius 0.03 m kept out of the obstacles and the other arms),
 * ``pan1_env/WholeArmFormation-v0`` (the same with obstacles moving at 0.05–0.2 m/s),
 
 each with ``max_episode_steps`` equal to the env's ``max_steps`` at default arguments, and the
@@ -33,8 +33,8 @@ ENV_IDS = {
     "pan1_env/PaperPA3Square-v0": {"scenario": "paper_pa3_square"},
     "pan1_env/PaperMixedPA-v0": {"scenario": "paper_pa_mixed_square"},
     "pan1_env/RandomFormation-v0": {"scenario": "random"},
-    "pan1_env/WholeArmStaticFormation-v0": {"scenario": "random", "physics_dt": 0.01, "random_options": _WHOLE_ARM},
-    "pan1_env/WholeArmFormation-v0": {"scenario": "random", "physics_dt": 0.01,
+    "pan1_env/WholeArmStaticFormation-v0": {"scenario": "random", "random_options": _WHOLE_ARM},
+    "pan1_env/WholeArmFormation-v0": {"scenario": "random",
                                       "random_options": _WHOLE_ARM | {"obstacle_speed": (0.05, 0.2)}},
 }
 REACH_ENV_ID = "pan1_env/PAReach-v0"
@@ -105,14 +105,23 @@ class CentralizedEnv(gymnasium.Env):
         self.parallel.close()
 
 
-def env_arguments(name: str) -> tuple[str, dict[str, Any]]:
-    """A scenario (built-in name, ``.toml`` path or ``"random"``) or one of :data:`ENV_IDS`, as the
-    parallel env's ``scenario`` and its further arguments: ``"pan1_env/WholeArmFormation-v0"`` →
-    ``("random", {"physics_dt": 0.01, "random_options": {...}})``, ``"random"`` → ``("random", {})``."""
-    if name not in ENV_IDS:
-        return name, {}
-    kwargs = {key: dict(value) if isinstance(value, dict) else value for key, value in ENV_IDS[name].items()}
-    return kwargs.pop("scenario"), kwargs
+def env_arguments(name: str, overrides: dict[str, Any] | None = None) -> tuple[str, dict[str, Any]]:
+    """A scenario (built-in name, ``.toml`` path or ``"random"``) or one of the team ids of
+    :data:`ENV_IDS` (with or without the ``pan1_env:`` prefix), as the parallel env's ``scenario`` and
+    its further arguments, ``overrides`` on top (``random_options`` merged key by key, so that one
+    option changed keeps the id's others): ``"pan1_env/WholeArmFormation-v0"`` →
+    ``("random", {"random_options": {"bodies": "links", …}})``, ``"random"`` → ``("random", {})``."""
+    env_id = name.removeprefix("pan1_env:") if isinstance(name, str) else name
+    kwargs: dict[str, Any] = {}
+    if env_id in ENV_IDS:
+        kwargs = {key: dict(value) if isinstance(value, dict) else value for key, value in ENV_IDS[env_id].items()}
+        name = kwargs.pop("scenario")
+    for key, value in (overrides or {}).items():
+        if key == "random_options" and isinstance(value, dict) and isinstance(kwargs.get(key), dict):
+            kwargs[key] = kwargs[key] | value
+        else:
+            kwargs[key] = value
+    return name, kwargs
 
 
 def register_envs() -> None:

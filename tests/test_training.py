@@ -214,7 +214,7 @@ def test_pretrained_models_are_found_by_scenario(tmp_path, monkeypatch) -> None:
     by_name = make_policy("pretrained:square", env)(obs)
     for a in env.agents:
         np.testing.assert_array_equal(by_scenario[a], by_name[a])
-    with pytest.raises(ValueError, match="no pretrained model for scenario 'paper_pa_mixed_square'"):
+    with pytest.raises(ValueError, match="no pretrained model for paper_pa_mixed_square in velocity mode"):
         make_policy("pretrained", parallel_env("paper_pa_mixed_square"))
     with pytest.raises(ValueError, match="no pretrained model 'nope'"):
         make_policy("pretrained:nope", env)
@@ -255,28 +255,40 @@ def test_a_blocked_gate_model_acts_only_after_the_filter_held_an_arm_back(tmp_pa
 
 
 def test_the_pretrained_model_is_picked_by_the_envs_task(tmp_path, monkeypatch) -> None:
+    import gymnasium
+
     from pan1_env.baselines import shipped
     from pan1_env.environment import parallel_env
     from pan1_env.registration import env_arguments
 
     monkeypatch.setattr(shipped, "PRETRAINED_DIR", tmp_path)
     whole_arm = env_arguments("pan1_env/WholeArmStaticFormation-v0")[1]
-    for name, kwargs in (("plain", {}), ("whole_arm", whole_arm)):
+    for name, kwargs in (("plain", {"action_mode": "residual"}), ("whole_arm", whole_arm | {"physics_dt": 0.01})):
         (tmp_path / f"{name}.zip").write_bytes(b"")  # model_for reads only the metadata
         (tmp_path / f"{name}.json").write_text(json.dumps({"scenario": "random", "env_kwargs": kwargs}))
     assert shipped.model_for(parallel_env("random")) == "plain"
-    assert shipped.model_for(parallel_env("random", **whole_arm)) == "whole_arm"
-    for other in ({"random_options": {"n_obstacles": 2}}, whole_arm | {"physics_dt": 0.005}):
-        with pytest.raises(ValueError, match="no pretrained model for scenario 'random' with these options"):
+    assert shipped.model_for(parallel_env("random", **whole_arm)) == "whole_arm"  # 10 ms is the default step
+    assert shipped.model_for(gymnasium.make("pan1_env:pan1_env/WholeArmStaticFormation-v0")) == "whole_arm"
+    options = whole_arm["random_options"] | {"physics_dt": 0.01, "control_dt": 0.01}  # steps the env replaces
+    assert shipped.model_for(parallel_env("random", random_options=options)) == "whole_arm"
+    assert shipped.describe(shipped.available()["whole_arm"]) == "pan1_env/WholeArmStaticFormation-v0"
+    for other, why in (({"random_options": {"n_obstacles": 2}}, "random teams with these options in velocity"),
+                       (whole_arm | {"physics_dt": 0.005}, "physics_dt=0.005"),
+                       ({"control_dt": 0.1}, "control_dt=0.1"),
+                       (whole_arm | {"action_mode": "torque"}, "in torque mode")):
+        with pytest.raises(ValueError, match=f"no pretrained model for .*{why}.*whole_arm \\(pan1_env/WholeArmStatic"):
             shipped.model_for(parallel_env("random", **other))
 
 
 def test_gymnasium_ids_name_tasks_for_training_and_the_benchmark(tmp_path) -> None:
+    from pan1_env.baselines import register_policy
+    from pan1_env.baselines.policies import ZeroPolicy
     from pan1_env.registration import ENV_IDS, env_arguments
 
     assert env_arguments("paper_pa3_square") == ("paper_pa3_square", {})
-    scenario, kwargs = env_arguments("pan1_env/WholeArmFormation-v0")
+    scenario, kwargs = env_arguments("pan1_env:pan1_env/WholeArmFormation-v0", {"random_options": {"n_obstacles": 2}})
     assert scenario == "random" and kwargs["random_options"]["obstacle_speed"] == (0.05, 0.2)
+    assert kwargs["random_options"]["n_obstacles"] == 2 and kwargs["random_options"]["bodies"] == "links"
     kwargs["random_options"]["link_radius"] = 1.0  # a copy: the registered options stay as they are
     assert ENV_IDS["pan1_env/WholeArmFormation-v0"]["random_options"]["link_radius"] == 0.03
     out = tmp_path / "run"
@@ -284,26 +296,56 @@ def test_gymnasium_ids_name_tasks_for_training_and_the_benchmark(tmp_path) -> No
           progress=False, n_envs=2, env_kwargs={"max_steps": 16}, algo_kwargs={"n_steps": 32, "batch_size": 64})
     run = json.loads((out / "run.json").read_text())
     assert run["scenario"] == "random" and run["env_kwargs"]["random_options"]["bodies"] == "links"
-    assert run["env_kwargs"]["physics_dt"] == 0.01 and run["env_kwargs"]["max_steps"] == 16
-    rows = run_benchmark(["pan1_env/WholeArmStaticFormation-v0"], ["zero"], episodes=1, max_steps=3,
+    assert run["env_kwargs"]["max_steps"] == 16
+    seen = []
+
+    def probe(env, seed):  # what the benchmark built for the id
+        seen.append(env.unwrapped.random_options)
+        return ZeroPolicy(env)
+
+    register_policy("probe_whole_arm", probe)
+    rows = run_benchmark(["pan1_env/WholeArmStaticFormation-v0"], ["probe_whole_arm"], episodes=1, max_steps=3,
                          shield_settings=(True,))
     assert rows[0]["scenario"] == "pan1_env/WholeArmStaticFormation-v0" and rows[0]["total_cost"] == 0.0
+    assert seen[0].bodies == "links" and seen[0].link_radius == 0.03 and seen[0].inter_arm
 
 
-@pytest.mark.parametrize("name", sorted(__import__("pan1_env.baselines.shipped", fromlist=["x"]).available()))
+def test_the_benchmark_fails_before_running_when_a_policy_cannot_be_built(tmp_path) -> None:
+    calls = []
+    from pan1_env.baselines import register_policy
+    from pan1_env.baselines.policies import ZeroPolicy
+
+    register_policy("counting_zero", lambda env, seed: calls.append(1) or ZeroPolicy(env))
+    with pytest.raises(ValueError, match="no pretrained model for paper_pa3_square"):
+        run_benchmark(["random", "paper_pa3_square"], ["counting_zero", "pretrained"], episodes=1, max_steps=2,
+                      shield_settings=(True,), progress=lambda message: calls.append(message))
+    assert all(c == 1 for c in calls)  # policies were built, no row started
+
+
+# the Gymnasium id each shipped model was trained for: a model must be picked on that id's env
+SHIPPED_TASKS = {"random_formation": "pan1_env/RandomFormation-v0",
+                 "whole_arm_formation": "pan1_env/WholeArmStaticFormation-v0"}
+
+
+def test_every_shipped_model_has_its_task_listed() -> None:
+    from pan1_env.baselines import shipped
+
+    assert sorted(shipped.available()) == sorted(SHIPPED_TASKS)
+
+
+@pytest.mark.parametrize("name", sorted(SHIPPED_TASKS))
 def test_each_shipped_model_is_picked_for_its_task_and_runs_there(name) -> None:
     import shlex
 
     from pan1_env.baselines import make_policy, shipped
     from pan1_env.cli import _parser
     from pan1_env.environment import parallel_env
+    from pan1_env.registration import env_arguments
     from pan1_env.wrappers import SafetyShield
 
-    meta = shipped.available()[name]
-    task = {key: value for key, value in meta["env_kwargs"].items()
-            if key in ("random_options", "physics_dt", "control_dt")}
-    env = SafetyShield(parallel_env(meta["scenario"], max_steps=4, **task))  # velocity mode: the adapter
-    assert shipped.model_for(env) == name
+    scenario, kwargs = env_arguments(SHIPPED_TASKS[name], {"max_steps": 4})
+    env = SafetyShield(parallel_env(scenario, **kwargs))  # velocity mode: the residual models' adapter
+    assert shipped.model_for(env) == name and shipped.describe(shipped.available()[name]) == SHIPPED_TASKS[name]
     policy = make_policy("pretrained", env)
     obs, _ = env.reset(seed=0)
     for _ in range(4):
@@ -311,7 +353,8 @@ def test_each_shipped_model_is_picked_for_its_task_and_runs_there(name) -> None:
         assert all(env.action_space(a).contains(actions[a]) for a in env.agents)
         obs, _, _, _, infos = env.step(actions)
         assert all(infos[a]["cost"] == 0.0 for a in infos)
-    provenance = meta["provenance"]
-    args = _parser().parse_args(shlex.split(provenance["command"])[1:])  # the command that made it parses
-    assert (args.scenario, args.seed, args.timesteps) == (meta["scenario"], provenance["run"]["seed"],
-                                                          provenance["run"]["timesteps"])
+    provenance = shipped.available()[name]["provenance"]
+    args = _parser().parse_args(shlex.split(provenance["command"])[1:])  # the command that made it parses back
+    run = provenance["run"]
+    assert (args.scenario, args.seed, args.timesteps, args.env_kwargs, args.algo_kwargs) == \
+        (run["scenario"], run["seed"], run["timesteps"], run["env_kwargs"], run["algo_kwargs"])
