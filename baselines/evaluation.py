@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["evaluate", "summarise", "EVAL_SEEDS", "TOLERANCES", "eval_callback"]
+__all__ = ["evaluate", "summarise", "model_policy", "EVAL_SEEDS", "TOLERANCES", "eval_callback"]
 
 EVAL_SEEDS = range(1_000_000, 1_000_064)  # held out: training copies draw from the streams of seeds 0 … B−1
 TOLERANCES = (0.01, 0.02, 0.05)  # m: success at 1 cm is the task's; 2 and 5 cm show how close the rest came
@@ -59,6 +59,21 @@ def evaluate(policy: Callable[[np.ndarray], np.ndarray], scenario: str = "random
     venv.close()
     time = np.where(final < TOLERANCES[0], last_failure, np.nan)
     return {"final_error": final, "return": ret, "cost": cost, "time_to_formation": time}
+
+
+def model_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], dict[str, Any]]:
+    """A model saved by ``pan1-env train`` as a policy for :func:`evaluate` (deterministic, with its
+    observation statistics), and the env arguments it was trained with (``model.json``): evaluate it
+    with ``evaluate(policy, run_scenario, seeds, env_kwargs=env_kwargs)``."""
+    from .policies import load_model, normalise_observation
+
+    model, meta = load_model(path)
+    norm = meta.get("observation_normalization")
+
+    def policy(obs: np.ndarray) -> np.ndarray:
+        return model.predict(normalise_observation(obs, norm), deterministic=True)[0]
+
+    return policy, dict(meta.get("env_kwargs", {}))
 
 
 def summarise(result: dict[str, np.ndarray]) -> dict[str, float]:

@@ -34,7 +34,8 @@ from .adversarial import AdversarialPolicy
 from .reference import ReferencePolicy, decode_observation
 
 __all__ = ["Policy", "PolicyFactory", "ZeroPolicy", "RandomPolicy", "register_policy", "unregister_policy",
-           "registered_policies", "check_policy_name", "make_policy", "BUILTIN_POLICIES"]
+           "registered_policies", "check_policy_name", "make_policy", "BUILTIN_POLICIES", "load_model",
+           "normalise_observation"]
 
 
 @runtime_checkable
@@ -144,30 +145,46 @@ def _sb3(env, seed: int | None, path: str) -> Policy:
     return _sb3_policy(path, env)
 
 
-def _sb3_policy(path: Path, env) -> Policy:
-    """A centralised SB3 model as a policy. ``model.json`` beside the model (written by
-    :func:`~pan1_env.baselines.training.train`) gives its observation normalisation and action mode;
-    a model trained on residual actions runs on a velocity-mode env by adding the reference law."""
+def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
+    """A PPO or SAC model saved by Stable-Baselines3 (on the CPU, one torch thread) and the
+    ``model.json`` beside it (empty if there is none): env arguments and observation statistics."""
     import torch
     from stable_baselines3 import PPO, SAC
 
+    path = Path(path)
     torch.set_num_threads(1)
-    model: Any = None
     for cls in (PPO, SAC):
         try:
             model = cls.load(path, device="cpu")
             break
         except Exception:  # noqa: BLE001 - try the next algorithm
             continue
-    if model is None:
+    else:
         raise ValueError(f"{path} is not a PPO or SAC model saved by Stable-Baselines3")
+    meta = json.loads(path.with_suffix(".json").read_text()) if path.with_suffix(".json").exists() else {}
+    return model, meta
+
+
+def normalise_observation(flat: np.ndarray, norm: dict[str, Any] | None) -> np.ndarray:
+    """Observations ``(…, obs)`` standardised and clipped as VecNormalize did in training (``norm``:
+    ``model.json``'s ``observation_normalization``; None leaves them as they are)."""
+    if norm is None:
+        return flat
+    return np.clip((flat - np.asarray(norm["mean"])) / np.sqrt(np.asarray(norm["var"]) + norm["epsilon"]),
+                   -norm["clip"], norm["clip"]).astype(np.float32)
+
+
+def _sb3_policy(path: Path, env) -> Policy:
+    """A centralised SB3 model as a policy. ``model.json`` beside the model (written by
+    :func:`~pan1_env.baselines.training.train`) gives its observation normalisation and action mode;
+    a model trained on residual actions runs on a velocity-mode env by adding the reference law."""
+    model, meta = load_model(path)
     agents = list(env.possible_agents)
     sizes = [env.action_space(a).shape[0] for a in agents]
     n_obs = sum(env.observation_space(a).shape[0] for a in agents)
     if model.observation_space.shape != (n_obs,) or model.action_space.shape != (sum(sizes),):
         raise ValueError(f"{path} was trained on spaces {model.observation_space.shape} → "
                          f"{model.action_space.shape}, this scenario has ({n_obs},) → ({sum(sizes)},)")
-    meta = json.loads(path.with_suffix(".json").read_text()) if path.with_suffix(".json").exists() else {}
     norm = meta.get("observation_normalization")
     trained_mode = meta.get("env_kwargs", {}).get("action_mode", "velocity")
     gate = float(meta.get("env_kwargs", {}).get("residual_gate", 0.0))
@@ -182,10 +199,7 @@ def _sb3_policy(path: Path, env) -> Policy:
     splits = np.cumsum(sizes)[:-1]
 
     def policy(obs):
-        flat = np.concatenate([obs[a] for a in agents])
-        if norm is not None:
-            flat = np.clip((flat - np.asarray(norm["mean"])) / np.sqrt(np.asarray(norm["var"]) + norm["epsilon"]),
-                           -norm["clip"], norm["clip"]).astype(np.float32)
+        flat = normalise_observation(np.concatenate([obs[a] for a in agents]), norm)
         action, _ = model.predict(flat, deterministic=True)
         actions = dict(zip(agents, np.split(np.asarray(action, np.float32), splits), strict=True))
         if reference is not None:

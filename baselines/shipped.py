@@ -77,11 +77,10 @@ def describe(meta: dict[str, Any]) -> str:
     """A shipped model's task in words: the Gymnasium id whose task it is, else its scenario."""
     from pan1_env.registration import ENV_IDS, env_arguments
 
-    task = _model_task(meta)
+    task = _model_task(meta)[:2]  # scenario (with its options) and action mode: the ids set no time steps
     for env_id in ENV_IDS:
         scenario, kwargs = env_arguments(env_id)
-        if _task(scenario, kwargs.get("random_options"), "velocity", kwargs.get("control_dt"),
-                 kwargs.get("physics_dt"))[:2] == task[:2]:
+        if _model_task({"scenario": scenario, "env_kwargs": kwargs})[:2] == task:
             return env_id
     return str(meta.get("scenario"))
 

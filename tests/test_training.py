@@ -78,6 +78,7 @@ def test_normalised_residual_model_runs_as_a_velocity_policy(tmp_path) -> None:
     from stable_baselines3 import PPO
 
     from pan1_env.baselines import ReferencePolicy, make_policy
+    from pan1_env.baselines.evaluation import model_policy
     from pan1_env.environment import parallel_env
 
     train("ppo", "paper_pa3_square", shield=True, timesteps=256, seed=0, out=tmp_path, checkpoint_every=256,
@@ -106,6 +107,11 @@ def test_normalised_residual_model_runs_as_a_velocity_policy(tmp_path) -> None:
         np.testing.assert_allclose(actions[a], expected, rtol=1e-5, atol=1e-6)
     with pytest.raises(ValueError, match="residual"):
         make_policy(f"sb3:{tmp_path / 'model.zip'}", parallel_env("paper_pa3_square", action_mode="torque"), 0)
+    # the same model for the batched evaluation: flat observations, the run's statistics, its env arguments
+    batch_policy, env_kwargs = model_policy(tmp_path / "model.zip")
+    assert env_kwargs == meta["env_kwargs"]
+    np.testing.assert_allclose(batch_policy(np.stack([np.concatenate([obs[a] for a in env.possible_agents])] * 2)),
+                               np.stack([residual] * 2), rtol=1e-5, atol=1e-6)
 
 
 def test_critic_warmup_freezes_the_actor_until_its_end(tmp_path) -> None:
@@ -310,11 +316,11 @@ def test_gymnasium_ids_name_tasks_for_training_and_the_benchmark(tmp_path) -> No
     assert seen[0].bodies == "links" and seen[0].link_radius == 0.03 and seen[0].inter_arm
 
 
-def test_the_benchmark_fails_before_running_when_a_policy_cannot_be_built(tmp_path) -> None:
-    calls = []
+def test_the_benchmark_fails_before_running_when_a_policy_cannot_be_built() -> None:
     from pan1_env.baselines import register_policy
     from pan1_env.baselines.policies import ZeroPolicy
 
+    calls = []
     register_policy("counting_zero", lambda env, seed: calls.append(1) or ZeroPolicy(env))
     with pytest.raises(ValueError, match="no pretrained model for paper_pa3_square"):
         run_benchmark(["random", "paper_pa3_square"], ["counting_zero", "pretrained"], episodes=1, max_steps=2,
