@@ -364,3 +364,11 @@ def test_each_shipped_model_is_picked_for_its_task_and_runs_there(name) -> None:
     run = provenance["run"]
     assert (args.scenario, args.seed, args.timesteps, args.env_kwargs, args.algo_kwargs) == \
         (run["scenario"], run["seed"], run["timesteps"], run["env_kwargs"], run["algo_kwargs"])
+
+
+def test_a_file_that_is_not_a_saved_model_is_refused(tmp_path) -> None:
+    from pan1_env.baselines.evaluation import model_policy
+
+    (tmp_path / "model.zip").write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="is not a PPO or SAC model saved by Stable-Baselines3"):
+        model_policy(tmp_path / "model.zip")
