@@ -152,6 +152,8 @@ def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
     from stable_baselines3 import PPO, SAC
 
     path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"no such model file {path}")
     torch.set_num_threads(1)
     for cls in (PPO, SAC):
         try:
@@ -177,7 +179,8 @@ def normalise_observation(flat: np.ndarray, norm: dict[str, Any] | None) -> np.n
 def _sb3_policy(path: Path, env) -> Policy:
     """A centralised SB3 model as a policy. ``model.json`` beside the model (written by
     :func:`~pan1_env.baselines.training.train`) gives its observation normalisation and action mode;
-    a model trained on residual actions runs on a velocity-mode env by adding the reference law."""
+    a model trained on residual (or gain) actions runs on a velocity-mode env by adding the reference law
+    to its correction (or by re-weighting the law's terms with its gains)."""
     model, meta = load_model(path)
     agents = list(env.possible_agents)
     sizes = [env.action_space(a).shape[0] for a in agents]
@@ -190,18 +193,21 @@ def _sb3_policy(path: Path, env) -> Policy:
     gate = float(meta.get("env_kwargs", {}).get("residual_gate", 0.0))
     blocked_gate = float(meta.get("env_kwargs", {}).get("blocked_gate", 0.0))
     last: dict[str, np.ndarray] = {}  # the velocity actions sent at the previous step (blocked gate)
+    gain_range = float(meta.get("env_kwargs", {}).get("gain_range", 4.0))
     reference = None
     if trained_mode != env.action_mode:
-        if (trained_mode, env.action_mode) != ("residual", "velocity"):
+        if trained_mode not in ("residual", "gain") or env.action_mode != "velocity":
             raise ValueError(f"{path} was trained with action_mode={trained_mode!r}; this env has "
                              f"action_mode={env.action_mode!r}")
-        reference = ReferencePolicy(env)  # residual actions on top of the paper's law, from observations
+        reference = ReferencePolicy(env)  # the paper's law from observations, corrected or re-weighted
     splits = np.cumsum(sizes)[:-1]
 
     def policy(obs):
         flat = normalise_observation(np.concatenate([obs[a] for a in agents]), norm)
         action, _ = model.predict(flat, deterministic=True)
         actions = dict(zip(agents, np.split(np.asarray(action, np.float32), splits), strict=True))
+        if reference is not None and trained_mode == "gain":
+            return {a: reference.act(a, obs[a], gain_range ** np.clip(actions[a], -1, 1)) for a in agents}
         if reference is not None:
             nominal = reference(obs)
             parts = {a: decode_observation(obs[a], env.observation_layout) for a in agents}

@@ -87,7 +87,9 @@ class ReferencePolicy:
         self.env = env
         self.kp = kp
 
-    def act(self, agent: str, obs: np.ndarray) -> np.ndarray:
+    def act(self, agent: str, obs: np.ndarray, gain: np.ndarray | None = None) -> np.ndarray:
+        """Agent ``agent``'s normalised velocity action; ``gain`` (one positive entry per actuated
+        joint), if given, multiplies each joint's term before the scaling (``action_mode="gain"``)."""
         env = self.env
         i = env.possible_agents.index(agent)
         arm = env.scenario.arms[i]
@@ -98,6 +100,8 @@ class ReferencePolicy:
         desired = dist - d["neighbour_error"]
         e_hat = np.sum(-2.0 * delta * (dist**2 - desired**2)[:, None], axis=0)
         v0 = -kp * reduced_jacobian(arm, d["q"]).T @ e_hat
+        if gain is not None:
+            v0 = v0 * gain
         a = v0 / env.max_joint_speed
         peak = np.max(np.abs(a)) if a.size else 0.0
         if peak > 1.0:

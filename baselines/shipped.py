@@ -33,7 +33,8 @@ def available() -> dict[str, dict[str, Any]]:
 def _task(scenario: str, options: Any, action_mode: str, control_dt: float | None, physics_dt: float | None,
           ke: float | None = None) -> tuple:
     """What a model must have been trained on to serve an env: the scenario (its name; for random teams
-    the options they are drawn with), the action mode it serves (a residual model runs on a velocity env)
+    the options they are drawn with), the action mode it serves (a residual or gain model runs on a
+    velocity env)
     and the time steps, defaults resolved."""
     from dataclasses import asdict
 
@@ -53,7 +54,7 @@ def _task(scenario: str, options: Any, action_mode: str, control_dt: float | Non
             scenario, ke = template.name, template.ke
         except Exception:  # noqa: BLE001 - a model for a scenario file that is not here serves no env
             return (scenario,)
-    mode = "velocity" if action_mode == "residual" else action_mode
+    mode = "velocity" if action_mode in ("residual", "gain") else action_mode
     control_dt = DEFAULT_CONTROL_DT if control_dt is None else control_dt
     physics_dt = default_physics_dt(control_dt, ke, mode) if physics_dt is None else physics_dt
     return scenario, mode, round(control_dt, 9), round(physics_dt, 9)
@@ -88,7 +89,7 @@ def describe(meta: dict[str, Any]) -> str:
 def model_for(env) -> str:
     """The name of the shipped model trained for ``env``'s task (ValueError if none ships): the same
     scenario (for random teams, the same options), action mode and time steps. A model trained on
-    residual actions serves a velocity-mode env (the adapter adds the reference law)."""
+    residual or gain actions serves a velocity-mode env (the adapter computes the reference law)."""
     task = _env_task(env)
     models = available()
     matches = [name for name, meta in models.items() if _model_task(meta) == task]
@@ -102,7 +103,8 @@ def model_for(env) -> str:
 
 def pretrained(name: str, env):
     """The shipped model ``name`` as a policy on ``env`` (dict of observations → dict of actions).
-    A model trained on residual actions runs on a velocity-mode env (the reference law is added)."""
+    A model trained on residual or gain actions runs on a velocity-mode env (the adapter computes the
+    reference law from observations)."""
     from .policies import _sb3_policy
 
     models = available()

@@ -123,8 +123,9 @@ def _parser() -> argparse.ArgumentParser:
     tr.add_argument("--checkpoint-every", type=_positive_int, default=10_000, help="steps between checkpoints")
     tr.add_argument("--max-steps", type=_positive_int, default=None,
                     help="env steps per episode (default: the env's max_steps)")
-    tr.add_argument("--action-mode", choices=("velocity", "torque", "residual"), default="velocity",
-                    help="what an action means (residual: a correction to the paper's law; default: %(default)s)")
+    tr.add_argument("--action-mode", choices=("velocity", "torque", "residual", "gain"), default="velocity",
+                    help="what an action means (residual: a correction to the paper's law; gain: a re-weighting "
+                         "of it; default: %(default)s)")
     tr.add_argument("--normalize", action=argparse.BooleanOptionalAction, default=True,
                     help="standardise observations and scale rewards (SB3's VecNormalize, saved in model.json)")
     tr.add_argument("--env-kwargs", type=_json_object, default=None, metavar="JSON",

@@ -27,7 +27,7 @@ from .validation import float_array, forwarded_signature, hints_unknown_keywords
 
 __all__ = ["Pan1ParallelEnv", "parallel_env", "env", "raw_env", "ACTION_MODES"]
 
-ACTION_MODES = ("velocity", "torque", "residual")
+ACTION_MODES = ("velocity", "torque", "residual", "gain")
 # Largest K_e · physics_dt accepted. RK4 on the tracker's error, ė = −K_e e, is stable up to 2.78;
 # at 1.0 it still shrinks the error by 0.375 a step against the exact e⁻¹ = 0.368.
 MAX_KE_DT = 1.0
@@ -69,6 +69,11 @@ class Pan1ParallelEnv(ParallelEnv):
       (> 0) it is also scaled by min(1, b_i/c), b_i how much the safety filter changed the arm's
       previous command (the intervention term's measure, 0 at a reset): the correction acts only
       where the filter holds the paper's law back.
+    * ``action_mode="gain"``: a re-weighting of the paper's law: joint j's term of v_0 is multiplied
+      by ``gain_range`` ** a_j (default 4, so gains from 1/4 to 4) before the vector is scaled down
+      as a whole to ``max_joint_speed``. The zero action is the reference controller; any action
+      keeps the command a descent direction of V (a positive diagonal re-weighting of −K_P J̄ᵀ ê) and
+      the formed shape an equilibrium. The effort term penalises the log-gains a.
 
     ## Observation Space
 
@@ -145,7 +150,7 @@ class Pan1ParallelEnv(ParallelEnv):
 
     * ``scenario``: a built-in name (``"paper_pa3_square"``, ``"paper_pa_mixed_square"``), a path
       to a TOML file, a :class:`~pan1_env.scenario.Scenario`, or ``"random"``.
-    * ``action_mode``: ``"velocity"``, ``"torque"`` or ``"residual"``.
+    * ``action_mode``: ``"velocity"``, ``"torque"``, ``"residual"`` or ``"gain"``.
     * ``control_dt``: seconds per env step (default 0.05); a whole multiple of ``physics_dt``.
     * ``physics_dt``: RK4 step in seconds. Default in velocity mode 0.01 (5 sub-steps per control
       step, as in Gymnasium's MuJoCo tasks), in torque mode 0.002 (open-loop torques can spin the
@@ -161,6 +166,7 @@ class Pan1ParallelEnv(ParallelEnv):
     * ``formation_weight``, ``effort_weight``, ``collision_penalty``, ``success_bonus``,
       ``intervention_penalty``: reward weights.
     * ``residual_gate``, ``blocked_gate``: see ``action_mode="residual"`` (default 0: no gate).
+    * ``gain_range``: see ``action_mode="gain"`` (> 1, default 4).
     * ``max_joint_speed`` (rad/s, default 2.0), ``max_torque`` (N·m, default 5.0): action scales.
     * ``n_obstacle_obs``: K, obstacle slots per observation (default: 3).
     * ``random_options``: a :class:`~pan1_env.random_scenario.RandomScenarioOptions` or a dict of
@@ -204,6 +210,7 @@ class Pan1ParallelEnv(ParallelEnv):
         residual_gate: float = 0.0,
         intervention_penalty: float = 0.0,
         blocked_gate: float = 0.0,
+        gain_range: float = 4.0,
         max_joint_speed: float = 2.0,
         max_torque: float = 5.0,
         n_obstacle_obs: int = 3,
@@ -227,6 +234,9 @@ class Pan1ParallelEnv(ParallelEnv):
         residual_gate = real("residual_gate", residual_gate, non_negative=True)
         intervention_penalty = real("intervention_penalty", intervention_penalty)
         blocked_gate = real("blocked_gate", blocked_gate, non_negative=True)
+        gain_range = real("gain_range", gain_range, positive=True)
+        if gain_range <= 1.0:
+            raise ValueError(f"gain_range must be > 1 (gains from 1/gain_range to gain_range), got {gain_range}")
         n_obstacle_obs = positive_int("n_obstacle_obs", n_obstacle_obs, minimum=0)
         if qp_solver not in QP_SOLVERS:
             raise ValueError(f"qp_solver must be one of {QP_SOLVERS}, got {qp_solver!r}")
@@ -274,6 +284,7 @@ class Pan1ParallelEnv(ParallelEnv):
         self.residual_gate = float(residual_gate)
         self.intervention_penalty = float(intervention_penalty)
         self.blocked_gate = float(blocked_gate)
+        self.gain_range = float(gain_range)
         self.max_joint_speed = float(max_joint_speed)
         self.max_torque = float(max_torque)
         self.n_obstacle_obs = int(n_obstacle_obs)
@@ -474,8 +485,7 @@ class Pan1ParallelEnv(ParallelEnv):
         if bad >= 0:
             agent = self.possible_agents[bad]
             raise ValueError(f"action for {agent} contains NaN or inf: {np.asarray(actions[agent]).tolist()}")
-        if self.action_mode == "residual":
-            self.task.add_nominal(command, self.engine)
+        self.task.compose(self.action_mode, command, self.engine)
         return command, effort
 
     def _info(self, cost: float, min_clearance: float, max_err: float) -> dict[str, Any]:

@@ -50,8 +50,10 @@ class FormationTask:
     def __init__(self, scenario: Scenario, copies: int, layout: ObservationLayout, *, max_joint_speed: float,
                  success_tolerance: float, formation_weight: float, effort_weight: float, collision_penalty: float,
                  terminate_on_collision: bool, terminate_on_success: bool, success_bonus: float = 0.0,
-                 residual_gate: float = 0.0, intervention_penalty: float = 0.0, blocked_gate: float = 0.0) -> None:
+                 residual_gate: float = 0.0, intervention_penalty: float = 0.0, blocked_gate: float = 0.0,
+                 gain_range: float = 4.0) -> None:
         self.layout = layout
+        self.gain_range = gain_range
         self.max_joint_speed, self.success_tolerance = max_joint_speed, success_tolerance
         self.weights = (formation_weight, effort_weight, collision_penalty, success_bonus, intervention_penalty)
         self.terminate_on_collision, self.terminate_on_success = terminate_on_collision, terminate_on_success
@@ -73,18 +75,20 @@ class FormationTask:
                    effort_weight=env.effort_weight, collision_penalty=env.collision_penalty,
                    terminate_on_collision=env.terminate_on_collision, terminate_on_success=env.terminate_on_success,
                    success_bonus=env.success_bonus, residual_gate=env.residual_gate,
-                   intervention_penalty=env.intervention_penalty, blocked_gate=env.blocked_gate)
+                   intervention_penalty=env.intervention_penalty, blocked_gate=env.blocked_gate,
+                   gain_range=env.gain_range)
 
     def load_team(self, b: int, scenario: Scenario) -> None:
         """Copy ``b`` now has ``scenario``'s formation."""
         self.distances[b] = scenario.formation.distances
         self.kp[b] = scenario.kp
 
-    def nominal_velocity(self, engine: Engine) -> np.ndarray:
+    def nominal_velocity(self, engine: Engine, gain: np.ndarray | None = None) -> np.ndarray:
         """The paper's distributed law for every arm, ``(B, N, k_max)`` rad/s (padding zero):
         ``v_i0 = −K_P J̄_iᵀ ê_i``, ``ê_i = Σ_j 2 (p_i − p_j)(‖p_i − p_j‖² − d_ij²)`` (Eq. 39), each arm's
         vector scaled down as a whole to ``max_joint_speed`` when an entry exceeds it (so it stays a
-        descent direction of V), as :class:`~pan1_env.baselines.ReferencePolicy` does from observations."""
+        descent direction of V), as :class:`~pan1_env.baselines.ReferencePolicy` does from observations.
+        ``gain (B, N, k_max)``, if given, multiplies each joint's term before that scaling."""
         z = edge_vectors(self.incidence, engine.positions())  # (B, E, 2)
         e_hat = formation_gradient(self.incidence, z, edge_errors(z, self.distances))  # (B, N, 2)
         out = np.zeros((engine.copies, engine.n_arms, engine.k_max))
@@ -92,10 +96,29 @@ class FormationTask:
             _, Jbar, _ = engine.kind_terms(kind)
             e = e_hat[:, kind.ids].reshape(-1, 2)
             v0 = -np.repeat(self.kp, kind.A)[:, None] * np.einsum("rck,rc->rk", Jbar, e)
+            if gain is not None:
+                v0 *= gain[:, kind.ids, : kind.k].reshape(-1, kind.k)
             peak = np.abs(v0).max(axis=1, initial=0.0) / self.max_joint_speed
             v0 /= np.maximum(peak, 1.0)[:, None]
             out[:, kind.ids, : kind.k] = v0.reshape(engine.copies, kind.A, kind.k)
         return out
+
+    def compose(self, action_mode: str, command: np.ndarray, engine: Engine) -> None:
+        """Turn the scaled actions ``command (B, N, k_max)`` (a · ``max_joint_speed``) into velocities
+        in place: :meth:`add_nominal` for ``"residual"``, :meth:`scale_nominal` for ``"gain"``; the
+        other modes' actions are their commands already."""
+        if action_mode == "residual":
+            self.add_nominal(command, engine)
+        elif action_mode == "gain":
+            self.scale_nominal(command, engine)
+
+    def scale_nominal(self, command: np.ndarray, engine: Engine) -> None:
+        """Gain actions: joint j of arm i gets the paper's law with its term multiplied by
+        ``gain_range ** a_ij`` (a in [−1, 1], so the zero action is the law itself), in place of the
+        scaled actions ``command``. A positive diagonal gain D keeps −D J̄ᵀ ê a descent direction of V,
+        and the formed shape (ê = 0) an equilibrium whatever the policy
+        outputs: the policy re-weights the law, it cannot point against it."""
+        command[:] = self.nominal_velocity(engine, self.gain_range ** (command / self.max_joint_speed))
 
     def add_nominal(self, command: np.ndarray, engine: Engine) -> None:
         """Residual actions: add :meth:`nominal_velocity` to the scaled corrections ``command

@@ -180,8 +180,7 @@ class Pan1VectorEnv(VectorEnv):
         bad = kernels().scale_command(command.reshape(len(effort), -1), self._k_rows, t.action_scale, effort)
         if bad >= 0:
             raise ValueError(f"actions for copy {bad // self.engine.n_arms} contain NaN or inf")
-        if t.action_mode == "residual":
-            self.task.add_nominal(command, self.engine)
+        self.task.compose(t.action_mode, command, self.engine)
         rec = self.engine.step(command, t.substeps, torque=t.action_mode == "torque")
         self._steps += 1
         err, mats = self.task.observe(self.engine)

@@ -1,8 +1,10 @@
-"""Residual actions (``action_mode="residual"``): the action corrects the paper's distributed law.
+"""Residual and gain actions: the action corrects (``"residual"``) or re-weights (``"gain"``) the
+paper's distributed law.
 
 The zero action must be the reference controller, computed here independently from the agents'
 observations by :class:`~pan1_env.baselines.ReferencePolicy`; the vector env must agree with the
-parallel env; the correction is added and clipped to the speed limit.
+parallel env; the correction is added and clipped to the speed limit; a gain multiplies each joint's
+term of the law before it is scaled to the speed limit.
 """
 
 import numpy as np
@@ -59,10 +61,11 @@ def test_the_correction_is_added_and_clipped_to_the_speed_limit() -> None:
     assert np.all(command <= env.max_joint_speed) and np.any(command == env.max_joint_speed)
 
 
-def test_vector_env_residual_matches_the_parallel_env() -> None:
-    venv = Pan1VectorEnv("random", 3, action_mode="residual", max_steps=30)
+@pytest.mark.parametrize("mode", ["residual", "gain"])
+def test_vector_env_residual_and_gain_match_the_parallel_env(mode) -> None:
+    venv = Pan1VectorEnv("random", 3, action_mode=mode, max_steps=30)
     obs, _ = venv.reset(seed=[7, 8, 9])
-    penv = SafetyShield(parallel_env("random", action_mode="residual", max_steps=30))
+    penv = SafetyShield(parallel_env("random", action_mode=mode, max_steps=30))
     pobs, _ = penv.reset(seed=8)
     np.testing.assert_array_equal(obs[1], np.concatenate([pobs[a] for a in penv.possible_agents]))
     rng = np.random.default_rng(0)
@@ -124,6 +127,38 @@ def test_the_blocked_gate_opens_only_where_the_filter_changed_the_last_command()
                            -env.max_joint_speed, env.max_joint_speed)
         np.testing.assert_allclose(command[0, i, : k[i]], expected, rtol=1e-9, atol=1e-12)
     assert any(b > 0 for b in blocked) and any(b == 0 for b in blocked)  # the filter held some arms only
+
+
+@pytest.mark.parametrize("scenario", ["paper_pa_mixed_square", "random"])
+def test_a_gain_multiplies_each_joints_term_of_the_law_before_the_speed_limit(scenario) -> None:
+    env = parallel_env(scenario, action_mode="gain", safety_filter=False, gain_range=3.0)
+    ref = ReferencePolicy(parallel_env(scenario))
+    ref.env = env  # it reads the env's scenario (the team drawn at the reset), layout and speed limit
+    obs, _ = env.reset(seed=2)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        actions = {a: rng.uniform(-1, 1, env.action_space(a).shape).astype(np.float32) for a in env.agents}
+        command, effort = env._command(actions)
+        for i, agent in enumerate(env.agents):
+            k = env.n_actuated[i]
+            expected = ref.act(agent, obs[agent], 3.0 ** actions[agent].astype(float))  # from observations
+            np.testing.assert_allclose(command[0, i, :k] / env.max_joint_speed, expected, rtol=1e-4, atol=1e-5)
+            assert effort[i] == pytest.approx(np.mean(actions[agent].astype(float) ** 2), rel=1e-6)
+        obs, *_ = env.step(actions)
+    # a gain of g on every joint is the law with K_P·g
+    fast = ReferencePolicy(parallel_env(scenario), kp=env.scenario.kp * 3.0)
+    fast.env = env
+    full = {a: np.ones(env.action_space(a).shape, np.float32) for a in env.agents}
+    command, _ = env._command(full)
+    for i, agent in enumerate(env.agents):
+        np.testing.assert_allclose(command[0, i, : env.n_actuated[i]] / env.max_joint_speed,
+                                   fast.act(agent, obs[agent]), rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("value", [1.0, 0.5, -2.0, np.nan, "wide"])
+def test_a_gain_range_that_is_not_above_one_is_a_clear_error(value) -> None:
+    with pytest.raises(ValueError, match="gain_range"):
+        parallel_env("paper_pa3_square", action_mode="gain", gain_range=value)
 
 
 @pytest.mark.parametrize("name, value", [("residual_gate", -0.1), ("blocked_gate", -1.0), ("blocked_gate", np.nan),

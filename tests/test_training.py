@@ -322,15 +322,17 @@ def test_the_benchmark_fails_before_running_when_a_policy_cannot_be_built() -> N
 
     calls = []
     register_policy("counting_zero", lambda env, seed: calls.append(1) or ZeroPolicy(env))
-    with pytest.raises(ValueError, match="no pretrained model for paper_pa3_square"):
-        run_benchmark(["random", "paper_pa3_square"], ["counting_zero", "pretrained"], episodes=1, max_steps=2,
-                      shield_settings=(True,), progress=lambda message: calls.append(message))
+    with pytest.raises(ValueError, match="no pretrained model for random teams with these options"):
+        run_benchmark(["random", "pan1_env/WholeArmFormation-v0"], ["counting_zero", "pretrained"], episodes=1,
+                      max_steps=2, shield_settings=(True,), progress=lambda message: calls.append(message))
     assert all(c == 1 for c in calls)  # policies were built, no row started
 
 
 # the Gymnasium id each shipped model was trained for: a model must be picked on that id's env
 SHIPPED_TASKS = {"random_formation": "pan1_env/RandomFormation-v0",
-                 "whole_arm_formation": "pan1_env/WholeArmStaticFormation-v0"}
+                 "whole_arm_formation": "pan1_env/WholeArmStaticFormation-v0",
+                 "paper_pa3_square": "pan1_env/PaperPA3Square-v0",
+                 "paper_pa_mixed_square": "pan1_env/PaperMixedPA-v0"}
 
 
 def test_every_shipped_model_has_its_task_listed() -> None:
@@ -372,3 +374,35 @@ def test_a_file_that_is_not_a_saved_model_is_refused(tmp_path) -> None:
     (tmp_path / "model.zip").write_bytes(b"not a zip")
     with pytest.raises(ValueError, match="is not a PPO or SAC model saved by Stable-Baselines3"):
         model_policy(tmp_path / "model.zip")
+    with pytest.raises(ValueError, match="no such model file"):
+        model_policy(tmp_path / "checkpoints" / "model_100_steps.zip")
+
+
+def test_a_gain_model_runs_as_a_velocity_policy_by_re_weighting_the_law(tmp_path) -> None:
+    from stable_baselines3 import PPO
+
+    from pan1_env.baselines import ReferencePolicy, make_policy
+    from pan1_env.environment import parallel_env
+    from pan1_env.wrappers import SafetyShield
+
+    train("ppo", "paper_pa_mixed_square", shield=True, timesteps=128, seed=0, out=tmp_path, checkpoint_every=128,
+          progress=False, n_envs=2, env_kwargs={"max_steps": 32, "action_mode": "gain", "gain_range": 2.5},
+          algo_kwargs={"n_steps": 64, "batch_size": 64, "n_epochs": 1, "policy_kwargs": {"log_std_init": 0.0}})
+    env = SafetyShield(parallel_env("paper_pa_mixed_square", max_steps=32))  # velocity mode
+    policy, reference = make_policy(f"sb3:{tmp_path / 'model.zip'}", env), ReferencePolicy(env)
+    meta = json.loads((tmp_path / "model.json").read_text())["observation_normalization"]
+    model = PPO.load(tmp_path / "model.zip", device="cpu")
+    obs, _ = env.reset(seed=0)
+    for _ in range(3):
+        flat = np.concatenate([obs[a] for a in env.possible_agents])
+        flat = np.clip((flat - meta["mean"]) / np.sqrt(np.asarray(meta["var"]) + meta["epsilon"]), -10, 10)
+        raw, _ = model.predict(flat.astype(np.float32), deterministic=True)
+        actions, offset = policy(obs), 0
+        for a in env.possible_agents:
+            k = env.action_space(a).shape[0]
+            gain = 2.5 ** np.clip(raw[offset:offset + k].astype(float), -1, 1)
+            np.testing.assert_allclose(actions[a], reference.act(a, obs[a], gain), rtol=1e-5, atol=1e-6)
+            offset += k
+        obs, *_ = env.step(actions)
+    with pytest.raises(ValueError, match="gain"):
+        make_policy(f"sb3:{tmp_path / 'model.zip'}", parallel_env("paper_pa_mixed_square", action_mode="torque"), 0)
