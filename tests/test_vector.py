@@ -77,11 +77,15 @@ def test_unshielded_vector_env_charges_collisions_like_the_single_env() -> None:
     assert hits > 0
 
 
-@pytest.mark.parametrize("scenario", ["paper_pa3_square", "paper_pa_mixed_square"])
-def test_threaded_and_serial_kernels_agree_bit_for_bit(scenario: str) -> None:
-    runs = []
+WHOLE_ARM_MOVING = {"bodies": "links", "link_radius": 0.03, "inter_arm": True, "obstacle_speed": (0.05, 0.2)}
+
+
+@pytest.mark.parametrize("scenario, options", [("paper_pa3_square", None), ("paper_pa_mixed_square", None),
+                                               ("random", WHOLE_ARM_MOVING)])
+def test_threaded_and_serial_kernels_agree_bit_for_bit(scenario: str, options) -> None:
+    runs = []  # the whole-arm case also measures the clearance between arms on threads
     for threads in (False, True):
-        venv = Pan1VectorEnv(scenario, 12, threads=threads, max_steps=30)
+        venv = Pan1VectorEnv(scenario, 12, threads=threads, max_steps=30, random_options=options)
         obs, _ = venv.reset(seed=2)
         venv.action_space.seed(2)
         trace = [obs]
