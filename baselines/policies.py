@@ -193,7 +193,11 @@ def _sb3_policy(path: Path, env) -> Policy:
     gate = float(meta.get("env_kwargs", {}).get("residual_gate", 0.0))
     blocked_gate = float(meta.get("env_kwargs", {}).get("blocked_gate", 0.0))
     last: dict[str, np.ndarray] = {}  # the velocity actions sent at the previous step (blocked gate)
-    gain_range = float(meta.get("env_kwargs", {}).get("gain_range", 4.0))
+    from pan1_env.tasks import DEFAULT_GAIN_RANGE
+
+    gain_range = float(meta.get("env_kwargs", {}).get("gain_range", DEFAULT_GAIN_RANGE))
+    if trained_mode == env.action_mode == "gain" and env.gain_range != gain_range:
+        raise ValueError(f"{path} was trained with gain_range={gain_range}; this env has gain_range={env.gain_range}")
     reference = None
     if trained_mode != env.action_mode:
         if trained_mode not in ("residual", "gain") or env.action_mode != "velocity":

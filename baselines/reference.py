@@ -101,6 +101,9 @@ class ReferencePolicy:
         e_hat = np.sum(-2.0 * delta * (dist**2 - desired**2)[:, None], axis=0)
         v0 = -kp * reduced_jacobian(arm, d["q"]).T @ e_hat
         if gain is not None:
+            gain = np.asarray(gain, dtype=float)
+            if gain.shape != v0.shape or not np.all(gain > 0):
+                raise ValueError(f"gain for {agent} must be {v0.shape[0]} positive numbers, got {gain.tolist()}")
             v0 = v0 * gain
         a = v0 / env.max_joint_speed
         peak = np.max(np.abs(a)) if a.size else 0.0

@@ -32,10 +32,8 @@ def available() -> dict[str, dict[str, Any]]:
 
 def _task(scenario: str, options: Any, action_mode: str, control_dt: float | None, physics_dt: float | None,
           ke: float | None = None) -> tuple:
-    """What a model must have been trained on to serve an env: the scenario (its name; for random teams
-    the options they are drawn with), the action mode it serves (a residual or gain model runs on a
-    velocity env)
-    and the time steps, defaults resolved."""
+    """A task as a model was trained on it or an env poses it: the scenario (its name; for random teams
+    the options they are drawn with), the action mode and the time steps, defaults resolved."""
     from dataclasses import asdict
 
     from pan1_env.environment import DEFAULT_CONTROL_DT, default_physics_dt
@@ -54,10 +52,18 @@ def _task(scenario: str, options: Any, action_mode: str, control_dt: float | Non
             scenario, ke = template.name, template.ke
         except Exception:  # noqa: BLE001 - a model for a scenario file that is not here serves no env
             return (scenario,)
-    mode = "velocity" if action_mode in ("residual", "gain") else action_mode
     control_dt = DEFAULT_CONTROL_DT if control_dt is None else control_dt
-    physics_dt = default_physics_dt(control_dt, ke, mode) if physics_dt is None else physics_dt
-    return scenario, mode, round(control_dt, 9), round(physics_dt, 9)
+    physics_dt = default_physics_dt(control_dt, ke, action_mode) if physics_dt is None else physics_dt
+    return scenario, action_mode, round(control_dt, 9), round(physics_dt, 9)
+
+
+def _serves(model: tuple, env: tuple) -> bool:
+    """Whether a model trained on task ``model`` can run on an env of task ``env`` (both from
+    :func:`_task`, or their first two entries): the same task, except that a model trained on residual
+    or gain actions also runs on the velocity-mode env (the adapter computes the paper's law)."""
+    if len(model) != len(env) or model[0] != env[0] or model[2:] != env[2:]:
+        return False
+    return model[1] == env[1] or (env[1] == "velocity" and model[1] in ("residual", "gain"))
 
 
 def _env_task(env) -> tuple:
@@ -81,7 +87,7 @@ def describe(meta: dict[str, Any]) -> str:
     task = _model_task(meta)[:2]  # scenario (with its options) and action mode: the ids set no time steps
     for env_id in ENV_IDS:
         scenario, kwargs = env_arguments(env_id)
-        if _model_task({"scenario": scenario, "env_kwargs": kwargs})[:2] == task:
+        if _serves(task, _model_task({"scenario": scenario, "env_kwargs": kwargs})[:2]):
             return env_id
     return str(meta.get("scenario"))
 
@@ -92,7 +98,7 @@ def model_for(env) -> str:
     residual or gain actions serves a velocity-mode env (the adapter computes the reference law)."""
     task = _env_task(env)
     models = available()
-    matches = [name for name, meta in models.items() if _model_task(meta) == task]
+    matches = [name for name, meta in models.items() if _serves(_model_task(meta), task)]
     if not matches:
         label = task[0] if isinstance(task[0], str) else "random teams with these options"
         shipped = ", ".join(f"{name} ({describe(meta)})" for name, meta in models.items()) or "none"

@@ -19,7 +19,7 @@ the largest arm; SuperSuit steps its copies one by one, so this route is slower)
   ``normalize``, the observation statistics (mean, variance, clip) the model was trained with.
 
 ``critic_warmup=N`` (PPO) trains only the value function for the first N steps, the actor frozen:
-useful for residual actions, whose initial policy is the reference controller.
+useful for residual and gain actions, whose initial policy is the reference controller.
 
 ``normalize=True`` (the default) trains through SB3's ``VecNormalize``: observations are
 standardised by running statistics (clipped to ±10) and rewards scaled by the running standard
@@ -379,8 +379,14 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
     if algo == "ppo-lagrangian":
         meta |= {"cost_limit": cost_limit, "lagrangian_lr": lagrangian_lr}
 
+    model_env_kwargs = dict(env_kwargs or {})
+    if model_env_kwargs.get("action_mode") == "gain":  # the gains the model was trained with, whatever the default
+        from pan1_env.tasks import DEFAULT_GAIN_RANGE
+
+        model_env_kwargs.setdefault("gain_range", DEFAULT_GAIN_RANGE)
+
     def sidecar(path: Path, normalizer) -> None:
-        info = {"scenario": scenario, "env_kwargs": env_kwargs or {}, "param_sharing": param_sharing,
+        info = {"scenario": scenario, "env_kwargs": model_env_kwargs, "param_sharing": param_sharing,
                 "algo": algo, "shield": shield}
         if normalizer is not None:
             info["observation_normalization"] = {

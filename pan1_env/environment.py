@@ -22,7 +22,7 @@ from .random_scenario import RandomScenarioOptions, random_scenario
 from .registration import RENDER_FPS, RENDER_MODES
 from .safety import QP_SOLVERS
 from .scenario import Scenario, load
-from .tasks import FormationTask
+from .tasks import DEFAULT_GAIN_RANGE, FormationTask
 from .validation import float_array, forwarded_signature, hints_unknown_keywords, positive_int, real, whole_ratio
 
 __all__ = ["Pan1ParallelEnv", "parallel_env", "env", "raw_env", "ACTION_MODES"]
@@ -72,8 +72,9 @@ class Pan1ParallelEnv(ParallelEnv):
     * ``action_mode="gain"``: a re-weighting of the paper's law: joint j's term of v_0 is multiplied
       by ``gain_range`` ** a_j (default 4, so gains from 1/4 to 4) before the vector is scaled down
       as a whole to ``max_joint_speed``. The zero action is the reference controller; any action
-      keeps the command a descent direction of V (a positive diagonal re-weighting of −K_P J̄ᵀ ê) and
-      the formed shape an equilibrium. The effort term penalises the log-gains a.
+      keeps the command from ever ascending V (a positive diagonal re-weighting of −K_P J̄ᵀ ê, before
+      the filter and with the velocity tracked exactly) and the formed shape an equilibrium: unlike a
+      residual, a gain cannot point against the law. The effort term penalises the log-gains a.
 
     ## Observation Space
 
@@ -165,7 +166,8 @@ class Pan1ParallelEnv(ParallelEnv):
     * ``terminate_on_collision``, ``terminate_on_success``, ``success_tolerance`` (m, default 0.01).
     * ``formation_weight``, ``effort_weight``, ``collision_penalty``, ``success_bonus``,
       ``intervention_penalty``: reward weights.
-    * ``residual_gate``, ``blocked_gate``: see ``action_mode="residual"`` (default 0: no gate).
+    * ``residual_gate``, ``blocked_gate``: see ``action_mode="residual"`` (default 0: no gate; other
+      modes refuse them).
     * ``gain_range``: see ``action_mode="gain"`` (> 1, default 4).
     * ``max_joint_speed`` (rad/s, default 2.0), ``max_torque`` (N·m, default 5.0): action scales.
     * ``n_obstacle_obs``: K, obstacle slots per observation (default: 3).
@@ -210,7 +212,7 @@ class Pan1ParallelEnv(ParallelEnv):
         residual_gate: float = 0.0,
         intervention_penalty: float = 0.0,
         blocked_gate: float = 0.0,
-        gain_range: float = 4.0,
+        gain_range: float = DEFAULT_GAIN_RANGE,
         max_joint_speed: float = 2.0,
         max_torque: float = 5.0,
         n_obstacle_obs: int = 3,
@@ -237,6 +239,9 @@ class Pan1ParallelEnv(ParallelEnv):
         gain_range = real("gain_range", gain_range, positive=True)
         if gain_range <= 1.0:
             raise ValueError(f"gain_range must be > 1 (gains from 1/gain_range to gain_range), got {gain_range}")
+        if action_mode != "residual" and (residual_gate > 0 or blocked_gate > 0):
+            raise ValueError(f"residual_gate and blocked_gate scale a residual correction: they need "
+                             f"action_mode='residual', got action_mode={action_mode!r}")
         n_obstacle_obs = positive_int("n_obstacle_obs", n_obstacle_obs, minimum=0)
         if qp_solver not in QP_SOLVERS:
             raise ValueError(f"qp_solver must be one of {QP_SOLVERS}, got {qp_solver!r}")
@@ -272,7 +277,9 @@ class Pan1ParallelEnv(ParallelEnv):
         self.qp_solver = qp_solver
         self.action_mode = action_mode
         self._torque_mode = action_mode == "torque"
-        self._action_scale = float(max_torque if self._torque_mode else max_joint_speed)
+        # an action of 1 in physical units; a gain action is an exponent, used as it is
+        scales = {"torque": max_torque, "gain": 1.0}
+        self._action_scale = float(scales.get(action_mode, max_joint_speed))
         self.render_mode = render_mode
         self.terminate_on_collision = bool(terminate_on_collision)
         self.terminate_on_success = bool(terminate_on_success)
@@ -357,7 +364,8 @@ class Pan1ParallelEnv(ParallelEnv):
 
     @property
     def action_scale(self) -> float:
-        """Physical units of an action of 1: ``max_joint_speed`` (rad/s) or ``max_torque`` (N·m)."""
+        """Physical units of an action of 1: ``max_joint_speed`` (rad/s), ``max_torque`` (N·m), or 1
+        (``action_mode="gain"``: the action is the exponent of the gain)."""
         return self._action_scale
 
     # ------------------------------------------------------------------ state

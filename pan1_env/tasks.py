@@ -18,7 +18,9 @@ from .formation import edge_errors, edge_length_errors, edge_vectors, formation_
 from .observation import OBS_BOUND, OBSTACLE_FEATURES, ObservationLayout
 from .scenario import Scenario
 
-__all__ = ["FormationTask", "ReachTask", "Outcome"]
+__all__ = ["FormationTask", "ReachTask", "Outcome", "DEFAULT_GAIN_RANGE"]
+
+DEFAULT_GAIN_RANGE = 4.0  # action_mode="gain": gains from 1/4 to 4
 
 
 @dataclass
@@ -51,7 +53,7 @@ class FormationTask:
                  success_tolerance: float, formation_weight: float, effort_weight: float, collision_penalty: float,
                  terminate_on_collision: bool, terminate_on_success: bool, success_bonus: float = 0.0,
                  residual_gate: float = 0.0, intervention_penalty: float = 0.0, blocked_gate: float = 0.0,
-                 gain_range: float = 4.0) -> None:
+                 gain_range: float = DEFAULT_GAIN_RANGE) -> None:
         self.layout = layout
         self.gain_range = gain_range
         self.max_joint_speed, self.success_tolerance = max_joint_speed, success_tolerance
@@ -104,9 +106,9 @@ class FormationTask:
         return out
 
     def compose(self, action_mode: str, command: np.ndarray, engine: Engine) -> None:
-        """Turn the scaled actions ``command (B, N, k_max)`` (a · ``max_joint_speed``) into velocities
-        in place: :meth:`add_nominal` for ``"residual"``, :meth:`scale_nominal` for ``"gain"``; the
-        other modes' actions are their commands already."""
+        """Turn the scaled actions ``command (B, N, k_max)`` into velocities in place: :meth:`add_nominal`
+        for ``"residual"``, :meth:`scale_nominal` for ``"gain"``; the other modes' actions are their
+        commands already."""
         if action_mode == "residual":
             self.add_nominal(command, engine)
         elif action_mode == "gain":
@@ -114,11 +116,12 @@ class FormationTask:
 
     def scale_nominal(self, command: np.ndarray, engine: Engine) -> None:
         """Gain actions: joint j of arm i gets the paper's law with its term multiplied by
-        ``gain_range ** a_ij`` (a in [−1, 1], so the zero action is the law itself), in place of the
-        scaled actions ``command``. A positive diagonal gain D keeps −D J̄ᵀ ê a descent direction of V,
-        and the formed shape (ê = 0) an equilibrium whatever the policy
-        outputs: the policy re-weights the law, it cannot point against it."""
-        command[:] = self.nominal_velocity(engine, self.gain_range ** (command / self.max_joint_speed))
+        ``gain_range ** a_ij``, in place of the actions ``command`` (a in [−1, 1], unscaled: the zero
+        action is the law itself). With a positive diagonal gain D, ê·J̄ (−D J̄ᵀ ê) ≤ 0: the command
+        never ascends V (before the filter, velocity tracked exactly), and the formed shape (ê = 0)
+        stays an equilibrium whatever the policy outputs; it re-weights the law, it cannot point
+        against it."""
+        command[:] = self.nominal_velocity(engine, self.gain_range ** command)
 
     def add_nominal(self, command: np.ndarray, engine: Engine) -> None:
         """Residual actions: add :meth:`nominal_velocity` to the scaled corrections ``command

@@ -40,7 +40,7 @@ class Pan1VectorEnv(VectorEnv):
     ## Action Space
 
     ``Box(-1, 1, (num_envs, Σ k_i), float32)``: row b is copy b's concatenated per-arm actions
-    (agent order), scaled as in the parallel env (``action_mode`` velocity or torque). Values are
+    (agent order), meant as in the parallel env (``action_mode`` velocity, torque, residual or gain). Values are
     clipped to [−1, 1]; a wrong shape, NaN/inf or a non-numeric batch (a dict, a string) raises
     ``ValueError``.
 

@@ -161,6 +161,23 @@ def test_a_gain_range_that_is_not_above_one_is_a_clear_error(value) -> None:
         parallel_env("paper_pa3_square", action_mode="gain", gain_range=value)
 
 
+@pytest.mark.parametrize("mode", ["velocity", "torque", "gain"])
+@pytest.mark.parametrize("gate", ["residual_gate", "blocked_gate"])
+def test_the_residual_gates_are_refused_in_other_action_modes(mode, gate) -> None:
+    with pytest.raises(ValueError, match=f"need action_mode='residual', got action_mode='{mode}'"):
+        parallel_env("paper_pa3_square", action_mode=mode, **{gate: 0.1})
+
+
+def test_reference_policy_gains_must_be_one_positive_number_per_actuated_joint() -> None:
+    env = parallel_env("paper_pa3_square")
+    obs, _ = env.reset(seed=0)
+    agent, k = env.agents[0], env.n_actuated[0]
+    with pytest.raises(ValueError, match="positive numbers"):
+        ReferencePolicy(env).act(agent, obs[agent], np.full(k + 1, 2.0))
+    with pytest.raises(ValueError, match="positive numbers"):
+        ReferencePolicy(env).act(agent, obs[agent], np.r_[np.ones(k - 1), -1.0])
+
+
 @pytest.mark.parametrize("name, value", [("residual_gate", -0.1), ("blocked_gate", -1.0), ("blocked_gate", np.nan),
                                          ("success_bonus", np.inf), ("intervention_penalty", np.nan),
                                          ("intervention_penalty", "high")])

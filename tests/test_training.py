@@ -406,3 +406,53 @@ def test_a_gain_model_runs_as_a_velocity_policy_by_re_weighting_the_law(tmp_path
         obs, *_ = env.step(actions)
     with pytest.raises(ValueError, match="gain"):
         make_policy(f"sb3:{tmp_path / 'model.zip'}", parallel_env("paper_pa_mixed_square", action_mode="torque"), 0)
+    with pytest.raises(ValueError, match="gain_range=2.5; this env has gain_range=4.0"):
+        make_policy(f"sb3:{tmp_path / 'model.zip'}", parallel_env("paper_pa_mixed_square", action_mode="gain"), 0)
+    # on a gain env with its gains the model's actions go through as they are
+    gain_env = parallel_env("paper_pa_mixed_square", action_mode="gain", gain_range=2.5)
+    obs, _ = gain_env.reset(seed=0)
+    flat = np.concatenate([obs[a] for a in gain_env.possible_agents])
+    flat = np.clip((flat - meta["mean"]) / np.sqrt(np.asarray(meta["var"]) + meta["epsilon"]), -10, 10)
+    raw, _ = model.predict(flat.astype(np.float32), deterministic=True)
+    np.testing.assert_array_equal(np.concatenate(list(make_policy(f"sb3:{tmp_path / 'model.zip'}", gain_env)(obs)
+                                                      .values())), raw)
+
+
+def test_a_gain_model_serves_velocity_and_gain_envs_but_not_residual_ones() -> None:
+    from pan1_env.baselines import shipped
+    from pan1_env.environment import parallel_env
+
+    assert shipped.model_for(parallel_env("paper_pa3_square")) == "paper_pa3_square"
+    assert shipped.model_for(parallel_env("paper_pa3_square", action_mode="gain")) == "paper_pa3_square"
+    with pytest.raises(ValueError, match="no pretrained model for paper_pa3_square in residual mode"):
+        shipped.model_for(parallel_env("paper_pa3_square", action_mode="residual"))
+    assert shipped.available()["paper_pa3_square"]["env_kwargs"]["gain_range"] > 1  # recorded, not a default
+
+
+@pytest.mark.parametrize("name", ["paper_pa3_square", "paper_pa_mixed_square"])
+def test_the_shipped_paper_models_form_the_shape_before_the_paper_law(name) -> None:
+    """The shipped model forms its scenario's shape behind the shield by the time its provenance
+    records (one step of slack), at zero cost, while the paper's law has not yet."""
+    from pan1_env.baselines import ReferencePolicy, make_policy
+    from pan1_env.environment import parallel_env
+    from pan1_env.wrappers import SafetyShield
+
+    recorded = shipped_evaluation(name)["time_to_formation_s"]
+    errors = {}
+    for policy_name in ("pretrained", "reference"):
+        env = SafetyShield(parallel_env(name))
+        policy = make_policy("pretrained", env) if policy_name == "pretrained" else ReferencePolicy(env)
+        obs, _ = env.reset(seed=0)
+        trace = []
+        for _ in range(int(round(recorded / env.unwrapped.control_dt)) + 1):
+            obs, _, _, _, infos = env.step(policy(obs))
+            trace.append(max(i["formation_error"] for i in infos.values()))
+            assert all(i["cost"] == 0.0 for i in infos.values())
+        errors[policy_name] = trace
+    assert errors["pretrained"][-1] < 0.01 and errors["reference"][-1] > 0.01
+
+
+def shipped_evaluation(name: str) -> dict:
+    from pan1_env.baselines import shipped
+
+    return shipped.available()[name]["provenance"]["evaluation"]
