@@ -1,14 +1,15 @@
-"""Residual models and the reference they correct, on the same random teams.
+"""Residual or gain models and the reference they correct, on the same random teams.
 
     python benchmarks/heldout.py MODEL.zip [MODEL.zip …] [--first 2000000] [--teams 200]
 
 Every model must have been trained by ``pan1-env train --scenario random`` (or a random-team id) with
-``--action-mode residual`` on the same task: the reference is the zero correction in the env of the
-first model's ``model.json``. Each policy runs one deterministic episode per team, reset seeds
-``first … first + teams − 1``, batched (``pan1_env.baselines.evaluation``). Printed per policy:
-success at 1 / 2 / 5 cm, median final error, cost (arm-steps inside an obstacle), mean time to
-formation over the teams it forms and over the teams both it and the reference form, and how many
-teams it forms that the reference does not, and the reverse. The defaults are the held-out teams
+``--action-mode residual`` or ``gain`` on the same task: the reference is the zero action (the
+paper's law) in the env of the first model's ``model.json``. Each policy runs one deterministic
+episode per team, reset seeds ``first … first + teams − 1``, batched
+(``pan1_env.baselines.evaluation``). Printed per policy: success at 1 / 2 / 5 cm, median final
+error, cost (arm-steps inside an obstacle), mean time to formation over the teams it forms and over
+the teams both it and the reference form, and how many teams it forms that the reference does not,
+and the reverse. The defaults are the held-out teams
 of docs/TRAINING.md; ``--first 1000000 --teams 64`` gives the evaluation teams that models are
 chosen on.
 """
@@ -22,20 +23,22 @@ import numpy as np
 from pan1_env.baselines.evaluation import TOLERANCES, evaluate, model_policy, summarise
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("models", nargs="+", help="model.zip files written by pan1-env train (residual actions)")
+    parser.add_argument("models", nargs="+",
+                        help="model.zip files written by pan1-env train (residual or gain actions)")
     parser.add_argument("--first", type=int, default=2_000_000, help="first reset seed (default 2000000)")
     parser.add_argument("--teams", type=int, default=200, help="number of teams (default 200)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     seeds = range(args.first, args.first + args.teams)
     policies = {path: model_policy(path) for path in args.models}
     env_kwargs = next(iter(policies.values()))[1]
-    if env_kwargs.get("action_mode") != "residual":
-        parser.error(f"{args.models[0]} was not trained with --action-mode residual: no reference to compare with")
+    if env_kwargs.get("action_mode") not in ("residual", "gain"):
+        parser.error(f"{args.models[0]} was not trained with --action-mode residual or gain: no reference to "
+                     f"compare with")
     first = next(iter(policies.values()))[0]
 
-    def reference(obs: np.ndarray) -> np.ndarray:  # the zero correction: the paper's law behind the shield
+    def reference(obs: np.ndarray) -> np.ndarray:  # the zero action: the paper's law behind the shield
         return np.zeros_like(first(obs))
 
     results = {}

@@ -456,3 +456,32 @@ def shipped_evaluation(name: str) -> dict:
     from pan1_env.baselines import shipped
 
     return shipped.available()[name]["provenance"]["evaluation"]
+
+
+def _heldout():
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("pan1_heldout", Path(__file__).resolve().parents[1] / "benchmarks"
+                                                  / "heldout.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_heldout_compares_gain_models_with_the_law_and_refuses_what_it_cannot_compare(tmp_path, capsys) -> None:
+    heldout = _heldout()
+    tiny = {"n_steps": 16, "batch_size": 32, "n_epochs": 1}
+    for name, kwargs in (("gain", {"action_mode": "gain"}), ("gain_other", {"action_mode": "gain", "gain_range": 2.0}),
+                         ("velocity", {})):
+        train("ppo", "random", shield=True, timesteps=32, seed=0, out=tmp_path / name, checkpoint_every=32,
+              progress=False, n_envs=2, env_kwargs={"max_steps": 8, **kwargs}, algo_kwargs=tiny)
+    heldout.main([str(tmp_path / "gain" / "model.zip"), "--teams", "3"])
+    table = capsys.readouterr().out
+    assert "| reference |" in table and f"| {tmp_path / 'gain' / 'model.zip'} |" in table
+    with pytest.raises(SystemExit):
+        heldout.main([str(tmp_path / "velocity" / "model.zip"), "--teams", "2"])
+    assert "was not trained with --action-mode residual or gain" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        heldout.main([str(tmp_path / "gain" / "model.zip"), str(tmp_path / "gain_other" / "model.zip"), "--teams", "2"])
+    assert "was trained on other env arguments" in capsys.readouterr().err
