@@ -432,7 +432,8 @@ def test_a_gain_model_serves_velocity_and_gain_envs_but_not_residual_ones() -> N
 @pytest.mark.parametrize("name", ["paper_pa3_square", "paper_pa_mixed_square"])
 def test_the_shipped_paper_models_form_the_shape_before_the_paper_law(name) -> None:
     """The shipped model forms its scenario's shape behind the shield by the time its provenance
-    records (one step of slack), at zero cost, while the paper's law has not yet."""
+    records (half a second of slack, for numerical differences between library versions), at zero
+    cost, while the paper's law has not yet."""
     from pan1_env.baselines import ReferencePolicy, make_policy
     from pan1_env.environment import parallel_env
     from pan1_env.wrappers import SafetyShield
@@ -444,7 +445,7 @@ def test_the_shipped_paper_models_form_the_shape_before_the_paper_law(name) -> N
         policy = make_policy("pretrained", env) if policy_name == "pretrained" else ReferencePolicy(env)
         obs, _ = env.reset(seed=0)
         trace = []
-        for _ in range(int(round(recorded / env.unwrapped.control_dt)) + 1):
+        for _ in range(int(round((recorded + 0.5) / env.unwrapped.control_dt))):
             obs, _, _, _, infos = env.step(policy(obs))
             trace.append(max(i["formation_error"] for i in infos.values()))
             assert all(i["cost"] == 0.0 for i in infos.values())
