@@ -188,14 +188,14 @@ def _sb3_policy(path: Path, env) -> Policy:
     if model.observation_space.shape != (n_obs,) or model.action_space.shape != (sum(sizes),):
         raise ValueError(f"{path} was trained on spaces {model.observation_space.shape} → "
                          f"{model.action_space.shape}, this scenario has ({n_obs},) → ({sum(sizes)},)")
-    norm = meta.get("observation_normalization")
-    trained_mode = meta.get("env_kwargs", {}).get("action_mode", "velocity")
-    gate = float(meta.get("env_kwargs", {}).get("residual_gate", 0.0))
-    blocked_gate = float(meta.get("env_kwargs", {}).get("blocked_gate", 0.0))
-    last: dict[str, np.ndarray] = {}  # the velocity actions sent at the previous step (blocked gate)
     from pan1_env.tasks import DEFAULT_GAIN_RANGE
 
-    gain_range = float(meta.get("env_kwargs", {}).get("gain_range", DEFAULT_GAIN_RANGE))
+    norm, trained = meta.get("observation_normalization"), meta.get("env_kwargs", {})
+    trained_mode = trained.get("action_mode", "velocity")
+    gate = float(trained.get("residual_gate", 0.0))
+    blocked_gate = float(trained.get("blocked_gate", 0.0))
+    gain_range = float(trained.get("gain_range", DEFAULT_GAIN_RANGE))
+    last: dict[str, np.ndarray] = {}  # the velocity actions sent at the previous step (blocked gate)
     if trained_mode == env.action_mode == "gain" and env.gain_range != gain_range:
         raise ValueError(f"{path} was trained with gain_range={gain_range}; this env has gain_range={env.gain_range}")
     reference = None

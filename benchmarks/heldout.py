@@ -9,9 +9,8 @@ episode per team, reset seeds ``first … first + teams − 1``, batched
 (``pan1_env.baselines.evaluation``). Printed per policy: success at 1 / 2 / 5 cm, median final
 error, cost (arm-steps inside an obstacle), mean time to formation over the teams it forms and over
 the teams both it and the reference form, and how many teams it forms that the reference does not,
-and the reverse. The defaults are the held-out teams
-of docs/TRAINING.md; ``--first 1000000 --teams 64`` gives the evaluation teams that models are
-chosen on.
+and the reverse. The defaults are the held-out teams of docs/TRAINING.md; ``--first 1000000
+--teams 64`` gives the evaluation teams that models are chosen on.
 """
 
 from __future__ import annotations

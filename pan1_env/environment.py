@@ -236,7 +236,7 @@ class Pan1ParallelEnv(ParallelEnv):
         residual_gate = real("residual_gate", residual_gate, non_negative=True)
         intervention_penalty = real("intervention_penalty", intervention_penalty)
         blocked_gate = real("blocked_gate", blocked_gate, non_negative=True)
-        gain_range = real("gain_range", gain_range, positive=True)
+        gain_range = real("gain_range", gain_range)
         if gain_range <= 1.0:
             raise ValueError(f"gain_range must be > 1 (gains from 1/gain_range to gain_range), got {gain_range}")
         if action_mode != "residual" and (residual_gate > 0 or blocked_gate > 0):
