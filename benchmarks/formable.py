@@ -3,31 +3,33 @@
     python benchmarks/formable.py [--first 1000000] [--teams 64] [--cell 0.01] [--headings 180]
                                   [--slack M] [--out runs/formable.json]
 
-Behind the paper's RCBF filter (docs/MODEL.md §5) an arm at rest (v = 0) must satisfy every one of
-its rows, ``0 ≤ b_j = κ (h_j − margin) − ‖L_g0 h_j‖² / ε``. Where some ``b_j < 0`` the filter demands
-``ḣ_j ≥ −b_j > 0``: the end-effector has to move away from obstacle j, whatever the policy asks for.
-So a team can end an episode formed and at rest only at a placement of its shape where every arm's
-end-effector sits at a point the arm can reach with all its rows non-negative: its *resting set*.
+Behind the paper's RCBF filter (docs/MODEL.md §5) an arm stays still only if the filter lets it:
+either v = 0 satisfies every row, ``0 ≤ b_j = κ (h_j − margin) − ‖L_g0 h_j‖² / ε``, or the QP with the
+speed box |v_t| ≤ ``max_joint_speed`` is infeasible and the filter brakes (v* = 0). Anywhere else the
+filter demands ``ḣ_j ≥ −b_j > 0`` for some obstacle j and finds a velocity that does it, so the
+end-effector moves whatever the policy asks for. A team can therefore end an episode formed and at
+rest only at a placement of its shape where every arm's end-effector is in that arm's *resting set*.
 
 For every team (the ``RandomFormation-v0`` team of each reset seed), this script
 
 1. grids the plane in cells of ``--cell`` m and, for every arm, every cell within its reach and
-   ``--headings`` headings of its last link (both elbows), solves the arm's inverse kinematics and
-   evaluates its rows at the cell's centre: the cell is in the arm's resting set if one of these
-   configurations has every row ≥ 0. A PA arm is allowed every first-joint angle, although from
-   rest it reaches only those its zero passive momentum leads to: this can only enlarge the set;
-2. widens each set by the slack a formed team needs (:func:`default_slack`: 2 cm for a formed
-   team's distance from an exact placement, plus what the grid rounds away; 3.7 cm at 1 cm cells);
+   ``--headings`` sampled headings of its last link (both elbows), solves the arm's inverse
+   kinematics to the cell's centre and asks the filter (``safety.project_velocity``) whether v = 0
+   stays still there. A PA arm is allowed every first-joint angle, although from rest it reaches only
+   those its zero passive momentum leads to: this can only enlarge the set;
+2. widens each set by the slack a formed team needs (:func:`default_slack`: 2 cm for a formed team's
+   distance from an exact placement plus the grid's roundings, 4.4 cm at 1 cm cells);
 3. looks for one placement of the shape (every realisation of its edge lengths, including the
    folded ones, rotated in 0.5° steps, translated by whole cells) with every arm's vertex in its
    widened set.
 
 A team with no such placement cannot end an episode formed and at rest behind this filter, whatever
-the policy and however long the episode. The share of the others bounds from above the success of
-every policy whose formed teams are at rest. The bound ignores whether a placement can be reached
-at all, so the true ceiling is lower. It is numerical: the resting sets are sampled on a grid
-(tests/test_formable.py checks them against joint-space samples and checks that every team the
-shielded reference forms is counted formable).
+the policy. The share of the others bounds from above the success of every policy whose formed teams
+end at rest (a team could in principle pass through the shape, or creep through it as the filter
+pushes it away, at the last step). The bound ignores whether a placement can be reached at all, so
+the true ceiling is lower. It is numerical: the resting sets are sampled at cell centres and finitely
+many headings (tests/test_formable.py checks them against joint-space samples and checks that the
+teams the shielded reference forms are counted formable).
 
 Prints the number of formable teams and writes one record per team to ``--out``.
 """
@@ -42,6 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pan1_env.safety import QPStatus, project_velocity, rcbf_constraints
+
 ROTATION_STEP = np.deg2rad(0.5)
 #: how far a formed team (every edge within 1 cm of its length) can sit from an exact realisation of
 #: the shape, per end-effector, after the best rigid alignment: 1.96 cm was the most an optimiser found
@@ -50,10 +54,10 @@ FORMED_DEVIATION = 0.02
 
 
 def default_slack(cell: float, shape_radius: float) -> float:
-    """The widening that keeps the bound an upper bound on a grid: a formed end-effector's distance from
-    the exact placement, plus a point's distance from its cell's centre and the rounding of a vertex to
-    a cell (cell/√2 each), plus half a rotation step at the shape's radius."""
-    return FORMED_DEVIATION + np.sqrt(2.0) * cell + 0.5 * ROTATION_STEP * shape_radius
+    """The widening the grid needs: a formed end-effector's distance from the exact placement, plus
+    three roundings of cell/√2 each (a resting point to its cell's centre, the placement's centre to a
+    cell, a vertex's shift to whole cells), plus half a rotation step at the shape's largest radius."""
+    return FORMED_DEVIATION + 3.0 / np.sqrt(2.0) * cell + 0.5 * ROTATION_STEP * shape_radius
 
 
 def _heading(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -102,22 +106,31 @@ def reduced_jacobian_at(arm, angles: np.ndarray) -> np.ndarray:
 
 
 def resting_cells(arm, cells: np.ndarray, centers: np.ndarray, radii: np.ndarray, kappa: float,
-                  epsilon: float, margin: float, headings: np.ndarray, chunk: int = 400_000) -> np.ndarray:
-    """Boolean per cell: some configuration reaching it has every RCBF row ≥ 0 (the arm can rest)."""
+                  epsilon: float, margin: float, max_speed: float, headings: np.ndarray,
+                  chunk: int = 400_000) -> np.ndarray:
+    """Boolean per cell: some sampled configuration reaching the cell's centre can stay still behind
+    the filter. That is the filter's own answer to v0 = 0 (``safety.project_velocity`` on the RCBF rows
+    and the speed box |v_t| ≤ ``max_speed``): v = 0 satisfies every row, or the QP is infeasible and
+    the filter brakes (v* = 0) whatever the policy asks for."""
     near = np.linalg.norm(cells - arm.base, axis=-1) <= arm.lengths.sum()
     rest = np.zeros(len(cells), bool)
     pts = np.flatnonzero(near)
     per = max(1, chunk // (2 * len(headings)))
-    for s in range(0, len(pts), per):
-        block = cells[pts[s:s + per]]
+    for first in range(0, len(pts), per):
+        block = cells[pts[first:first + per]]
         angles, i = arm_ik(arm, block, headings)
         if len(i) == 0:
             continue
-        d = block[i][:, None, :] - centers
-        h = np.sum(d * d, axis=-1) - radii**2
-        Lg = 2.0 * np.einsum("koc,kcj->koj", d, reduced_jacobian_at(arm, angles))
-        b = kappa * (h - margin) - np.sum(Lg * Lg, axis=-1) / epsilon
-        rest[pts[s:s + per][np.unique(i[np.all(b >= 0.0, axis=-1)])]] = True
+        p = block[i]
+        A, b, _ = rcbf_constraints(p, reduced_jacobian_at(arm, angles), centers, radii, kappa, epsilon,
+                                   margin=margin)
+        k = A.shape[-1]
+        if np.isfinite(max_speed):
+            box = np.concatenate([np.eye(k), -np.eye(k)])
+            A = np.concatenate([A, np.broadcast_to(box, (len(p), 2 * k, k))], axis=1)
+            b = np.concatenate([b, np.full((len(p), 2 * k), max_speed)], axis=1)
+        still = project_velocity(np.zeros((len(p), k)), A, b).status != QPStatus.SOLVED
+        rest[pts[first:first + per][np.unique(i[still])]] = True
     return rest
 
 
@@ -149,13 +162,17 @@ def _dilate(grid: np.ndarray, radius_cells: int) -> np.ndarray:
     return binary_dilation(grid, structure=(xx * xx + yy * yy) <= r * r)
 
 
-def formable(scenario, cell: float, headings: int, slack: float | None = None) -> dict:
+def formable(scenario, cell: float, headings: int, max_speed: float, slack: float | None = None) -> dict:
     """Whether some placement of the team's shape has every arm's vertex in its widened resting set
-    (``slack`` None: :func:`default_slack`)."""
+    (``slack`` None: :func:`default_slack`). ``scenario`` must protect end-effectors from still
+    obstacles, as ``RandomFormation-v0``'s do; ``max_speed`` is the env's ``max_joint_speed``."""
+    if scenario.bodies != "end_effector" or scenario.obstacle_paths is not None:
+        raise ValueError("formable.py bounds the paper's filter: end-effectors among still obstacles")
     arms = scenario.arms
     bases = np.array([a.base for a in arms])
     shape = scenario.formation
-    radius = np.linalg.norm(shape.target - shape.target.mean(0), axis=-1).max()
+    placements = realisations(shape.edges, shape.distances, len(arms))
+    radius = max(np.linalg.norm(pos, axis=-1).max() for pos in placements)
     slack = default_slack(cell, radius) if slack is None else slack
     # room for every shift of a vertex, so that np.roll below never wraps a resting cell round
     pad = max(a.lengths.sum() for a in arms) + slack + radius
@@ -169,18 +186,18 @@ def formable(scenario, cell: float, headings: int, slack: float | None = None) -
     sets = []
     for i, arm in enumerate(arms):
         rest = resting_cells(arm, cells, centers[mask[i]], radii[mask[i]], scenario.kappa, scenario.epsilon,
-                             scenario.safety_margin, psi).reshape(nx, ny)
+                             scenario.safety_margin, max_speed, psi).reshape(nx, ny)
         sets.append(_dilate(rest, int(np.ceil(slack / cell))))
     for pos in realisations(shape.edges, shape.distances, len(arms)):
         for rot in np.arange(0.0, 2 * np.pi, ROTATION_STEP):
             R = np.array([[np.cos(rot), -np.sin(rot)], [np.sin(rot), np.cos(rot)]])
             shift = np.rint(pos @ R.T / cell).astype(int)  # vertex i sits at the centre cell + shift_i
-            both = np.ones((nx, ny), bool)
-            for s, grid in zip(shift, sets, strict=True):
-                both &= np.roll(grid, (-s[0], -s[1]), axis=(0, 1))  # cells whose shifted vertex rests
-                if not both.any():
+            all_rest = np.ones((nx, ny), bool)
+            for (dx, dy), grid in zip(shift, sets, strict=True):
+                all_rest &= np.roll(grid, (-dx, -dy), axis=(0, 1))  # centres whose shifted vertex rests
+                if not all_rest.any():
                     break
-            if both.any():
+            if all_rest.any():
                 return {"formable": True, "slack": slack}
     return {"formable": False, "slack": slack}
 
@@ -198,11 +215,12 @@ def main(argv: list[str] | None = None) -> None:
     import pan1_env
 
     env = pan1_env.parallel_env("random")
+    max_speed = env.unwrapped.max_joint_speed
     records = []
     for k, seed in enumerate(range(args.first, args.first + args.teams)):
         env.reset(seed=seed)
         t = time.perf_counter()
-        rec = {"seed": seed, **formable(env.unwrapped.scenario, args.cell, args.headings, args.slack)}
+        rec = {"seed": seed, **formable(env.unwrapped.scenario, args.cell, args.headings, max_speed, args.slack)}
         records.append(rec)
         print(f"[{k + 1}/{args.teams}] seed {seed}: {'formable' if rec['formable'] else 'NOT formable'} "
               f"({time.perf_counter() - t:.1f} s)", file=sys.stderr, flush=True)
