@@ -188,7 +188,7 @@ def formable(scenario, cell: float, headings: int, max_speed: float, slack: floa
         rest = resting_cells(arm, cells, centers[mask[i]], radii[mask[i]], scenario.kappa, scenario.epsilon,
                              scenario.safety_margin, max_speed, psi).reshape(nx, ny)
         sets.append(_dilate(rest, int(np.ceil(slack / cell))))
-    for pos in realisations(shape.edges, shape.distances, len(arms)):
+    for pos in placements:
         for rot in np.arange(0.0, 2 * np.pi, ROTATION_STEP):
             R = np.array([[np.cos(rot), -np.sin(rot)], [np.sin(rot), np.cos(rot)]])
             shift = np.rint(pos @ R.T / cell).astype(int)  # vertex i sits at the centre cell + shift_i
@@ -198,8 +198,8 @@ def formable(scenario, cell: float, headings: int, max_speed: float, slack: floa
                 if not all_rest.any():
                     break
             if all_rest.any():
-                return {"formable": True, "slack": slack}
-    return {"formable": False, "slack": slack}
+                return {"formable": True, "slack": float(slack)}
+    return {"formable": False, "slack": float(slack)}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -212,7 +212,15 @@ def main(argv: list[str] | None = None) -> None:
                         help="widening of the resting sets, m (default: what the grid needs, see default_slack)")
     parser.add_argument("--out", type=Path, default=Path("runs/formable.json"))
     args = parser.parse_args(argv)
+    if not (args.cell > 0 and args.headings >= 1 and args.teams >= 1):
+        parser.error(f"--cell must be > 0 and --headings, --teams ≥ 1; got {args.cell}, {args.headings}, "
+                     f"{args.teams}")
+    if args.slack is not None and not args.slack >= 0:
+        parser.error(f"--slack must be ≥ 0, got {args.slack}")
     import pan1_env
+
+    print(f"formable.py: {args.teams} teams at {args.cell} m cells and {args.headings} headings, about 20 s "
+          f"a team at the defaults ...", file=sys.stderr, flush=True)
 
     env = pan1_env.parallel_env("random")
     max_speed = env.unwrapped.max_joint_speed

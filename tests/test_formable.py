@@ -113,6 +113,14 @@ def test_resting_cells_hold_the_configurations_the_filter_keeps_still() -> None:
     assert np.quantile(back, 0.95) < cell
 
 
+@pytest.mark.parametrize("argv", [["--cell", "0"], ["--headings", "0"], ["--teams", "-1"], ["--cell", "nan"],
+                                  ["--slack", "-0.01"]])
+def test_bad_arguments_are_refused(argv, capsys) -> None:
+    with pytest.raises(SystemExit):
+        formable.main(argv)
+    assert "must be" in capsys.readouterr().err
+
+
 @pytest.mark.slow
 def test_every_team_the_reference_forms_is_formable() -> None:
     """The bound holds on real episodes: the shielded reference forms only teams judged formable, and
