@@ -274,7 +274,7 @@ class Engine:
         """The kernel's ``whole`` argument for a kind (:func:`pan1_env.kernels.substep.group_advance`)."""
         sensing = None if self.filter is None else self.filter.sensing_radius
         return (kind.caps, kind.start_time, self.link_radius, self.link_bodies,
-                SENSING_RADIUS if sensing is None else sensing, SKIN, kind.joints)
+                SENSING_RADIUS if sensing is None else sensing, SKIN, kind.joints, True)
 
     def _load_capsules(self, b: int, scenario: Scenario, mask: np.ndarray) -> None:
         """Copy b's capsules: its obstacles (start, path, radius, share 1) and the other arms' link slots
@@ -438,13 +438,15 @@ class Engine:
             # clearance between arms after each sub-step is measured here, seeded with the obstacle
             # clearance so far (pairs that cannot lower it are skipped).
             calls = [self._kernel_args(kind, command, 1, torque, self.filter, rec) for kind in self.kinds]
+            # the calls before the last leave out the joint velocities and end-effectors (`finish`)
+            partial = [args[:-1] + (args[-1][:-1] + (False,),) for args, _ in calls]
             finite = [out[-1].copy() for _, out in calls]  # the kernel marks an arm finite afresh each call
             P = self.joint_positions()
             between = np.full((self.copies, self.n_arms), np.inf)
-            for _ in range(int(substeps)):
+            for sub in range(int(substeps)):
                 self._refresh_capsules(P)
-                for kind, (args, out), ok in zip(self.kinds, calls, finite, strict=True):
-                    self._call(kind, args)
+                for kind, (args, out), early, ok in zip(self.kinds, calls, partial, finite, strict=True):
+                    self._call(kind, args if sub == substeps - 1 else early)
                     ok &= out[-1]
                 self.elapsed += self.physics_dt  # the kernel places the obstacles from the clock itself
                 P = self._kernel_joints()

@@ -66,12 +66,15 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     its outputs are those of the failing sub-step), as its own loop would; the other lanes go on.
 
     ``whole`` None (numba prunes the branches that read it) keeps the end-effector filter above; a
-    tuple ``(capsules, start_time, link_radius, links, sensing, skin, joints)`` switches to whole-arm
-    safety (:mod:`.capsules`): each filtered lane's rows are its bodies against its capsules at the
-    sub-step's time, solved by the full search, and the clearance after a sub-step is its bodies' to
-    the world obstacles (the engine passes no end-effector obstacles then). ``joints (A, L + 1, 2)``
-    receives every arm's base, joints and end-effector at the final state (the end-effector repeated
-    up to L), from which the engine refreshes the other arms' capsules between calls."""
+    tuple ``(capsules, start_time, link_radius, links, sensing, skin, joints, finish)`` switches to
+    whole-arm safety (:mod:`.capsules`): each filtered lane's rows are its bodies against its capsules
+    at the sub-step's time, solved by the full search, and the clearance after a sub-step is its
+    bodies' to the world obstacles (the engine passes no end-effector obstacles then).
+    ``joints (A, L + 1, 2)`` receives every arm's base, joints and end-effector at the final state (the
+    end-effector repeated up to L), from which the engine refreshes the other arms' capsules between
+    calls. ``finish`` False leaves ``qd_out`` and ``p_out`` unwritten (and their mass matrix
+    uncomputed): the engine's calls within a control step need neither, only its last call does."""
+    finish = True  # the joint velocities and end-effectors at the end (whole-arm calls may leave them out)
     if sizes is None:  # the per-kind kernel (numba prunes the other branch by the argument's type)
         n = len(links)
         k = len(actuated)
@@ -121,7 +124,7 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     # RK4: trial state, stage derivative, weighted sums
     qt, vt, dv, sq, sv = _local(nw, f8), _local(kw, f8), _local(kw, f8), _local(nw, f8), _local(kw, f8)
     if whole is not None:  # whole-arm scratch: one lane's rows (bodies × capsules, speed bounds) and joints
-        caps, start_time, rho, link_bodies, sensing, skin, joints_out = whole
+        caps, start_time, rho, link_bodies, sensing, skin, joints_out, finish = whole
         m_whole = (n if link_bodies else 1) * caps.shape[1] + 2 * k
         wA, wb, wact = np.zeros((m_whole, kk)), np.zeros(m_whole), np.zeros(m_whole, dtype=np.bool_)
         wrows, wviol, wnorm, wP = np.empty(m_whole, dtype=np.int64), np.empty(m_whole), np.empty(m_whole), \
@@ -379,8 +382,9 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
         for w in range(W):
             if not live[w]:
                 _lane_angles(qi, ph, n, w, c, s)
-        _mass_lanes(lm, c, s, vi, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H)
-        _position_lanes(ln, bx, by, c, s, n, W, px, py)
+        if finish:
+            _mass_lanes(lm, c, s, vi, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H)
+            _position_lanes(ln, bx, by, c, s, n, W, px, py)
         for w in range(W):
             if real[w]:
                 i = arm[w]
@@ -397,9 +401,11 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                     v_prev[i, t] = vp[t, w]
                 for a in range(n):
                     q[i, a] = qi[a, w]
-                    qd_out[i, a] = qd[a, w]
-                p_out[i, 0] = px[w]
-                p_out[i, 1] = py[w]
+                if finish:
+                    for a in range(n):
+                        qd_out[i, a] = qd[a, w]
+                    p_out[i, 0] = px[w]
+                    p_out[i, 1] = py[w]
                 if whole is not None:
                     _joints(ln, bx, by, c, s, n, w, wP)
                     for a in range(joints_out.shape[1]):
@@ -435,13 +441,14 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     exact optimum). A problem the box makes infeasible takes the braking fallback.
 
     ``whole``: None for the end-effector filter above (the paper's); a tuple ``(capsules (A, C,
-    CAPSULE_COLUMNS), start_time (A,), link_radius, links, sensing, skin, joints (A, L + 1, 2))`` for
-    whole-arm safety
+    CAPSULE_COLUMNS), start_time (A,), link_radius, links, sensing, skin, joints (A, L + 1, 2),
+    finish)`` for whole-arm safety
     (:mod:`pan1_env.kernels.capsules`): the obstacle arrays are then empty, each filtered arm's rows
     are its bodies against its capsules at the sub-step's time (``start_time`` + elapsed sub-steps),
     solved by the full search, with a fallback that drops the robust term, then takes the least
     violating velocity, ``min_clear`` is its bodies' clearance to the world obstacles, and ``joints``
-    gets the arms' base, joints and end-effector at the final state.
+    gets the arms' base, joints and end-effector at the final state (with ``finish`` False,
+    ``qd_out`` and ``p_out`` are left as they were).
 
     Outputs (per arm): ``v_star_out``/``tau_out`` of the last sub-step (``tau_out`` either
     ``(A, k)`` actuated torques or full ``(A, n)`` rows, whose passive entry is left as passed in), ``qd_out`` the joint
