@@ -166,10 +166,11 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                 lane_active[j, w] = mask[i, j]
                 if filter_on and mask[i, j]:
                     uf = True
-            if whole is not None:
-                for j in range(caps.shape[1]):
-                    if filter_on and caps[i, j, CAP_ACTIVE] != 0.0:
+            if whole is not None and filter_on and not uf:
+                for j in range(caps.shape[1]):  # the first active capsule decides (and spares the others' reads)
+                    if caps[i, j, CAP_ACTIVE] != 0.0:
                         uf = True
+                        break
             use_filter[w] = uf
             prev_ok[w] = has_prev[i]
             live[w] = True
