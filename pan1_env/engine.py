@@ -365,7 +365,7 @@ class Engine:
             return self.kinds[0].joints.reshape(B, N, L + 1, 2)
         P = np.empty((B, N, L + 1, 2))
         for kind in self.kinds:
-            P[:, kind.ids] = kind.joints.reshape(B, kind.A, L + 1, 2)
+            kernels().capsules.gather_joints(kind.joints, kind.ids, P)
         return P
 
     def clearance(self) -> np.ndarray:
@@ -490,7 +490,12 @@ class Engine:
         for kind in self.kinds:
             kind.start_time[:] = np.repeat(self.elapsed, kind.A)
             if self.inter_arm:
-                kernels().capsules.refresh_arm_capsules(P, kind.others, self.radii.shape[1], kind.caps)
+                chunks = self._chunks(len(kind.caps))
+                if chunks:
+                    kernels().capsules.refresh_arm_capsules_parallel(P, kind.others, self.radii.shape[1], kind.caps,
+                                                                     chunks)
+                else:
+                    kernels().capsules.refresh_arm_capsules(P, kind.others, self.radii.shape[1], kind.caps)
 
     def _advance(self, kind: _Kind, command: np.ndarray, substeps: int, torque: bool, params: FilterParams | None,
                  rec: StepRecord) -> None:
