@@ -253,6 +253,146 @@ def whole_arm_clearance(i, w, n, links, rho, lengths, bx, by, c, s, caps, time, 
 
 
 @njit(**_JIT)
+def _speed_box(A, b, active, m, k, n_box):
+    """v_max of the speed bounds, if the last ``n_box`` rows are the box +v_t ≤ v_max, −v_t ≤ v_max
+    (t = 0 … k − 1, active, finite) as :func:`whole_arm_rows` writes it; else −1."""
+    if n_box != 2 * k:
+        return -1.0
+    box = 0.0
+    for x in range(n_box):
+        j = m - n_box + x
+        sign = 1.0 if x % 2 == 0 else -1.0
+        if not active[j] or not (0.0 <= b[j] < np.inf):
+            return -1.0
+        for t in range(k):
+            if A[j, t] != (sign if t == x // 2 else 0.0):
+                return -1.0
+        box = max(box, b[j])
+    return box
+
+
+@njit(**_JIT)
+def _farkas_weights(A, b, norms, active, m, k, n_box, box, y):
+    """Weights y ≥ 0 on the active barrier rows (j < m − ``n_box``), Σ_j y_j ‖A_j‖ = 1, that make
+    D(y) = −Σ_j y_j b_j − ``box`` Σ_t |Σ_j y_j A_jt| large: the best vertex of the dual of
+    min_{|v_t| ≤ box} max_j (A_j v − b_j)/‖A_j‖, so D is that minimum (the uniform violation the box
+    cannot avoid) when it is positive. A vertex has a support S of at most k + 1 rows and |S| − 1 of
+    the k sums Σ_j y_j A_jt zero; all are tried (at most 6 rows: the 2k that least_violation keeps, k ≤ 3).
+    Writes ``y`` (0 off the support); returns D(y), −inf if no vertex was found. Any y ≥ 0 gives a
+    valid bound (weak duality), so the small solves' rounding costs optimality, never soundness."""
+    rows = np.empty(6, dtype=np.int64)
+    p = 0
+    for j in range(m - n_box):
+        if active[j]:
+            if p == 6:
+                return -np.inf
+            rows[p] = j
+            p += 1
+    for j in range(m):
+        y[j] = 0.0
+    sel, M, sol, g = np.empty(4, dtype=np.int64), np.empty((4, 5)), np.empty(4), np.empty(k)
+    best = -np.inf
+    for mask in range(1, 1 << p):
+        size = 0
+        for x in range(p):
+            size += mask >> x & 1
+        if size > k + 1:
+            continue
+        size = 0
+        for x in range(p):
+            if mask >> x & 1:
+                sel[size] = rows[x]
+                size += 1
+        for zeros in range(1 << k):
+            nz = 0
+            for t in range(k):
+                nz += zeros >> t & 1
+            if nz != size - 1:
+                continue
+            # size equations: Σ_j y_j A_jt = 0 for t in zeros, Σ_j y_j ‖A_j‖ = 1 (augmented, last column)
+            e = 0
+            for t in range(k):
+                if zeros >> t & 1:
+                    for c in range(size):
+                        M[e, c] = A[sel[c], t]
+                    M[e, size] = 0.0
+                    e += 1
+            for c in range(size):
+                M[e, c] = norms[sel[c]]
+            M[e, size] = 1.0
+            singular = False
+            for c in range(size):  # Gaussian elimination with partial pivoting
+                piv, big = c, abs(M[c, c])
+                for e in range(c + 1, size):
+                    if abs(M[e, c]) > big:
+                        piv, big = e, abs(M[e, c])
+                if not big > 1e-12:
+                    singular = True
+                    break
+                for x in range(size + 1):
+                    M[c, x], M[piv, x] = M[piv, x], M[c, x]
+                for e in range(c + 1, size):
+                    f = M[e, c] / M[c, c]
+                    for x in range(c, size + 1):
+                        M[e, x] -= f * M[c, x]
+            if singular:
+                continue
+            for c in range(size - 1, -1, -1):
+                acc = M[c, size]
+                for x in range(c + 1, size):
+                    acc -= M[c, x] * sol[x]
+                sol[c] = acc / M[c, c]
+            total = 0.0
+            for c in range(size):
+                sol[c] = max(sol[c], 0.0)
+                total += sol[c] * norms[sel[c]]
+            if not total > 0.0:
+                continue
+            value = 0.0
+            for t in range(k):
+                g[t] = 0.0
+            for c in range(size):
+                value -= sol[c] / total * b[sel[c]]
+                for t in range(k):
+                    g[t] += sol[c] / total * A[sel[c], t]
+            for t in range(k):
+                value -= box * abs(g[t])
+            if value > best:
+                best = value
+                for j in range(m):
+                    y[j] = 0.0
+                for c in range(size):
+                    y[sel[c]] = sol[c] / total
+    return best
+
+
+@njit(**_JIT)
+def _certainly_infeasible(A, b, norms, m, k, n_box, box, y):
+    """Whether rows A v ≤ b (the barrier rows as relaxed now, and the speed box |v_t| ≤ ``box``) are so
+    far from feasible that :func:`_project_one` must answer FALLBACK: Farkas weights ``y`` ≥ 0 prove that
+    for every v in the box (widened by what the search's tolerance lets through) Σ_j y_j (A_j v − b_j)
+    exceeds what the search's tolerances allow any candidate (:data:`CANDIDATE_TOLERANCE`, here taken
+    twice, with the sum's own rounding on top)."""
+    root_k = np.sqrt(k)
+    widen = 2e-9 * (2.0 + box * (1.0 + root_k))  # how far a candidate the search accepts may leave the box
+    value, weight, worst, size = 0.0, 0.0, 0.0, 0.0
+    g = np.zeros(k)
+    for j in range(m - n_box):
+        if y[j] > 0.0:
+            value -= y[j] * b[j]
+            weight += y[j]
+            size += y[j] * (abs(b[j]) + norms[j] * root_k * (box + widen))
+            worst = max(worst, 1.0 + abs(b[j]) + norms[j] * (1.0 + root_k * (box + widen)))
+            for t in range(k):
+                g[t] += y[j] * A[j, t]
+    spread = 0.0
+    for t in range(k):
+        spread += abs(g[t])
+    value -= (box + widen) * spread
+    return value > 2e-9 * weight * worst + 1e-12 * size
+
+
+@njit(**_JIT)
 def least_violation(v0, A, b, active, m, k, n_box, v_out, b_given, norms, rows, idx, G, r, lam, cand, L, y, viol,
                     rnorm):
     """The fallback's last resort for an infeasible whole-arm QP: the velocity closest to ``v0`` among
@@ -286,12 +426,20 @@ def least_violation(v0, A, b, active, m, k, n_box, v_out, b_given, norms, rows, 
         if kept <= 2 * k:
             break
         active[worst_j] = False
+    # Farkas weights for the kept rows (k ≤ 3, with the speed box): the bisection's steps below the least
+    # uniform violation would each search every set of rows to the end, and the weights show that such
+    # a search must fail, so it is skipped (its answer, FALLBACK, is the same)
+    box = _speed_box(A, b, active, m, k, n_box) if k <= 3 else -1.0
+    farkas = np.empty(m)
+    certify = box >= 0.0 and _farkas_weights(A, b_given, norms, active, m, k, n_box, box, farkas) > 0.0
     lo = 0.0
     for _ in range(20):
         mid = 0.5 * (lo + hi)
         for j in range(m):
             b[j] = b_given[j] + mid * norms[j]
-        if _project_one(v0, A, b, active, m, k, v_out, rows, idx, G, r, lam, cand, L, y, viol, rnorm) \
+        if certify and _certainly_infeasible(A, b, norms, m, k, n_box, box, farkas):
+            lo = mid
+        elif _project_one(v0, A, b, active, m, k, v_out, rows, idx, G, r, lam, cand, L, y, viol, rnorm) \
                 == STATUS_FALLBACK:
             lo = mid
         else:
