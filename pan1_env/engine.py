@@ -490,12 +490,7 @@ class Engine:
         for kind in self.kinds:
             kind.start_time[:] = np.repeat(self.elapsed, kind.A)
             if self.inter_arm:
-                chunks = self._chunks(len(kind.caps))
-                if chunks:
-                    kernels().capsules.refresh_arm_capsules_parallel(P, kind.others, self.radii.shape[1], kind.caps,
-                                                                     chunks)
-                else:
-                    kernels().capsules.refresh_arm_capsules(P, kind.others, self.radii.shape[1], kind.caps)
+                kernels().capsules.refresh_arm_capsules(P, kind.others, self.radii.shape[1], kind.caps)
 
     def _advance(self, kind: _Kind, command: np.ndarray, substeps: int, torque: bool, params: FilterParams | None,
                  rec: StepRecord) -> None:

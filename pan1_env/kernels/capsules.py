@@ -542,10 +542,12 @@ def gather_joints(joints, ids, P):
 
 
 @njit(**_JIT)
-def _refresh_rows(P, others, first, caps, lo, hi):
-    """:func:`refresh_arm_capsules` for rows ``lo … hi−1``."""
+def refresh_arm_capsules(P, others, first, caps):
+    """Every other arm's link segments, from ``P (B, N, L + 1, 2)``, into the capsule slots of the arms
+    of one kind: row ``b·A + r`` of ``caps`` holds, from column ``first`` on, L slots for each arm of
+    ``others[r]`` in order."""
     A, L = others.shape[0], P.shape[2] - 1
-    for row in range(lo, hi):
+    for row in range(caps.shape[0]):
         b, r = row // A, row % A
         col = first
         for j in others[r]:
@@ -553,20 +555,3 @@ def _refresh_rows(P, others, first, caps, lo, hi):
                 caps[row, col, CAP_AX], caps[row, col, CAP_AY] = P[b, j, a, 0], P[b, j, a, 1]
                 caps[row, col, CAP_BX], caps[row, col, CAP_BY] = P[b, j, a + 1, 0], P[b, j, a + 1, 1]
                 col += 1
-
-
-@njit(**_JIT)
-def refresh_arm_capsules(P, others, first, caps):
-    """Every other arm's link segments, from ``P (B, N, L + 1, 2)``, into the capsule slots of the arms
-    of one kind: row ``b·A + r`` of ``caps`` holds, from column ``first`` on, L slots for each arm of
-    ``others[r]`` in order."""
-    _refresh_rows(P, others, first, caps, 0, caps.shape[0])
-
-
-@njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
-def refresh_arm_capsules_parallel(P, others, first, caps, n_chunks):
-    """:func:`refresh_arm_capsules` with the rows split into ``n_chunks`` chunks on numba's threads (it
-    writes a few hundred bytes per arm, at every sub-step of an inter-arm step)."""
-    rows = caps.shape[0]
-    for c in prange(n_chunks):
-        _refresh_rows(P, others, first, caps, c * rows // n_chunks, (c + 1) * rows // n_chunks)
