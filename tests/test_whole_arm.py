@@ -496,3 +496,56 @@ def test_the_geometry_helpers_say_once_that_they_compile(tmp_path) -> None:
     assert first.stderr.count("compiling the whole-arm geometry helpers") == 1, first.stderr
     again = subprocess.run([sys.executable, "-c", _GEOMETRY], env=env, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0 and "compil" not in again.stderr, again.stderr[-2000:]
+
+
+def test_farkas_certificate_skips_only_searches_that_fail() -> None:
+    """least_violation skips a bisection step when Farkas weights prove its QP infeasible: on random
+    infeasible problems (k = 2, 3; 2k barrier rows and the speed box) every step so certified is one the
+    active-set search also finds infeasible, the certificate's bound never exceeds the least uniform
+    violation the bisection finds, and the answer is the plain bisection's."""
+    from pan1_env.kernels.qp import STATUS_FALLBACK, _project_one
+
+    K = kernels().capsules
+    rng = np.random.default_rng(11)
+    certified = checked = 0
+    for trial in range(150):
+        k = 2 + trial % 2
+        n_rows, v_max = 2 * k, 1.5
+        A = np.zeros((n_rows + 2 * k, k))
+        A[:n_rows] = rng.normal(size=(n_rows, k))
+        b = np.concatenate([rng.normal(-1.0, 1.0, n_rows), np.full(2 * k, v_max)])
+        for t in range(k):
+            A[n_rows + 2 * t, t], A[n_rows + 2 * t + 1, t] = 1.0, -1.0
+        m = len(b)
+        v0 = rng.uniform(-3, 3, k)
+
+        def scratch(m=m, k=k):
+            return (np.empty(m, np.int64), np.empty(k, np.int64), np.empty((k, k)), np.empty(k), np.empty(k),
+                    np.empty(k), np.empty((k, k)), np.empty(k), np.empty(m), np.empty(m))
+
+        v = np.empty(k)
+        if _project_one(v0, A, b, np.ones(m, bool), m, k, v, *scratch()) != STATUS_FALLBACK:
+            continue  # feasible: no fallback
+        norms = np.concatenate([np.linalg.norm(A[:n_rows], axis=1), np.zeros(2 * k)])
+        weights = np.empty(m)
+        bound = K._farkas_weights(A, b, norms, np.ones(m, bool), m, k, 2 * k, v_max, weights)
+        # the plain bisection (least_violation without the certificate)
+        lo, hi = 0.0, max(0.0, float(np.max(-b[:n_rows] / norms[:n_rows])))
+        for _ in range(20):
+            mid = 0.5 * (lo + hi)
+            relaxed = b + mid * norms
+            infeasible = _project_one(v0, A, relaxed, np.ones(m, bool), m, k, v, *scratch()) == STATUS_FALLBACK
+            if bound > 0.0 and K._certainly_infeasible(A, relaxed, norms, m, k, 2 * k, v_max, weights):
+                certified += 1
+                assert infeasible, (trial, mid)
+            lo, hi = (mid, hi) if infeasible else (lo, mid)
+        checked += 1
+        assert bound <= hi + 1e-9, (trial, bound, hi)
+        expected = np.empty(k)
+        _project_one(v0, A, b + hi * norms, np.ones(m, bool), m, k, expected, *scratch())
+        got = np.empty(k)
+        t = K.least_violation(v0, A, b.copy(), np.ones(m, bool), m, k, 2 * k, got, np.empty(m), np.empty(m),
+                              *scratch())
+        assert t == pytest.approx(hi, rel=1e-12, abs=1e-12)
+        np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12)
+    assert checked > 30 and certified > 100, (checked, certified)
