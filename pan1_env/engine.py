@@ -11,8 +11,9 @@ backstepping law in velocity mode, and takes one RK4 step (docs/MODEL.md). It re
 (:mod:`pan1_env.tasks`); the environments are adapters over an engine and a task, and B = 1 is a
 batch of one.
 
-The filter's QP runs in the kernel (``qp_solver="active_set"``, exact); ``"piqp"`` solves it with
-qpsolvers + PIQP instead, one sub-step at a time (velocity mode; slow, for cross-checks).
+The filter's QP runs in the kernel (``qp_solver="active_set"``, exact); ``"piqp"`` solves the same rows
+(the paper's end-effector rows, or the whole-arm rows) with qpsolvers + PIQP instead, one sub-step at
+a time (velocity mode, one copy; slow, for cross-checks).
 """
 
 from __future__ import annotations
@@ -23,8 +24,8 @@ import numpy as np
 
 from .bodies import capsule_clearance, obstacle_centers, obstacle_velocities
 from .compiled import kernel_sizes, kernels
-from .dynamics import ArmBatch
-from .safety import QP_SOLVERS, clearance, project_velocity, rcbf_constraints
+from .dynamics import ArmBatch, link_angles, mass_matrix
+from .safety import QP_SOLVERS, QPStatus, clearance, project_velocity, rcbf_constraints
 from .scenario import Scenario
 from .validation import real
 
@@ -160,7 +161,8 @@ class Engine:
         physics_dt: the RK4 sub-step, seconds (default: the scenario's).
         safety_filter: ``False``, ``True`` (the scenario's κ, ε, margin) or a :class:`FilterParams`.
         max_speed: with the filter on, its QP also bounds every filtered speed by this (rad/s).
-        qp_solver: ``"active_set"`` (exact, in the kernel) or ``"piqp"`` (velocity mode only).
+        qp_solver: ``"active_set"`` (exact, in the kernel) or ``"piqp"`` (the same rows, whole-arm ones
+            included, solved by qpsolvers + PIQP; one copy, velocity mode only).
         threads: ``"auto"`` (numba's thread pool from :data:`PARALLEL_THRESHOLD` arms of a kind),
             ``True`` or ``False``; the two kernels give the same results bit for bit.
     """
@@ -196,8 +198,6 @@ class Engine:
         self.link_bodies, self.inter_arm = scenario.bodies == "links", scenario.inter_arm
         self.link_radius = scenario.link_radius
         self.whole_arm = self.link_bodies or self.inter_arm or scenario.obstacle_paths is not None
-        if self.whole_arm and qp_solver == "piqp":
-            raise ValueError("qp_solver='piqp' filters end-effectors only; whole-arm safety needs 'active_set'")
         self.start_centers, self.path_ends, self.speeds = np.empty((B, O, 2)), np.empty((B, O, 2)), np.zeros((B, O))
         self.elapsed = np.zeros(B)  # s since each copy's reset: where moving obstacles are
         self.filter: FilterParams | None = None  # set_safety_filter's, below
@@ -221,8 +221,6 @@ class Engine:
         :class:`FilterParams`); it acts from the next sub-step."""
         self.filter = filter_parameters(safety_filter, self.teams[0])
         sensing = None if self.filter is None else self.filter.sensing_radius
-        if sensing is not None and self.qp_solver == "piqp":
-            raise ValueError("a sensing_radius filters through the whole-arm rows, which need qp_solver='active_set'")
         if sensing is not None and not self.whole_arm:  # the end-effector as the body of the whole-arm rows
             self.whole_arm = True
             self._whole_arm_setup()
@@ -431,7 +429,11 @@ class Engine:
         blank = self._blank  # fresh arrays every step: records handed out are never overwritten
         rec = StepRecord(blank.v_star.copy(), blank.tau.copy(), blank.min_clearance.copy(), blank.min_barrier.copy(),
                          blank.qp_counts.copy(), blank.max_tracking_error.copy(), blank.finite.copy())
-        if self.inter_arm:
+        if piqp and self.whole_arm:
+            for _ in range(int(substeps)):
+                self._piqp_whole_substep(command, rec)
+            self._place_obstacles()
+        elif self.inter_arm:
             # every arm's filter sees the others' capsules as they are at each sub-step: one kernel call per
             # sub-step, the capsules refreshed in between from the joints the kernel left (each kind's
             # outputs gathered once: the kernel accumulates minima, maxima and counts over calls). The
@@ -568,6 +570,74 @@ class Engine:
         rec.qp_counts[0, kind.ids] += np.eye(3, dtype=np.int64)[result.status] - np.eye(3, dtype=np.int64)[0]
         rec.min_barrier[0, kind.ids] = np.minimum(rec.min_barrier[0, kind.ids],
                                                   np.where(kind.mask, h, np.inf).min(axis=-1))
+
+    def _piqp_whole_substep(self, command: np.ndarray, rec: StepRecord) -> None:
+        """One velocity-mode sub-step of whole-arm safety whose QPs are solved by qpsolvers + PIQP (one
+        copy): every filtered arm's rows are the kernel's (:func:`pan1_env.kernels.capsules.whole_arm_rows`
+        at the arm's state, the clock and the other arms where they are now), an infeasible QP takes the
+        kernel's fallback (the rows without the robust term, then the least violating velocity), and
+        every arm then advances one sub-step unfiltered at its v*."""
+        f, dt = self.filter, self.physics_dt
+        self._refresh_capsules(self.joint_positions() if self.inter_arm else None)
+        v_star = np.zeros_like(command)
+        status = np.zeros(self.n_arms, dtype=np.int64)
+        h_min = np.full(self.n_arms, np.inf)
+        for kind in self.kinds:
+            for r, i in enumerate(kind.ids):
+                v0 = command[0, i, :kind.k]
+                if not (kind.caps[r, :, kernels().capsules.CAP_ACTIVE] != 0.0).any():
+                    v_star[0, i, :kind.k] = v0
+                    continue
+                A, b, h_min[i] = self._whole_arm_rows(kind, r, v0, f.epsilon)
+                result = project_velocity(v0[None], A[None], b[None], solver="piqp")
+                status[i], v_star[0, i, :kind.k] = result.status[0], result.v[0]
+                if status[i] == QPStatus.FALLBACK:  # as the kernel: without the robust term, then least violation
+                    A, b, _ = self._whole_arm_rows(kind, r, v0, np.inf)
+                    retry = project_velocity(v0[None], A[None], b[None], solver="piqp")
+                    v_star[0, i, :kind.k] = retry.v[0]
+                    if retry.status[0] == QPStatus.FALLBACK:
+                        v_star[0, i, :kind.k] = self._least_violation(kind, v0, A, b)
+        for kind in self.kinds:
+            finite = rec.finite.copy()
+            self._advance(kind, v_star, 1, False, None, rec)  # counted as a nominal sub-step: recount below
+            rec.finite &= finite
+        rec.qp_counts[0] += np.eye(3, dtype=np.int64)[status] - np.eye(3, dtype=np.int64)[0]
+        np.minimum(rec.min_barrier[0], h_min, out=rec.min_barrier[0])
+        self.elapsed += dt
+        if self.inter_arm:
+            np.minimum(rec.min_clearance, self.inter_arm_clearance(), out=rec.min_clearance)
+
+    def _whole_arm_rows(self, kind: _Kind, r: int, v0: np.ndarray, epsilon: float) -> tuple:
+        """The kernel's whole-arm rows ``(A (m, k), b (m,), smallest barrier)`` of row r of a kind (one
+        copy), built from the arm's state by :func:`pan1_env.kernels.capsules.whole_arm_rows`."""
+        K, f, n, k = kernels().capsules, self.filter, kind.n, kind.k
+        arm, q = self.teams[0].arms[kind.ids[r]], kind.q[r]
+        caps, start_time, rho, links, sensing, skin = self._whole_args(kind)[:6]
+        angles = link_angles(q) + kind.phi[r]
+
+        def lane(x: np.ndarray) -> np.ndarray:  # one lane (W = 1) of the kernel's scratch: lanes last
+            return np.ascontiguousarray(x[..., None])
+
+        m_max = (n if links else 1) * caps.shape[1] + 2 * k
+        A, b, active = np.zeros((m_max, k)), np.zeros(m_max), np.zeros(m_max, dtype=bool)
+        m, h = K.whole_arm_rows(r, 0, n, k, kind.passive, links, rho, sensing, skin, self.physics_dt,
+                                lane(kind.lengths[r]), kind.base[r, :1].copy(), kind.base[r, 1:].copy(),
+                                lane(np.cos(angles)), lane(np.sin(angles)), lane(kind.qd[r]),
+                                lane(mass_matrix(arm, q)), caps, start_time[r], f.kappa, epsilon, f.margin,
+                                self.max_speed, v0.copy(), A, b, active, np.empty((n + 1, 2)),
+                                np.empty((caps.shape[1], K.NEAR_COLUMNS)))
+        return A[:m], b[:m], h
+
+    def _least_violation(self, kind: _Kind, v0: np.ndarray, A: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """The kernel's last resort for an infeasible whole-arm QP (its rows end with the speed box when
+        the speed is bounded): :func:`pan1_env.kernels.capsules.least_violation`."""
+        m, k = A.shape
+        v = np.empty(k)
+        kernels().capsules.least_violation(
+            v0.copy(), A.copy(), b.copy(), np.ones(m, dtype=bool), m, k, 2 * k if np.isfinite(self.max_speed) else 0,
+            v, np.empty(m), np.empty(m), np.empty(m, dtype=np.int64), np.empty(k, dtype=np.int64), np.empty((k, k)),
+            np.empty(k), np.empty(k), np.empty(k), np.empty((k, k)), np.empty(k), np.empty(m), np.empty(m))
+        return v
 
     @staticmethod
     def _specialised(kind: _Kind, args: tuple) -> bool:

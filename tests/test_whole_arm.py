@@ -448,16 +448,56 @@ def test_shield_with_a_sensing_radius_stops_the_adversary() -> None:
 
 
 def test_bad_sensing_radius() -> None:
-    from pan1_env.engine import Engine, FilterParams
     from pan1_env.environment import parallel_env
-    from pan1_env.scenario import load
     from pan1_env.wrappers import SafetyShield
 
     for bad in (-0.1, 0.0, np.inf, "far"):
         with pytest.raises(ValueError, match="SafetyShield: sensing_radius must be"):
             SafetyShield(parallel_env("paper_pa3_square"), sensing_radius=bad)
-    with pytest.raises(ValueError, match="need qp_solver='active_set'"):
-        Engine(load("paper_pa3_square"), qp_solver="piqp", safety_filter=FilterParams(0.5, 5.0, sensing_radius=0.1))
+
+
+def _piqp_against_kernel(team, steps: int, command_scale: float, filter_params=True) -> dict:
+    """Step the same team with the kernel's QP and with qp_solver='piqp' under the same commands."""
+    from pan1_env.engine import Engine
+
+    engines = {s: Engine(team, safety_filter=filter_params, max_speed=2.0, qp_solver=s) for s in ("active_set", "piqp")}
+    rng = np.random.default_rng(0)
+    counts = dict.fromkeys(engines, 0)
+    for _ in range(steps):
+        command = rng.uniform(-command_scale, command_scale, (1, team.n_arms, 3))
+        recs = {s: e.step(command, 5) for s, e in engines.items()}
+        for s, rec in recs.items():
+            counts[s] = counts[s] + rec.qp_counts.sum(axis=(0, 1))
+        np.testing.assert_allclose(recs["piqp"].min_clearance, recs["active_set"].min_clearance, atol=1e-8)
+        np.testing.assert_allclose(recs["piqp"].min_barrier, recs["active_set"].min_barrier, atol=1e-8)
+    for a, b in zip(engines["active_set"].kinds, engines["piqp"].kinds, strict=True):
+        np.testing.assert_allclose(b.q, a.q, atol=1e-8)
+    np.testing.assert_array_equal(counts["piqp"], counts["active_set"])
+    return counts["active_set"]
+
+
+def test_piqp_solves_the_whole_arm_rows_as_the_kernel_does() -> None:
+    """qp_solver='piqp' with links, other arms and moving obstacles: PIQP on the kernel's rows (and the
+    kernel's fallback where PIQP finds them infeasible) gives the kernel's run, QP statuses included,
+    over steps where the filter acts and falls back."""
+    from pan1_env.random_scenario import RandomScenarioOptions, random_scenario
+
+    team = random_scenario(np.random.default_rng(4), RandomScenarioOptions(
+        bodies="links", link_radius=0.03, inter_arm=True, obstacle_speed=(0.1, 0.3), physics_dt=0.01,
+        control_dt=0.05))
+    counts = _piqp_against_kernel(team, 30, 2.0)
+    assert counts[1] > 20 and counts[2] > 5, counts
+
+
+def test_piqp_with_a_sensing_radius_matches_the_kernel() -> None:
+    """The paper's scenario behind a filter with a sensing radius (end-effector rows through the
+    whole-arm path): PIQP and the kernel agree."""
+    from pan1_env.engine import FilterParams
+    from pan1_env.scenario import load
+
+    team = load("paper_pa3_square")
+    counts = _piqp_against_kernel(team, 20, 1.0, FilterParams(team.kappa, team.epsilon, sensing_radius=0.1))
+    assert counts[1] > 0, counts
 
 
 def test_a_moving_layout_needs_the_obstacle_velocities() -> None:
