@@ -456,37 +456,44 @@ def test_bad_sensing_radius() -> None:
             SafetyShield(parallel_env("paper_pa3_square"), sensing_radius=bad)
 
 
-def _piqp_against_kernel(team, steps: int, command_scale: float, filter_params=True) -> dict:
-    """Step the same team with the kernel's QP and with qp_solver='piqp' under the same commands."""
+def _piqp_against_kernel(team, steps: int, command_scale: float, filter_params=True,
+                         max_speed: float = 2.0) -> np.ndarray:
+    """Step the same team with the kernel's QP and with qp_solver='piqp' under the same commands; every
+    step's records agree (QP statuses per arm exactly): returns the kernel's status counts."""
     from pan1_env.engine import Engine
 
-    engines = {s: Engine(team, safety_filter=filter_params, max_speed=2.0, qp_solver=s) for s in ("active_set", "piqp")}
+    engines = {s: Engine(team, safety_filter=filter_params, max_speed=max_speed, qp_solver=s)
+               for s in ("active_set", "piqp")}
     rng = np.random.default_rng(0)
-    counts = dict.fromkeys(engines, 0)
+    counts = 0
     for _ in range(steps):
         command = rng.uniform(-command_scale, command_scale, (1, team.n_arms, 3))
-        recs = {s: e.step(command, 5) for s, e in engines.items()}
-        for s, rec in recs.items():
-            counts[s] = counts[s] + rec.qp_counts.sum(axis=(0, 1))
-        np.testing.assert_allclose(recs["piqp"].min_clearance, recs["active_set"].min_clearance, atol=1e-8)
-        np.testing.assert_allclose(recs["piqp"].min_barrier, recs["active_set"].min_barrier, atol=1e-8)
+        kernel, piqp = (e.step(command, 5) for e in engines.values())
+        np.testing.assert_array_equal(piqp.qp_counts, kernel.qp_counts)
+        np.testing.assert_array_equal(piqp.finite, kernel.finite)
+        for field in ("v_star", "tau", "min_clearance", "min_barrier", "max_tracking_error"):
+            np.testing.assert_allclose(getattr(piqp, field), getattr(kernel, field), atol=1e-7, err_msg=field)
+        counts = counts + kernel.qp_counts.sum(axis=(0, 1))
     for a, b in zip(engines["active_set"].kinds, engines["piqp"].kinds, strict=True):
         np.testing.assert_allclose(b.q, a.q, atol=1e-8)
-    np.testing.assert_array_equal(counts["piqp"], counts["active_set"])
-    return counts["active_set"]
+    return counts
 
 
-def test_piqp_solves_the_whole_arm_rows_as_the_kernel_does() -> None:
-    """qp_solver='piqp' with links, other arms and moving obstacles: PIQP on the kernel's rows (and the
-    kernel's fallback where PIQP finds them infeasible) gives the kernel's run, QP statuses included,
-    over steps where the filter acts and falls back."""
+@pytest.mark.parametrize("inter_arm, max_speed", [(True, 2.0), (False, 2.0), (True, np.inf)],
+                         ids=["other_arms", "links_only", "no_speed_bound"])
+def test_piqp_solves_the_whole_arm_rows_as_the_kernel_does(inter_arm: bool, max_speed: float) -> None:
+    """qp_solver='piqp' with links and moving obstacles (and other arms): PIQP on the kernel's rows (and
+    the kernel's fallback where PIQP finds them infeasible) gives the kernel's run, every arm's QP
+    statuses included, over steps where the filter acts (and, with other arms, falls back)."""
     from pan1_env.random_scenario import RandomScenarioOptions, random_scenario
 
     team = random_scenario(np.random.default_rng(4), RandomScenarioOptions(
-        bodies="links", link_radius=0.03, inter_arm=True, obstacle_speed=(0.1, 0.3), physics_dt=0.01,
+        bodies="links", link_radius=0.03, inter_arm=inter_arm, obstacle_speed=(0.1, 0.3), physics_dt=0.01,
         control_dt=0.05))
-    counts = _piqp_against_kernel(team, 30, 2.0)
-    assert counts[1] > 20 and counts[2] > 5, counts
+    counts = _piqp_against_kernel(team, 30, 2.0, max_speed=max_speed)
+    assert counts[1] > 20, counts
+    if inter_arm and max_speed < np.inf:
+        assert counts[2] > 5, counts
 
 
 def test_piqp_with_a_sensing_radius_matches_the_kernel() -> None:
@@ -540,23 +547,29 @@ def test_the_geometry_helpers_say_once_that_they_compile(tmp_path) -> None:
 
 def test_farkas_certificate_skips_only_searches_that_fail() -> None:
     """least_violation skips a bisection step when Farkas weights prove its QP infeasible: on random
-    infeasible problems (k = 2, 3; 2k barrier rows and the speed box) every step so certified is one the
-    active-set search also finds infeasible, the certificate's bound never exceeds the least uniform
-    violation the bisection finds, and the answer is the plain bisection's."""
+    infeasible problems (k = 1, 2, 3; 2k to 3k barrier rows, some inactive or of zero norm, and the speed
+    box) the box is recognised, every step so certified is one the active-set search also finds
+    infeasible, the certificate's bound never exceeds the least uniform violation the bisection finds,
+    and the answer is the plain bisection's."""
     from pan1_env.kernels.qp import STATUS_FALLBACK, _project_one
 
     K = kernels().capsules
     rng = np.random.default_rng(11)
     certified = checked = 0
-    for trial in range(150):
-        k = 2 + trial % 2
-        n_rows, v_max = 2 * k, 1.5
+    for trial in range(240):
+        k = 1 + trial % 3
+        n_rows, v_max = int(rng.integers(2 * k, 3 * k + 1)), 1.5
         A = np.zeros((n_rows + 2 * k, k))
         A[:n_rows] = rng.normal(size=(n_rows, k))
+        if trial % 5 == 0:
+            A[0] = 0.0  # a row of zero norm: dropped
         b = np.concatenate([rng.normal(-1.0, 1.0, n_rows), np.full(2 * k, v_max)])
         for t in range(k):
             A[n_rows + 2 * t, t], A[n_rows + 2 * t + 1, t] = 1.0, -1.0
         m = len(b)
+        active = np.ones(m, bool)
+        if trial % 7 == 0:
+            active[n_rows - 1] = False
         v0 = rng.uniform(-3, 3, k)
 
         def scratch(m=m, k=k):
@@ -564,17 +577,21 @@ def test_farkas_certificate_skips_only_searches_that_fail() -> None:
                     np.empty(k), np.empty((k, k)), np.empty(k), np.empty(m), np.empty(m))
 
         v = np.empty(k)
-        if _project_one(v0, A, b, np.ones(m, bool), m, k, v, *scratch()) != STATUS_FALLBACK:
+        if _project_one(v0, A, b, active, m, k, v, *scratch()) != STATUS_FALLBACK:
             continue  # feasible: no fallback
+        got = np.empty(k)
+        kept = active.copy()
+        t = K.least_violation(v0, A, b.copy(), kept, m, k, 2 * k, got, np.empty(m), np.empty(m), *scratch())
+        # least_violation's choice of rows (kept): the plain bisection runs on the same rows
+        assert K._speed_box(A, b, kept, m, k, 2 * k) == v_max
         norms = np.concatenate([np.linalg.norm(A[:n_rows], axis=1), np.zeros(2 * k)])
         weights = np.empty(m)
-        bound = K._farkas_weights(A, b, norms, np.ones(m, bool), m, k, 2 * k, v_max, weights)
-        # the plain bisection (least_violation without the certificate)
-        lo, hi = 0.0, max(0.0, float(np.max(-b[:n_rows] / norms[:n_rows])))
+        bound = K._farkas_weights(A, b, norms, kept, m, k, 2 * k, v_max, weights)
+        lo, hi = 0.0, max([0.0] + [-b[j] / norms[j] for j in range(n_rows) if norms[j] > 0])  # as least_violation
         for _ in range(20):
             mid = 0.5 * (lo + hi)
             relaxed = b + mid * norms
-            infeasible = _project_one(v0, A, relaxed, np.ones(m, bool), m, k, v, *scratch()) == STATUS_FALLBACK
+            infeasible = _project_one(v0, A, relaxed, kept, m, k, v, *scratch()) == STATUS_FALLBACK
             if bound > 0.0 and K._certainly_infeasible(A, relaxed, norms, m, k, 2 * k, v_max, weights):
                 certified += 1
                 assert infeasible, (trial, mid)
@@ -582,10 +599,8 @@ def test_farkas_certificate_skips_only_searches_that_fail() -> None:
         checked += 1
         assert bound <= hi + 1e-9, (trial, bound, hi)
         expected = np.empty(k)
-        _project_one(v0, A, b + hi * norms, np.ones(m, bool), m, k, expected, *scratch())
-        got = np.empty(k)
-        t = K.least_violation(v0, A, b.copy(), np.ones(m, bool), m, k, 2 * k, got, np.empty(m), np.empty(m),
-                              *scratch())
+        if _project_one(v0, A, b + hi * norms, kept, m, k, expected, *scratch()) == STATUS_FALLBACK:
+            expected[:] = 0.0
         assert t == pytest.approx(hi, rel=1e-12, abs=1e-12)
         np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12)
-    assert checked > 30 and certified > 100, (checked, certified)
+    assert checked > 50 and certified > 200, (checked, certified)
