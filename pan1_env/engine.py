@@ -215,6 +215,14 @@ class Engine:
         self._blank.tau[:, [i for i, a in enumerate(scenario.arms) if a.passive_first_joint], 0] = 0.0
         self.reset()
 
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        if getattr(self, "_team_caps", None) is not None:  # a copy: the kinds' views of the team arrays again
+            for kind in self.kinds:
+                kind.caps, kind.start_time = self._team_caps[kind.block], self._team_start_time[kind.block]
+                kind.joints = self._team_joints[kind.block]
+                kind.whole = self._whole_args(kind)
+
     # ------------------------------------------------------------------ set-up
     def set_safety_filter(self, safety_filter: bool | FilterParams) -> None:
         """Switch the filter off (``False``) or on (``True``: the scenario's parameters, or a
@@ -258,15 +266,27 @@ class Engine:
         """Capsule arrays per kind (:mod:`pan1_env.kernels.capsules`): the world obstacles, then, with
         ``inter_arm``, ``n_max`` slots for the links of every other arm; and the end-effector obstacles'
         stand-ins the kernel gets instead (none)."""
-        N, O, L = self.n_arms, self.radii.shape[1], self.n_max
+        B, N, O, L = self.copies, self.n_arms, self.radii.shape[1], self.n_max
         C = O + ((N - 1) * L if self.inter_arm else 0)
+        # team-level arrays, each kind's rows a contiguous block of them (the kind's arrays are views), so
+        # that one compiled pass reaches every arm of a copy between sub-steps: row copy_rows[b, i] is arm
+        # i of copy b
+        caps, start_time = np.zeros((B * N, C, kernels().capsules.CAPSULE_COLUMNS)), np.zeros(B * N)
+        joints = np.zeros((B * N, L + 1, 2))
+        self.others = np.array([[j for j in range(N) if j != i] for i in range(N)], dtype=np.int64).reshape(N, N - 1)
+        self.copy_rows = np.empty((B, N), dtype=np.int64)
+        first = 0
         for kind in self.kinds:
             rows = len(kind.q)
-            kind.caps, kind.start_time = np.zeros((rows, C, kernels().capsules.CAPSULE_COLUMNS)), np.zeros(rows)
-            kind.others = np.array([[j for j in range(N) if j != i] for i in kind.ids], dtype=np.int64)
-            kind.joints = np.zeros((rows, L + 1, 2))
+            block = slice(first, first + rows)
+            kind.caps, kind.start_time, kind.joints = caps[block], start_time[block], joints[block]
+            kind.others = self.others[kind.ids]
+            kind.block = block
+            self.copy_rows[:, kind.ids] = first + np.arange(rows).reshape(B, kind.A)
             kind.whole = self._whole_args(kind)
             kind.no_obstacles = (np.empty((rows, 0, 2)), np.empty((rows, 0)), np.empty((rows, 0), dtype=bool))
+            first += rows
+        self._team_joints, self._team_caps, self._team_start_time = joints, caps, start_time
 
     def _whole_args(self, kind: _Kind) -> tuple:
         """The kernel's ``whole`` argument for a kind (:func:`pan1_env.kernels.substep.group_advance`)."""
@@ -355,17 +375,6 @@ class Engine:
             kernels().capsules.kind_joints(kind.q, kind.lengths, kind.base, kind.phi, kind.ids, P)
         return P
 
-    def _kernel_joints(self) -> np.ndarray:
-        """:meth:`joint_positions` as the last kernel call of every kind left them (a view with one kind
-        in team order)."""
-        B, N, L = self.copies, self.n_arms, self.n_max
-        if self.team_order:
-            return self.kinds[0].joints.reshape(B, N, L + 1, 2)
-        P = np.empty((B, N, L + 1, 2))
-        for kind in self.kinds:
-            kernels().capsules.gather_joints(kind.joints, kind.ids, P)
-        return P
-
     def clearance(self) -> np.ndarray:
         """Smallest clearance of every arm's protected bodies, ``(B, N)`` (inf with nothing to hit): the
         end-effector's ‖p_i − o_j‖ − r_j, or with whole-arm safety every body's to the obstacles where
@@ -382,15 +391,6 @@ class Engine:
             clear = capsule_clearance(a, b, self.centers[:, None], self.radii[:, None],
                                       self.link_radius if self.link_bodies else 0.0).min(axis=(2, 3))
         return np.minimum(clear, self.inter_arm_clearance(P))
-
-    def _inter_arm_clearance(self, P: np.ndarray, out: np.ndarray) -> None:
-        """Running minimum of the clearance between arms into ``out (B, N)``, on numba's threads for
-        large batches (:meth:`_chunks`)."""
-        chunks = self._chunks(P.shape[0] * P.shape[1])
-        if chunks:
-            kernels().capsules.inter_arm_clearance_parallel(P, self.link_radius, out, chunks)
-        else:
-            kernels().capsules.inter_arm_clearance(P, self.link_radius, out)
 
     def inter_arm_clearance(self, P: np.ndarray | None = None) -> np.ndarray:
         """Smallest d − 2ρ between each arm's link capsules and any other arm's, ``(B, N)`` (inf without
@@ -435,28 +435,38 @@ class Engine:
             self._place_obstacles()
         elif self.inter_arm:
             # every arm's filter sees the others' capsules as they are at each sub-step: one kernel call per
-            # sub-step, the capsules refreshed in between from the joints the kernel left (each kind's
-            # outputs gathered once: the kernel accumulates minima, maxima and counts over calls). The
-            # clearance between arms after each sub-step is measured here, seeded with the obstacle
-            # clearance so far (pairs that cannot lower it are skipped).
-            calls = [self._kernel_args(kind, command, 1, torque, self.filter, rec) for kind in self.kinds]
+            # sub-step (each kind's outputs gathered once: the kernel accumulates minima, maxima and counts
+            # over calls), then one compiled pass (after_substep) that refreshes the capsules from the
+            # joints the kernel left and measures the clearance between arms, seeded with the obstacle
+            # clearance so far (pairs that cannot lower it are skipped). The kinds' running clearances and
+            # finite flags live in team-level arrays (views of the record with one kind in team order).
+            B, N = self.copies, self.n_arms
+            clear, finite = (None, None) if self.team_order else (np.empty(B * N), np.empty(B * N, dtype=bool))
+            calls = [self._kernel_args(kind, command, 1, torque, self.filter, rec,
+                                       None if clear is None else clear[kind.block],
+                                       None if finite is None else finite[kind.block]) for kind in self.kinds]
+            if clear is None:
+                clear, finite = calls[0][1][2], calls[0][1][-1]
             # the calls before the last leave out the joint velocities and end-effectors (`finish`)
             partial = [args[:-1] + (args[-1][:-1] + (False,),) for args, _ in calls]
-            finite = [out[-1].copy() for _, out in calls]  # the kernel marks an arm finite afresh each call
+            ok = finite.copy()  # the kernel marks an arm finite afresh each call
             P = self.joint_positions()
-            between = np.full((self.copies, self.n_arms), np.inf)
+            between = np.full((B, N), np.inf)
+            self._refresh_capsules(P)
+            chunks = self._chunks(B * N)
             for sub in range(int(substeps)):
-                self._refresh_capsules(P)
-                for kind, (args, out), early, ok in zip(self.kinds, calls, partial, finite, strict=True):
+                for kind, (args, _), early in zip(self.kinds, calls, partial, strict=True):
                     self._call(kind, args if sub == substeps - 1 else early)
-                    ok &= out[-1]
-                self.elapsed += self.physics_dt  # the kernel places the obstacles from the clock itself
-                P = self._kernel_joints()
-                for kind, (_, out) in zip(self.kinds, calls, strict=True):
-                    between[:, kind.ids] = np.minimum(between[:, kind.ids], out[2].reshape(self.copies, kind.A))
-                self._inter_arm_clearance(P, between)
-            for kind, (_, out), ok in zip(self.kinds, calls, finite, strict=True):
-                out[-1][:] = ok
+                # the kernel placed the obstacles from the clock itself; the clock moves on here
+                fixed = (self.copy_rows, self.others, self._team_joints, clear, finite, ok, self._team_start_time,
+                         self._team_caps, self.radii.shape[1], self.link_radius, self.physics_dt, sub < substeps - 1,
+                         self.elapsed, P, between)
+                if chunks:
+                    kernels().capsules.after_substep_parallel(*fixed, chunks)
+                else:
+                    kernels().capsules.after_substep(*fixed)
+            finite[:] = ok
+            for kind, (_, out) in zip(self.kinds, calls, strict=True):
                 self._finish(kind, out, torque, rec)
             np.minimum(rec.min_clearance, between, out=rec.min_clearance)
             self._place_obstacles()
@@ -489,10 +499,17 @@ class Engine:
         """Before a kernel call: every copy's time, and (``inter_arm``) the other arms' link segments
         from their joints ``P`` (:meth:`joint_positions`, as they are now), which each arm's filter holds
         for the call (one sub-step)."""
+        if self.inter_arm:
+            fixed = (self.copy_rows, self.others, self._team_start_time, self._team_caps, self.radii.shape[1],
+                     self.elapsed, P)
+            chunks = self._chunks(self.copies * self.n_arms)
+            if chunks:
+                kernels().capsules.refresh_capsules_parallel(*fixed, chunks)
+            else:
+                kernels().capsules.refresh_capsules(*fixed)
+            return
         for kind in self.kinds:
             kind.start_time[:] = np.repeat(self.elapsed, kind.A)
-            if self.inter_arm:
-                kernels().capsules.refresh_arm_capsules(P, kind.others, self.radii.shape[1], kind.caps)
 
     def _advance(self, kind: _Kind, command: np.ndarray, substeps: int, torque: bool, params: FilterParams | None,
                  rec: StepRecord) -> None:
@@ -502,9 +519,11 @@ class Engine:
         self._finish(kind, out, torque, rec)
 
     def _kernel_args(self, kind: _Kind, command: np.ndarray, substeps: int, torque: bool,
-                     params: FilterParams | None, rec: StepRecord) -> tuple[tuple, tuple]:
+                     params: FilterParams | None, rec: StepRecord, clear: np.ndarray | None = None,
+                     finite: np.ndarray | None = None) -> tuple[tuple, tuple]:
         """The kernel's arguments for a kind, and its outputs: views of the record when one kind is the
-        team in order, else gathered copies of the record's rows (the kernel accumulates into them)."""
+        team in order, else gathered copies of the record's rows (the kernel accumulates into them), or
+        for the running clearance and finite flags the caller's ``clear`` and ``finite`` (filled with them)."""
         B, A, n, k = self.copies, kind.A, kind.n, kind.k
         rows = B * A
         if self.team_order:
@@ -518,6 +537,9 @@ class Engine:
                    rec.min_barrier[:, ids].reshape(rows), np.zeros((rows, 3), dtype=np.int64),
                    rec.max_tracking_error[:, ids].reshape(rows), np.ones(rows, dtype=bool))
             cmd = np.ascontiguousarray(command[:, kind.ids, :k].reshape(rows, k))
+        if clear is not None:
+            clear[:], finite[:] = out[2], out[-1]
+            out = (*out[:2], clear, *out[3:-1], finite)
         rcbf = _UNUSED_RCBF if params is None else (params.kappa, params.epsilon, params.margin)
         obstacles = (kind.centers, kind.radii, kind.mask) if kind.whole is None else kind.no_obstacles
         args = (*kind.state_args, cmd, torque, params is not None, *obstacles, *rcbf, self.ke, self.physics_dt,

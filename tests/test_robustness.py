@@ -354,6 +354,11 @@ def _make_gym():
     return gymnasium.make("pan1_env/PaperPA3Square-v0")
 
 
+def _make_whole_arm():  # the kinds' whole-arm arrays are views of the engine's team arrays
+    return SafetyShield(parallel_env("random", random_options={
+        "bodies": "links", "link_radius": 0.03, "inter_arm": True, "obstacle_speed": (0.1, 0.3)}))
+
+
 def _actions(env, rng: np.random.Generator):
     if isinstance(env, gymnasium.Env):
         return rng.uniform(-1, 1, env.action_space.shape).astype(np.float32)
@@ -384,8 +389,8 @@ def _continue(env, actions: list) -> list:
     return out
 
 
-@pytest.mark.parametrize("make", [_make_parallel, _make_shielded, _make_gym],
-                         ids=["parallel_mixed", "shielded_random", "gym_pa3"])
+@pytest.mark.parametrize("make", [_make_parallel, _make_shielded, _make_gym, _make_whole_arm],
+                         ids=["parallel_mixed", "shielded_random", "gym_pa3", "shielded_whole_arm"])
 def test_pickled_and_copied_env_continues_identically(make) -> None:
     env = make()
     env.reset(seed=5)

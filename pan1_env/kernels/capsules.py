@@ -505,14 +505,6 @@ def inter_arm_clearance(P, rho, out):
     _inter_arm_copies(P, rho, out, 0, P.shape[0])
 
 
-@njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
-def inter_arm_clearance_parallel(P, rho, out, n_chunks):
-    """:func:`inter_arm_clearance` with the copies split into ``n_chunks`` chunks on numba's threads."""
-    B = P.shape[0]
-    for c in prange(n_chunks):
-        _inter_arm_copies(P, rho, out, c * B // n_chunks, (c + 1) * B // n_chunks)
-
-
 @njit(**_JIT)
 def kind_joints(q, lengths, base, phi, ids, P):
     """Joints of the arms of one kind (rows ``b·A + r`` of ``q (B·A, n)`` …, arm ``ids[r]`` of copy b)
@@ -531,27 +523,77 @@ def kind_joints(q, lengths, base, phi, ids, P):
 
 
 @njit(**_JIT)
-def gather_joints(joints, ids, P):
-    """The joints a kernel call left for the arms of one kind (rows ``b·A + r`` of ``joints (B·A, L + 1,
-    2)``, arm ``ids[r]`` of copy b) into the team array ``P (B, N, L + 1, 2)``."""
-    A = ids.shape[0]
-    for row in range(joints.shape[0]):
-        b, i = row // A, ids[row % A]
-        for a in range(joints.shape[1]):
-            P[b, i, a, 0], P[b, i, a, 1] = joints[row, a, 0], joints[row, a, 1]
+def _after_substep_copies(copy_rows, others, joints, clear, finite, ok, start_time, caps, first, rho, dt, refresh,
+                          elapsed, P, between, lo, hi):
+    """:func:`after_substep` for copies ``lo … hi−1``."""
+    N, J = copy_rows.shape[1], joints.shape[1]
+    for b in range(lo, hi):
+        for i in range(N):
+            row = copy_rows[b, i]
+            for a in range(J):
+                P[b, i, a, 0], P[b, i, a, 1] = joints[row, a, 0], joints[row, a, 1]
+            c, now = clear[row], between[b, i]
+            between[b, i] = c if c < now or c != c else now  # np.minimum's rule (NaN wins)
+            ok[row] = ok[row] and finite[row]
+    _inter_arm_copies(P, rho, between, lo, hi)
+    for b in range(lo, hi):
+        elapsed[b] += dt
+    if refresh:
+        _refresh_copies(copy_rows, others, start_time, caps, first, elapsed, P, lo, hi)
 
 
 @njit(**_JIT)
-def refresh_arm_capsules(P, others, first, caps):
-    """Every other arm's link segments, from ``P (B, N, L + 1, 2)``, into the capsule slots of the arms
-    of one kind: row ``b·A + r`` of ``caps`` holds, from column ``first`` on, L slots for each arm of
-    ``others[r]`` in order."""
-    A, L = others.shape[0], P.shape[2] - 1
-    for row in range(caps.shape[0]):
-        b, r = row // A, row % A
-        col = first
-        for j in others[r]:
-            for a in range(L):
-                caps[row, col, CAP_AX], caps[row, col, CAP_AY] = P[b, j, a, 0], P[b, j, a, 1]
-                caps[row, col, CAP_BX], caps[row, col, CAP_BY] = P[b, j, a + 1, 0], P[b, j, a + 1, 1]
-                col += 1
+def _refresh_copies(copy_rows, others, start_time, caps, first, elapsed, P, lo, hi):
+    """:func:`refresh_capsules` for copies ``lo … hi−1``."""
+    N, L = copy_rows.shape[1], P.shape[2] - 1
+    for b in range(lo, hi):
+        for i in range(N):
+            row = copy_rows[b, i]
+            start_time[row] = elapsed[b]
+            col = first
+            for j in others[i]:
+                for a in range(L):
+                    caps[row, col, CAP_AX], caps[row, col, CAP_AY] = P[b, j, a, 0], P[b, j, a, 1]
+                    caps[row, col, CAP_BX], caps[row, col, CAP_BY] = P[b, j, a + 1, 0], P[b, j, a + 1, 1]
+                    col += 1
+
+
+@njit(**_JIT)
+def refresh_capsules(copy_rows, others, start_time, caps, first, elapsed, P):
+    """Before an inter-arm sub-step, on team-level arrays whose row ``copy_rows[b, i]`` is arm i of copy
+    b: every arm's clock ``start_time`` from its copy's ``elapsed``, and from column ``first`` of its
+    capsules, L slots for each arm of ``others[i]`` in order, their link segments from ``P (B, N, L + 1,
+    2)``."""
+    _refresh_copies(copy_rows, others, start_time, caps, first, elapsed, P, 0, P.shape[0])
+
+
+@njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
+def refresh_capsules_parallel(copy_rows, others, start_time, caps, first, elapsed, P, n_chunks):
+    """:func:`refresh_capsules` with the copies split into ``n_chunks`` chunks on numba's threads."""
+    B = P.shape[0]
+    for c in prange(n_chunks):
+        _refresh_copies(copy_rows, others, start_time, caps, first, elapsed, P, c * B // n_chunks,
+                        (c + 1) * B // n_chunks)
+
+
+@njit(**_JIT)
+def after_substep(copy_rows, others, joints, clear, finite, ok, start_time, caps, first, rho, dt, refresh, elapsed,
+                  P, between):
+    """Between an inter-arm step's sub-steps, after every kind's kernel call, on team-level arrays whose
+    row ``copy_rows[b, i]`` is arm i of copy b: gather the joints the kernel left into ``P (B, N, L + 1,
+    2)``, take its running clearance into ``between (B, N)`` (np.minimum's rule) and its finite flags into
+    ``ok``, lower ``between`` to the clearance between arms (:func:`inter_arm_clearance`), advance every
+    copy's clock ``elapsed`` by ``dt`` and, with ``refresh`` (a sub-step follows), :func:`refresh_capsules`
+    for it. Copy by copy: no copy reads another's rows."""
+    _after_substep_copies(copy_rows, others, joints, clear, finite, ok, start_time, caps, first, rho, dt, refresh,
+                          elapsed, P, between, 0, P.shape[0])
+
+
+@njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
+def after_substep_parallel(copy_rows, others, joints, clear, finite, ok, start_time, caps, first, rho, dt, refresh,
+                           elapsed, P, between, n_chunks):
+    """:func:`after_substep` with the copies split into ``n_chunks`` chunks on numba's threads."""
+    B = P.shape[0]
+    for c in prange(n_chunks):
+        _after_substep_copies(copy_rows, others, joints, clear, finite, ok, start_time, caps, first, rho, dt,
+                              refresh, elapsed, P, between, c * B // n_chunks, (c + 1) * B // n_chunks)
