@@ -136,7 +136,11 @@ class _Kind:
         self.whole: tuple | None = None  # the kernel's whole-arm argument (Engine._whole_arm_setup)
 
     def __getstate__(self) -> dict:
-        return {**self.__dict__, "specialised": None}  # another process decides for itself
+        state = {**self.__dict__, "specialised": None}  # another process decides for itself
+        if "block" in state:  # views of the engine's team arrays, which Engine.__setstate__ takes again
+            for name in ("caps", "start_time", "joints", "whole"):
+                del state[name]
+        return state
 
     def rows(self, copies: np.ndarray) -> np.ndarray:
         return (np.asarray(copies)[:, None] * self.A + np.arange(self.A)[None]).ravel()
