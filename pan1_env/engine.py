@@ -284,7 +284,6 @@ class Engine:
             rows = len(kind.q)
             block = slice(first, first + rows)
             kind.caps, kind.start_time, kind.joints = caps[block], start_time[block], joints[block]
-            kind.others = self.others[kind.ids]
             kind.block = block
             self.copy_rows[:, kind.ids] = first + np.arange(rows).reshape(B, kind.A)
             kind.whole = self._whole_args(kind)
@@ -319,7 +318,7 @@ class Engine:
             if not self.inter_arm:
                 continue
             for r, i in enumerate(kind.ids):
-                for slot, j in enumerate(kind.others[r]):
+                for slot, j in enumerate(self.others[i]):
                     cols = slice(O + slot * L, O + slot * L + self.n_links[j])
                     near = np.linalg.norm(scenario.arms[i].base - scenario.arms[j].base) <= \
                         scenario.arms[i].reach + scenario.arms[j].reach + 2.0 * self.link_radius
@@ -512,8 +511,7 @@ class Engine:
             else:
                 kernels().capsules.refresh_capsules(*fixed)
             return
-        for kind in self.kinds:
-            kind.start_time[:] = np.repeat(self.elapsed, kind.A)
+        self._team_start_time[self.copy_rows] = self.elapsed[:, None]
 
     def _advance(self, kind: _Kind, command: np.ndarray, substeps: int, torque: bool, params: FilterParams | None,
                  rec: StepRecord) -> None:
