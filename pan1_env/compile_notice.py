@@ -33,8 +33,8 @@ KERNELS_PER_KIND = ("group_advance", "group_advance_parallel")
 GENERIC = "_advance_arms"
 # the engine's whole-arm geometry passes between kernel calls (pan1_env.kernels.capsules): a few seconds
 # together on a first whole-arm step, announced once
-GEOMETRY = ("kind_joints", "refresh_capsules", "refresh_capsules_parallel", "inter_arm_clearance", "after_substep",
-            "after_substep_parallel")
+GEOMETRY = ("kind_joints", "kind_joints_parallel", "obstacles_now", "refresh_capsules", "refresh_capsules_parallel",
+            "inter_arm_clearance", "after_substep", "after_substep_parallel")
 
 
 def notify(message: str) -> None:

@@ -22,10 +22,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .bodies import capsule_clearance, obstacle_centers, obstacle_velocities
+from .bodies import capsule_clearance, obstacle_velocities
 from .compiled import kernel_sizes, kernels
 from .dynamics import ArmBatch, link_angles, mass_matrix
-from .safety import QP_SOLVERS, QPStatus, clearance, project_velocity, rcbf_constraints
+from .safety import (
+    QP_SOLVERS,
+    FilterParams,
+    QPStatus,
+    clearance,
+    filter_parameters,
+    project_velocity,
+    rcbf_constraints,
+)
 from .scenario import Scenario
 from .validation import real
 
@@ -39,48 +47,6 @@ SENSING_RADIUS = 0.1
 #: sub-step) farther out than its radius, against what a sub-step's discretisation lets through
 SKIN = 0.002
 _UNUSED_RCBF = (1.0, 1.0, 0.0)  # κ, ε, margin passed to the kernel with the filter off (it reads none)
-
-
-@dataclass(frozen=True)
-class FilterParams:
-    """The RCBF-QP safety filter's parameters (docs/MODEL.md §5): κ and ε of the robust barrier
-    condition, and ``margin`` (m²) subtracted from every barrier h = ‖p − o‖² − r².
-
-    ``sensing_radius`` (m): None (the paper's filter: an end-effector row for every obstacle in reach),
-    or the range within which the whole-arm filter gives a body a row (docs/SCENARIOS.md, *Whole-arm
-    safety*; default there :data:`SENSING_RADIUS`). Given for an end-effector scenario, the engine
-    filters through the whole-arm rows with the end-effector as the body: far obstacles then hold no
-    arm back."""
-
-    kappa: float
-    epsilon: float
-    margin: float = 0.0
-    sensing_radius: float | None = None
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "kappa", real("FilterParams: kappa", self.kappa, positive=True))
-        object.__setattr__(self, "epsilon", real("FilterParams: epsilon", self.epsilon, positive=True))
-        object.__setattr__(self, "margin", real("FilterParams: margin", self.margin, non_negative=True))
-        if self.sensing_radius is not None:
-            object.__setattr__(self, "sensing_radius", real("FilterParams: sensing_radius", self.sensing_radius,
-                                                            positive=True))
-
-    @classmethod
-    def of(cls, scenario: Scenario) -> FilterParams:
-        """The scenario's own κ, ε and margin."""
-        return cls(scenario.kappa, scenario.epsilon, scenario.safety_margin)
-
-
-def filter_parameters(safety_filter: bool | FilterParams | None, scenario: Scenario) -> FilterParams | None:
-    """The ``safety_filter`` argument every env takes: ``False`` (off), ``True`` (on, the scenario's
-    κ, ε and margin) or a :class:`FilterParams`. Returns the parameters, or None when off."""
-    if safety_filter is None or safety_filter is False:
-        return None
-    if safety_filter is True:
-        return FilterParams.of(scenario)
-    if isinstance(safety_filter, FilterParams):
-        return safety_filter
-    raise ValueError(f"safety_filter must be False, True or a FilterParams, got {safety_filter!r}")
 
 
 @dataclass
@@ -108,12 +74,22 @@ class StepRecord:
         return self.qp_counts[..., 2] > 0
 
 
+def _kind_rows(team: np.ndarray) -> np.ndarray:
+    """A kind's columns of a team array ``(B, A, …)`` as its rows ``b·A + r``, C-contiguous (the kernel's
+    layout): a copy, or with one copy a view."""
+    return np.ascontiguousarray(team).reshape(-1, *team.shape[2:])
+
+
 class _Kind:
     """The arms of one kind in every copy: rows ``b·A + r`` hold arm ``ids[r]`` of copy b."""
 
     def __init__(self, ids: list[int], scenario: Scenario, copies: int) -> None:
         batch = ArmBatch.stack([scenario.arms[i] for i in ids])
         self.ids = np.asarray(ids, dtype=np.int64)
+        # its columns of the team arrays (B, N, …): a slice when its arms are consecutive (basic indexing,
+        # several times faster than an index array on the per-step gathers and scatters)
+        consecutive = np.array_equal(self.ids, np.arange(self.ids[0], self.ids[0] + len(ids)))
+        self.cols = slice(int(self.ids[0]), int(self.ids[0]) + len(ids)) if consecutive else self.ids
         self.A, self.n, self.k = len(ids), batch.n_links, batch.n_actuated
         self.passive = batch.passive_first_joint
         self.sizes = kernel_sizes(self.n, self.k)
@@ -203,6 +179,7 @@ class Engine:
         self.link_radius = scenario.link_radius
         self.whole_arm = self.link_bodies or self.inter_arm or scenario.obstacle_paths is not None
         self.start_centers, self.path_ends, self.speeds = np.empty((B, O, 2)), np.empty((B, O, 2)), np.zeros((B, O))
+        self.velocities = np.zeros((B, O, 2))
         self.elapsed = np.zeros(B)  # s since each copy's reset: where moving obstacles are
         self.filter: FilterParams | None = None  # set_safety_filter's, below
         if self.whole_arm:
@@ -263,6 +240,7 @@ class Engine:
         self.centers[b], self.radii[b] = scenario.obstacles.centers, scenario.obstacles.radii
         self.start_centers[b] = scenario.obstacles.centers
         self.path_ends[b], self.speeds[b] = scenario.obstacle_motion()
+        self.velocities[b] = scenario.obstacle_velocities(0.0)
         if self.whole_arm:
             self._load_capsules(b, scenario, mask)
 
@@ -286,6 +264,7 @@ class Engine:
             kind.caps, kind.start_time, kind.joints = caps[block], start_time[block], joints[block]
             kind.block = block
             self.copy_rows[:, kind.ids] = first + np.arange(rows).reshape(B, kind.A)
+            kind.angles = np.zeros((rows, 2, kind.n))
             kind.whole = self._whole_args(kind)
             kind.no_obstacles = (np.empty((rows, 0, 2)), np.empty((rows, 0)), np.empty((rows, 0), dtype=bool))
             first += rows
@@ -295,7 +274,8 @@ class Engine:
         """The kernel's ``whole`` argument for a kind (:func:`pan1_env.kernels.substep.group_advance`)."""
         sensing = None if self.filter is None else self.filter.sensing_radius
         return (kind.caps, kind.start_time, self.link_radius, self.link_bodies,
-                SENSING_RADIUS if sensing is None else sensing, SKIN, kind.joints, True)
+                SENSING_RADIUS if sensing is None else sensing, SKIN, kind.joints, self.radii.shape[1], kind.angles,
+                False, True)
 
     def _load_capsules(self, b: int, scenario: Scenario, mask: np.ndarray) -> None:
         """Copy b's capsules: its obstacles (start, path, radius, share 1) and the other arms' link slots
@@ -337,6 +317,8 @@ class Engine:
                     raise ValueError(f"q0[{i}] must be {self.n_links[i]} finite joint angles, got {row.tolist()}")
         self.elapsed[copies] = 0.0
         self.centers[copies] = self.start_centers[copies]
+        self.velocities[copies] = obstacle_velocities(self.start_centers[copies], self.path_ends[copies],
+                                                      self.speeds[copies], 0.0)
         for kind in self.kinds:
             rows = kind.rows(copies)
             kind.q[rows] = kind.q0[rows] if q0 is None else [q0[i] for i in kind.ids]
@@ -351,7 +333,7 @@ class Engine:
             return self.kinds[0].p.reshape(self.copies, self.n_arms, 2)
         P = np.empty((self.copies, self.n_arms, 2))
         for kind in self.kinds:
-            P[:, kind.ids] = kind.p.reshape(self.copies, kind.A, 2)
+            P[:, kind.cols] = kind.p.reshape(self.copies, kind.A, 2)
         return P
 
     def joint_state(self, pad: float = np.nan) -> tuple[np.ndarray, np.ndarray]:
@@ -362,20 +344,26 @@ class Engine:
             return self.kinds[0].q.reshape(B, N, -1), self.kinds[0].qd.reshape(B, N, -1)
         q, qd = np.full((B, N, self.n_max), pad), np.full((B, N, self.n_max), pad)
         for kind in self.kinds:
-            q[:, kind.ids, : kind.n] = kind.q.reshape(B, kind.A, kind.n)
-            qd[:, kind.ids, : kind.n] = kind.qd.reshape(B, kind.A, kind.n)
+            q[:, kind.cols, : kind.n] = kind.q.reshape(B, kind.A, kind.n)
+            qd[:, kind.cols, : kind.n] = kind.qd.reshape(B, kind.A, kind.n)
         return q, qd
 
     def obstacle_velocities(self) -> np.ndarray:
-        """Every copy's obstacle velocities now, ``(B, O, 2)`` (zeros for still obstacles)."""
-        return obstacle_velocities(self.start_centers, self.path_ends, self.speeds, self.elapsed)
+        """Every copy's obstacle velocities now, ``(B, O, 2)`` (zeros for still obstacles; do not write
+        to it)."""
+        return self.velocities
 
     def joint_positions(self) -> np.ndarray:
         """Base, joints and end-effector of every arm, ``(B, N, n_max + 1, 2)``; an arm of fewer links
         repeats its end-effector (its padding links have length 0)."""
         P = np.empty((self.copies, self.n_arms, self.n_max + 1, 2))
+        K = kernels().capsules
         for kind in self.kinds:
-            kernels().capsules.kind_joints(kind.q, kind.lengths, kind.base, kind.phi, kind.ids, P)
+            chunks = self._chunks(len(kind.q))
+            if chunks:
+                K.kind_joints_parallel(kind.q, kind.lengths, kind.base, kind.phi, kind.ids, P, chunks)
+            else:
+                K.kind_joints(kind.q, kind.lengths, kind.base, kind.phi, kind.ids, P)
         return P
 
     def clearance(self) -> np.ndarray:
@@ -450,16 +438,17 @@ class Engine:
                                        None if finite is None else finite[kind.block]) for kind in self.kinds]
             if clear is None:
                 clear, finite = calls[0][1][2], calls[0][1][-1]
-            # the calls before the last leave out the joint velocities and end-effectors (`finish`)
-            partial = [args[:-1] + (args[-1][:-1] + (False,),) for args, _ in calls]
             ok = finite.copy()  # the kernel marks an arm finite afresh each call
             P = self.joint_positions()
             between = np.full((B, N), np.inf)
             self._refresh_capsules(P)
             chunks = self._chunks(B * N)
             for sub in range(int(substeps)):
-                for kind, (args, _), early in zip(self.kinds, calls, partial, strict=True):
-                    self._call(kind, args if sub == substeps - 1 else early)
+                for kind, (args, _) in zip(self.kinds, calls, strict=True):
+                    # a call after the step's first starts from the link angles' sines and cosines the
+                    # previous one ended with (`carried`, as one call's sub-steps do); only the last
+                    # computes the joint velocities and end-effectors (`finish`)
+                    self._call(kind, args[:-1] + (args[-1][:-2] + (sub > 0, sub == substeps - 1),))
                 # the kernel placed the obstacles from the clock itself; the clock moves on here
                 fixed = (self.copy_rows, self.others, self._team_joints, clear, finite, ok, self._team_start_time,
                          self._team_caps, self.radii.shape[1], self.link_radius, self.physics_dt, sub < substeps - 1,
@@ -495,8 +484,11 @@ class Engine:
         self._place_obstacles()
 
     def _place_obstacles(self) -> None:
-        """``centers`` (which observations and :meth:`clearance` read) where the clock puts the obstacles."""
-        self.centers[:] = obstacle_centers(self.start_centers, self.path_ends, self.speeds, self.elapsed)
+        """``centers`` and ``velocities`` (which observations and :meth:`clearance` read) where every copy's
+        clock puts the obstacles, as the filter places them (whole-arm safety: from the capsules)."""
+        if self.speeds.any():
+            kernels().capsules.obstacles_now(self.copy_rows, self._team_caps, self.elapsed, self.centers,
+                                             self.velocities)
 
     def _refresh_capsules(self, P: np.ndarray | None = None) -> None:
         """Before a kernel call: every copy's time, and (``inter_arm``) the other arms' link segments
@@ -534,11 +526,11 @@ class Engine:
                    rec.max_tracking_error.reshape(rows), rec.finite.reshape(rows))
             cmd = np.ascontiguousarray(command.reshape(rows, k))
         else:
-            ids = kind.ids
-            out = (np.empty((rows, k)), rec.tau[:, ids, :n].reshape(rows, n), rec.min_clearance[:, ids].reshape(rows),
-                   rec.min_barrier[:, ids].reshape(rows), np.zeros((rows, 3), dtype=np.int64),
-                   rec.max_tracking_error[:, ids].reshape(rows), np.ones(rows, dtype=bool))
-            cmd = np.ascontiguousarray(command[:, kind.ids, :k].reshape(rows, k))
+            cols = kind.cols
+            out = (np.empty((rows, k)), _kind_rows(rec.tau[:, cols, :n]), _kind_rows(rec.min_clearance[:, cols]),
+                   _kind_rows(rec.min_barrier[:, cols]), np.zeros((rows, 3), dtype=np.int64),
+                   _kind_rows(rec.max_tracking_error[:, cols]), np.ones(rows, dtype=bool))
+            cmd = _kind_rows(command[:, cols, :k])
         if clear is not None:
             clear[:], finite[:] = out[2], out[-1]
             out = (*out[:2], clear, *out[3:-1], finite)
@@ -569,11 +561,11 @@ class Engine:
                 if target.ndim == 3:
                     width = value.shape[1]
                     if field == "qp_counts":
-                        target[:, kind.ids] += value.reshape(B, A, width)
+                        target[:, kind.cols] += value.reshape(B, A, width)
                     else:
-                        target[:, kind.ids, :width] = value.reshape(B, A, width)
+                        target[:, kind.cols, :width] = value.reshape(B, A, width)
                 else:
-                    target[:, kind.ids] = value.reshape(B, A)
+                    target[:, kind.cols] = value.reshape(B, A)
 
     def _piqp_substep(self, kind: _Kind, command: np.ndarray, rec: StepRecord) -> None:
         """One velocity-mode sub-step whose RCBF-QP is solved by qpsolvers + PIQP (one copy)."""

@@ -24,6 +24,9 @@ Two exact solvers are offered for the per-arm QP, both batched over arms:
 :func:`active_set_projection` is the same enumeration in plain numpy, the readable reference of the
 compiled one (``project_velocity(..., solver="numpy")``; tests/test_qp_reference.py checks the two).
 
+:class:`FilterParams` holds κ, ε and the margin (and the whole-arm filter's sensing range) as the
+envs and the engine take them (:func:`filter_parameters`).
+
 If the desired velocity already satisfies every row it is the optimum and is returned unchanged.
 If the QP is infeasible (or the solver fails) the documented fallback is **braking**: v* = 0, so
 q̇ = g0·0 = 0 and no barrier can decrease; the status says so.
@@ -34,9 +37,14 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
+
+from .validation import real
+
+if TYPE_CHECKING:
+    from .scenario import Scenario
 
 __all__ = [
     "Obstacles",
@@ -50,6 +58,8 @@ __all__ = [
     "project_velocity",
     "active_set_projection",
     "QP_SOLVERS",
+    "FilterParams",
+    "filter_parameters",
 ]
 
 QP_SOLVERS = ("active_set", "piqp")
@@ -311,3 +321,45 @@ def project_velocity(
     v[todo] = np.where(found[:, None], sol, 0.0)
     status[todo] = np.where(found, int(QPStatus.SOLVED), int(QPStatus.FALLBACK))
     return FilterResult(v, status)
+
+
+@dataclass(frozen=True)
+class FilterParams:
+    """The RCBF-QP safety filter's parameters (docs/MODEL.md §5): κ and ε of the robust barrier
+    condition, and ``margin`` (m²) subtracted from every barrier h = ‖p − o‖² − r².
+
+    ``sensing_radius`` (m): None (the paper's filter: an end-effector row for every obstacle in reach),
+    or the range within which the whole-arm filter gives a body a row (docs/SCENARIOS.md, *Whole-arm
+    safety*; default there :data:`pan1_env.engine.SENSING_RADIUS`). Given for an end-effector scenario,
+    the engine filters through the whole-arm rows with the end-effector as the body: far obstacles then
+    hold no arm back."""
+
+    kappa: float
+    epsilon: float
+    margin: float = 0.0
+    sensing_radius: float | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kappa", real("FilterParams: kappa", self.kappa, positive=True))
+        object.__setattr__(self, "epsilon", real("FilterParams: epsilon", self.epsilon, positive=True))
+        object.__setattr__(self, "margin", real("FilterParams: margin", self.margin, non_negative=True))
+        if self.sensing_radius is not None:
+            object.__setattr__(self, "sensing_radius", real("FilterParams: sensing_radius", self.sensing_radius,
+                                                            positive=True))
+
+    @classmethod
+    def of(cls, scenario: Scenario) -> FilterParams:
+        """The scenario's own κ, ε and margin."""
+        return cls(scenario.kappa, scenario.epsilon, scenario.safety_margin)
+
+
+def filter_parameters(safety_filter: bool | FilterParams | None, scenario: Scenario) -> FilterParams | None:
+    """The ``safety_filter`` argument every env takes: ``False`` (off), ``True`` (on, the scenario's
+    κ, ε and margin) or a :class:`FilterParams`. Returns the parameters, or None when off."""
+    if safety_filter is None or safety_filter is False:
+        return None
+    if safety_filter is True:
+        return FilterParams.of(scenario)
+    if isinstance(safety_filter, FilterParams):
+        return safety_filter
+    raise ValueError(f"safety_filter must be False, True or a FilterParams, got {safety_filter!r}")

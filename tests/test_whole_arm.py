@@ -377,6 +377,62 @@ def test_sub_steps_in_one_call_match_one_call_each() -> None:
     np.testing.assert_allclose(engines[0].centers, engines[1].centers, atol=1e-12)
 
 
+def test_inter_arm_steps_carry_the_states_link_angles_and_restart_from_the_state() -> None:
+    """With arms kept apart the engine calls the kernel once per sub-step; the calls after a step's first
+    start from the sines and cosines of the link angles the previous one ended with. Those are the
+    state's (to rounding), and a step is still a function of the state: after a reset mid-run, an
+    engine gives the same results, bit for bit, as a fresh one reset to the same copies."""
+    from pan1_env.engine import Engine
+    from pan1_env.random_scenario import RandomScenarioOptions, random_scenario
+
+    teams = [random_scenario(np.random.default_rng(s), RandomScenarioOptions(
+        bodies="links", link_radius=0.03, inter_arm=True, obstacle_speed=(0.1, 0.3), physics_dt=0.01,
+        control_dt=0.05)) for s in (5, 6)]
+    command = np.random.default_rng(1).uniform(-2, 2, (2, teams[0].n_arms, 3))
+    used, fresh = Engine(teams[0], 2, safety_filter=True, max_speed=2.0), Engine(teams[0], 2, safety_filter=True,
+                                                                                  max_speed=2.0)
+    for engine in (used, fresh):
+        engine.load_team(1, teams[1])
+        engine.reset()
+    for _ in range(6):
+        used.step(command, 5)
+    for kind in used.kinds:
+        angles = np.cumsum(kind.q, axis=1) + kind.phi[:, None]
+        np.testing.assert_allclose(kind.angles, np.stack([np.cos(angles), np.sin(angles)], axis=1), atol=1e-13)
+    used.reset()
+    for _ in range(4):
+        a, b = used.step(command, 5), fresh.step(command, 5)
+        for field in ("v_star", "tau", "min_clearance", "min_barrier", "qp_counts"):
+            np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+    for ka, kb in zip(used.kinds, fresh.kinds, strict=True):
+        np.testing.assert_array_equal(ka.q, kb.q)
+
+
+def test_obstacles_are_placed_per_copy_where_the_reference_puts_them() -> None:
+    """The vector engine's obstacle centres and velocities (from each copy's capsules and clock) against
+    pan1_env.bodies for every copy, different teams and clocks, after steps and a partial reset."""
+    from pan1_env.vector import Pan1VectorEnv
+
+    venv = Pan1VectorEnv("random", 3, random_options={**WHOLE, "obstacle_speed": (0.1, 0.3)}, control_dt=0.05,
+                         physics_dt=0.01)
+    venv.reset(seed=2)
+    engine = venv.engine
+
+    def check() -> None:
+        for b in range(3):
+            args = (engine.start_centers[b], engine.path_ends[b], engine.speeds[b], engine.elapsed[b])
+            np.testing.assert_allclose(engine.centers[b], bodies.obstacle_centers(*args), atol=1e-12)
+            np.testing.assert_allclose(engine.obstacle_velocities()[b], bodies.obstacle_velocities(*args), atol=1e-12)
+
+    for step in range(40):
+        venv.step(np.random.default_rng(step).uniform(-1, 1, venv.action_space.shape).astype(np.float32))
+        if step == 20:
+            engine.reset(np.array([1]))
+            assert engine.elapsed[1] == 0.0 and engine.elapsed[0] > 0.0
+        check()
+    assert np.abs(engine.obstacle_velocities()).max() > 0.05
+
+
 def test_reset_rewinds_the_obstacles() -> None:
     """A reset puts a copy's clock and moving obstacles back at their start, in the parallel env and in the
     vector env's autoreset."""

@@ -232,24 +232,40 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, skin, dt, lengths, 
     return m, h_min
 
 
-@njit(**_JIT)
-def whole_arm_clearance(i, w, n, links, rho, lengths, bx, by, c, s, caps, time, P):
-    """Smallest signed clearance d − r − ρ of arm i's bodies (lane w) to the world obstacles of
-    ``caps`` (active for its filter or not) at ``time``; other arms' capsules are left to the engine,
-    which measures them from every arm's state."""
-    C = caps.shape[1]
-    clear = np.inf
+@njit(**_JIT, forceinline=True)
+def whole_arm_clearance_lanes(arm, live, n, W, links, rho, lengths, bx, by, c, s, caps, n_world, start_time,
+                              elapsed, joints_x, joints_y, ox, oy, orad, clear):
+    """Running minimum into ``clear (W)`` of each live lane's smallest signed clearance d − r − ρ of its
+    bodies (arm ``arm[w]``) to the world obstacles (the first ``n_world`` capsules of its row, disks,
+    active for its filter or not) at its clock ``start_time[arm[w]] + elapsed``; other arms' capsules
+    are left to the engine, which measures them from every arm's state. Lanes at once: each body and
+    obstacle pair is a point–segment distance, whose clamp is a select (``joints_x``, ``joints_y (n + 1, W)``,
+    ``ox``, ``oy``, ``orad (W)`` are scratch). The same operations in the same order as
+    :func:`_gap` for a segment and a point, so the same clearance, bit for bit."""
+    for w in range(W):  # the joints: base, link ends (link a runs from joint a to joint a + 1)
+        x, y = bx[w], by[w]
+        joints_x[0, w], joints_y[0, w] = x, y
+        for a in range(n):
+            x += lengths[a, w] * s[a, w]
+            y += lengths[a, w] * c[a, w]
+            joints_x[a + 1, w], joints_y[a + 1, w] = x, y
     radius = rho if links else 0.0
-    _joints(lengths, bx, by, c, s, n, w, P)
-    for j in range(C):  # each obstacle placed once, then measured against every body
-        if caps[i, j, CAP_ARM] >= 0.0:
-            continue
-        a2x, a2y, d2x, d2y, _, _ = _capsule_now(caps, i, j, time)
+    for j in range(n_world):
+        for w in range(W):
+            row = arm[w]
+            ox[w], oy[w], _, _, _, _ = _capsule_now(caps, row, j, start_time[row] + elapsed)
+            orad[w] = caps[row, j, CAP_RADIUS]
         for body in range(n if links else 1):
-            a1x, a1y, d1x, d1y, _ = _body(P, n, links, body)
-            _, rx, ry = _gap(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y)
-            clear = min(clear, np.sqrt(rx * rx + ry * ry) - caps[i, j, CAP_RADIUS] - radius)
-    return clear
+            start = body if links else n  # the end-effector: a point, the segment from joint n to itself
+            end = body + 1 if links else n
+            for w in range(W):
+                ax, ay = joints_x[start, w], joints_y[start, w]
+                dx, dy = joints_x[end, w] - ax, joints_y[end, w] - ay
+                length2 = dx * dx + dy * dy
+                u = _unit(((ox[w] - ax) * dx + (oy[w] - ay) * dy) / length2) if length2 > 0.0 else 0.0
+                rx, ry = ax + u * dx - ox[w], ay + u * dy - oy[w]
+                cl = np.sqrt(rx * rx + ry * ry) - orad[w] - radius
+                clear[w] = cl if live[w] and cl < clear[w] else clear[w]
 
 
 @njit(**_JIT)
@@ -506,11 +522,10 @@ def inter_arm_clearance(P, rho, out):
 
 
 @njit(**_JIT)
-def kind_joints(q, lengths, base, phi, ids, P):
-    """Joints of the arms of one kind (rows ``b·A + r`` of ``q (B·A, n)`` …, arm ``ids[r]`` of copy b)
-    into ``P (B, N, L + 1, 2)``: base, joints, end-effector, then the end-effector repeated up to L."""
+def _kind_joints_rows(q, lengths, base, phi, ids, P, lo, hi):
+    """:func:`kind_joints` for rows ``lo … hi−1``."""
     A, n, L = ids.shape[0], q.shape[1], P.shape[2] - 1
-    for row in range(q.shape[0]):
+    for row in range(lo, hi):
         b, i = row // A, ids[row % A]
         x, y, ang = base[row, 0], base[row, 1], phi[row]
         P[b, i, 0, 0], P[b, i, 0, 1] = x, y
@@ -520,6 +535,34 @@ def kind_joints(q, lengths, base, phi, ids, P):
                 x += lengths[row, a] * np.sin(ang)
                 y += lengths[row, a] * np.cos(ang)
             P[b, i, a + 1, 0], P[b, i, a + 1, 1] = x, y
+
+
+@njit(**_JIT)
+def kind_joints(q, lengths, base, phi, ids, P):
+    """Joints of the arms of one kind (rows ``b·A + r`` of ``q (B·A, n)`` …, arm ``ids[r]`` of copy b)
+    into ``P (B, N, L + 1, 2)``: base, joints, end-effector, then the end-effector repeated up to L."""
+    _kind_joints_rows(q, lengths, base, phi, ids, P, 0, q.shape[0])
+
+
+@njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
+def kind_joints_parallel(q, lengths, base, phi, ids, P, n_chunks):
+    """:func:`kind_joints` with the rows split into ``n_chunks`` chunks on numba's threads."""
+    rows = q.shape[0]
+    for c in prange(n_chunks):
+        _kind_joints_rows(q, lengths, base, phi, ids, P, c * rows // n_chunks, (c + 1) * rows // n_chunks)
+
+
+@njit(**_JIT)
+def obstacles_now(copy_rows, caps, elapsed, centers, velocities):
+    """Every copy's world obstacles where its clock ``elapsed (B,)`` puts them: ``centers`` and
+    ``velocities (B, O, 2)``, from the first O capsules of its first arm's row ``copy_rows[b, 0]`` (every
+    arm holds the copy's obstacles there), as the filter places them (:func:`_capsule_now`)."""
+    for b in range(centers.shape[0]):
+        row = copy_rows[b, 0]
+        for j in range(centers.shape[1]):
+            x, y, _, _, vx, vy = _capsule_now(caps, row, j, elapsed[b])
+            centers[b, j, 0], centers[b, j, 1] = x, y
+            velocities[b, j, 0], velocities[b, j, 1] = vx, vy
 
 
 @njit(**_JIT)

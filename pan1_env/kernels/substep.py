@@ -12,7 +12,7 @@ from .capsules import (
     NEAR_COLUMNS,
     _joints,
     least_violation,
-    whole_arm_clearance,
+    whole_arm_clearance_lanes,
     whole_arm_rows,
 )
 from .physics import (
@@ -58,7 +58,8 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     the lanes it does not settle get the full active-set search one by one (:func:`_project_one`).
 
     The link angles' sines and cosines are computed from q (``_lane_angles``) once per arm at the
-    start of a call (and again after a non-finite state); RK4 stages and the state a sub-step reaches get
+    start of a call (and again after a non-finite state), or with whole-arm ``carried`` read from
+    ``angles``, where the previous call left them; RK4 stages and the state a sub-step reaches get
     theirs by rotating those at the sub-step's start (``_rotate_lanes``, within an ulp). Those at the
     state reached serve its clearance and the next sub-step's filter, tracker and first RK4 stage.
 
@@ -66,14 +67,19 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     its outputs are those of the failing sub-step), as its own loop would; the other lanes go on.
 
     ``whole`` None (numba prunes the branches that read it) keeps the end-effector filter above; a
-    tuple ``(capsules, start_time, link_radius, links, sensing, skin, joints, finish)`` switches to
-    whole-arm safety (:mod:`.capsules`): each filtered lane's rows are its bodies against its capsules
-    at the sub-step's time, solved by the full search, and the clearance after a sub-step is its
-    bodies' to the world obstacles (the engine passes no end-effector obstacles then).
-    ``joints (A, L + 1, 2)`` receives every arm's base, joints and end-effector at the final state (the
-    end-effector repeated up to L), from which the engine refreshes the other arms' capsules between
-    calls. ``finish`` False leaves ``qd_out`` and ``p_out`` unwritten (and their mass matrix
-    uncomputed): the engine's calls within a control step need neither, only its last call does."""
+    tuple ``(capsules, start_time, link_radius, links, sensing, skin, joints, n_world, angles, carried,
+    finish)`` switches to whole-arm safety (:mod:`.capsules`): each filtered lane's rows are its bodies
+    against its capsules at the sub-step's time, solved by the full search, and the clearance after a
+    sub-step is its bodies' to the world obstacles, the first ``n_world`` capsules (the engine passes
+    no end-effector obstacles then). ``joints (A, L + 1, 2)`` receives every arm's base, joints and
+    end-effector at the final state (the end-effector repeated up to L), from which the engine
+    refreshes the other arms' capsules between calls, and ``angles (A, 2, n)`` the cosines and sines
+    of its link angles there. ``carried`` True starts every arm from ``angles`` instead of computing
+    them from q: the engine's calls after the first within a control step (one per sub-step with
+    other arms) then go on from the angles the previous call reached, as one call's sub-steps do,
+    while each step's first call starts from q, so a step is a function of the state. ``finish``
+    False leaves ``qd_out`` and ``p_out`` unwritten (and their mass matrix uncomputed): the engine's
+    calls within a control step need neither, only its last call does."""
     finish = True  # the joint velocities and end-effectors at the end (whole-arm calls may leave them out)
     if sizes is None:  # the per-kind kernel (numba prunes the other branch by the argument's type)
         n = len(links)
@@ -124,7 +130,10 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     # RK4: trial state, stage derivative, weighted sums
     qt, vt, dv, sq, sv = _local(nw, f8), _local(kw, f8), _local(kw, f8), _local(nw, f8), _local(kw, f8)
     if whole is not None:  # whole-arm scratch: one lane's rows (bodies × capsules, speed bounds) and joints
-        caps, start_time, rho, link_bodies, sensing, skin, joints_out, finish = whole
+        caps, start_time, rho, link_bodies, sensing, skin, joints_out, n_world, angles, carried, finish = whole
+        jw = (links + (0,), lanes)  # joints: n + 1 per lane
+        joints_x, joints_y = _local(jw, f8), _local(jw, f8)
+        ox, oy, orad = _local(lw, f8), _local(lw, f8), _local(lw, f8)
         m_whole = (n if link_bodies else 1) * caps.shape[1] + 2 * k
         wA, wb, wact = np.zeros((m_whole, kk)), np.zeros(m_whole), np.zeros(m_whole, dtype=np.bool_)
         wrows, wviol, wnorm, wP = np.empty(m_whole, dtype=np.int64), np.empty(m_whole), np.empty(m_whole), \
@@ -177,7 +186,12 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
             arm_clear[w] = min_clear[i]
             arm_h[w] = min_h[i]
             arm_track[w] = max_track[i]
-            _lane_angles(qi, ph, n, w, c, s)
+            if whole is not None and carried:  # those the previous call of the control step ended with
+                for a in range(n):
+                    c[a, w] = angles[i, 0, a]
+                    s[a, w] = angles[i, 1, a]
+            else:
+                _lane_angles(qi, ph, n, w, c, s)
         any_filter = False
         for w in range(W):
             any_filter = any_filter | use_filter[w]
@@ -374,11 +388,8 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                     cl = np.sqrt(dx * dx + dy * dy) - obstacles[2, j, w]
                     arm_clear[w] = cl if live[w] and cl < arm_clear[w] else arm_clear[w]
             if whole is not None:
-                for w in range(W):
-                    if live[w]:
-                        cl = whole_arm_clearance(arm[w], w, n, link_bodies, rho, ln, bx, by, c, s, caps,
-                                                 start_time[arm[w]] + (_s + 1) * dt, wP)
-                        arm_clear[w] = min(arm_clear[w], cl)
+                whole_arm_clearance_lanes(arm, live, n, W, link_bodies, rho, ln, bx, by, c, s, caps, n_world,
+                                          start_time, (_s + 1) * dt, joints_x, joints_y, ox, oy, orad, arm_clear)
         # joint velocities and end-effector at the (last finite) state; a stopped arm's angles from q
         for w in range(W):
             if not live[w]:
@@ -408,6 +419,9 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                     p_out[i, 0] = px[w]
                     p_out[i, 1] = py[w]
                 if whole is not None:
+                    for a in range(n):
+                        angles[i, 0, a] = c[a, w]
+                        angles[i, 1, a] = s[a, w]
                     _joints(ln, bx, by, c, s, n, w, wP)
                     for a in range(joints_out.shape[1]):
                         joints_out[i, a, 0] = wP[min(a, n), 0]
@@ -442,14 +456,15 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     exact optimum). A problem the box makes infeasible takes the braking fallback.
 
     ``whole``: None for the end-effector filter above (the paper's); a tuple ``(capsules (A, C,
-    CAPSULE_COLUMNS), start_time (A,), link_radius, links, sensing, skin, joints (A, L + 1, 2),
-    finish)`` for whole-arm safety
+    CAPSULE_COLUMNS), start_time (A,), link_radius, links, sensing, skin, joints (A, L + 1, 2), n_world,
+    angles (A, 2, n), carried, finish)`` for whole-arm safety
     (:mod:`pan1_env.kernels.capsules`): the obstacle arrays are then empty, each filtered arm's rows
     are its bodies against its capsules at the sub-step's time (``start_time`` + elapsed sub-steps),
     solved by the full search, with a fallback that drops the robust term, then takes the least
     violating velocity, ``min_clear`` is its bodies' clearance to the world obstacles, and ``joints``
-    gets the arms' base, joints and end-effector at the final state (with ``finish`` False,
-    ``qd_out`` and ``p_out`` are left as they were).
+    gets the arms' base, joints and end-effector at the final state and ``angles`` their link angles'
+    cosines and sines, from which a call with ``carried`` starts (with ``finish`` False, ``qd_out`` and
+    ``p_out`` are left as they were).
 
     Outputs (per arm): ``v_star_out``/``tau_out`` of the last sub-step (``tau_out`` either
     ``(A, k)`` actuated torques or full ``(A, n)`` rows, whose passive entry is left as passed in), ``qd_out`` the joint
