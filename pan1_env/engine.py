@@ -349,9 +349,8 @@ class Engine:
         return q, qd
 
     def obstacle_velocities(self) -> np.ndarray:
-        """Every copy's obstacle velocities now, ``(B, O, 2)`` (zeros for still obstacles; do not write
-        to it)."""
-        return self.velocities
+        """Every copy's obstacle velocities now, ``(B, O, 2)`` (zeros for still obstacles)."""
+        return self.velocities.copy()
 
     def joint_positions(self) -> np.ndarray:
         """Base, joints and end-effector of every arm, ``(B, N, n_max + 1, 2)``; an arm of fewer links
