@@ -179,10 +179,31 @@ def bench_vector(repeats: int, sizes: tuple[int, ...]) -> list[tuple[str, float,
     return rows
 
 
+def _filter_rows(venv, sample: int = 256) -> tuple[float, int, int]:
+    """Barrier rows in the filter's QP per arm at the env's current state, command 0 (the speed bounds
+    not counted), over about ``sample`` arms of each kind: (mean, largest, possible). End-effector
+    filter: a row per obstacle the arm's filter sees; whole-arm: a row per (body, capsule) pair within
+    sensing range (:func:`pan1_env.kernels.capsules.whole_arm_rows`), of bodies × capsule slots."""
+    engine = venv.engine
+    counts, possible = [], 0
+    for kind in engine.kinds:
+        rows = range(0, len(kind.q), max(1, len(kind.q) // sample))
+        if not engine.whole_arm:
+            counts += [int(kind.mask[r].sum()) for r in rows]
+            possible = max(possible, kind.mask.shape[1])
+            continue
+        box = 2 * kind.k if np.isfinite(engine.max_speed) else 0
+        possible = max(possible, (kind.n if engine.link_bodies else 1) * kind.caps.shape[1])
+        counts += [len(engine._whole_arm_rows(kind, r, np.zeros(kind.k), engine.filter.epsilon)[1]) - box
+                   for r in rows]
+    return float(np.mean(counts)), int(max(counts)), possible
+
+
 def bench_whole_arm(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
     """Whole-arm safety against end-effector safety, per arm-sub-step of the shielded vector env on the
     same random teams (B copies of 4 arms, 5 sub-steps of 10 ms per step): links only, links and
-    inter-arm rows, and links, inter-arm rows and moving obstacles (WholeArmFormation-v0's options)."""
+    inter-arm rows, and links, inter-arm rows and moving obstacles (WholeArmFormation-v0's options);
+    and the rows of each arm's QP after the timed steps (:func:`_filter_rows`)."""
     from pan1_env.vector import Pan1VectorEnv
 
     variants = {
@@ -199,14 +220,14 @@ def bench_whole_arm(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]
         step = _vector_stepper(venv)
         for _ in range(3):
             step()
-        steppers[name] = (step, B * venv.engine.n_arms * venv.template.substeps, B * venv.engine.n_arms)
+        steppers[name] = (step, B * venv.engine.n_arms * venv.template.substeps, B * venv.engine.n_arms, venv)
     times = {name: [] for name in variants}
     for _ in range(repeats):  # in alternation, so that a slow spell of the machine hits every variant
-        for name, (step, _, _) in steppers.items():
+        for name, (step, *_) in steppers.items():
             times[name].append(_median_time(step, 1, 5))
     rows = []
     base = None
-    for name, (_, sub_steps, arms) in steppers.items():
+    for name, (_, sub_steps, arms, venv) in steppers.items():
         t = statistics.median(times[name])
         per_sub = t / sub_steps
         base = per_sub if base is None else base
@@ -214,6 +235,9 @@ def bench_whole_arm(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]
         if per_sub is not base:
             rows.append(("  ratio to end-effectors (target ≤ 3)", per_sub / base, "ratio"))
         rows.append(("  shielded arm-steps per second (target ≥ 500,000 for the last)", arms / t, "rate"))
+        mean, largest, possible = _filter_rows(venv)
+        rows.append((f"  barrier rows per arm in the filter's QP, mean (of {possible} possible)", mean, "mean"))
+        rows.append(("  barrier rows per arm, the most in the sample", largest, "count"))
     return rows
 
 
@@ -384,6 +408,8 @@ def _format(rows: list[tuple[str, float, str]]) -> str:
             text = f"**{value:.2f}×**"
         elif kind == "value":
             text = f"{value:.1e}"
+        elif kind == "mean":
+            text = f"{value:.2f}"
         elif kind == "count":
             text = f"{value:,.0f}"
         elif kind == "rate":

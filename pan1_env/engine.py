@@ -623,10 +623,11 @@ class Engine:
             np.minimum(rec.min_clearance, self.inter_arm_clearance(), out=rec.min_clearance)
 
     def _whole_arm_rows(self, kind: _Kind, r: int, v0: np.ndarray, epsilon: float) -> tuple:
-        """The kernel's whole-arm rows ``(A (m, k), b (m,), smallest barrier)`` of row r of a kind (one
-        copy), built from the arm's state by :func:`pan1_env.kernels.capsules.whole_arm_rows`."""
+        """The kernel's whole-arm rows ``(A (m, k), b (m,), smallest barrier)`` of row r of a kind (arm
+        ``ids[r % A]`` of copy ``r // A``), built from the arm's state by
+        :func:`pan1_env.kernels.capsules.whole_arm_rows`."""
         K, f, n, k = kernels().capsules, self.filter, kind.n, kind.k
-        arm, q = self.teams[0].arms[kind.ids[r]], kind.q[r]
+        arm, q = self.teams[r // kind.A].arms[kind.ids[r % kind.A]], kind.q[r]
         caps, start_time, rho, links, sensing, skin = self._whole_args(kind)[:6]
         angles = link_angles(q) + kind.phi[r]
 
