@@ -606,12 +606,13 @@ def test_farkas_certificate_skips_only_searches_that_fail() -> None:
     infeasible problems (k = 1, 2, 3; 2k to 3k barrier rows, some inactive or of zero norm, and the speed
     box) the box is recognised, every step so certified is one the active-set search also finds
     infeasible, the certificate's bound never exceeds the least uniform violation the bisection finds,
-    and the answer is the plain bisection's."""
+    and the answer is the plain bisection's, also where the rows it keeps are feasible as given (then
+    least_violation takes the bisection's steps without their searches)."""
     from pan1_env.kernels.qp import STATUS_FALLBACK, _project_one
 
     K = kernels().capsules
     rng = np.random.default_rng(11)
-    certified = checked = 0
+    certified = checked = settled = 0
     for trial in range(240):
         k = 1 + trial % 3
         n_rows, v_max = int(rng.integers(2 * k, 3 * k + 1)), 1.5
@@ -644,6 +645,7 @@ def test_farkas_certificate_skips_only_searches_that_fail() -> None:
         weights = np.empty(m)
         bound = K._farkas_weights(A, b, norms, kept, m, k, 2 * k, v_max, weights)
         lo, hi = 0.0, max([0.0] + [-b[j] / norms[j] for j in range(n_rows) if norms[j] > 0])  # as least_violation
+        settled += bound <= 0.0 and _project_one(v0, A, b, kept, m, k, v, *scratch()) != STATUS_FALLBACK
         for _ in range(20):
             mid = 0.5 * (lo + hi)
             relaxed = b + mid * norms
@@ -659,4 +661,4 @@ def test_farkas_certificate_skips_only_searches_that_fail() -> None:
             expected[:] = 0.0
         assert t == pytest.approx(hi, rel=1e-12, abs=1e-12)
         np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12)
-    assert checked > 50 and certified > 200, (checked, certified)
+    assert checked > 50 and certified > 200 and settled > 5, (checked, certified, settled)
