@@ -183,8 +183,11 @@ def _filter_rows(venv, sample: int = 256) -> tuple[float, int, int]:
     """Barrier rows in the filter's QP per arm at the env's current state, command 0 (the speed bounds
     not counted), over about ``sample`` arms of each kind: (mean, largest, possible). End-effector
     filter: a row per obstacle the arm's filter sees; whole-arm: a row per (body, capsule) pair within
-    sensing range (:func:`pan1_env.kernels.capsules.whole_arm_rows`), of bodies × capsule slots."""
+    sensing range that can bind inside the speed box (:func:`pan1_env.kernels.capsules.whole_arm_rows`),
+    of bodies × capsule slots."""
     engine = venv.engine
+    if engine.whole_arm:  # the capsules and clocks where the next sub-step would take them
+        engine._refresh_capsules(engine.joint_positions() if engine.inter_arm else None)
     counts, possible = [], 0
     for kind in engine.kinds:
         rows = range(0, len(kind.q), max(1, len(kind.q) // sample))

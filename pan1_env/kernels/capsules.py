@@ -450,7 +450,9 @@ def least_violation(v0, A, b, active, m, k, n_box, v_out, b_given, norms, rows, 
     certify = box >= 0.0 and _farkas_weights(A, b_given, norms, active, m, k, n_box, box, farkas) > 0.0
     # relaxing rows never makes a feasible QP infeasible: if the kept rows are feasible as given (t = 0;
     # no certificate says otherwise, and often none does: without the rows left out they rarely conflict),
-    # every step below would find its QP feasible and halve hi, so the steps go without their searches
+    # every step below would find its QP feasible and halve hi, so the steps go without their searches.
+    # (The search's tolerance can accept rows as given that it rejects relaxed, with b within about 1e-9
+    # of a nearly degenerate set; there the answer is the one at t ≈ 0 the tolerance accepted.)
     settled = False
     if not certify:
         for j in range(m):
