@@ -356,13 +356,8 @@ class Engine:
         """Base, joints and end-effector of every arm, ``(B, N, n_max + 1, 2)``; an arm of fewer links
         repeats its end-effector (its padding links have length 0)."""
         P = np.empty((self.copies, self.n_arms, self.n_max + 1, 2))
-        K = kernels().capsules
         for kind in self.kinds:
-            chunks = self._chunks(len(kind.q))
-            if chunks:
-                K.kind_joints_parallel(kind.q, kind.lengths, kind.base, kind.phi, kind.ids, P, chunks)
-            else:
-                K.kind_joints(kind.q, kind.lengths, kind.base, kind.phi, kind.ids, P)
+            self._geometry("kind_joints", len(kind.q), kind.q, kind.lengths, kind.base, kind.phi, kind.ids, P)
         return P
 
     def clearance(self) -> np.ndarray:
@@ -441,7 +436,6 @@ class Engine:
             P = self.joint_positions()
             between = np.full((B, N), np.inf)
             self._refresh_capsules(P)
-            chunks = self._chunks(B * N)
             for sub in range(int(substeps)):
                 for kind, (args, _) in zip(self.kinds, calls, strict=True):
                     # a call after the step's first starts from the link angles' sines and cosines the
@@ -449,13 +443,9 @@ class Engine:
                     # computes the joint velocities and end-effectors (`finish`)
                     self._call(kind, args[:-1] + (args[-1][:-2] + (sub > 0, sub == substeps - 1),))
                 # the kernel placed the obstacles from the clock itself; the clock moves on here
-                fixed = (self.copy_rows, self.others, self._team_joints, clear, finite, ok, self._team_start_time,
-                         self._team_caps, self.radii.shape[1], self.link_radius, self.physics_dt, sub < substeps - 1,
-                         self.elapsed, P, between)
-                if chunks:
-                    kernels().capsules.after_substep_parallel(*fixed, chunks)
-                else:
-                    kernels().capsules.after_substep(*fixed)
+                self._geometry("after_substep", B * N, self.copy_rows, self.others, self._team_joints, clear, finite,
+                               ok, self._team_start_time, self._team_caps, self.radii.shape[1], self.link_radius,
+                               self.physics_dt, sub < substeps - 1, self.elapsed, P, between)
             finite[:] = ok
             for kind, (_, out) in zip(self.kinds, calls, strict=True):
                 self._finish(kind, out, torque, rec)
@@ -494,13 +484,8 @@ class Engine:
         from their joints ``P`` (:meth:`joint_positions`, as they are now), which each arm's filter holds
         for the call (one sub-step)."""
         if self.inter_arm:
-            fixed = (self.copy_rows, self.others, self._team_start_time, self._team_caps, self.radii.shape[1],
-                     self.elapsed, P)
-            chunks = self._chunks(self.copies * self.n_arms)
-            if chunks:
-                kernels().capsules.refresh_capsules_parallel(*fixed, chunks)
-            else:
-                kernels().capsules.refresh_capsules(*fixed)
+            self._geometry("refresh_capsules", self.copies * self.n_arms, self.copy_rows, self.others,
+                           self._team_start_time, self._team_caps, self.radii.shape[1], self.elapsed, P)
             return
         self._team_start_time[self.copy_rows] = self.elapsed[:, None]
 
@@ -670,6 +655,15 @@ class Engine:
             kind.generation = generation
             kind.specialised = kernels().specialise.specialised_ready(args)
         return kind.specialised
+
+    def _geometry(self, name: str, rows: int, *args) -> None:
+        """The whole-arm geometry pass ``name`` of :mod:`pan1_env.kernels.capsules` over ``rows`` arms, or its
+        ``_parallel`` twin on numba's threads when :meth:`_chunks` says so."""
+        chunks = self._chunks(rows)
+        if chunks:
+            getattr(kernels().capsules, name + "_parallel")(*args, chunks)
+        else:
+            getattr(kernels().capsules, name)(*args)
 
     def _chunks(self, rows: int) -> int:
         """0 to run a kernel call on one thread, else its number of chunks on numba's thread pool."""
