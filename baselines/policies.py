@@ -188,7 +188,7 @@ def _sb3_policy(path: Path, env) -> Policy:
     if model.observation_space.shape != (n_obs,) or model.action_space.shape != (sum(sizes),):
         raise ValueError(f"{path} was trained on spaces {model.observation_space.shape} → "
                          f"{model.action_space.shape}, this scenario has ({n_obs},) → ({sum(sizes)},)")
-    from pan1_env.tasks import DEFAULT_GAIN_RANGE
+    from pan1_env.config import DEFAULT_GAIN_RANGE
 
     norm, trained = meta.get("observation_normalization"), meta.get("env_kwargs", {})
     trained_mode = trained.get("action_mode", "velocity")

@@ -36,7 +36,7 @@ def _task(scenario: str, options: Any, action_mode: str, control_dt: float | Non
     the options they are drawn with), the action mode and the time steps, defaults resolved."""
     from dataclasses import asdict
 
-    from pan1_env.environment import DEFAULT_CONTROL_DT, default_physics_dt
+    from pan1_env.config import DEFAULT_CONTROL_DT, default_physics_dt
     from pan1_env.random_scenario import RandomScenarioOptions
     from pan1_env.scenario import load
 

@@ -381,7 +381,7 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
 
     model_env_kwargs = dict(env_kwargs or {})
     if model_env_kwargs.get("action_mode") == "gain":  # the gains the model was trained with, whatever the default
-        from pan1_env.tasks import DEFAULT_GAIN_RANGE
+        from pan1_env.config import DEFAULT_GAIN_RANGE
 
         model_env_kwargs.setdefault("gain_range", DEFAULT_GAIN_RANGE)
 

@@ -36,7 +36,7 @@ class SB3VecEnv(VecEnv):
         scenario: as :class:`~pan1_env.vector.Pan1VectorEnv`, or an existing ``Pan1VectorEnv`` (then
             ``num_envs`` and ``kwargs`` must be left out).
         num_envs: number of copies.
-        kwargs: passed to :class:`~pan1_env.vector.Pan1VectorEnv` (``shield``, ``max_steps``, …;
+        kwargs: passed to :class:`~pan1_env.vector.Pan1VectorEnv` (``safety_filter``, ``max_steps``, …;
             ``inspect.signature``/``help()`` list them).
     """
 

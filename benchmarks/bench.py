@@ -148,7 +148,7 @@ def _vector_stepper(venv):
 
 
 def bench_vector(repeats: int, sizes: tuple[int, ...]) -> list[tuple[str, float, str]]:
-    from pan1_env.registration import CentralizedEnv
+    from pan1_env.centralized import CentralizedEnv
     from pan1_env.vector import Pan1VectorEnv
     from pan1_env.wrappers import GymSafetyShield
 
@@ -164,7 +164,7 @@ def bench_vector(repeats: int, sizes: tuple[int, ...]) -> list[tuple[str, float,
         arms = B * 4
         per_arm[B], fastest[B] = t / arms, min(samples) / arms
         rows.append((f"vector env step, B = {B} (× 4 arms)", t, ""))
-        rows.append((f"  arm-steps per second at B = {B} (×{venv.template.substeps} physics sub-steps each)",
+        rows.append((f"  arm-steps per second at B = {B} (×{venv.substeps} physics sub-steps each)",
                      arms / t, "rate"))
     single_step = _gym_stepper(GymSafetyShield(CentralizedEnv("paper_pa3_square")))
     t_single = _median_time(single_step, repeats, 200)
@@ -223,7 +223,7 @@ def bench_whole_arm(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]
         step = _vector_stepper(venv)
         for _ in range(3):
             step()
-        steppers[name] = (step, B * venv.engine.n_arms * venv.template.substeps, B * venv.engine.n_arms, venv)
+        steppers[name] = (step, B * venv.engine.n_arms * venv.substeps, B * venv.engine.n_arms, venv)
     times = {name: [] for name in variants}
     for _ in range(repeats):  # in alternation, so that a slow spell of the machine hits every variant
         for name, (step, *_) in steppers.items():
@@ -261,7 +261,7 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
     venv.action_space.seed(0)
     for _ in range(20):
         venv.step(venv.action_space.sample())
-    kind, t, f = venv.engine.kinds[0], venv.template, venv.safety_filter
+    kind, t, f = venv.engine.kinds[0], venv, venv.safety_filter
     A, k, n = kind.q.shape[0], kind.k, kind.n
     kappa, epsilon, margin, ke = f.kappa, f.epsilon, f.margin, venv.engine.ke
     command = np.random.default_rng(0).uniform(-1.0, 1.0, (A, k))

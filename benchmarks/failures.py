@@ -82,8 +82,10 @@ from pathlib import Path
 
 import numpy as np
 
+from pan1_env.config import SUCCESS_TOLERANCE
+
 # ----------------------------------------------------------------------------- thresholds
-SUCCESS_TOL = 0.01  # m: success = final max edge error below this (the env's is_success)
+SUCCESS_TOL = SUCCESS_TOLERANCE  # m: success = final max edge error below this (the env's is_success)
 WINDOW_S = 10.0  # s: final window over which motion, error decrease and shield activity are measured
 ACTION_CHANGE_REL = 0.2  # the shield changed the action by ≥ 20 % of the requested action's norm ...
 ACTION_CHANGE_ABS = 1e-3  # ... and by at least this much (normalised units): a "substantial" change
@@ -240,7 +242,7 @@ def run_episode(env, policy, seed: int) -> dict:
         "steps": steps,
         "final_error": err,
         "error_window_start": float(errors[0]),
-        "success_1cm": err < 0.01,
+        "success_1cm": err < SUCCESS_TOL,
         "success_2cm": err < 0.02,
         "success_5cm": err < 0.05,
         "sigma_min": sigma,

@@ -123,7 +123,7 @@ def _parser() -> argparse.ArgumentParser:
     tr.add_argument("--checkpoint-every", type=_positive_int, default=10_000, help="steps between checkpoints")
     tr.add_argument("--max-steps", type=_positive_int, default=None,
                     help="env steps per episode (default: the env's max_steps)")
-    # pan1_env.environment.ACTION_MODES, written out so that the parser does not import the env (a test checks)
+    # pan1_env.config.ACTION_MODES, written out so that the parser does not import the env (a test checks)
     tr.add_argument("--action-mode", choices=("velocity", "torque", "residual", "gain"), default="velocity",
                     help="what an action means (residual: a correction to the paper's law; gain: a re-weighting "
                          "of it; default: %(default)s)")

@@ -1,7 +1,7 @@
 """The agents' local observations, built for a whole team (or a batch of teams) in a few array ops.
 
 :class:`ObservationLayout` fixes, from a scenario's structure, what each agent sees and where
-(the table in :class:`~pan1_env.environment.Pan1ParallelEnv`'s docstring):
+(the table in its docstring):
 ``[cos q, sin q, q̇ / v_max, p − p0, D neighbour slots (present, dx, dy, err), K obstacle slots
 (present, dx, dy, r, h)]``, and with moving obstacles the K slots' velocities (vx, vy) at the end.
 :meth:`ObservationLayout.build` computes every agent's observation
@@ -35,6 +35,25 @@ def _check_chunks(n_chunks: int) -> None:
 @dataclass(frozen=True)
 class ObservationLayout:
     """Where each agent's observation entries come from (fixed by the team's structure).
+
+    ``Box(-inf, inf, (3n + 2 + 4D + 5K,), float32)`` per agent (``+ 2K`` with moving obstacles), *local* to
+    the agent:
+
+    | slice | content |
+    |---|---|
+    | ``[0, n)`` | cos q (own joint angles) |
+    | ``[n, 2n)`` | sin q |
+    | ``[2n, 3n)`` | q̇ / ``max_joint_speed`` |
+    | ``[3n, 3n+2)`` | own end-effector relative to own base, p − p0 (m) |
+    | next ``4D`` | D neighbour slots ``[present, dx, dy, err]`` |
+    | next ``5K`` | K obstacle slots ``[present, dx, dy, r, h]`` |
+    | last ``2K`` | only with moving obstacles: the same slots' obstacle velocities ``[vx, vy]`` (m/s) |
+
+    D is the formation graph's largest degree (N − 1 for random scenarios); for neighbour j,
+    (dx, dy) = p_j − p_i and err = ‖p_j − p_i‖ − d_ij (m). The K obstacles are the nearest by
+    clearance; for obstacle o, (dx, dy) = o − p_i, r its radius and h = ‖p_i − o‖² − r² the barrier
+    value. Absent slots are zeros. Entries other than cos, sin and flags are clipped to ±1e6.
+
 
     Attributes:
         n: links per arm, ``(N,)``.

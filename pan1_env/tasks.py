@@ -13,14 +13,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from .compiled import kernels
+from .config import FormationConfig, ReachConfig
+from .control import nominal_velocity
+from .dynamics import end_effector
 from .engine import Engine, StepRecord
 from .formation import edge_errors, edge_length_errors, edge_vectors, formation_gradient, incidence_matrix
 from .observation import OBS_BOUND, OBSTACLE_FEATURES, ObservationLayout
+from .random_scenario import _passive_path as passive_path
+from .safety import clearance
 from .scenario import Scenario
 
-__all__ = ["FormationTask", "ReachTask", "Outcome", "DEFAULT_GAIN_RANGE"]
+__all__ = ["FormationTask", "ReachTask", "Outcome"]
 
-DEFAULT_GAIN_RANGE = 4.0  # action_mode="gain": gains from 1/4 to 4
+GOAL_DRAWS = 1000  # attempts at a reach goal clear of the obstacles before giving up
 
 
 @dataclass
@@ -47,19 +52,42 @@ class FormationTask:
     within ``success_tolerance`` of its length.
     The observation layout (:class:`~pan1_env.observation.ObservationLayout`) is the one public
     description of what each agent sees.
+
+    What an action ``a`` in [−1, 1] (clipped) means, by ``action_mode``:
+
+    * ``action_mode="velocity"`` (default): the desired active-joint velocity
+      v = a · ``max_joint_speed`` (rad/s), held for the control step and tracked inside the env by
+      the paper's backstepping law (Eq. 64) at every physics sub-step.
+    * ``action_mode="torque"``: the active-joint torque τ_a = a · ``max_torque`` (N·m), held.
+    * ``action_mode="residual"``: a correction to the paper's distributed law (Eq. 39),
+      v = clip(v_0 + a · ``max_joint_speed``, ±``max_joint_speed``), tracked as in velocity mode;
+      v_0 = −K_P J̄ᵀ ê computed from the true state at the step's start and scaled down as a whole
+      to ``max_joint_speed`` (as :class:`pan1_env.baselines.ReferencePolicy` does). The zero action
+      is the reference controller (behind the safety filter, the paper's safe controller); the
+      effort term penalises the correction only. With ``residual_gate=g`` (m, > 0) arm i's
+      correction is scaled by min(1, (e_i/g)²), e_i the largest length error of its edges, so it
+      vanishes at the formation and the formed shape stays an equilibrium. With ``blocked_gate=c``
+      (> 0) it is also scaled by min(1, b_i/c), b_i how much the safety filter changed the arm's
+      previous command (the intervention term's measure, 0 at a reset): the correction acts only
+      where the filter holds the paper's law back.
+    * ``action_mode="gain"``: a re-weighting of the paper's law: joint j's term of v_0 is multiplied
+      by ``gain_range`` ** a_j (default 4, so gains from 1/4 to 4) before the vector is scaled down
+      as a whole to ``max_joint_speed``. The zero action is the reference controller; any action
+      keeps the command from ever ascending V (a positive diagonal re-weighting of −K_P J̄ᵀ ê, before
+      the filter and with the velocity tracked exactly) and the formed shape an equilibrium: unlike a
+      residual, a gain cannot point against the law. The effort term penalises the log-gains a.
     """
 
-    def __init__(self, scenario: Scenario, copies: int, layout: ObservationLayout, *, max_joint_speed: float,
-                 success_tolerance: float, formation_weight: float, effort_weight: float, collision_penalty: float,
-                 terminate_on_collision: bool, terminate_on_success: bool, success_bonus: float = 0.0,
-                 residual_gate: float = 0.0, intervention_penalty: float = 0.0, blocked_gate: float = 0.0,
-                 gain_range: float = DEFAULT_GAIN_RANGE) -> None:
-        self.layout = layout
-        self.gain_range = gain_range
-        self.max_joint_speed, self.success_tolerance = max_joint_speed, success_tolerance
-        self.weights = (formation_weight, effort_weight, collision_penalty, success_bonus, intervention_penalty)
-        self.terminate_on_collision, self.terminate_on_success = terminate_on_collision, terminate_on_success
-        self.residual_gate, self.blocked_gate = residual_gate, blocked_gate
+    def __init__(self, config: FormationConfig, copies: int) -> None:
+        scenario = config.team
+        self.layout = layout = ObservationLayout.from_scenario(scenario, config.neighbour_slots, config.n_obstacle_obs)
+        self.gain_range = config.gain_range
+        self.max_joint_speed, self.success_tolerance = config.max_joint_speed, config.success_tolerance
+        self.weights = (config.formation_weight, config.effort_weight, config.collision_penalty, config.success_bonus,
+                        config.intervention_penalty)
+        self.terminate_on_collision, self.terminate_on_success = config.terminate_on_collision, \
+            config.terminate_on_success
+        self.residual_gate, self.blocked_gate = config.residual_gate, config.blocked_gate
         self.blocked = np.zeros((copies, layout.n.size))  # the filter's change of each arm's last command
         self.edges = np.ascontiguousarray(scenario.formation.edges, dtype=np.int64)
         self.incidence = incidence_matrix(self.edges, scenario.n_arms)  # for the residual mode's law and gate
@@ -68,17 +96,16 @@ class FormationTask:
         self.sizes = [layout.size(n) for n in layout.n]
         self.offsets = np.concatenate([[0], np.cumsum(self.sizes)])
 
-    @classmethod
-    def of_env(cls, env, copies: int) -> FormationTask:
-        """The task of a :class:`~pan1_env.environment.Pan1ParallelEnv` (its scenario, layout and
-        reward settings) for ``copies`` copies."""
-        return cls(env.scenario, copies, env.observation_layout, max_joint_speed=env.max_joint_speed,
-                   success_tolerance=env.success_tolerance, formation_weight=env.formation_weight,
-                   effort_weight=env.effort_weight, collision_penalty=env.collision_penalty,
-                   terminate_on_collision=env.terminate_on_collision, terminate_on_success=env.terminate_on_success,
-                   success_bonus=env.success_bonus, residual_gate=env.residual_gate,
-                   intervention_penalty=env.intervention_penalty, blocked_gate=env.blocked_gate,
-                   gain_range=env.gain_range)
+    def reset(self, copies: np.ndarray, rngs: list[np.random.Generator], engine: Engine,
+              options: dict | None = None) -> None:
+        """A new episode in ``copies`` (their arms at their start): no filter change of a previous command yet."""
+        if options:
+            raise ValueError(f"unknown reset option {sorted(options)[0]!r}; the formation env takes none")
+        self.blocked[copies] = 0.0
+
+    def bounds(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Agent i's observation bounds."""
+        return self.layout.bounds(int(self.layout.n[i]))
 
     def load_team(self, b: int, scenario: Scenario) -> None:
         """Copy ``b`` now has ``scenario``'s formation."""
@@ -97,7 +124,7 @@ class FormationTask:
         for kind in engine.kinds:
             _, Jbar, _ = engine.kind_terms(kind)
             e = e_hat[:, kind.ids].reshape(-1, 2)
-            v0 = -np.repeat(self.kp, kind.A)[:, None] * np.einsum("rck,rc->rk", Jbar, e)
+            v0 = nominal_velocity(Jbar, e, np.repeat(self.kp, kind.A)[:, None])
             if gain is not None:
                 v0 *= gain[:, kind.ids, : kind.k].reshape(-1, kind.k)
             peak = np.abs(v0).max(axis=1, initial=0.0) / self.max_joint_speed
@@ -160,14 +187,14 @@ class FormationTask:
                 out[:, self.offsets[i] : self.offsets[i + 1]] = mat[:, r]
         return out
 
-    def evaluate(self, record: StepRecord | None, err: np.ndarray, effort: np.ndarray,
-                 clearance: np.ndarray | None = None, command: np.ndarray | None = None) -> Outcome:
-        """The step's outcome from its record, the edge errors after it and each agent's effort
-        ``‖a_i‖²/k_i (B, N)``. At a reset (``record`` None) pass the state's ``clearance (B, N)``. The
+    def evaluate(self, record: StepRecord | None, engine: Engine | None, err: np.ndarray, effort: np.ndarray,
+                 command: np.ndarray | None = None) -> Outcome:
+        """The step's outcome from its record, the edge errors after it (:meth:`observe`'s) and each agent's
+        effort ``‖a_i‖²/k_i (B, N)``; at a reset (``record`` None) of the state in ``engine``. The
         intervention term needs the commanded velocities ``command (B, N, k_max)`` (rad/s; None in
         torque mode, where the term is left out)."""
         w_form, w_effort, penalty, bonus, w_intervention = self.weights
-        min_clear = record.min_clearance if record is not None else clearance
+        min_clear = record.min_clearance if record is not None else engine.clearance()
         B = len(err)
         formation, formation_error, success = np.empty(B), np.empty(B), np.empty(B, dtype=bool)
         cost = np.empty(min_clear.shape)
@@ -176,9 +203,7 @@ class FormationTask:
         reward = np.empty_like(cost)
         reward[:] = formation[:, None]
         intervention = 0.0
-        if record is None:
-            self.blocked[:] = 0.0
-        elif command is not None and (w_intervention or self.blocked_gate):
+        if record is not None and command is not None and (w_intervention or self.blocked_gate):
             change = ((command - record.v_star) / self.max_joint_speed) ** 2  # NaN in the padding
             intervention = np.nansum(change, axis=-1) / np.isfinite(change).sum(axis=-1)
             self.blocked[:] = intervention
@@ -210,36 +235,71 @@ class ReachTask:
     """One arm brings its end-effector within ``goal_tolerance`` of a goal point.
 
     Reward: ``−‖goal − p‖ − effort_weight · ‖a‖²/k − collision_penalty · cost``.
-    Observation: ``[cos q, sin q, q̇ / v_max, p − base, goal − p, K obstacle slots]``.
+    Observation: ``[cos q, sin q, q̇ / v_max, p − base, goal − p, K obstacle slots]``. The goal is drawn at
+    every reset (:meth:`reset`).
     """
 
-    def __init__(self, copies: int, n_links: int, *, n_obstacle_obs: int, max_joint_speed: float,
-                 goal_tolerance: float, effort_weight: float, collision_penalty: float,
-                 terminate_on_success: bool, terminate_on_collision: bool) -> None:
+    def __init__(self, config: ReachConfig, copies: int) -> None:
+        self.config = c = config
+        self.arm, self.q0 = c.team.arms[0], np.asarray(c.team.q0[0], dtype=float)
         self.goal = np.zeros((copies, 2))
-        self.n_obstacle_obs, self.max_joint_speed, self.goal_tolerance = n_obstacle_obs, max_joint_speed, goal_tolerance
-        self.weights = (effort_weight, collision_penalty)
-        self.terminate_on_success, self.terminate_on_collision = terminate_on_success, terminate_on_collision
-        self.size = 3 * n_links + 4 + OBSTACLE_FEATURES * n_obstacle_obs
+        self.n_obstacle_obs, self.max_joint_speed, self.goal_tolerance = c.n_obstacle_obs, c.max_joint_speed, \
+            c.goal_tolerance
+        self.weights = (c.effort_weight, c.collision_penalty)
+        self.terminate_on_success, self.terminate_on_collision = c.terminate_on_success, c.terminate_on_collision
+        self.size = 3 * self.arm.n_links + 4 + OBSTACLE_FEATURES * c.n_obstacle_obs
 
-    def bounds(self, n_links: int) -> tuple[np.ndarray, np.ndarray]:
+    def reset(self, copies: np.ndarray, rngs: list[np.random.Generator], engine: Engine,
+              options: dict | None = None) -> None:
+        """A goal for each copy in ``copies``: ``options["goal"]`` (x, y), or one drawn from the copy's generator:
+        the end-effector of a configuration reached from the start at rest (the actuated joints moved in a
+        straight line by up to ±``goal_spread`` rad each, the passive joint by zero momentum), redrawn until it
+        is ``goal_clearance`` clear of every obstacle."""
+        options = dict(options or {})
+        goal = options.pop("goal", None)
+        if options:
+            raise ValueError(f"unknown reset option {sorted(options)[0]!r}; the only option is 'goal'")
+        for b in np.asarray(copies).tolist():
+            self.goal[b] = self._draw_goal(rngs[b], engine, b) if goal is None else goal
+
+    def _draw_goal(self, rng: np.random.Generator, engine: Engine, b: int) -> np.ndarray:
+        arm, k, spread = self.arm, self.arm.n_actuated, self.config.goal_spread
+        for _ in range(GOAL_DRAWS):
+            q = passive_path(arm, self.q0, self.q0[-k:] + rng.uniform(-spread, spread, k))
+            goal = end_effector(arm, q)
+            if clearance(goal, engine.centers[b], engine.radii[b]).min(initial=np.inf) >= self.config.goal_clearance:
+                return goal
+        raise RuntimeError(f"no goal {self.config.goal_clearance} m clear of the obstacles in {GOAL_DRAWS} draws; "
+                           "lower goal_clearance")
+
+    def load_team(self, b: int, scenario: Scenario) -> None:
+        raise ValueError("the reach task keeps its arm")
+
+    def compose(self, action_mode: str, command: np.ndarray, engine: Engine) -> None:
+        """Velocity actions only: the command is the action."""
+
+    def bounds(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """cos/sin in [−1, 1], presence flags in [0, 1], everything else in ±OBS_BOUND."""
+        n = self.arm.n_links
         low, high = np.full(self.size, -OBS_BOUND, dtype=np.float32), np.full(self.size, OBS_BOUND, dtype=np.float32)
-        low[: 2 * n_links], high[: 2 * n_links] = -1.0, 1.0
-        flags = [3 * n_links + 4 + OBSTACLE_FEATURES * s for s in range(self.n_obstacle_obs)]
+        low[: 2 * n], high[: 2 * n] = -1.0, 1.0
+        flags = [3 * n + 4 + OBSTACLE_FEATURES * s for s in range(self.n_obstacle_obs)]
         low[flags], high[flags] = 0.0, 1.0
         return low, high
 
-    def observe(self, engine: Engine) -> np.ndarray:
-        """Every copy's observation ``(B, size)`` (the engine's team is the one arm)."""
+    def observe(self, engine: Engine) -> tuple[None, list[np.ndarray]]:
+        """Every copy's observation, ``[(B, 1, size)]`` (the engine's team is the one arm)."""
         kind = engine.kinds[0]
         out = np.empty((engine.copies, self.size), dtype=np.float32)
         kernels().reach_observations(kind.q, kind.qd, kind.p, kind.base, self.goal, engine.centers, engine.radii,
-                                     self.n_obstacle_obs, 1.0 / self.max_joint_speed, OBS_BOUND,
-                                     out)
-        return out
+                                     self.n_obstacle_obs, 1.0 / self.max_joint_speed, OBS_BOUND, out)
+        return None, [out[:, None]]
 
-    def evaluate(self, record: StepRecord | None, engine: Engine, effort: np.ndarray) -> Outcome:
+    def flat(self, mats: list[np.ndarray]) -> np.ndarray:
+        return mats[0].reshape(len(mats[0]), -1)
+
+    def evaluate(self, record: StepRecord | None, engine: Engine, state: None, effort: np.ndarray,
+                 command: np.ndarray | None = None) -> Outcome:
         """The step's outcome (``record`` None at a reset) for effort ``‖a‖²/k (B, 1)``."""
         w_effort, penalty = self.weights
         d = self.goal - engine.positions()[:, 0]
@@ -250,5 +310,4 @@ class ReachTask:
         terms = _terms(reward, {"distance": reward.copy()}, effort=(w_effort, effort), collision=(penalty, cost))
         success = distance < self.goal_tolerance
         terminated = _terminated(success, cost, self.terminate_on_success, self.terminate_on_collision)
-        return Outcome(reward, terms, cost, success, terminated,
-                       {"distance": distance, "min_clearance": min_clear[:, 0]})
+        return Outcome(reward, terms, cost, success, terminated, {"distance": distance, "min_clearance": min_clear})

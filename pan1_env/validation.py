@@ -20,7 +20,7 @@ from typing import Any, ParamSpec, TypeVar
 import numpy as np
 
 __all__ = ["real", "positive_int", "whole_ratio", "float_array", "hints_unknown_keywords", "forwards_keywords",
-           "forwarded_signature"]
+           "forwarded_signature", "refuse_unknown"]
 
 _P = ParamSpec("_P")
 _R = TypeVar("_R")
@@ -88,6 +88,21 @@ def _refuse_unknown(owner: str, kwargs: Iterable[str], known: Iterable[str], lis
             raise TypeError(f"{owner} got an unknown argument {key!r}"
                             + (f"; did you mean {hint[0]!r}?" if hint else "")
                             + f" Arguments: {', '.join(listed)}")
+
+
+def refuse_unknown(owner: str, keys: Iterable[str], known: Iterable[str], *,
+                   error: type[Exception] = ValueError) -> None:
+    """``error`` for the first of ``keys`` (options of a dict, keywords) not in ``known``, naming the
+    closest known one ("did you mean") and listing them all."""
+    listed = list(known)
+    if error is TypeError:
+        _refuse_unknown(owner, keys, listed, listed)
+        return
+    for key in keys:
+        if key not in listed:
+            hint = difflib.get_close_matches(str(key), listed, n=1)
+            raise error(f"{owner}: unknown option {key!r}" + (f"; did you mean {hint[0]!r}?" if hint else "")
+                        + f" Options: {', '.join(sorted(listed))}")
 
 
 def _names(sig: inspect.Signature) -> list[str]:

@@ -53,9 +53,9 @@ def test_the_core_never_imports_the_wrappers() -> None:
 
 
 def test_env_constructors_name_their_arguments() -> None:
+    from pan1_env.centralized import CentralizedEnv
     from pan1_env.environment import Pan1ParallelEnv
     from pan1_env.reach import PAReachEnv
-    from pan1_env.registration import CentralizedEnv
     from pan1_env.vector import Pan1VectorEnv
 
     parallel = inspect.signature(Pan1ParallelEnv.__init__).parameters

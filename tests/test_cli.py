@@ -141,7 +141,7 @@ def test_train_rejects_json_options_that_are_not_objects(capsys) -> None:
 
 
 def test_train_offers_every_action_mode_of_the_env() -> None:
-    from pan1_env.environment import ACTION_MODES
+    from pan1_env.config import ACTION_MODES
 
     (mode,) = [a for a in _subcommands()["train"]._actions if a.dest == "action_mode"]
     assert tuple(mode.choices) == ACTION_MODES

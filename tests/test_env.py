@@ -46,7 +46,20 @@ def test_gymnasium_check_env_no_warnings(env_id: str, max_steps: int) -> None:
         env = gymnasium.make(env_id)
         check_env(env.unwrapped)
     assert [str(w.message) for w in caught] == []
-    assert env.spec.max_episode_steps == max_steps
+    # the env's own clock truncates (one rule: max_steps); no TimeLimit that could disagree with it
+    assert env.spec.max_episode_steps is None and env.unwrapped.max_steps == max_steps
+
+
+def test_episode_length_follows_control_dt_through_gymnasium_make() -> None:
+    """The episode lasts the scenario's horizon whatever control_dt is: 100 s = 1000 steps of 0.1 s."""
+    env = gymnasium.make("pan1_env:pan1_env/PaperPA3Square-v0", control_dt=0.1, max_steps=None)
+    env.reset(seed=0)
+    steps, truncated = 0, False
+    while not truncated:
+        _, _, terminated, truncated, _ = env.step(np.zeros(env.action_space.shape, np.float32))
+        steps += 1
+        assert not terminated
+    assert steps == 1000 == env.unwrapped.max_steps
 
 
 def test_make_in_fresh_interpreter(tmp_path) -> None:
@@ -161,7 +174,7 @@ def test_gym_view_cost_and_info() -> None:
     obs, info = env.reset(seed=0)
     assert info["cost"] == 0.0 and obs.shape == env.observation_space.shape
     obs, reward, term, trunc, info = env.step(np.zeros(env.action_space.shape, np.float32))
-    assert {"cost", "formation_error", "min_clearance", "agents"} <= set(info)
+    assert {"cost", "formation_error", "min_clearance", "is_success", "reward_formation"} <= set(info)
     # reward = −mean_k |‖z_k‖ − d_k| (5 edges); formation_error is the max over the same edges
     err = info["formation_error"]
     assert err / 5 <= -reward <= err
@@ -180,8 +193,8 @@ def test_unknown_argument_suggests_the_right_one() -> None:
 
 def test_constructors_name_their_arguments() -> None:
     """help() and IDEs see the arguments; an unknown keyword still gets a "did you mean" hint."""
+    from pan1_env.centralized import CentralizedEnv
     from pan1_env.environment import Pan1ParallelEnv
-    from pan1_env.registration import CentralizedEnv
 
     named = {"action_mode", "control_dt", "physics_dt", "max_steps", "render_mode"}
     for init in (Pan1ParallelEnv.__init__, CentralizedEnv.__init__, parallel_env, aec_env):

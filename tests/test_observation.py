@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from pan1_env.environment import OBS_BOUND, parallel_env
+from pan1_env.environment import parallel_env
+from pan1_env.observation import OBS_BOUND
 
 
 def _reference(env) -> dict[str, np.ndarray]:
@@ -71,8 +72,8 @@ def test_multi_threaded_observations_equal_the_serial_ones_and_bad_chunks_are_re
     engine, task = venv.engine, venv.task
     q, qd = engine.joint_state()
     args = (q, qd, engine.positions(), engine.bases, task.edges, task.distances, engine.centers, engine.radii,
-            venv.template.max_joint_speed)
-    layout = venv.template.observation_layout
+            venv.max_joint_speed)
+    layout = venv.observation_layout
     err, serial = layout.build_with_errors(*args)
     err3, chunked = layout.build_with_errors(*args, 3)
     np.testing.assert_array_equal(err3, err)

@@ -52,12 +52,12 @@ def test_the_correction_is_added_and_clipped_to_the_speed_limit() -> None:
     env = parallel_env("paper_pa3_square", action_mode="residual", safety_filter=False)
     env.reset(seed=0)
     nominal = env.task.nominal_velocity(env.engine)[0]
-    command, effort = env._command({a: np.full(env.action_space(a).shape, 0.25, np.float32) for a in env.agents})
+    command, effort = env.commands({a: np.full(env.action_space(a).shape, 0.25, np.float32) for a in env.agents})
     k = env.n_actuated[0]
     expected = np.clip(nominal[:, :k] + 0.25 * env.max_joint_speed, -env.max_joint_speed, env.max_joint_speed)
     np.testing.assert_allclose(command[0, :, :k], expected, rtol=1e-12)
     np.testing.assert_allclose(effort, 0.25**2)  # the effort term sees the correction only
-    command, _ = env._command({a: np.full(env.action_space(a).shape, 1.0, np.float32) for a in env.agents})
+    command, _ = env.commands({a: np.full(env.action_space(a).shape, 1.0, np.float32) for a in env.agents})
     assert np.all(command <= env.max_joint_speed) and np.any(command == env.max_joint_speed)
 
 
@@ -90,7 +90,7 @@ def test_the_gate_scales_each_arms_correction_by_its_squared_edge_error() -> Non
     env = parallel_env("random", action_mode="residual", safety_filter=False, residual_gate=gate)
     env.reset(seed=3)
     nominal = env.task.nominal_velocity(env.engine)[0]
-    command, _ = env._command({a: np.full(env.action_space(a).shape, 0.1, np.float32) for a in env.agents})
+    command, _ = env.commands({a: np.full(env.action_space(a).shape, 0.1, np.float32) for a in env.agents})
     P, f = env.end_effectors(), env.scenario.formation
     for i in range(len(env.agents)):
         errors = [abs(np.linalg.norm(P[a] - P[b]) - d) for (a, b), d in zip(f.edges, f.distances, strict=True)
@@ -110,7 +110,7 @@ def test_the_blocked_gate_opens_only_where_the_filter_changed_the_last_command()
     env.reset(seed=0)
     full = {a: np.full(env.action_space(a).shape, 0.5, np.float32) for a in env.agents}
     nominal = env.task.nominal_velocity(env.engine)[0]
-    command, _ = env._command(full)  # after a reset nothing was blocked: the paper's law alone
+    command, _ = env.commands(full)  # after a reset nothing was blocked: the paper's law alone
     np.testing.assert_allclose(command[0], nominal, atol=1e-12)
     env.step(full)
     rec, k = env.last_step, env.n_actuated
@@ -120,7 +120,7 @@ def test_the_blocked_gate_opens_only_where_the_filter_changed_the_last_command()
     blocked = [np.sum((sent[i, : k[i]] - rec.v_star[0, i, : k[i]]) ** 2) / k[i] / env.max_joint_speed**2
                for i in range(len(env.agents))]
     nominal = env.task.nominal_velocity(env.engine)[0]
-    command, _ = env._command(full)
+    command, _ = env.commands(full)
     for i in range(len(env.agents)):
         scale = min(1.0, blocked[i] / 0.5)
         expected = np.clip(nominal[i, : k[i]] + scale * float(np.float32(0.5)) * env.max_joint_speed,
@@ -138,7 +138,7 @@ def test_a_gain_multiplies_each_joints_term_of_the_law_before_the_speed_limit(sc
     rng = np.random.default_rng(0)
     for _ in range(3):
         actions = {a: rng.uniform(-1, 1, env.action_space(a).shape).astype(np.float32) for a in env.agents}
-        command, effort = env._command(actions)
+        command, effort = env.commands(actions)
         for i, agent in enumerate(env.agents):
             k = env.n_actuated[i]
             expected = ref.act(agent, obs[agent], 3.0 ** actions[agent].astype(float))  # from observations
@@ -149,7 +149,7 @@ def test_a_gain_multiplies_each_joints_term_of_the_law_before_the_speed_limit(sc
     fast = ReferencePolicy(parallel_env(scenario), kp=env.scenario.kp * 3.0)
     fast.env = env
     full = {a: np.ones(env.action_space(a).shape, np.float32) for a in env.agents}
-    command, _ = env._command(full)
+    command, _ = env.commands(full)
     for i, agent in enumerate(env.agents):
         np.testing.assert_allclose(command[0, i, : env.n_actuated[i]] / env.max_joint_speed,
                                    fast.act(agent, obs[agent]), rtol=1e-4, atol=1e-5)

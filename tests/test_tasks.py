@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pan1_env.config import FormationConfig
 from pan1_env.engine import Engine, StepRecord
 from pan1_env.environment import parallel_env
 from pan1_env.tasks import FormationTask
@@ -13,10 +14,11 @@ from pan1_env.tasks import FormationTask
 @pytest.mark.parametrize("B, N, E", [(1, 4, 5), (7, 6, 9), (3, 2, 1)])
 def test_formation_outcome_matches_the_documented_reward(B: int, N: int, E: int) -> None:
     rng = np.random.default_rng(B * 100 + E)
-    env = parallel_env("paper_pa3_square")
+    parallel_env("paper_pa3_square")
     weights = {"formation_weight": 1.7, "effort_weight": 0.3, "collision_penalty": 2.0, "success_bonus": 0.6}
-    task = FormationTask(env.scenario, B, env.observation_layout, max_joint_speed=2.0, success_tolerance=0.05,
-                         terminate_on_collision=True, terminate_on_success=False, **weights)
+    config = FormationConfig("paper_pa3_square", max_joint_speed=2.0, success_tolerance=0.05,
+                             terminate_on_collision=True, terminate_on_success=False, **weights)
+    task = FormationTask(config, B)
     err = rng.uniform(-0.1, 0.1, (B, E))
     err[0] = rng.uniform(-0.01, 0.01, E)  # copy 0 succeeds
     clear = rng.uniform(-0.05, 1.0, (B, N))
@@ -24,7 +26,7 @@ def test_formation_outcome_matches_the_documented_reward(B: int, N: int, E: int)
     blank = np.zeros((B, N))
     record = StepRecord(np.zeros((B, N, 1)), np.zeros((B, N, 1)), clear, blank, np.zeros((B, N, 3), int), blank,
                         np.ones((B, N), bool))
-    out = task.evaluate(record, err, effort)
+    out = task.evaluate(record, None, err, effort)
     cost = (clear < 0).astype(float)
     success = np.abs(err).max(axis=1) < 0.05
     reward = -1.7 * np.abs(err).mean(axis=1)[:, None] - 0.3 * effort - 2.0 * cost + 0.6 * success[:, None]
@@ -59,12 +61,12 @@ def test_intervention_term_is_the_filters_change_of_the_command() -> None:
     for i, agent in enumerate(env.agents):
         k = env.n_actuated[i]
         change = np.sum((env.max_joint_speed - rec.v_star[0, i, :k]) ** 2) / k / env.max_joint_speed**2
-        assert infos[agent]["reward_terms"]["intervention"] == pytest.approx(-0.5 * change, rel=1e-12)
-    assert any(infos[a]["reward_terms"]["intervention"] < 0 for a in env.agents)  # the filter acted
+        assert infos[agent]["reward_intervention"] == pytest.approx(-0.5 * change, rel=1e-12)
+    assert any(infos[a]["reward_intervention"] < 0 for a in env.agents)  # the filter acted
     plain = parallel_env("paper_pa_mixed_square", intervention_penalty=0.5)  # no filter: v* is the command
     plain.reset(seed=0)
     _, _, _, _, infos = plain.step({a: np.full(plain.action_space(a).shape, 0.3) for a in plain.agents})
-    assert all(abs(info["reward_terms"]["intervention"]) < 1e-20 for info in infos.values())
+    assert all(abs(info["reward_intervention"]) < 1e-20 for info in infos.values())
 
 
 def test_reward_terms_in_infos_sum_to_the_reward() -> None:
@@ -76,8 +78,9 @@ def test_reward_terms_in_infos_sum_to_the_reward() -> None:
     env.reset(seed=0)
     _, rewards, _, _, infos = env.step({a: np.full(env.action_space(a).shape, 0.7) for a in env.agents})
     for agent, info in infos.items():
-        assert set(info["reward_terms"]) == {"formation", "effort", "collision"}
-        assert sum(info["reward_terms"].values()) == pytest.approx(rewards[agent], abs=1e-12)
+        terms = {key: value for key, value in info.items() if key.startswith("reward_")}
+        assert set(terms) == {"reward_formation", "reward_effort", "reward_collision"}
+        assert sum(terms.values()) == pytest.approx(rewards[agent], abs=1e-12)
     venv = Pan1VectorEnv("paper_pa_mixed_square", 2, **kw)
     venv.reset(seed=0)
     _, reward, _, _, info = venv.step(np.full(venv.action_space.shape, 0.7))
@@ -86,4 +89,6 @@ def test_reward_terms_in_infos_sum_to_the_reward() -> None:
     reach = PAReachEnv(**kw)
     reach.reset(seed=0)
     _, r, _, _, info = reach.step(np.full(reach.action_space.shape, 0.7))
-    assert sum(info["reward_terms"].values()) == pytest.approx(r, abs=1e-12)
+    terms = {key: value for key, value in info.items() if key.startswith("reward_")}
+    assert set(terms) == {"reward_distance", "reward_effort", "reward_collision"}
+    assert sum(terms.values()) == pytest.approx(r, abs=1e-12)

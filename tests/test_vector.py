@@ -7,7 +7,7 @@ import gymnasium
 import numpy as np
 import pytest
 
-from pan1_env.registration import CentralizedEnv
+from pan1_env.centralized import CentralizedEnv
 from pan1_env.vector import Pan1VectorEnv
 from pan1_env.wrappers import GymSafetyShield
 
@@ -202,11 +202,9 @@ def test_sb3_adapter_runs_ppo_and_reports_terminal_observations() -> None:
     assert model.num_timesteps >= 64
 
 
-def test_shield_keyword_is_a_deprecated_alias_of_safety_filter() -> None:
-    """0.1's ``shield=`` still works for one release, with a DeprecationWarning, and means safety_filter."""
-    with pytest.warns(DeprecationWarning, match="safety_filter"):
-        venv = Pan1VectorEnv("paper_pa3_square", 2, shield=False, max_steps=5)
-    assert venv.safety_filter is None
-    with pytest.warns(DeprecationWarning, match="safety_filter"):
-        assert venv.shield is False
+def test_the_filter_is_on_by_default_and_switched_by_safety_filter() -> None:
+    """0.1.0's ``shield=`` is gone (CHANGELOG): it is refused like any unknown argument."""
+    with pytest.raises(TypeError, match="unknown argument 'shield'"):
+        Pan1VectorEnv("paper_pa3_square", 2, shield=False, max_steps=5)
+    assert Pan1VectorEnv("paper_pa3_square", 2, safety_filter=False, max_steps=5).safety_filter is None
     assert Pan1VectorEnv("paper_pa3_square", 2, max_steps=5).safety_filter is not None

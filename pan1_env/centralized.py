@@ -1,0 +1,75 @@
+"""The Gymnasium view of the env core (one copy): one agent controlling every arm (``gymnasium.make``).
+
+Its observation is the concatenation of every agent's observation (agent order ``arm_0``, ``arm_1``, …),
+its action the concatenation of every agent's action, its reward the mean of the agents' rewards, and its
+infos the team's (:func:`pan1_env.core.team_infos`): ``cost`` the number of arms that entered an obstacle
+in the step, ``min_clearance``, ``formation_error``, ``is_success``, ``reward_<term>`` (averaged over the
+arms, as the reward), and with the filter on ``shield_intervened``, ``shield_fallback``, ``qp_counts``.
+:class:`~pan1_env.vector.Pan1VectorEnv` is the same view for B copies.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium
+import numpy as np
+
+from .core import CoreView, FormationCore, first_copy, team_infos
+from .registration import RENDER_FPS, RENDER_MODES
+from .validation import float_array, forwards_keywords
+
+__all__ = ["CentralizedEnv"]
+
+
+class CentralizedEnv(CoreView, gymnasium.Env):
+    """One agent controlling every arm of a formation scenario (``gymnasium.make("pan1_env/…")``).
+
+    Takes the arguments of :class:`~pan1_env.environment.Pan1ParallelEnv` (``inspect.signature`` and
+    ``help()`` list them; :class:`~pan1_env.config.FormationConfig` documents them).
+    """
+
+    metadata = {"render_modes": RENDER_MODES, "render_fps": RENDER_FPS}
+
+    @forwards_keywords("pan1_env.environment:Pan1ParallelEnv")
+    def __init__(self, scenario: Any = "paper_pa3_square", **kwargs: Any) -> None:
+        from .environment import Pan1ParallelEnv
+
+        # the parallel view renders and validates render_mode; both views share its core
+        self.parallel = Pan1ParallelEnv(scenario, **kwargs)
+        self.core: FormationCore = self.parallel.core
+        self.render_mode = self.parallel.render_mode
+        self.possible_agents = self.core.agents
+        self.observation_space = gymnasium.spaces.Box(*self.core.flat_observation_bounds(), dtype=np.float32)
+        self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (sum(self.core.n_actuated),), np.float32)
+        self._splits = np.cumsum(self.core.n_actuated)[:-1]
+        self._needs_reset = True
+
+    def agent_actions(self, action: np.ndarray) -> dict[str, np.ndarray]:
+        """The flat action split into the agents' actions (agent order)."""
+        parts = np.split(np.asarray(action, dtype=float), self._splits)
+        return dict(zip(self.possible_agents, parts, strict=True))
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        if seed is not None:
+            self.core.seed([seed])
+        self.core.reset()
+        self._needs_reset = False
+        return self.core.flat_observations(self.core.observe())[0], first_copy(team_infos(self.core.infos()))
+
+    def step(self, action: np.ndarray):
+        if self._needs_reset:
+            raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
+        action = float_array("action", action, self.action_space.shape)
+        out = self.core.step(self.core.padded_actions(action[None]))
+        self._needs_reset = bool(len(out.ended))
+        return (self.core.flat_observations(out.observations)[0], float(out.reward[0].mean()),
+                bool(out.terminated[0]), bool(out.truncated[0]), first_copy(team_infos(out.infos)))
+
+    def render(self):
+        return self.parallel.render()
+
+    def close(self) -> None:
+        self.parallel.close()
+

@@ -1,0 +1,295 @@
+"""The env core: B copies × N arms of the formation task, the one owner of an episode.
+
+:class:`FormationCore` runs an :class:`~pan1_env.engine.Engine` and a
+:class:`~pan1_env.tasks.FormationTask` built from one :class:`~pan1_env.config.FormationConfig`. It owns
+everything an episode is: seeding, reset (new random teams, task state, the clock), turning actions into
+commands, the step, the episode clock, truncation, numerical faults, autoreset and the infos. Every view
+(the PettingZoo parallel env, the Gymnasium env, the vector env, SB3's VecEnv) only reshapes what it
+returns; B = 1 is a batch of one.
+
+Infos (:meth:`FormationCore.infos`) are flat arrays, the same keys after a reset and after a step:
+
+* per arm ``(B, N)``: ``cost`` (1.0 where the arm's protected bodies entered an obstacle after a
+  sub-step), ``min_clearance`` (m), ``reward_<term>`` (the reward's weighted terms, which sum to it:
+  ``formation``, and ``effort``, ``collision``, ``success``, ``intervention`` when their weights are not
+  zero; 0 at a reset), and with the safety filter on ``shield_intervened``, ``shield_fallback`` and
+  ``qp_counts (B, N, 3)`` (sub-steps per QP status: nominal, solved, fallback);
+* per copy ``(B,)``: ``formation_error`` (m, largest edge-length error), ``is_success``, and ``fault`` (a
+  message, "" for the copies without one) only in a step where some copy's state went non-finite.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .compiled import kernels
+from .config import FormationConfig, ReachConfig
+from .engine import Engine, StepRecord
+from .observation import ObservationLayout
+from .random_scenario import random_scenario
+from .tasks import FormationTask, ReachTask
+from .validation import positive_int
+
+__all__ = ["FormationCore", "CoreStep", "CoreView", "team_infos", "first_copy", "config_attributes", "FAULT"]
+
+FAULT = "non-finite state in the physics step; episode truncated"
+TASKS = {FormationConfig: FormationTask, ReachConfig: ReachTask}
+
+
+@dataclass
+class CoreStep:
+    """A step of every copy: observations (one ``(B, A, size)`` float32 array per layout group), ``reward
+    (B, N)``, ``terminated``, ``truncated`` ``(B,)``, the infos, and with autoreset the copies that ended
+    (``ended``, indices) with their last observations and infos (``final_observations``, ``final_infos``);
+    the observations are then the new episodes' first."""
+
+    observations: list[np.ndarray]
+    reward: np.ndarray
+    terminated: np.ndarray
+    truncated: np.ndarray
+    infos: dict[str, np.ndarray]
+    ended: np.ndarray
+    final_observations: list[np.ndarray] | None = None
+    final_infos: dict[str, np.ndarray] | None = None
+
+
+class FormationCore:
+    """B copies of a scenario's team and a task, stepped together (see the module docstring).
+
+    Args:
+        config: the env's arguments, validated: a :class:`~pan1_env.config.FormationConfig` (the formation
+            task) or a :class:`~pan1_env.config.ReachConfig` (the one-arm reach task).
+        copies: B.
+        threads: the engine's ``threads`` (``"auto"``, ``True`` or ``False``).
+    """
+
+    def __init__(self, config: FormationConfig | ReachConfig, copies: int = 1, *, threads: bool | str = "auto") -> None:
+        self.config = c = config
+        self.copies = B = positive_int("num_envs", copies)
+        team = c.team
+        self.engine = Engine(team, B, physics_dt=c.physics_dt, safety_filter=c.safety_filter or False,
+                             max_speed=c.max_joint_speed, qp_solver=c.qp_solver, threads=threads)
+        self.task = TASKS[type(c)](c, B)
+        self.layout: ObservationLayout | None = getattr(self.task, "layout", None)
+        self.agents = [f"arm_{i}" for i in range(team.n_arms)]
+        self.n_links = [a.n_links for a in team.arms]
+        self.n_actuated = [a.n_actuated for a in team.arms]
+        self.rngs = [np.random.default_rng() for _ in range(B)]
+        self.steps = np.zeros(B, dtype=np.int64)
+        self.record: StepRecord | None = None
+        self._k_rows = np.tile(np.asarray(self.n_actuated), B)
+        # the team views' flat action: where each of its columns goes in the padded (N, k_max) command
+        k_max = max(self.n_actuated)
+        self._columns = np.concatenate([i * k_max + np.arange(k) for i, k in enumerate(self.n_actuated)])
+        self._command = np.zeros((B, team.n_arms, k_max))
+
+    @property
+    def k_max(self) -> int:
+        return self.engine.k_max
+
+    def flat_observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds of the team views' flat observation: the agents' observations concatenated in agent order."""
+        bounds = [self.task.bounds(i) for i in range(len(self.agents))]
+        return np.concatenate([lo for lo, _ in bounds]), np.concatenate([hi for _, hi in bounds])
+
+    def flat_observations(self, mats: list[np.ndarray]) -> np.ndarray:
+        """The agents' observations concatenated in agent order, ``(B, Σ size)``."""
+        return self.task.flat(mats)
+
+    def padded_actions(self, flat: np.ndarray) -> np.ndarray:
+        """A flat team action ``(B, Σ k_i)`` (agent order) as the padded ``(B, N, k_max)`` array :meth:`step`
+        takes (a scratch array of the core's, overwritten by the next call)."""
+        self._command.reshape(self.copies, -1)[:, self._columns] = flat
+        return self._command
+
+    def seed(self, seeds: list[int | None]) -> None:
+        """A fresh generator for every copy given a seed (``None``: keep the copy's generator)."""
+        if len(seeds) != self.copies:
+            raise ValueError(f"reset(seed=...) needs an int or {self.copies} seeds, got {len(seeds)}")
+        for b, s in enumerate(seeds):
+            if s is not None:
+                self.rngs[b] = np.random.default_rng(s)
+
+    def reset(self, which: np.ndarray | None = None, options: dict | None = None) -> None:
+        """Start a new episode in the copies ``which`` (default: all): a new team from the copy's generator
+        for random scenarios, every arm at rest at its start, the task's state (``options``: the task's reset
+        options) and the clock at zero."""
+        which = np.arange(self.copies) if which is None else np.asarray(which, dtype=np.int64)
+        if self.config.random:
+            for b in which.tolist():
+                team = random_scenario(self.rngs[b], self.config.random_options)
+                self.engine.load_team(b, team)
+                self.task.load_team(b, team)
+        self.steps[which] = 0
+        self.engine.reset(which)
+        self.task.reset(which, self.rngs, self.engine, options)
+        self.record = None
+
+    def observe(self) -> list[np.ndarray]:
+        """Every agent's observation, one float32 array ``(B, A, size)`` per layout group."""
+        return self.task.observe(self.engine)[1]
+
+    def infos(self) -> dict[str, np.ndarray]:
+        """The infos of the state just reset (no step yet): the same keys a step gives."""
+        state = self.task.observe(self.engine)[0]
+        return self._infos(self.task.evaluate(None, self.engine, state, np.zeros((self.copies, len(self.agents)))),
+                           None)
+
+    def commands(self, actions: np.ndarray) -> np.ndarray:
+        """Turn actions ``(B, N, k_max)`` in place into the engine's commands from the current state (clip to
+        [−1, 1], scale, compose with the paper's law in residual and gain modes) and return each arm's
+        effort ‖clip(a)‖²/k ``(B, N)``. ``ValueError`` for NaN or inf, before anything changes."""
+        effort = np.empty(len(self._k_rows))
+        flat = actions.reshape(len(effort), -1)
+        bad = kernels().scale_command(flat, self._k_rows, self.config.action_scale, effort)
+        if bad >= 0:
+            b, i = divmod(bad, len(self.agents))
+            where = f"action for {self.agents[i]}" + (f" of copy {b}" if self.copies > 1 else "")
+            raise ValueError(f"{where} contains NaN or inf: {flat[bad, : self.n_actuated[i]].tolist()}")
+        self.task.compose(self.config.action_mode, actions, self.engine)
+        return effort.reshape(self.copies, -1)
+
+    def step(self, actions: np.ndarray, *, autoreset: bool = False) -> CoreStep:
+        """One env step of every copy. ``actions (B, N, k_max)``: each arm's actions in [−1, 1] (clipped),
+        padding ignored; the array is used as scratch. With ``autoreset`` the copies that end start a new
+        episode in the same call (the returned observations are the new episodes' first)."""
+        c, engine = self.config, self.engine
+        torque = c.action_mode == "torque"
+        effort = self.commands(actions)
+        rec = engine.step(actions, c.substeps, torque=torque)
+        self.record = rec
+        self.steps += 1
+        state, mats = self.task.observe(engine)
+        out = self.task.evaluate(rec, engine, state, effort, command=None if torque else actions)
+        finite = rec.finite.all(axis=1)
+        truncated = (self.steps >= c.max_steps) | ~finite
+        infos = self._infos(out, rec)
+        if not finite.all():
+            infos["fault"] = np.where(finite, "", FAULT)
+        ended = np.flatnonzero(out.terminated | truncated)
+        result = CoreStep(mats, out.reward, out.terminated, truncated, infos, ended)
+        if autoreset and len(result.ended):
+            result.final_observations = [m.copy() for m in mats]
+            result.final_infos = infos
+            self.reset(result.ended)
+            self.record = rec
+            result.observations = self.observe()
+        return result
+
+    def _infos(self, out, rec: StepRecord | None) -> dict[str, np.ndarray]:
+        shape = out.cost.shape
+        infos: dict[str, Any] = {"cost": out.cost, "min_clearance": out.measures["min_clearance"]}
+        for name, value in out.terms.items():
+            infos[f"reward_{name}"] = np.zeros(shape) if rec is None else np.broadcast_to(value, shape).astype(float)
+        if self.engine.filter is not None:
+            counts = np.zeros((*shape, 3), dtype=np.int64) if rec is None else rec.qp_counts
+            infos["shield_intervened"] = counts[..., 1] + counts[..., 2] > 0
+            infos["shield_fallback"] = counts[..., 2] > 0
+            infos["qp_counts"] = counts
+        infos.update((key, value) for key, value in out.measures.items() if key != "min_clearance")
+        infos["is_success"] = out.success
+        return infos
+
+
+def team_infos(infos: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The core's infos per copy ``(B,)``, as the team views give them: ``cost`` the number of arms that
+    entered an obstacle, ``min_clearance`` the smallest, ``reward_<term>`` the mean over arms (as the
+    team reward is), ``shield_*`` whether any arm's filter acted; per-copy keys as they are."""
+    out: dict[str, np.ndarray] = {}
+    for key, value in infos.items():
+        if key in ("cost", "qp_counts"):
+            out[key] = value.sum(axis=1)
+        elif key == "min_clearance":
+            out[key] = value.min(axis=1)
+        elif key.startswith("shield_"):
+            out[key] = value.any(axis=1)
+        elif key.startswith("reward_"):
+            out[key] = value.mean(axis=1)
+        else:
+            out[key] = value
+    return out
+
+
+def first_copy(infos: dict[str, np.ndarray]) -> dict[str, Any]:
+    """Copy 0's infos as Python scalars (arrays for ``qp_counts``): a one-copy view's."""
+    return {key: value[0].item() if np.ndim(value[0]) == 0 else value[0] for key, value in infos.items()}
+
+
+class CoreView:
+    """What every view of a :class:`FormationCore` (``self.core``) exposes besides its own API: the config's
+    arguments as attributes (``env.control_dt``, ``env.max_steps``, …), the engine, task and layout,
+    and the safety filter's switch."""
+
+    core: FormationCore
+
+    @property
+    def config(self) -> FormationConfig | ReachConfig:
+        return self.core.config
+
+    @property
+    def engine(self) -> Engine:
+        return self.core.engine
+
+    @property
+    def task(self) -> FormationTask:
+        return self.core.task
+
+    @property
+    def observation_layout(self) -> ObservationLayout:
+        """Where each part of an agent's observation lies (:class:`~pan1_env.observation.ObservationLayout`)."""
+        return self.core.layout
+
+    @property
+    def scenario(self):
+        """Copy 0's team (for random scenarios, the team of its current episode)."""
+        return self.core.engine.teams[0]
+
+    @property
+    def n_links(self) -> list[int]:
+        return self.core.n_links
+
+    @property
+    def n_actuated(self) -> list[int]:
+        return self.core.n_actuated
+
+    @property
+    def num_steps(self) -> int:
+        """Steps since copy 0's reset."""
+        return int(self.core.steps[0])
+
+    @property
+    def safety_filter(self):
+        """The safety filter's parameters, or None when it is off."""
+        return self.core.engine.filter
+
+    def set_safety_filter(self, safety_filter) -> None:
+        """Switch the RCBF-QP filter on (``True``: the scenario's κ, ε, margin; or a
+        :class:`~pan1_env.safety.FilterParams`) or off (``False``), from the next physics sub-step.
+        :class:`~pan1_env.wrappers.SafetyShield` calls this."""
+        self.core.engine.set_safety_filter(safety_filter)
+
+    @property
+    def last_step(self) -> StepRecord | None:
+        """The engine's record of the last step (arrays ``(B, N, …)``); None after a reset."""
+        return self.core.record
+
+    @property
+    def action_scale(self) -> float:
+        return self.core.config.action_scale
+
+
+def config_attributes(view: type, config: type, skip: tuple[str, ...] = ()) -> type:
+    """Give the view class read-only attributes for the config's arguments (``env.control_dt`` is
+    ``env.core.config.control_dt``), except ``skip`` and those the view names itself (the scenario, the filter)."""
+    for f in dataclasses.fields(config):
+        if f.name not in ("scenario", "safety_filter", "team", *skip) and f.name not in view.__dict__:
+            setattr(view, f.name, property(lambda v, name=f.name: getattr(v.core.config, name),
+                                           doc=f"The config's ``{f.name}``."))
+    return view
+
+
+config_attributes(CoreView, FormationConfig)

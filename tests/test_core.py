@@ -1,0 +1,166 @@
+"""The env core: one owner of reset, step, the clock and the infos for every view.
+
+The reset test is the class of the bug where a view forgot a piece of task state between episodes: for
+every view and every action mode, an episode after a reset with a seed is identical, step for step, to
+the same seed's episode in a fresh env, after an episode that left every piece of task state non-trivial
+(the residual gates' filter record, the previous commands, the engine's record).
+"""
+
+from __future__ import annotations
+
+import gymnasium
+import numpy as np
+import pytest
+
+from pan1_env.centralized import CentralizedEnv
+from pan1_env.config import ACTION_MODES, FormationConfig
+from pan1_env.core import FormationCore, team_infos
+from pan1_env.environment import parallel_env
+from pan1_env.vector import Pan1VectorEnv
+
+MODE_ARGS = {"velocity": {}, "torque": {}, "gain": {}, "residual": {"blocked_gate": 0.05, "residual_gate": 0.02}}
+FIRST_STEPS = 6
+
+
+def _actions(rng: np.random.Generator, shape) -> np.ndarray:
+    return rng.uniform(-1.0, 1.0, shape).astype(np.float32)
+
+
+def _parallel_episode(env, seed: int, steps: int, rng, constant: float | None = None) -> list:
+    obs, infos = env.reset(seed=seed)
+    trace = [(obs, infos)]
+    for _ in range(steps):
+        if not env.agents:
+            break
+        out = env.step({a: np.full(env.action_space(a).shape, constant, np.float32) if constant is not None
+                        else _actions(rng, env.action_space(a).shape) for a in env.agents})
+        trace.append(out)
+    return trace
+
+
+def _assert_same(a, b) -> None:
+    """Nested observations, rewards and infos equal (numbers to the last bit: the same code on the same input)."""
+    if isinstance(a, dict):
+        assert a.keys() == b.keys()
+        for key in a:
+            _assert_same(a[key], b[key])
+    elif isinstance(a, (tuple, list)):
+        assert len(a) == len(b)
+        for x, y in zip(a, b, strict=True):
+            _assert_same(x, y)
+    else:
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+@pytest.mark.parametrize("scenario", ["paper_pa_mixed_square", "random"])
+@pytest.mark.parametrize("mode", ACTION_MODES)
+def test_parallel_env_episode_after_a_full_one_is_the_fresh_envs(mode: str, scenario: str) -> None:
+    kw = {"action_mode": mode, "safety_filter": True, "max_steps": 40, "intervention_penalty": 0.1} | MODE_ARGS[mode]
+    used = parallel_env(scenario, **kw)
+    # to its end (truncation), pushing every arm: the filter holds some back (paper_pa_mixed_square)
+    _parallel_episode(used, 0, 1000, None, constant=1.0)
+    assert not used.agents and used.last_step is not None
+    if mode == "residual" and scenario != "random":
+        assert np.any(used.task.blocked > 0), "the episode should leave the blocked gate's record set"
+    again = _parallel_episode(used, 5, FIRST_STEPS, np.random.default_rng(1))
+    fresh = _parallel_episode(parallel_env(scenario, **kw), 5, FIRST_STEPS, np.random.default_rng(1))
+    _assert_same(again, fresh)
+
+
+def test_the_blocked_gate_starts_closed_in_every_episode() -> None:
+    """The bug of 0.1.0: the parallel env kept the last episode's filter record across a reset, so a residual
+    correction with ``blocked_gate`` acted in the new episode's first step."""
+    env = parallel_env("paper_pa_mixed_square", action_mode="residual", blocked_gate=0.05, safety_filter=True)
+    env.reset(seed=0)
+    for _ in range(40):
+        env.step({a: np.ones(env.action_space(a).shape, np.float32) for a in env.agents})
+    assert np.any(env.task.blocked > 0)
+    env.reset(seed=0)
+    command, _ = env.commands({a: np.ones(env.action_space(a).shape, np.float32) for a in env.agents})
+    law = env.task.nominal_velocity(env.engine)
+    np.testing.assert_array_equal(command, law)  # the gate is closed: the paper's law alone
+
+
+@pytest.mark.parametrize("mode", ["velocity", "residual"])
+def test_gymnasium_and_vector_episodes_after_a_full_one_are_the_fresh_envs(mode: str) -> None:
+    kw = {"action_mode": mode, "max_steps": 20, "safety_filter": True} | MODE_ARGS[mode]
+
+    def gym_episode(env, seed):
+        rng, trace = np.random.default_rng(2), [env.reset(seed=seed)]
+        for _ in range(FIRST_STEPS):
+            trace.append(env.step(_actions(rng, env.action_space.shape)))
+        return trace
+
+    used = CentralizedEnv("random", **kw)
+    gym_episode(used, 3)
+    for _ in range(30):
+        used.step(np.ones(used.action_space.shape, np.float32))  # to the end of the episode
+        if used._needs_reset:
+            break
+    _assert_same(gym_episode(used, 4), gym_episode(CentralizedEnv("random", **kw), 4))
+
+    def vector_episode(venv, seed):
+        rng, trace = np.random.default_rng(3), [venv.reset(seed=seed)]
+        for _ in range(FIRST_STEPS):
+            trace.append(venv.step(_actions(rng, venv.action_space.shape)))
+        return trace
+
+    used = Pan1VectorEnv("random", 3, **kw)
+    vector_episode(used, 7)
+    for _ in range(30):
+        used.step(np.ones(used.action_space.shape, np.float32))
+    _assert_same(vector_episode(used, 8), vector_episode(Pan1VectorEnv("random", 3, **kw), 8))
+
+
+@pytest.mark.parametrize("env_id", ["pan1_env/PaperPA3Square-v0", "pan1_env/WholeArmStaticFormation-v0"])
+def test_every_view_has_the_same_info_keys_after_a_reset_and_a_step(env_id: str) -> None:
+    par = parallel_env(env_id, safety_filter=True, effort_weight=0.1)
+    _, reset_infos = par.reset(seed=0)
+    _, _, _, _, step_infos = par.step({a: np.zeros(par.action_space(a).shape, np.float32) for a in par.agents})
+    keys = set(reset_infos["arm_0"])
+    assert keys == set(step_infos["arm_0"]) and {"reward_formation", "reward_effort", "shield_intervened"} <= keys
+    assert all(np.issubdtype(np.asarray(v).dtype, np.number) or isinstance(v, bool)
+               for v in step_infos["arm_0"].values()), "infos must be numeric (TorchRL's PettingZooWrapper)"
+    gym = gymnasium.make(f"pan1_env:{env_id}", safety_filter=True, effort_weight=0.1)
+    _, reset_info = gym.reset(seed=0)
+    _, _, _, _, step_info = gym.step(np.zeros(gym.action_space.shape, np.float32))
+    assert set(reset_info) == set(step_info) == keys
+    venv = Pan1VectorEnv(env_id, 2, effort_weight=0.1)
+    _, vinfo = venv.reset(seed=0)
+    assert {k for k in vinfo if not k.startswith("_")} == keys
+
+
+def test_team_infos_aggregate_the_arms_as_the_reward_does() -> None:
+    core = FormationCore(FormationConfig("paper_pa_mixed_square", safety_filter=True, effort_weight=0.3), 2)
+    core.seed([0, 1])
+    core.reset()
+    actions = np.random.default_rng(0).uniform(-1, 1, (2, 4, core.k_max))
+    out = core.step(actions)
+    team = team_infos(out.infos)
+    np.testing.assert_allclose(team["reward_formation"] + team["reward_effort"], out.reward.mean(axis=1), atol=1e-12)
+    np.testing.assert_array_equal(team["cost"], out.infos["cost"].sum(axis=1))
+    np.testing.assert_array_equal(team["min_clearance"], out.infos["min_clearance"].min(axis=1))
+    np.testing.assert_array_equal(team["shield_intervened"], out.infos["shield_intervened"].any(axis=1))
+
+
+def test_every_view_accepts_every_registered_id() -> None:
+    for env_id in ("pan1_env/WholeArmStaticFormation-v0", "pan1_env:pan1_env/RandomFormation-v0"):
+        env = parallel_env(env_id)
+        assert env.config.random and env.scenario.n_arms == 4
+    assert parallel_env("pan1_env/WholeArmStaticFormation-v0").scenario.bodies == "links"
+    mixed = parallel_env("paper_pa_mixed_square").scenario.name
+    assert Pan1VectorEnv("pan1_env/PaperMixedPA-v0", 2).scenario.name == mixed
+    # an option given with an id is merged over the id's options, key by key
+    env = parallel_env("pan1_env/WholeArmFormation-v0", random_options={"n_obstacles": 2})
+    assert len(env.scenario.obstacles) == 2 and env.scenario.obstacle_paths is not None
+
+
+def test_config_validates_once_with_a_hint() -> None:
+    with pytest.raises(TypeError, match="did you mean 'success_tolerance'"):
+        FormationConfig.of("paper_pa3_square", sucess_tolerance=0.02)
+    with pytest.raises(ValueError, match="random_options: unknown option 'n_arm'; did you mean 'n_arms'"):
+        FormationConfig("random", random_options={"n_arm": 3})
+    with pytest.raises(ValueError, match="max_steps"):
+        FormationConfig(max_steps=0)
+    config = FormationConfig("paper_pa3_square", control_dt=0.1)
+    assert config.max_steps == 1000 and config.substeps == 10 and config.replace(max_steps=7).max_steps == 7
