@@ -1,5 +1,6 @@
-"""Whole-arm safety foundations: pan1_env.bodies' geometry and barriers, the scenario keys that select
-the protected bodies and move obstacles, and the random generator's whole-arm options.
+"""Whole-arm safety foundations: pan1_env.bodies' geometry and barriers, and the scenario keys that
+select the protected bodies and move obstacles (the random generator's whole-arm options are tested in
+tests/test_random_scenario.py).
 
 Geometry is checked against brute force, finite differences and tests/geometry.py, an independent
 rebuild of the arms from ``state()`` that uses nothing of pan1_env's kinematics.
@@ -9,13 +10,8 @@ from __future__ import annotations
 
 import copy
 import datetime
-import hashlib
-import importlib.util
 import math
-import subprocess
-import sys
 from importlib import resources
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,21 +20,16 @@ from arms import random_arm
 from geometry import (
     arms_from_state,
     inter_arm_clearances,
-    inter_arm_penetration,
     joints,
-    obstacle_clearances,
-    obstacle_penetration,
     point_segment_distance,
     segment_segment_distance,
 )
 
 from pan1_env import bodies, scenario
 from pan1_env.cascade import passive_velocity_map
-from pan1_env.dynamics import ArmParams, end_effector
-from pan1_env.random_scenario import BASE_MARGIN, RandomScenarioOptions, random_scenario
+from pan1_env.dynamics import ArmParams
 from pan1_env.scenario import ScenarioError
 
-ROOT = Path(__file__).resolve().parents[1]
 WHOLE_ARM = {"bodies": "links", "link_radius": 0.03, "inter_arm": True, "obstacle_speed": (0.05, 0.2),
              "links": (2, 3, 4, 3)}
 
@@ -441,142 +432,6 @@ def test_new_keys_with_odd_values_give_a_scenario_or_a_scenario_error(slot: str,
             scenario.from_dict(doc, source="odd.toml")
         except ScenarioError as err:
             assert str(err).startswith(("odd.toml: safety.", "odd.toml: obstacles[0].", "odd.toml: arms[")), str(err)
-
-
-# ------------------------------------------------------------------ random options
-
-
-DIGEST_CASES = {
-    "default": ({}, "40c33cb34f617a926e57019ce1255d6678697f52d556cbeb1cf08c2a995bb0fb"),
-    "mixed": ({"links": (2, 3, 4, 3), "passive_fraction": 0.5, "n_obstacles": 4},
-              "1660d9d16402be35e3393599576651fa74ee5cca0c97ef0ce01ffc5af120f0c5"),
-    "square": ({"shape": "square", "links": 2, "passive_fraction": 0.25},
-               "0f46a45d5ef5920f5e6132904f2c2fe4b80f4e72472cdcc43920b7d73e1772dd"),
-    "no_obstacles": ({"n_arms": 3, "n_obstacles": 0, "links": 4, "passive_fraction": 1.0},
-                     "91637b73333a060ba0c117d9b1cdbde7f2611efe5e12715b25a0357b0049efa5"),
-}
-# the last commit before the whole-arm options, whose generator the default path must reproduce
-BEFORE_WHOLE_ARM = "803ea7e5e924f2f9539f16754ab7065821c3eea4"
-
-
-def _team_digest(sc) -> str:
-    h = hashlib.sha256()
-    parts = []
-    for arm, q in zip(sc.arms, sc.q0, strict=True):
-        parts += [arm.masses, arm.lengths, arm.com, arm.inertias, arm.base,
-                  [arm.phi, float(arm.passive_first_joint)], q]
-    parts += [sc.obstacles.centers.ravel(), sc.obstacles.radii, sc.formation.distances,
-              np.asarray(sc.formation.edges, float).ravel()]
-    for p in parts:
-        h.update(np.round(np.asarray(p, dtype=np.float64), 10).tobytes())
-    return h.hexdigest()
-
-
-def _draws_digest(generate, options) -> str:
-    h = hashlib.sha256()
-    for seed in range(20):
-        rng = np.random.default_rng(seed)
-        for _ in range(2):
-            h.update(_team_digest(generate(rng, options)).encode())
-        h.update(rng.bit_generator.state["state"]["state"].to_bytes(16, "little"))  # no extra numbers drawn
-    return h.hexdigest()
-
-
-@pytest.mark.parametrize("case", list(DIGEST_CASES))
-def test_default_options_draw_the_same_teams_as_before(case: str) -> None:
-    options, digest = DIGEST_CASES[case]
-    assert _draws_digest(random_scenario, RandomScenarioOptions(**options)) == digest
-
-
-def test_default_options_draw_what_the_generator_before_whole_arm_options_drew(tmp_path: Path) -> None:
-    try:
-        old = subprocess.run(["git", "show", f"{BEFORE_WHOLE_ARM}:pan1_env/random_scenario.py"], cwd=ROOT,
-                             capture_output=True, text=True, check=True).stdout
-    except (OSError, subprocess.CalledProcessError):
-        pytest.skip("no git history here")
-    path = tmp_path / "random_scenario_before.py"
-    path.write_text(old)
-    spec = importlib.util.spec_from_file_location("pan1_env._random_scenario_before", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up while the class is built
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        del sys.modules[spec.name]
-    for options, _ in DIGEST_CASES.values():
-        assert (_draws_digest(random_scenario, RandomScenarioOptions(**options))
-                == _draws_digest(module.random_scenario, module.RandomScenarioOptions(**options)))
-
-
-@pytest.mark.parametrize("moving", [False, True], ids=["still", "moving"])
-def test_whole_arm_random_starts_are_clear_by_the_independent_checker(moving: bool) -> None:
-    from pan1_env.environment import parallel_env
-
-    options = dict(WHOLE_ARM, obstacle_speed=(0.05, 0.2) if moving else (0.0, 0.0))
-    env = parallel_env("random", random_options=options, control_dt=0.01, physics_dt=0.01)
-    rho = options["link_radius"]
-    for seed in range(25):
-        env.reset(seed=seed)
-        sc = env.scenario
-        assert (sc.bodies, sc.link_radius, sc.inter_arm) == ("links", rho, True)
-        arm_joints, parts = arms_from_state(env.state(), sc)
-        clear = obstacle_clearances(arm_joints, parts["centers"], parts["radii"], rho)
-        assert min(c.min() for c in clear) >= 0.05 - 1e-5  # start_clearance, in float32 state()
-        assert all(np.all(p == 0) for p in obstacle_penetration(arm_joints, parts["centers"], parts["radii"], rho))
-        assert min(c.min() for c in inter_arm_clearances(arm_joints, rho).values()) >= 0.05 - 1e-5
-        assert all(np.all(p == 0) for p in inter_arm_penetration(arm_joints, rho).values())
-        if not moving:
-            assert sc.obstacle_paths is None
-            continue
-        assert np.all((sc.obstacle_speeds >= 0.05) & (sc.obstacle_speeds <= 0.2))
-        lengths = np.linalg.norm(sc.obstacle_paths - sc.obstacles.centers, axis=-1)
-        assert np.all((lengths >= 0.2) & (lengths <= 0.6))
-        for c, e, r in zip(sc.obstacles.centers, sc.obstacle_paths, sc.obstacles.radii, strict=True):
-            for arm in sc.arms:  # every point of the path keeps the obstacle BASE_MARGIN + ρ off every base
-                assert point_segment_distance(arm.base, c, e) >= r + BASE_MARGIN + rho - 1e-12
-
-
-def test_whole_arm_random_links_start_clear_of_obstacles() -> None:
-    """bodies="links" without inter_arm: every link capsule starts start_clearance outside every obstacle."""
-    for seed in range(40):
-        sc = random_scenario(np.random.default_rng(seed), RandomScenarioOptions(bodies="links", link_radius=0.03))
-        arm_joints = [joints(q, a.lengths, a.base, a.phi) for a, q in zip(sc.arms, sc.q0, strict=True)]
-        np.testing.assert_allclose([P[-1] for P in arm_joints], [end_effector(a, q) for a, q in
-                                                                  zip(sc.arms, sc.q0, strict=True)], atol=1e-12)
-        assert all(c.min() >= 0.05 - 1e-12 for c in obstacle_clearances(arm_joints, sc.obstacles.centers,
-                                                                         sc.obstacles.radii, 0.03))
-
-
-def test_inter_arm_keeps_crowded_random_arms_apart() -> None:
-    """Six 4-link arms on a small hexagon: without inter_arm many starts bring two arms' capsules within
-    start_clearance (by the independent checker); with it none do."""
-    crowded = {"n_arms": 6, "links": 4, "size": (0.3, 0.4), "bodies": "links", "link_radius": 0.03}
-    close = {False: 0, True: 0}
-    for inter_arm in (False, True):
-        options = RandomScenarioOptions(**crowded, inter_arm=inter_arm)
-        for seed in range(20):
-            sc = random_scenario(np.random.default_rng(seed), options)
-            arm_joints = [joints(q, a.lengths, a.base, a.phi) for a, q in zip(sc.arms, sc.q0, strict=True)]
-            close[inter_arm] += min(c.min() for c in inter_arm_clearances(arm_joints, 0.03).values()) < 0.05
-    assert close[False] >= 5 and close[True] == 0, close
-
-
-@pytest.mark.parametrize(("options", "message"), [
-    ({"bodies": "link"}, "RandomScenarioOptions.bodies must be one of ('end_effector', 'links'), got 'link'"),
-    ({"bodies": "links", "link_radius": -0.01}, "RandomScenarioOptions.link_radius must be non-negative"),
-    ({"link_radius": 0.03}, "RandomScenarioOptions.link_radius > 0 and inter_arm=True need bodies='links'"),
-    ({"inter_arm": True}, "RandomScenarioOptions.link_radius > 0 and inter_arm=True need bodies='links'"),
-    ({"inter_arm": 1}, "RandomScenarioOptions.inter_arm must be True or False, got 1"),
-    ({"obstacle_speed": (0.2, 0.1)}, "RandomScenarioOptions.obstacle_speed must have low ≤ high"),
-    ({"obstacle_speed": (-0.1, 0.1)}, "RandomScenarioOptions.obstacle_speed[0] must be non-negative"),
-    ({"obstacle_speed": 0.1}, "RandomScenarioOptions.obstacle_speed must be a range (low, high)"),
-    ({"obstacle_path_length": (0.0, 0.5)}, "RandomScenarioOptions.obstacle_path_length[0] must be positive"),
-], ids=["bodies_misspelt", "negative_link_radius", "link_radius_without_links", "inter_arm_without_links",
-        "inter_arm_not_bool", "speed_range_reversed", "negative_speed", "speed_not_a_range", "zero_path_length"])
-def test_random_options_bad_input(options: dict, message: str) -> None:
-    with pytest.raises(ValueError) as err:
-        RandomScenarioOptions(**options)
-    assert str(err.value).startswith(message), str(err.value)
 
 
 def test_scenario_constructor_defaults_keep_old_calls_working() -> None:

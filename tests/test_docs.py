@@ -46,3 +46,20 @@ def test_readme_gymnasium_id_works_in_a_fresh_interpreter(env_id: str, tmp_path:
     )
     done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stderr
+
+
+def test_readme_stays_short() -> None:
+    # what it is, the two commands, the quickstarts, one results table and links; the rest lives in docs/
+    lines = README.read_text(encoding="utf-8").count("\n")
+    assert lines <= 250, f"README.md has {lines} lines; move detail into docs/"
+
+
+def test_relative_links_in_the_docs_lead_to_files() -> None:
+    pages = [README, ROOT / "CHANGELOG.md", *(ROOT / "docs").glob("*.md")]
+    broken = [
+        f"{page.relative_to(ROOT)}: {target}"
+        for page in pages
+        for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text(encoding="utf-8"))
+        if not re.match(r"[a-z]+:|#", target) and not (page.parent / target.split("#")[0]).exists()
+    ]
+    assert not broken, "\n".join(broken)
