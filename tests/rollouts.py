@@ -26,8 +26,8 @@ def bits(x: Any) -> Any:
 
 
 def _cost(info: dict) -> Any:
-    if "agents" in info:  # the Gymnasium view: the team total and the per-arm costs
-        return info["cost"], {a: i["cost"] for a, i in info["agents"].items()}
+    if "cost" in info:  # the Gymnasium view: the team's total
+        return info["cost"]
     return {a: i["cost"] for a, i in info.items()}
 
 

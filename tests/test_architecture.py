@@ -64,12 +64,3 @@ def test_env_constructors_name_their_arguments() -> None:
         params = inspect.signature(cls.__init__).parameters
         assert "safety_filter" in params, cls.__name__
         assert all(p.kind is not p.VAR_KEYWORD for p in params.values()), cls.__name__
-
-
-def test_the_removed_simulation_attribute_says_what_replaces_it() -> None:
-    from pan1_env.environment import parallel_env
-
-    env = parallel_env("paper_pa3_square")
-    with pytest.raises(AttributeError, match="joint_state"):
-        _ = env.sim
-    assert env.joint_state()[0].shape == (4, 4) and env.end_effectors().shape == (4, 2)

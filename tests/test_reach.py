@@ -50,7 +50,8 @@ def test_arm_follows_the_same_trajectory_as_in_the_team_env(scenario: str, arm: 
         assert info["min_clearance"] == pytest.approx(infos[agent]["min_clearance"], abs=1e-12)
         assert info["cost"] == infos[agent]["cost"]
         if shielded:
-            assert info["shield_intervened"] == infos[agent]["shield"]["intervened"] == infos[agent]["shield_intervened"]
+            team_arm = infos[agent]
+            assert info["shield_intervened"] == team_arm["shield"]["intervened"] == team_arm["shield_intervened"]
 
 
 def _seek(env: PAReachEnv, gain: float = 2.0, damping: float = 0.05) -> np.ndarray:
