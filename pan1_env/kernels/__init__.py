@@ -39,7 +39,7 @@ from .observe import (
     scale_command,
 )
 from .physics import _SERIES_MAX, _SERIES_SHORT, _rotate_lanes, _spd_solve, group_end_effectors, group_terms
-from .qp import STATUS_FALLBACK, STATUS_NOMINAL, STATUS_SOLVED, _first_projection_lanes, qp_project
+from .qp import STATUS_FALLBACK, STATUS_NOMINAL, STATUS_SOLVED, _first_projection_lanes, compiled_projection, qp_project
 from .substep import GENERIC_MAX_LINKS, _advance_arms, group_advance, group_advance_generic, group_advance_parallel
 
 __all__ = [
@@ -55,6 +55,7 @@ __all__ = [
     "group_observations",
     "group_observations_parallel",
     "qp_project",
+    "compiled_projection",
     "scale_command",
     "edge_length_errors",
     "formation_observations",
