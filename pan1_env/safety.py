@@ -337,17 +337,49 @@ class FilterParams:
     sensing_radius: float | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "kappa", real("FilterParams: kappa", self.kappa, positive=True))
-        object.__setattr__(self, "epsilon", real("FilterParams: epsilon", self.epsilon, positive=True))
-        object.__setattr__(self, "margin", real("FilterParams: margin", self.margin, non_negative=True))
-        if self.sensing_radius is not None:
-            object.__setattr__(self, "sensing_radius", real("FilterParams: sensing_radius", self.sensing_radius,
-                                                            positive=True))
+        checked = _checked("FilterParams", self.kappa, self.epsilon, self.margin, self.sensing_radius)
+        for name, value in zip(("kappa", "epsilon", "margin", "sensing_radius"), checked, strict=True):
+            object.__setattr__(self, name, value)
 
     @classmethod
-    def of(cls, scenario: Scenario) -> FilterParams:
-        """The scenario's own κ, ε and margin."""
-        return cls(scenario.kappa, scenario.epsilon, scenario.safety_margin)
+    def of(
+        cls,
+        scenario: Scenario,
+        kappa: float | None = None,
+        epsilon: float | None = None,
+        margin: float | None = None,
+        tracking_bound: float | None = None,
+        sensing_radius: float | None = None,
+        owner: str = "FilterParams",
+    ) -> FilterParams:
+        """The scenario's κ, ε and margin, each replaced where given. ``tracking_bound`` δ̄ instead of a
+        margin sets it to Γ(δ̄) (:func:`robust_margin`), so that an arm tracking within δ̄ stays in the
+        original set. Errors name the argument, prefixed by ``owner`` (the API that took it)."""
+        if margin is not None and tracking_bound is not None:
+            raise ValueError(f"{owner}: give margin or tracking_bound, not both")
+        kappa, epsilon, margin, sensing_radius = _checked(
+            owner,
+            scenario.kappa if kappa is None else kappa,
+            scenario.epsilon if epsilon is None else epsilon,
+            scenario.safety_margin if margin is None else margin,
+            sensing_radius,
+        )
+        if tracking_bound is not None:
+            delta = real(f"{owner}: tracking_bound", tracking_bound, non_negative=True)
+            margin = robust_margin(delta, kappa, epsilon)
+        return cls(kappa, epsilon, margin, sensing_radius)
+
+
+def _checked(
+    owner: str, kappa: float, epsilon: float, margin: float, sensing_radius: float | None
+) -> tuple[float, float, float, float | None]:
+    """The filter's parameters as floats, or a ValueError naming the first bad one."""
+    return (
+        real(f"{owner}: kappa", kappa, positive=True),
+        real(f"{owner}: epsilon", epsilon, positive=True),
+        real(f"{owner}: margin", margin, non_negative=True),
+        None if sensing_radius is None else real(f"{owner}: sensing_radius", sensing_radius, positive=True),
+    )
 
 
 def filter_parameters(safety_filter: bool | FilterParams | None, scenario: Scenario) -> FilterParams | None:
