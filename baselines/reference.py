@@ -18,6 +18,8 @@ import warnings
 import numpy as np
 
 from pan1_env.cascade import reduced_jacobian
+from pan1_env.control import nominal_velocity
+from pan1_env.formation import edge_errors, formation_gradient
 from pan1_env.observation import NEIGHBOUR_FEATURES, OBSTACLE_FEATURES, ObservationLayout
 
 __all__ = ["ReferencePolicy", "decode_observation"]
@@ -95,11 +97,10 @@ class ReferencePolicy:
         arm = env.scenario.arms[i]
         kp = env.scenario.kp if self.kp is None else self.kp
         d = decode_observation(obs, env.observation_layout, arm.n_links)
-        delta = d["neighbour_delta"]  # p_j − p_i
-        dist = np.linalg.norm(delta, axis=-1)
-        desired = dist - d["neighbour_error"]
-        e_hat = np.sum(-2.0 * delta * (dist**2 - desired**2)[:, None], axis=0)
-        v0 = -kp * reduced_jacobian(arm, d["q"]).T @ e_hat
+        z = -d["neighbour_delta"]  # p_i − p_j: the agent's edges, oriented away from it
+        desired = np.linalg.norm(z, axis=-1) - d["neighbour_error"]
+        e_hat = formation_gradient(np.ones((1, len(z))), z, edge_errors(z, desired))[0]
+        v0 = nominal_velocity(reduced_jacobian(arm, d["q"]), e_hat, kp)
         if gain is not None:
             gain = np.asarray(gain, dtype=float)
             if gain.shape != v0.shape or not np.all(gain > 0):
