@@ -285,8 +285,8 @@ def project_velocity(
         v_desired: ``(B, k)`` desired velocities.
         A, b: ``(B, m, k)`` and ``(B, m)`` rows from :func:`rcbf_constraints` (+inf b = no row).
         solver: ``"active_set"`` (:func:`active_set_projection`, the exact enumeration in numpy) or
-            ``"piqp"`` (qpsolvers + PIQP). The compiled enumeration, the same answers at a tenth of the
-            cost and more, is :func:`pan1_env.kernels.compiled_projection`.
+            ``"piqp"`` (qpsolvers + PIQP). :func:`pan1_env.kernels.compiled_projection` gives the
+            same answers as ``"active_set"``, compiled: several hundred times faster on a batch.
 
     Returns:
         :class:`FilterResult` with the filtered velocities and a :class:`QPStatus` per arm.
