@@ -23,15 +23,15 @@ deterministically). Registration is per process (a plain dict; not thread-safe).
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from .adversarial import AdversarialPolicy
-from .reference import ReferencePolicy, decode_observation
+from .reference import ReferencePolicy
+from .sb3 import load_model, normalise_observation, sb3_policy
 
 __all__ = ["Policy", "PolicyFactory", "ZeroPolicy", "RandomPolicy", "register_policy", "unregister_policy",
            "registered_policies", "check_policy_name", "make_policy", "BUILTIN_POLICIES", "load_model",
@@ -142,94 +142,7 @@ def _sb3(env, seed: int | None, path: str) -> Policy:
     path = Path(path)
     if not path.exists():
         raise ValueError(f"policy 'sb3:{path}': no such model file {path}")
-    return _sb3_policy(path, env)
-
-
-def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
-    """A PPO or SAC model saved by Stable-Baselines3 (on the CPU, one torch thread) and the
-    ``model.json`` beside it (empty if there is none): env arguments and observation statistics."""
-    import torch
-    from stable_baselines3 import PPO, SAC
-
-    path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"no such model file {path}")
-    torch.set_num_threads(1)
-    for cls in (PPO, SAC):
-        try:
-            model = cls.load(path, device="cpu")
-            break
-        except Exception:  # noqa: BLE001 - try the next algorithm
-            continue
-    else:
-        raise ValueError(f"{path} is not a PPO or SAC model saved by Stable-Baselines3")
-    meta = json.loads(path.with_suffix(".json").read_text()) if path.with_suffix(".json").exists() else {}
-    return model, meta
-
-
-def normalise_observation(flat: np.ndarray, norm: dict[str, Any] | None) -> np.ndarray:
-    """Observations ``(…, obs)`` standardised and clipped as VecNormalize did in training (``norm``:
-    ``model.json``'s ``observation_normalization``; None leaves them as they are)."""
-    if norm is None:
-        return flat
-    return np.clip((flat - np.asarray(norm["mean"])) / np.sqrt(np.asarray(norm["var"]) + norm["epsilon"]),
-                   -norm["clip"], norm["clip"]).astype(np.float32)
-
-
-def _sb3_policy(path: Path, env) -> Policy:
-    """A centralised SB3 model as a policy. ``model.json`` beside the model (written by
-    :func:`~pan1_env.baselines.training.train`) gives its observation normalisation and action mode;
-    a model trained on residual (or gain) actions runs on a velocity-mode env by adding the reference law
-    to its correction (or by re-weighting the law's terms with its gains)."""
-    model, meta = load_model(path)
-    agents = list(env.possible_agents)
-    sizes = [env.action_space(a).shape[0] for a in agents]
-    n_obs = sum(env.observation_space(a).shape[0] for a in agents)
-    if model.observation_space.shape != (n_obs,) or model.action_space.shape != (sum(sizes),):
-        raise ValueError(f"{path} was trained on spaces {model.observation_space.shape} → "
-                         f"{model.action_space.shape}, this scenario has ({n_obs},) → ({sum(sizes)},)")
-    from pan1_env.config import DEFAULT_GAIN_RANGE
-
-    norm, trained = meta.get("observation_normalization"), meta.get("env_kwargs", {})
-    trained_mode = trained.get("action_mode", "velocity")
-    gate = float(trained.get("residual_gate", 0.0))
-    blocked_gate = float(trained.get("blocked_gate", 0.0))
-    gain_range = float(trained.get("gain_range", DEFAULT_GAIN_RANGE))
-    last: dict[str, np.ndarray] = {}  # the velocity actions sent at the previous step (blocked gate)
-    if trained_mode == env.action_mode == "gain" and env.gain_range != gain_range:
-        raise ValueError(f"{path} was trained with gain_range={gain_range}; this env has gain_range={env.gain_range}")
-    reference = None
-    if trained_mode != env.action_mode:
-        if trained_mode not in ("residual", "gain") or env.action_mode != "velocity":
-            raise ValueError(f"{path} was trained with action_mode={trained_mode!r}; this env has "
-                             f"action_mode={env.action_mode!r}")
-        reference = ReferencePolicy(env)  # the paper's law from observations, corrected or re-weighted
-    splits = np.cumsum(sizes)[:-1]
-
-    def policy(obs):
-        flat = normalise_observation(np.concatenate([obs[a] for a in agents]), norm)
-        action, _ = model.predict(flat, deterministic=True)
-        actions = dict(zip(agents, np.split(np.asarray(action, np.float32), splits), strict=True))
-        if reference is not None and trained_mode == "gain":
-            return {a: reference.act(a, obs[a], gain_range ** np.clip(actions[a], -1, 1)) for a in agents}
-        if reference is not None:
-            nominal = reference(obs)
-            parts = {a: decode_observation(obs[a], env.observation_layout) for a in agents}
-            if all(not np.any(p["qd_scaled"]) for p in parts.values()):
-                last.clear()  # every arm at rest: an episode's start, where nothing was blocked yet
-            for a in agents:
-                correction = np.clip(actions[a], -1, 1)
-                if gate > 0:  # the env's residual gate, from the agent's own neighbour errors
-                    errors = parts[a]["neighbour_error"]
-                    correction = correction * min(1.0, (np.max(np.abs(errors), initial=0.0) / gate) ** 2)
-                if blocked_gate > 0:  # the filter's change of the last command, seen as the velocity reached
-                    k = len(correction)
-                    blocked = np.mean((last[a] - parts[a]["qd_scaled"][-k:]) ** 2) if a in last else 0.0
-                    correction = correction * min(1.0, blocked / blocked_gate)
-                actions[a] = last[a] = np.clip(nominal[a] + correction, -1, 1).astype(np.float32)
-        return actions
-
-    return policy
+    return sb3_policy(path, env)
 
 
 register_policy("reference", _reference)

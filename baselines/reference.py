@@ -13,11 +13,11 @@ Behind :class:`pan1_env.wrappers.SafetyShield` this is the paper's full safe con
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 
 from pan1_env.cascade import reduced_jacobian
+from pan1_env.control import nominal_velocity
+from pan1_env.formation import edge_errors, formation_gradient
 from pan1_env.observation import NEIGHBOUR_FEATURES, OBSTACLE_FEATURES, ObservationLayout
 
 __all__ = ["ReferencePolicy", "decode_observation"]
@@ -35,9 +35,9 @@ def decode_observation(obs: np.ndarray, layout: ObservationLayout, n_links: int 
     (p_j − p_i, ``(m, 2)``) and ``neighbour_error`` (``(m,)``), and every obstacle slot
     ``obstacles`` ``(K, 5)`` (``[present, dx, dy, r, h]``, absent slots zero).
     """
+    if not isinstance(layout, ObservationLayout):
+        raise TypeError(f"decode_observation(obs, layout): layout is the env's observation_layout, got {layout!r}")
     obs = np.asarray(obs, dtype=float)
-    if isinstance(layout, (int, np.integer)):
-        layout, n_links = _layout_from_counts(obs, int(layout), n_links)
     n = layout.n_links(obs.shape[-1]) if n_links is None else int(n_links)
     if obs.shape != (layout.size(n),):
         raise ValueError(f"observation of shape {obs.shape}; the layout gives ({layout.size(n)},) for {n} links")
@@ -52,22 +52,6 @@ def decode_observation(obs: np.ndarray, layout: ObservationLayout, n_links: int 
         "neighbour_error": nb[present, 3],
         "obstacles": obs[seg["obstacles"]].reshape(layout.n_obstacle_obs, OBSTACLE_FEATURES),
     }
-
-
-def _layout_from_counts(obs: np.ndarray, n_links: int, slots: int | None) -> tuple[ObservationLayout, int]:
-    """The 0.1.0 call ``decode_observation(obs, n_links, neighbour_slots)``, kept for one release."""
-    warnings.warn("decode_observation(obs, n_links, neighbour_slots) is deprecated; pass the env's "
-                  "observation_layout: decode_observation(obs, env.observation_layout)", DeprecationWarning,
-                  stacklevel=3)
-    if slots is None:
-        raise TypeError("decode_observation(obs, n_links, neighbour_slots) needs neighbour_slots")
-    K, rest = divmod(obs.shape[-1] - 3 * n_links - 2 - NEIGHBOUR_FEATURES * slots, OBSTACLE_FEATURES)
-    if K < 0 or rest:
-        raise ValueError(f"an observation of {obs.shape[-1]} entries does not fit {n_links} links and {slots} "
-                         f"neighbour slots")
-    empty = np.zeros((0, slots))
-    return ObservationLayout(n=np.zeros(0, np.int64), slots=int(slots), n_obstacle_obs=int(K), neighbour=empty,
-                             neighbour_edge=empty.astype(np.int64), neighbour_present=empty, groups=()), n_links
 
 
 class ReferencePolicy:
@@ -95,11 +79,10 @@ class ReferencePolicy:
         arm = env.scenario.arms[i]
         kp = env.scenario.kp if self.kp is None else self.kp
         d = decode_observation(obs, env.observation_layout, arm.n_links)
-        delta = d["neighbour_delta"]  # p_j − p_i
-        dist = np.linalg.norm(delta, axis=-1)
-        desired = dist - d["neighbour_error"]
-        e_hat = np.sum(-2.0 * delta * (dist**2 - desired**2)[:, None], axis=0)
-        v0 = -kp * reduced_jacobian(arm, d["q"]).T @ e_hat
+        z = -d["neighbour_delta"]  # p_i − p_j: the agent's edges, oriented away from it
+        desired = np.linalg.norm(z, axis=-1) - d["neighbour_error"]
+        e_hat = formation_gradient(np.ones((1, len(z))), z, edge_errors(z, desired))[0]
+        v0 = nominal_velocity(reduced_jacobian(arm, d["q"]), e_hat, kp)
         if gain is not None:
             gain = np.asarray(gain, dtype=float)
             if gain.shape != v0.shape or not np.all(gain > 0):

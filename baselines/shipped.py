@@ -111,12 +111,12 @@ def pretrained(name: str, env):
     """The shipped model ``name`` as a policy on ``env`` (dict of observations → dict of actions).
     A model trained on residual or gain actions runs on a velocity-mode env (the adapter computes the
     reference law from observations)."""
-    from .policies import _sb3_policy
+    from .sb3 import sb3_policy
 
     models = available()
     if name not in models:
         raise ValueError(f"no pretrained model {name!r}; shipped: {sorted(models) or 'none'}")
-    return _sb3_policy(PRETRAINED_DIR / f"{name}.zip", env)
+    return sb3_policy(PRETRAINED_DIR / f"{name}.zip", env)
 
 
 def training_command(run: dict[str, Any], out: str = "runs/train") -> str:

@@ -292,7 +292,11 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
 
 
 def bench_qp(n_problems: int) -> list[tuple[str, float, str]]:
+    from pan1_env.kernels import compiled_projection
     from pan1_env.safety import project_velocity
+
+    def project(v0, A, b, solver):  # the exact active set as the simulator runs it: compiled
+        return compiled_projection(v0, A, b) if solver == "active_set" else project_velocity(v0, A, b, solver=solver)
 
     rng = np.random.default_rng(0)
     problems = []
@@ -306,14 +310,14 @@ def bench_qp(n_problems: int) -> list[tuple[str, float, str]]:
         problems.append((v0[None], A[None], b[None]))
 
     def solve_all(solver):
-        return lambda: [project_velocity(v0, A, b, solver=solver) for v0, A, b in problems]
+        return lambda: [project(v0, A, b, solver) for v0, A, b in problems]
 
     v0s, As, bs = (np.concatenate([p[i] for p in problems]) for i in range(3))
-    batched_fast = _median_time(lambda: project_velocity(v0s, As, bs, solver="active_set"), 5, 1) / n_problems
-    batched_piqp = _median_time(lambda: project_velocity(v0s, As, bs, solver="piqp"), 5, 1) / n_problems
+    batched_fast = _median_time(lambda: project(v0s, As, bs, "active_set"), 5, 1) / n_problems
+    batched_piqp = _median_time(lambda: project(v0s, As, bs, "piqp"), 5, 1) / n_problems
     fast = _median_time(solve_all("active_set"), 5, 1) / n_problems
     piqp = _median_time(solve_all("piqp"), 5, 1) / n_problems
-    worst = max(np.abs(project_velocity(*p, solver="active_set").v - project_velocity(*p, solver="piqp").v).max()
+    worst = max(np.abs(project(*p, "active_set").v - project(*p, "piqp").v).max()
                 for p in problems)
     return [("safety QP per solve, exact active set (via project_velocity)", fast, ""),
             ("safety QP per solve, qpsolvers + PIQP (via project_velocity)", piqp, ""),

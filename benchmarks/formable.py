@@ -14,7 +14,7 @@ For every team (the ``RandomFormation-v0`` team of each reset seed), this script
 
 1. grids the plane in cells of ``--cell`` m and, for every arm, every cell within its reach and
    ``--headings`` sampled headings of its last link (both elbows), solves the arm's inverse
-   kinematics to the cell's centre and asks the filter (``safety.project_velocity``) whether v = 0
+   kinematics to the cell's centre and asks the filter (``safety.project_velocity``, compiled) whether v = 0
    stays still there. A PA arm is allowed every first-joint angle, although from rest it reaches only
    those its zero passive momentum leads to: this can only enlarge the set;
 2. widens each set by the slack a formed team needs (:func:`default_slack`: 2 cm for a formed team's
@@ -44,7 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pan1_env.safety import QPStatus, project_velocity, rcbf_constraints
+from pan1_env.kernels import compiled_projection
+from pan1_env.safety import QPStatus, rcbf_constraints
 
 ROTATION_STEP = np.deg2rad(0.5)
 #: how far a formed team (every edge within 1 cm of its length) can sit from an exact realisation of
@@ -109,7 +110,8 @@ def resting_cells(arm, cells: np.ndarray, centers: np.ndarray, radii: np.ndarray
                   epsilon: float, margin: float, max_speed: float, headings: np.ndarray,
                   chunk: int = 400_000) -> np.ndarray:
     """Boolean per cell: some sampled configuration reaching the cell's centre can stay still behind
-    the filter. That is the filter's own answer to v0 = 0 (``safety.project_velocity`` on the RCBF rows
+    the filter. That is the filter's own answer to v0 = 0 (``safety.project_velocity``, run compiled by
+    ``kernels.compiled_projection``, on the RCBF rows
     and the speed box |v_t| ≤ ``max_speed``): v = 0 satisfies every row, or the QP is infeasible and
     the filter brakes (v* = 0) whatever the policy asks for."""
     near = np.linalg.norm(cells - arm.base, axis=-1) <= arm.lengths.sum()
@@ -129,7 +131,7 @@ def resting_cells(arm, cells: np.ndarray, centers: np.ndarray, radii: np.ndarray
             box = np.concatenate([np.eye(k), -np.eye(k)])
             A = np.concatenate([A, np.broadcast_to(box, (len(p), 2 * k, k))], axis=1)
             b = np.concatenate([b, np.full((len(p), 2 * k), max_speed)], axis=1)
-        still = project_velocity(np.zeros((len(p), k)), A, b).status != QPStatus.SOLVED
+        still = compiled_projection(np.zeros((len(p), k)), A, b).status != QPStatus.SOLVED
         rest[pts[first:first + per][np.unique(i[still])]] = True
     return rest
 

@@ -25,10 +25,10 @@ import numpy as np
 
 from .dynamics import (
     Arm,
-    _angle_differences,
-    _as_joints,
-    _sandwich,
+    angle_differences,
+    checked_joints,
     coriolis_vector,
+    in_joint_coordinates,
     jacobian,
     link_angles,
     mass_matrix,
@@ -86,7 +86,7 @@ def _as_active(arm: Arm, v: np.ndarray, lead: tuple[int, ...]) -> np.ndarray:
 
 def joint_velocity(arm: Arm, q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """q̇ = g0(q) v."""
-    q = _as_joints(arm, q)
+    q = checked_joints(arm, q)
     v = _as_active(arm, v, q.shape[:-1])
     return np.einsum("...ij,...j->...i", passive_velocity_map(arm, q), v)
 
@@ -98,16 +98,16 @@ def reduced_jacobian(arm: Arm, q: np.ndarray) -> np.ndarray:
 
 def passive_momentum(arm: Arm, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
     """Σ_α M_1α(q) q̇_α: conserved for a PA arm with no torque on joint 1 (zero from rest)."""
-    qd = _as_joints(arm, qd, "qd")
+    qd = checked_joints(arm, qd, "qd")
     return np.einsum("...a,...a->...", mass_matrix(arm, q)[..., 0, :], qd)
 
 
 def cascade_terms(arm: Arm, q: np.ndarray, v: np.ndarray) -> CascadeTerms:
     """g0, M_comb, H_comb and q̇ at (q, v), sharing one evaluation of the trigonometry."""
-    q = _as_joints(arm, q)
+    q = checked_joints(arm, q)
     v = _as_active(arm, v, q.shape[:-1])
-    D = _angle_differences(link_angles(q))
-    M = _sandwich(arm.lam * np.cos(D))
+    D = angle_differences(link_angles(q))
+    M = in_joint_coordinates(arm.lam * np.cos(D))
     g0 = _g0_from_mass(M, arm.passive_first_joint)
     qd = np.einsum("...ij,...j->...i", g0, v)
     theta_dot = link_angles(qd)
@@ -124,7 +124,7 @@ def cascade_terms(arm: Arm, q: np.ndarray, v: np.ndarray) -> CascadeTerms:
 
 def g1(arm: Arm, q: np.ndarray) -> np.ndarray:
     """g1(q) = M_comb(q)⁻¹, shape ``(..., k, k)``."""
-    q = _as_joints(arm, q)
+    q = checked_joints(arm, q)
     zeros = np.zeros(q.shape[:-1] + (arm.n_actuated,))
     return np.linalg.inv(cascade_terms(arm, q, zeros).M_comb)
 

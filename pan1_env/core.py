@@ -29,12 +29,13 @@ import numpy as np
 from .compiled import kernels
 from .config import FormationConfig, ReachConfig
 from .engine import Engine, StepRecord
-from .observation import ObservationLayout
+from .observation import OBS_BOUND, ObservationLayout
 from .random_scenario import random_scenario
 from .tasks import FormationTask, ReachTask
 from .validation import positive_int
 
-__all__ = ["FormationCore", "CoreStep", "CoreView", "team_infos", "first_copy", "config_attributes", "FAULT"]
+__all__ = ["FormationCore", "CoreStep", "CoreView", "team_infos", "agent_infos", "first_copy", "config_attributes",
+           "FAULT"]
 
 FAULT = "non-finite state in the physics step; episode truncated"
 TASKS = {FormationConfig: FormationTask, ReachConfig: ReachTask}
@@ -86,10 +87,35 @@ class FormationCore:
         k_max = max(self.n_actuated)
         self._columns = np.concatenate([i * k_max + np.arange(k) for i, k in enumerate(self.n_actuated)])
         self._command = np.zeros((B, team.n_arms, k_max))
+        # (layout group, row in the group) of each agent's observation, in agent order
+        groups = [ids for _, ids in self.layout.groups] if self.layout is not None else [np.arange(1)]
+        order = sorted((i, g, r) for g, ids in enumerate(groups) for r, i in enumerate(ids.tolist()))
+        self._observation_rows = [(g, r) for _, g, r in order]
 
     @property
     def k_max(self) -> int:
         return self.engine.k_max
+
+    @property
+    def state_size(self) -> int:
+        """Size of :meth:`state`: q, q̇ (padded to the largest n) and p of every arm, centre and radius of every
+        obstacle."""
+        return len(self.agents) * (2 * max(self.n_links) + 2) + 3 * self.engine.radii.shape[1]
+
+    def state(self) -> np.ndarray:
+        """Every copy's global state ``(B, state_size)`` float32, for centralised critics: every arm's q and q̇
+        (zeros beyond its links) and end-effector, then every obstacle's centre (where it is now) and radius."""
+        engine, B = self.engine, self.copies
+        q, qd = engine.joint_state(pad=0.0)
+        arms = np.concatenate([np.nan_to_num(q, nan=0.0), np.nan_to_num(qd, nan=0.0), engine.positions()], axis=-1)
+        obstacles = np.concatenate([engine.centers, engine.radii[..., None]], axis=-1)
+        out = np.concatenate([arms.reshape(B, -1), obstacles.reshape(B, -1)], axis=1)
+        return np.clip(out, -OBS_BOUND, OBS_BOUND).astype(np.float32)
+
+    def per_agent(self, mats: list[np.ndarray]) -> list[np.ndarray]:
+        """The observations of :meth:`observe` (one array per layout group) as one ``(B, size_i)`` array per
+        agent, in agent order (views of ``mats``)."""
+        return [mats[group][:, row] for group, row in self._observation_rows]
 
     def flat_observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Bounds of the team views' flat observation: the agents' observations concatenated in agent order."""
@@ -211,6 +237,18 @@ def team_infos(infos: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
             out[key] = value.mean(axis=1)
         else:
             out[key] = value
+    return out
+
+
+def agent_infos(infos: dict[str, np.ndarray], b: int = 0) -> list[dict[str, Any]]:
+    """Copy b's infos per agent, in agent order: per-arm values at the agent's index, team values as they are
+    (Python scalars; arrays for ``qp_counts``)."""
+    out: list[dict[str, Any]] = [{} for _ in range(len(infos["cost"][b]))]
+    for key, value in infos.items():
+        row = value[b]
+        for i, info in enumerate(out):
+            v = row[i] if np.ndim(row) else row
+            info[key] = v.item() if isinstance(v, np.generic) else v
     return out
 
 

@@ -31,6 +31,9 @@ __all__ = [
     "coriolis_matrix",
     "coriolis_vector",
     "link_angles",
+    "angle_differences",
+    "in_joint_coordinates",
+    "checked_joints",
     "joint_positions",
     "end_effector",
     "jacobian",
@@ -206,7 +209,8 @@ def inertia_coefficients(arm: Arm) -> np.ndarray:
     return arm.lam
 
 
-def _as_joints(arm: Arm, q: np.ndarray, name: str = "q") -> np.ndarray:
+def checked_joints(arm: Arm, q: np.ndarray, name: str = "q") -> np.ndarray:
+    """Joint values ``q`` as floats of shape ``(n,)`` or ``(B, n)`` for ``arm``, or a ValueError naming ``name``."""
     q = np.asarray(q, dtype=float)
     n = arm.lengths.shape[-1]
     if q.ndim not in (1, 2) or q.shape[-1] != n:
@@ -221,13 +225,14 @@ def link_angles(q: np.ndarray) -> np.ndarray:
     return np.cumsum(q, axis=-1)
 
 
-def _angle_differences(theta: np.ndarray) -> np.ndarray:
+def angle_differences(theta: np.ndarray) -> np.ndarray:
     """``D[..., α, β] = θ_β − θ_α``."""
     return theta[..., None, :] - theta[..., :, None]
 
 
-def _sandwich(X: np.ndarray) -> np.ndarray:
-    """Sᵀ X S for S the lower-triangular matrix of ones: reverse cumulative sums on both axes."""
+def in_joint_coordinates(X: np.ndarray) -> np.ndarray:
+    """Sᵀ X S for S the lower-triangular matrix of ones (θ = S q): a matrix over the link angles θ in the
+    joint angles q, by reverse cumulative sums on both axes."""
     Y = np.cumsum(X[..., :, ::-1], axis=-1)[..., :, ::-1]
     return np.cumsum(Y[..., ::-1, :], axis=-2)[..., ::-1, :]
 
@@ -235,26 +240,26 @@ def _sandwich(X: np.ndarray) -> np.ndarray:
 def mass_matrix(arm: Arm, q: np.ndarray) -> np.ndarray:
     """Inertia matrix M(q), shape ``(n, n)`` or ``(B, n, n)``; symmetric, positive definite,
     independent of q_1."""
-    q = _as_joints(arm, q)
-    D = _angle_differences(link_angles(q))
-    return _sandwich(arm.lam * np.cos(D))
+    q = checked_joints(arm, q)
+    D = angle_differences(link_angles(q))
+    return in_joint_coordinates(arm.lam * np.cos(D))
 
 
 def coriolis_matrix(arm: Arm, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
     """Coriolis/centrifugal matrix C(q, q̇) = Sᵀ C̄ S with C̄_αβ = −λ_αβ θ̇_β sin(θ_β − θ_α)."""
-    q = _as_joints(arm, q)
-    qd = _as_joints(arm, qd, "qd")
-    D = _angle_differences(link_angles(q))
+    q = checked_joints(arm, q)
+    qd = checked_joints(arm, qd, "qd")
+    D = angle_differences(link_angles(q))
     theta_dot = link_angles(qd)
     Cbar = -arm.lam * theta_dot[..., None, :] * np.sin(D)
-    return _sandwich(Cbar)
+    return in_joint_coordinates(Cbar)
 
 
 def coriolis_vector(arm: Arm, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
     """C(q, q̇) q̇ without forming C: Sᵀ (−(λ ∘ sin D) θ̇²). Shape ``(n,)`` or ``(B, n)``."""
-    q = _as_joints(arm, q)
-    qd = _as_joints(arm, qd, "qd")
-    D = _angle_differences(link_angles(q))
+    q = checked_joints(arm, q)
+    qd = checked_joints(arm, qd, "qd")
+    D = angle_differences(link_angles(q))
     theta_dot = link_angles(qd)
     cbar_thetadot = -np.einsum("...ab,...b->...a", arm.lam * np.sin(D), theta_dot**2)
     # Sᵀ x: reverse cumulative sum.
@@ -267,7 +272,7 @@ def _phi(arm: Arm) -> np.ndarray:
 
 def joint_positions(arm: Arm, q: np.ndarray) -> np.ndarray:
     """World positions of the base, every joint and the end-effector: shape ``(..., n + 1, 2)``."""
-    q = _as_joints(arm, q)
+    q = checked_joints(arm, q)
     ang = link_angles(q) + _phi(arm)
     steps = arm.lengths[..., None] * np.stack([np.sin(ang), np.cos(ang)], axis=-1)
     base = np.broadcast_to(arm.base, steps.shape[:-2] + (2,))
@@ -276,7 +281,7 @@ def joint_positions(arm: Arm, q: np.ndarray) -> np.ndarray:
 
 def end_effector(arm: Arm, q: np.ndarray) -> np.ndarray:
     """End-effector position p_end = p0 + Σ L_α [sin(θ_α + φ), cos(θ_α + φ)], shape ``(..., 2)``."""
-    q = _as_joints(arm, q)
+    q = checked_joints(arm, q)
     ang = link_angles(q) + _phi(arm)
     x = np.sum(arm.lengths * np.sin(ang), axis=-1)
     y = np.sum(arm.lengths * np.cos(ang), axis=-1)
@@ -285,7 +290,7 @@ def end_effector(arm: Arm, q: np.ndarray) -> np.ndarray:
 
 def jacobian(arm: Arm, q: np.ndarray) -> np.ndarray:
     """End-effector Jacobian J = ∂p_end/∂q, shape ``(2, n)`` or ``(B, 2, n)``."""
-    q = _as_joints(arm, q)
+    q = checked_joints(arm, q)
     ang = link_angles(q) + _phi(arm)
     cx = arm.lengths * np.cos(ang)
     cy = -arm.lengths * np.sin(ang)
@@ -295,5 +300,5 @@ def jacobian(arm: Arm, q: np.ndarray) -> np.ndarray:
 
 def kinetic_energy(arm: Arm, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
     """Kinetic energy ½ q̇ᵀ M(q) q̇ (the only energy: there is no gravity)."""
-    qd = _as_joints(arm, qd, "qd")
+    qd = checked_joints(arm, qd, "qd")
     return 0.5 * np.einsum("...a,...ab,...b->...", qd, mass_matrix(arm, q), qd)

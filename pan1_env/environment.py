@@ -17,7 +17,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec
 
 from .config import ARGUMENTS, DEFAULT_CONTROL_DT, DEFAULT_GAIN_RANGE, SUCCESS_TOLERANCE, FormationConfig
-from .core import CoreView, FormationCore
+from .core import CoreView, FormationCore, agent_infos
 from .observation import OBS_BOUND
 from .random_scenario import RandomScenarioOptions
 from .registration import RENDER_FPS, RENDER_MODES
@@ -53,21 +53,16 @@ class Pan1ParallelEnv(CoreView, ParallelEnv):
 
     ## Rewards, Cost, Infos, Episodes
 
-    Per agent, the formation task's (:class:`~pan1_env.tasks.FormationTask`) and the env core's
-    (:mod:`pan1_env.core`): ``infos[agent]`` has ``cost`` (1.0 in a step where the arm entered an
-    obstacle), ``min_clearance``, ``formation_error``, ``is_success``, ``reward_<term>``, with the filter
-    on ``shield_intervened``, ``shield_fallback``, ``qp_counts``, and ``fault`` after a numerical fault.
-    Random scenarios draw a new team at every seeded ``reset``. Truncation after ``max_steps`` or a
-    numerical fault; optional termination on collision or success.
+    The formation task's (:class:`~pan1_env.tasks.FormationTask`) and the env core's (:mod:`pan1_env.core`,
+    which lists the infos: ``cost``, ``min_clearance``, ``formation_error``, ``is_success``,
+    ``reward_<term>``, the shield's flags): per agent here. Random scenarios draw a new team at every seeded
+    ``reset``; truncation after ``max_steps`` or a numerical fault.
 
     ## Arguments
 
     :class:`~pan1_env.config.FormationConfig`'s, and ``render_mode`` (``None``, ``"rgb_array"``, ``"human"``).
     :class:`~pan1_env.wrappers.SafetyShield` switches the filter on through :meth:`set_safety_filter`.
-
-    ## Version History
-
-    * v0: initial release.
+    v0: initial release.
     """
 
     metadata = {"name": "pan1_env_v0", "render_modes": RENDER_MODES, "render_fps": RENDER_FPS,
@@ -79,8 +74,8 @@ class Pan1ParallelEnv(CoreView, ParallelEnv):
                  render_mode: str | None = None, terminate_on_collision: bool = False,
                  terminate_on_success: bool = False, success_tolerance: float = SUCCESS_TOLERANCE,
                  formation_weight: float = 1.0, effort_weight: float = 0.0, collision_penalty: float = 0.0,
-                 success_bonus: float = 0.0,
-                 residual_gate: float = 0.0, intervention_penalty: float = 0.0, blocked_gate: float = 0.0,
+                 success_bonus: float = 0.0, residual_gate: float = 0.0, intervention_penalty: float = 0.0,
+                 blocked_gate: float = 0.0,
                  gain_range: float = DEFAULT_GAIN_RANGE, max_joint_speed: float = 2.0, max_torque: float = 5.0,
                  n_obstacle_obs: int = 3, random_options: RandomScenarioOptions | Mapping[str, Any] | None = None,
                  qp_solver: str = "active_set", safety_filter: bool | FilterParams = False) -> None:
@@ -96,14 +91,8 @@ class Pan1ParallelEnv(CoreView, ParallelEnv):
                                    for a, n in zip(self.possible_agents, n_links, strict=True)}
         self.action_spaces = {a: gymnasium.spaces.Box(-1.0, 1.0, (k,), np.float32)
                               for a, k in zip(self.possible_agents, n_actuated, strict=True)}
-        team = self.core.config.team
-        state_size = team.n_arms * (2 * max(n_links) + 2) + 3 * len(team.obstacles)
-        self.state_space = gymnasium.spaces.Box(-OBS_BOUND, OBS_BOUND, (state_size,), np.float32)
-        # (agent, layout group, row in the group) in agent order: where each observation comes from
-        groups = self.core.layout.groups
-        rows = sorted((i, g, r) for g, (_, ids) in enumerate(groups) for r, i in enumerate(ids.tolist()))
-        self._observation_rows = [(self.possible_agents[i], g, r) for i, g, r in rows]
-        self._actions = np.zeros((1, team.n_arms, self.core.k_max))
+        self.state_space = gymnasium.spaces.Box(-OBS_BOUND, OBS_BOUND, (self.core.state_size,), np.float32)
+        self._actions = np.zeros((1, len(n_links), self.core.k_max))
         self._renderer = None
 
     def observation_space(self, agent: str) -> gymnasium.spaces.Box:
@@ -130,7 +119,7 @@ class Pan1ParallelEnv(CoreView, ParallelEnv):
             self.core.seed([seed])
         self.core.reset()
         self.agents = list(self.possible_agents)
-        obs, infos = self._observations(self.core.observe()), self._agent_infos(self.core.infos())
+        obs, infos = self._observations(self.core.observe()), self._infos(self.core.infos())
         if self.render_mode == "human":
             self.render()
         return obs, infos
@@ -143,7 +132,7 @@ class Pan1ParallelEnv(CoreView, ParallelEnv):
         rewards = dict(zip(agents, out.reward[0].tolist(), strict=True))
         terminations = dict.fromkeys(agents, bool(out.terminated[0]))
         truncations = dict.fromkeys(agents, bool(out.truncated[0]))
-        obs, infos = self._observations(out.observations), self._agent_infos(out.infos)
+        obs, infos = self._observations(out.observations), self._infos(out.infos)
         if len(out.ended):
             self.agents = []
         if self.render_mode == "human":
@@ -170,12 +159,7 @@ class Pan1ParallelEnv(CoreView, ParallelEnv):
         return self._actions
 
     def state(self) -> np.ndarray:
-        engine = self.core.engine
-        q, qd = engine.joint_state(pad=0.0)
-        q, qd, P = np.nan_to_num(q[0], nan=0.0), np.nan_to_num(qd[0], nan=0.0), engine.positions()[0]
-        parts = [np.concatenate([q[i], qd[i], P[i]]) for i in range(len(self.possible_agents))]
-        parts.append(np.concatenate([engine.centers[0], engine.radii[0][:, None]], axis=1).ravel())
-        return np.clip(np.concatenate(parts), -OBS_BOUND, OBS_BOUND).astype(np.float32)
+        return self.core.state()[0]
 
     def render(self):
         if self.render_mode is None:
@@ -192,18 +176,11 @@ class Pan1ParallelEnv(CoreView, ParallelEnv):
             self._renderer.close()
             self._renderer = None
 
-    def _observations(self, mats: list[np.ndarray]) -> dict[str, np.ndarray]:
-        return {agent: mats[group][0, row] for agent, group, row in self._observation_rows}
+    def _infos(self, infos: dict[str, np.ndarray]) -> dict[str, dict[str, Any]]:
+        return dict(zip(self.possible_agents, agent_infos(infos), strict=True))
 
-    def _agent_infos(self, infos: dict[str, np.ndarray]) -> dict[str, dict[str, Any]]:
-        """The core's infos of copy 0 per agent: per-arm values at the agent's index, team values as they are."""
-        out: dict[str, dict[str, Any]] = {agent: {} for agent in self.possible_agents}
-        for key, value in infos.items():
-            row = value[0]
-            for i, info in enumerate(out.values()):
-                v = row[i] if np.ndim(row) else row
-                info[key] = v.item() if isinstance(v, np.generic) else v
-        return out
+    def _observations(self, mats: list[np.ndarray]) -> dict[str, np.ndarray]:
+        return {agent: obs[0] for agent, obs in zip(self.possible_agents, self.core.per_agent(mats), strict=True)}
 
 
 def parallel_env(scenario: str | Path | Scenario = "paper_pa3_square", **kwargs: Any) -> Pan1ParallelEnv:

@@ -37,7 +37,7 @@ from .safety import Obstacles, clearance
 from .scenario import BODIES, Scenario
 from .validation import positive_int, real, whole_ratio
 
-__all__ = ["RandomScenarioOptions", "random_scenario", "BASE_MARGIN"]
+__all__ = ["RandomScenarioOptions", "random_scenario", "zero_momentum_start", "BASE_MARGIN"]
 
 BASE_MARGIN = 0.05  # m: how far every obstacle (and, moving, its whole path) stays outside each base, plus ρ
 
@@ -165,8 +165,11 @@ class RandomScenarioOptions:
         return tuple(i < n_pa for i in range(self.n_arms))
 
 
-def _passive_path(arm: ArmParams, q_target: np.ndarray, qa_start: np.ndarray, steps: int = 200) -> np.ndarray:
-    """Start configuration joined to ``q_target`` by a straight path in the actuated joints."""
+def zero_momentum_start(arm: ArmParams, q_target: np.ndarray, qa_start: np.ndarray, steps: int = 200) -> np.ndarray:
+    """The configuration with actuated angles ``qa_start`` that the arm reaches from ``q_target`` when its
+    actuated joints move along the straight line between them and its passive first joint follows with
+    zero passive momentum (M_11 q̇_1 + M_1a q̇_a = 0, integrated by the trapezoid rule over ``steps``).
+    For a fully actuated arm: ``qa_start`` itself."""
     if not arm.passive_first_joint:
         return qa_start.copy()
     s = np.linspace(0.0, 1.0, steps + 1)
@@ -176,6 +179,8 @@ def _passive_path(arm: ArmParams, q_target: np.ndarray, qa_start: np.ndarray, st
     slope = -(M[:, 0, 1:] @ (qa_start - q_target[1:])) / M[:, 0, 0]  # dq1/ds
     q1 = q_target[0] + np.sum(0.5 * (slope[1:] + slope[:-1]) * np.diff(s))
     return np.concatenate([[q1], qa_start])
+
+
 
 
 def _draw_arm(rng: np.random.Generator, n: int, passive: bool) -> ArmParams:
@@ -223,7 +228,7 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
             qa_start = q_t[1:] + rng.uniform(-1.0, 1.0, n - 1) if passive else \
                 q_t + rng.uniform(-1.0, 1.0, n)
             arms.append(arm)
-            q0.append(_passive_path(arm, q_t, qa_start))
+            q0.append(zero_momentum_start(arm, q_t, qa_start))
         starts = np.array([end_effector(a, q) for a, q in zip(arms, q0, strict=True)])
         sig = [np.linalg.svd(reduced_jacobian(a, q), compute_uv=False).min()
                for a, q in zip(arms, q0, strict=True)]

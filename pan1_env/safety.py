@@ -21,8 +21,10 @@ Two exact solvers are offered for the per-arm QP, both batched over arms:
 * ``"active_set"`` – enumeration of the linearly independent active sets, which is exact for the
   few rows and ≤ n−1 unknowns of this problem (even when rows are parallel: rank A ≤ 2 always).
 
-:func:`active_set_projection` is the same enumeration in plain numpy, the readable reference of the
-compiled one (``project_velocity(..., solver="numpy")``; tests/test_qp_reference.py checks the two).
+:func:`active_set_projection` is the enumeration in plain numpy: the readable reference of the compiled
+QP inside the engine's sub-step (:func:`pan1_env.kernels.qp_project`; batched as here by
+:func:`pan1_env.kernels.compiled_projection`, which tests/test_qp_reference.py checks against it). This
+module, like the rest of the reference layer, imports nothing compiled.
 
 :class:`FilterParams` holds κ, ε and the margin (and the whole-arm filter's sensing range) as the
 envs and the engine take them (:func:`filter_parameters`).
@@ -35,6 +37,7 @@ q̇ = g0·0 = 0 and no barrier can decrease; the status says so.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
 from enum import IntEnum
 from typing import TYPE_CHECKING, NamedTuple
@@ -56,6 +59,7 @@ __all__ = [
     "QPStatus",
     "FilterResult",
     "project_velocity",
+    "project_with",
     "active_set_projection",
     "QP_SOLVERS",
     "FilterParams",
@@ -165,24 +169,6 @@ def _feasible(A: np.ndarray, b: np.ndarray, v: np.ndarray, tol: float) -> np.nda
     return np.all(lhs <= b + tol * np.where(np.isfinite(scale), scale, 1.0), axis=-1)
 
 
-def _solve_active_set(v0: np.ndarray, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Exact projection of each v0 onto {A v ≤ b} by enumerating independent active sets.
-
-    The optimum v* is the projection of v0 onto {A_S v = b_S} for a linearly independent set S of
-    active rows with non-negative multipliers, and no other feasible point is closer to v0; so the
-    closest feasible candidate over all such S is v*, and no feasible candidate means infeasible.
-    Runs in the compiled kernel :func:`pan1_env.kernels.qp_project`.
-    """
-    from .kernels import STATUS_FALLBACK, qp_project
-
-    active = np.isfinite(b)
-    v = np.empty_like(v0)
-    status = np.empty(v0.shape[0], dtype=np.int64)
-    qp_project(np.ascontiguousarray(v0), np.ascontiguousarray(A), np.where(active, b, 0.0), active,
-               v, status)
-    return v, status != STATUS_FALLBACK
-
-
 #: PIQP's settings for the filter's QP: tight tolerances and low regularisation floors, so that the
 #: interior-point answer matches the exact optimum to ~5e-11 on the test problems (degenerate rows
 #: included); floors below 1e-14 made PIQP give up on nearly degenerate rows with huge optima.
@@ -285,7 +271,7 @@ def _project_arm(v0: np.ndarray, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarr
     return np.zeros_like(v0), QPStatus.FALLBACK
 
 
-def _solve_numpy(v0: np.ndarray, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _solve_active_set(v0: np.ndarray, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     result = active_set_projection(v0, A, b)
     return result.v, result.status != QPStatus.FALLBACK
 
@@ -298,15 +284,27 @@ def project_velocity(
     Args:
         v_desired: ``(B, k)`` desired velocities.
         A, b: ``(B, m, k)`` and ``(B, m)`` rows from :func:`rcbf_constraints` (+inf b = no row).
-        solver: ``"active_set"`` (exact enumeration, fast), ``"piqp"`` (qpsolvers + PIQP) or
-            ``"numpy"`` (:func:`active_set_projection`, the same enumeration in numpy; not in
-            ``QP_SOLVERS``, which the simulator accepts, as the simulator runs the compiled QP).
+        solver: ``"active_set"`` (:func:`active_set_projection`, the exact enumeration in numpy) or
+            ``"piqp"`` (qpsolvers + PIQP). :func:`pan1_env.kernels.compiled_projection` gives the
+            same answers as ``"active_set"``, compiled: several hundred times faster on a batch.
 
     Returns:
         :class:`FilterResult` with the filtered velocities and a :class:`QPStatus` per arm.
     """
-    if solver not in (*QP_SOLVERS, "numpy"):
-        raise ValueError(f"unknown QP solver {solver!r}; choose one of {(*QP_SOLVERS, 'numpy')}")
+    if solver not in QP_SOLVERS:
+        raise ValueError(f"unknown QP solver {solver!r}; choose one of {QP_SOLVERS}")
+    return project_with({"active_set": _solve_active_set, "piqp": _solve_piqp}[solver], v_desired, A, b)
+
+
+def project_with(
+    solve: Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
+    v_desired: np.ndarray,
+    A: np.ndarray,
+    b: np.ndarray,
+) -> FilterResult:
+    """:func:`project_velocity` with any exact solver ``solve(v0, A, b) -> (v, found)`` of a batch:
+    the arms whose desired velocity meets every row keep it (NOMINAL); the others get ``solve``'s
+    answer (SOLVED), or the braking fallback v = 0 where it found none (FALLBACK)."""
     v_desired = np.asarray(v_desired, dtype=float)
     status = np.full(v_desired.shape[0], int(QPStatus.NOMINAL))
     v = v_desired.copy()
@@ -316,7 +314,6 @@ def project_velocity(
     todo = np.flatnonzero(~nominal_ok)
     if todo.size == 0:
         return FilterResult(v, status)
-    solve = {"active_set": _solve_active_set, "piqp": _solve_piqp, "numpy": _solve_numpy}[solver]
     sol, found = solve(v_desired[todo], A[todo], b[todo])
     v[todo] = np.where(found[:, None], sol, 0.0)
     status[todo] = np.where(found, int(QPStatus.SOLVED), int(QPStatus.FALLBACK))
@@ -340,17 +337,49 @@ class FilterParams:
     sensing_radius: float | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "kappa", real("FilterParams: kappa", self.kappa, positive=True))
-        object.__setattr__(self, "epsilon", real("FilterParams: epsilon", self.epsilon, positive=True))
-        object.__setattr__(self, "margin", real("FilterParams: margin", self.margin, non_negative=True))
-        if self.sensing_radius is not None:
-            object.__setattr__(self, "sensing_radius", real("FilterParams: sensing_radius", self.sensing_radius,
-                                                            positive=True))
+        checked = _checked("FilterParams", self.kappa, self.epsilon, self.margin, self.sensing_radius)
+        for name, value in zip(("kappa", "epsilon", "margin", "sensing_radius"), checked, strict=True):
+            object.__setattr__(self, name, value)
 
     @classmethod
-    def of(cls, scenario: Scenario) -> FilterParams:
-        """The scenario's own κ, ε and margin."""
-        return cls(scenario.kappa, scenario.epsilon, scenario.safety_margin)
+    def of(
+        cls,
+        scenario: Scenario,
+        kappa: float | None = None,
+        epsilon: float | None = None,
+        margin: float | None = None,
+        tracking_bound: float | None = None,
+        sensing_radius: float | None = None,
+        owner: str = "FilterParams",
+    ) -> FilterParams:
+        """The scenario's κ, ε and margin, each replaced where given. ``tracking_bound`` δ̄ instead of a
+        margin sets it to Γ(δ̄) (:func:`robust_margin`), so that an arm tracking within δ̄ stays in the
+        original set. Errors name the argument, prefixed by ``owner`` (the API that took it)."""
+        if margin is not None and tracking_bound is not None:
+            raise ValueError(f"{owner}: give margin or tracking_bound, not both")
+        kappa, epsilon, margin, sensing_radius = _checked(
+            owner,
+            scenario.kappa if kappa is None else kappa,
+            scenario.epsilon if epsilon is None else epsilon,
+            scenario.safety_margin if margin is None else margin,
+            sensing_radius,
+        )
+        if tracking_bound is not None:
+            delta = real(f"{owner}: tracking_bound", tracking_bound, non_negative=True)
+            margin = robust_margin(delta, kappa, epsilon)
+        return cls(kappa, epsilon, margin, sensing_radius)
+
+
+def _checked(
+    owner: str, kappa: float, epsilon: float, margin: float, sensing_radius: float | None
+) -> tuple[float, float, float, float | None]:
+    """The filter's parameters as floats, or a ValueError naming the first bad one."""
+    return (
+        real(f"{owner}: kappa", kappa, positive=True),
+        real(f"{owner}: epsilon", epsilon, positive=True),
+        real(f"{owner}: margin", margin, non_negative=True),
+        None if sensing_radius is None else real(f"{owner}: sensing_radius", sensing_radius, positive=True),
+    )
 
 
 def filter_parameters(safety_filter: bool | FilterParams | None, scenario: Scenario) -> FilterParams | None:

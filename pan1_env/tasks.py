@@ -19,7 +19,7 @@ from .dynamics import end_effector
 from .engine import Engine, StepRecord
 from .formation import edge_errors, edge_length_errors, edge_vectors, formation_gradient, incidence_matrix
 from .observation import OBS_BOUND, OBSTACLE_FEATURES, ObservationLayout
-from .random_scenario import _passive_path as passive_path
+from .random_scenario import zero_momentum_start
 from .safety import clearance
 from .scenario import Scenario
 
@@ -265,7 +265,7 @@ class ReachTask:
     def _draw_goal(self, rng: np.random.Generator, engine: Engine, b: int) -> np.ndarray:
         arm, k, spread = self.arm, self.arm.n_actuated, self.config.goal_spread
         for _ in range(GOAL_DRAWS):
-            q = passive_path(arm, self.q0, self.q0[-k:] + rng.uniform(-spread, spread, k))
+            q = zero_momentum_start(arm, self.q0, self.q0[-k:] + rng.uniform(-spread, spread, k))
             goal = end_effector(arm, q)
             if clearance(goal, engine.centers[b], engine.radii[b]).min(initial=np.inf) >= self.config.goal_clearance:
                 return goal

@@ -1,9 +1,12 @@
-"""The package's shape: one owner of stepping, no upward imports, short modules, named arguments."""
+"""The package's shape: one owner of stepping, no upward imports, short modules, named arguments, and
+an import graph you can trust: no cycles, no private name imported from another module, and a numpy
+reference layer that imports nothing compiled."""
 
 from __future__ import annotations
 
 import ast
 import inspect
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -26,6 +29,24 @@ def test_no_module_is_longer_than_a_few_screens(package: str) -> None:
     lines = {str(p.relative_to(ROOT)): len(p.read_text().splitlines()) for p in _modules(package)}
     long = {name: n for name, n in lines.items() if n > MAX_LINES}
     assert not long, f"modules over {MAX_LINES} lines: {long}"
+
+
+#: the views of the env core: each only reshapes what the core returns
+VIEWS = ("pan1_env/environment.py", "pan1_env/centralized.py", "pan1_env/vector.py", "pan1_env/reach.py",
+         "baselines/vec_env.py")
+MAX_VIEW_LINES = 200
+
+
+def test_views_of_the_env_core_are_short() -> None:
+    lines = {view: len((ROOT / view).read_text().splitlines()) for view in VIEWS}
+    assert all(n <= MAX_VIEW_LINES for n in lines.values()), lines
+
+
+def test_every_view_steps_through_the_core() -> None:
+    """No view calls the engine's step or the task's evaluate itself: the core owns the episode."""
+    for view in VIEWS:
+        assert not _calls(ROOT / view, {"evaluate", "load_team", "scale_command"}), view
+        assert "engine.step(" not in (ROOT / view).read_text(), view
 
 
 def _calls(path: Path, names: set[str]) -> list[int]:
@@ -64,3 +85,149 @@ def test_env_constructors_name_their_arguments() -> None:
         params = inspect.signature(cls.__init__).parameters
         assert "safety_filter" in params, cls.__name__
         assert all(p.kind is not p.VAR_KEYWORD for p in params.values()), cls.__name__
+
+
+# --------------------------------------------------------------------------- the import graph
+
+#: The numpy reference formulas (docs/ARCHITECTURE.md): the compiled kernels are tested against them,
+#: so they must not run on the kernels themselves.
+REFERENCE_LAYER = {f"pan1_env.{name}" for name in ("dynamics", "cascade", "formation", "safety", "control", "bodies")}
+COMPILED = ("pan1_env.kernels", "pan1_env.compiled", "numba")
+
+
+
+def _module_name(path: Path) -> str:
+    """The installed name: ``wrappers/x.py`` is ``pan1_env.wrappers.x`` and ``baselines/x.py`` is
+    ``pan1_env.baselines.x`` (pyproject's package-dir); a package's ``__init__.py`` is the package."""
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[0] != "pan1_env":
+        parts.insert(0, "pan1_env")
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _sources() -> dict[str, Path]:
+    return {_module_name(p): p for package in PACKAGES for p in _modules(package)}
+
+
+def _type_checking_only(tree: ast.Module) -> set[int]:
+    """ids of the import nodes under ``if TYPE_CHECKING:``, which never run."""
+    return {id(node) for block in ast.walk(tree) if isinstance(block, ast.If)
+            and getattr(block.test, "id", getattr(block.test, "attr", None)) == "TYPE_CHECKING"
+            for stmt in block.body for node in ast.walk(stmt)}
+
+
+def _imports(name: str, path: Path, modules: set[str], runtime_only: bool = True) -> Iterator[tuple[str, str, int]]:
+    """``(target, imported name or "", line)`` for every import in the module, at module level or in a
+    function, relative ones resolved; ``target`` is the module that runs: ``from p import m`` of a
+    submodule m is an import of ``p.m``."""
+    tree = ast.parse(path.read_text())
+    skip = _type_checking_only(tree) if runtime_only else set()
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield alias.name, "", node.lineno
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                base = ".".join(anchor + ([node.module] if node.module else []))
+            for alias in node.names:
+                sub = f"{base}.{alias.name}"
+                yield (sub, "", node.lineno) if sub in modules else (base, alias.name, node.lineno)
+
+
+def _graph() -> dict[str, set[str]]:
+    sources = _sources()
+    modules = set(sources)
+    return {name: {target for target, _, _ in _imports(name, path, modules) if target in modules and target != name}
+            for name, path in sources.items()}
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[frozenset[str]]:
+    """The strongly connected components with more than one module (Tarjan's algorithm)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[frozenset[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = set()
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.add(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(frozenset(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_the_graph_sees_the_installed_names_and_every_kind_of_import() -> None:
+    graph = _graph()
+    assert "pan1_env.wrappers.shield" in graph and "pan1_env.baselines.policies" in graph
+    assert "pan1_env.safety" in graph["pan1_env.kernels.qp"]  # relative, two levels up
+    assert "pan1_env.kernels.capsules" in graph["pan1_env.kernels"]  # from . import capsules
+    assert "pan1_env.environment" in graph["pan1_env.centralized"]  # inside a function
+    assert "pan1_env.scenario" not in graph["pan1_env.safety"]  # under TYPE_CHECKING: never runs
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [frozenset("abc")]
+
+
+def test_no_import_cycles() -> None:
+    """Counting imports inside functions too: a cycle there still ties the two modules' designs."""
+    cycles = set(_cycles(_graph()))
+    assert not cycles, f"import cycles: {[sorted(c) for c in cycles]}"
+
+
+def test_no_private_name_is_imported_from_another_module() -> None:
+    """``from m import _name`` reaches into another module's implementation. The one exception is
+    inside :mod:`pan1_env.kernels`, whose files are one compiled unit split by job: they share inlined
+    helpers (``_JIT``, ``_spd_solve``, …) that numba needs at module level and that never leave it."""
+    sources = _sources()
+    offenders = {}
+    for name, path in sources.items():
+        for target, imported, line in _imports(name, path, set(sources), runtime_only=False):
+            if not (imported.startswith("_") and not imported.startswith("__") and target.startswith("pan1_env")):
+                continue
+            if name.startswith("pan1_env.kernels") and target.startswith("pan1_env.kernels."):
+                continue
+            offenders[f"{path.relative_to(ROOT)}:{line}"] = (name, target, imported)
+    assert not offenders, f"private names imported across modules: {offenders}"
+
+
+def test_the_reference_layer_imports_nothing_compiled() -> None:
+    """Neither directly nor through anything it imports (type-only imports included)."""
+    sources = _sources()
+    reached, todo = set(), sorted(REFERENCE_LAYER)
+    imported: dict[str, set[str]] = {}
+    while todo:
+        name = todo.pop()
+        if name in reached:
+            continue
+        reached.add(name)
+        imported[name] = {t for t, _, _ in _imports(name, sources[name], set(sources), runtime_only=False)}
+        todo += [t for t in imported[name] if t in sources]
+    def is_compiled(module: str) -> bool:
+        return any(module == c or module.startswith(c + ".") for c in COMPILED)
+
+    compiled = {(name, t) for name, targets in imported.items() if not is_compiled(name) for t in targets
+                if is_compiled(t)}
+    assert not compiled, f"the numpy reference layer reaches compiled code: {sorted(compiled)}"

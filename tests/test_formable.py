@@ -12,7 +12,8 @@ from pan1_env.baselines.evaluation import evaluate
 from pan1_env.cascade import reduced_jacobian
 from pan1_env.dynamics import end_effector
 from pan1_env.formation import Formation, edge_length_errors, edge_vectors
-from pan1_env.safety import QPStatus, project_velocity, rcbf_constraints
+from pan1_env.kernels import compiled_projection
+from pan1_env.safety import QPStatus, rcbf_constraints
 
 _PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "formable.py"
 _spec = importlib.util.spec_from_file_location("pan1_formable", _PATH)
@@ -103,7 +104,7 @@ def test_resting_cells_hold_the_configurations_the_filter_keeps_still() -> None:
     A, b, _ = rcbf_constraints(p, reduced_jacobian(arm, q), centers, radii, scenario.kappa, scenario.epsilon)
     k = A.shape[-1]
     box = np.broadcast_to(np.concatenate([np.eye(k), -np.eye(k)]), (len(q), 2 * k, k))
-    status = project_velocity(np.zeros((len(q), k)), np.concatenate([A, box], 1),
+    status = compiled_projection(np.zeros((len(q), k)), np.concatenate([A, box], 1),
                               np.concatenate([b, np.full((len(q), 2 * k), speed)], 1)).status
     still = p[status != QPStatus.SOLVED]
     assert len(still) > 100

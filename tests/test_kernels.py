@@ -8,8 +8,13 @@ from numba import njit
 
 from pan1_env import kernels
 from pan1_env.cascade import cascade_rk4_step, cascade_terms, passive_momentum, reduced_jacobian
+from pan1_env.compiled import kernel_sizes
 from pan1_env.control import backstepping_torque
 from pan1_env.dynamics import ArmBatch, ArmParams, end_effector
+from pan1_env.kernels._numba_ext import _JIT, _LANES, _local, _slp_vectorised
+from pan1_env.kernels.physics import _SERIES_MAX, _SERIES_SHORT, _rotate_lanes, _spd_solve
+from pan1_env.kernels.qp import _first_projection_lanes
+from pan1_env.kernels.substep import _advance_arms
 from pan1_env.safety import clearance, project_velocity, rcbf_constraints
 
 
@@ -67,7 +72,7 @@ def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False
     out = dict(v_star=np.empty((A, k)), tau=np.empty((A, k)), qd=np.empty_like(q), p=np.empty((A, 2)),
                clear=np.full(A, np.inf), min_h=np.full(A, np.inf), counts=np.zeros((A, 3), np.int64),
                track=np.zeros(A), finite=np.zeros(A, bool))
-    sizes = kernels.kernel_sizes(q.shape[1], k) if sizes is None else sizes
+    sizes = kernel_sizes(q.shape[1], k) if sizes is None else sizes
     args = (*sizes, batch.lam, batch.lengths, batch.base, batch.phi,
             batch.passive_first_joint, q, v, prev, has_prev,
             command, torque, filter_on, np.broadcast_to(centers, (A, *centers.shape)).copy(),
@@ -124,24 +129,24 @@ def test_rotated_angles_match_cos_and_sin() -> None:
         theta = rng.uniform(-np.pi, np.pi, (n, W))
         thd = rng.uniform(-20.0, 20.0, (n, W))
         c, s = np.empty((n, W)), np.empty((n, W))
-        kernels._rotate_lanes(np.cos(theta), np.sin(theta), thd, h, n, W, c, s)
+        _rotate_lanes(np.cos(theta), np.sin(theta), thd, h, n, W, c, s)
         np.testing.assert_allclose(c, np.cos(theta + h * thd), rtol=0, atol=2e-15)
         np.testing.assert_allclose(s, np.sin(theta + h * thd), rtol=0, atol=2e-15)
     # every increment δ = h θ̇ on a grid through both series' ranges and their edges (one link, the
     # increments along the lanes: the series are selected lane by lane)
-    edges = [kernels._SERIES_SHORT, kernels._SERIES_MAX]
+    edges = [_SERIES_SHORT, _SERIES_MAX]
     d = np.concatenate([np.linspace(-0.2, 0.2, 801), edges, np.nextafter(edges, 1.0), np.nextafter(edges, 0.0)])
     d = np.concatenate([d, -d])[None]
     theta = rng.uniform(-np.pi, np.pi, d.shape)
     c, s = np.empty(d.shape), np.empty(d.shape)
-    kernels._rotate_lanes(np.cos(theta), np.sin(theta), d, 1.0, 1, d.shape[1], c, s)
+    _rotate_lanes(np.cos(theta), np.sin(theta), d, 1.0, 1, d.shape[1], c, s)
     np.testing.assert_allclose(c, np.cos(theta + d), rtol=0, atol=1e-15)
     np.testing.assert_allclose(s, np.sin(theta + d), rtol=0, atol=1e-15)
     # rotating the angle 0 gives cos δ and sin δ themselves: within an ulp of np.cos/np.sin (a wrong
     # coefficient or a series used beyond its range is off by several)
     d = d[:, d[0] != 0]
     c, s = np.empty(d.shape), np.empty(d.shape)
-    kernels._rotate_lanes(np.ones(d.shape), np.zeros(d.shape), d, 1.0, 1, d.shape[1], c, s)
+    _rotate_lanes(np.ones(d.shape), np.zeros(d.shape), d, 1.0, 1, d.shape[1], c, s)
     assert np.all(np.abs(c - np.cos(d)) <= np.spacing(np.cos(d)))
     assert np.all(np.abs(s - np.sin(d)) <= np.spacing(np.abs(np.sin(d))))
 
@@ -168,11 +173,11 @@ def test_advance_rejects_sizes_that_do_not_match_the_arrays() -> None:
     three, q3, v3 = _group(rng, 3, True)  # (n, k) = (3, 2)
     four, q4, v4 = _group(rng, 4, True)  # (4, 3)
     with pytest.raises(ValueError, match="kernel_sizes"):  # wrong n
-        _advance(three, q3, v3, np.zeros_like(v3), sizes=kernels.kernel_sizes(2, 1))
+        _advance(three, q3, v3, np.zeros_like(v3), sizes=kernel_sizes(2, 1))
     with pytest.raises(ValueError, match="kernel_sizes"):  # wrong k
-        _advance(four, q4, v4, np.zeros_like(v4), sizes=kernels.kernel_sizes(4, 4))
+        _advance(four, q4, v4, np.zeros_like(v4), sizes=kernel_sizes(4, 4))
     with pytest.raises(ValueError, match="kernel_sizes"):  # the multi-threaded kernel checks too
-        _advance(three, q3, v3, np.zeros_like(v3), sizes=kernels.kernel_sizes(4, 3), parallel=True)
+        _advance(three, q3, v3, np.zeros_like(v3), sizes=kernel_sizes(4, 3), parallel=True)
     # the kernel takes `passive` from k < n: a flag that disagrees is refused
     full = dataclasses.replace(four, passive_first_joint=False)
     for parallel in (False, True):
@@ -189,7 +194,7 @@ def _spd_solve_all(G, r, scratch):
     x, L, y = np.zeros((G.shape[0], size)), np.empty((scratch, scratch)), np.empty(scratch)
     ok = np.zeros(G.shape[0], dtype=np.bool_)
     for i in range(G.shape[0]):
-        ok[i] = kernels._spd_solve(G[i], r[i], x[i], size, L, y)
+        ok[i] = _spd_solve(G[i], r[i], x[i], size, L, y)
     return ok, x
 
 
@@ -232,9 +237,9 @@ def test_spd_solve_matches_numpy_and_refuses_matrices_that_are_not_positive_defi
 
 @njit
 def _local_arrays(links, actuated):
-    a = kernels._local((links, actuated), np.float64)
-    b = kernels._local((actuated,), np.int64)
-    c = kernels._local(((0, 0), links), np.bool_)
+    a = _local((links, actuated), np.float64)
+    b = _local((actuated,), np.int64)
+    c = _local(((0, 0), links), np.bool_)
     for i in range(a.shape[0]):
         for j in range(a.shape[1]):
             a[i, j] = 10 * i + j
@@ -247,7 +252,7 @@ def _local_arrays(links, actuated):
 
 
 def test_local_arrays_have_the_shape_of_their_size_tuples() -> None:
-    a, b, c, strides, itemsizes = _local_arrays(*kernels.kernel_sizes(4, 3))
+    a, b, c, strides, itemsizes = _local_arrays(*kernel_sizes(4, 3))
     assert a.shape == (4, 3) and a.dtype == np.float64
     assert strides == (np.empty((4, 3)).strides, np.empty(3, np.int64).strides, np.empty((2, 4), np.bool_).strides)
     assert itemsizes == (8, 8, 1)
@@ -341,7 +346,7 @@ def test_per_arm_obstacles_equal_one_arm_at_a_time() -> None:
                 clear=np.full(A, np.inf), min_h=np.full(A, np.inf), counts=np.zeros((A, 3), np.int64),
                 track=np.zeros(A), finite=np.zeros(A, bool))
     q_all, v_all = q.copy(), v.copy()
-    kernels.group_advance(*kernels.kernel_sizes(q.shape[1], k), batch.lam, batch.lengths, batch.base, batch.phi, True,
+    kernels.group_advance(*kernel_sizes(q.shape[1], k), batch.lam, batch.lengths, batch.base, batch.phi, True,
                           q_all, v_all, np.zeros((A, k)), np.zeros(A, bool), command, False, True, centers, radii,
                           np.ones((A, 2), bool), 0.5, 5.0, 0.0, 100.0, 1e-3, 3, 2.0, *args.values(), None)
     for i in range(A):
@@ -371,16 +376,16 @@ def test_piqp_and_active_set_records_agree_on_barriers() -> None:
 
 
 # plain @njit (no cache): numba's cache of a test helper would not notice a change to the kernels it inlines
-@njit(error_model="numpy", fastmath=kernels._JIT["fastmath"])  # as the kernels: 0/0 is NaN, not an exception
+@njit(error_model="numpy", fastmath=_JIT["fastmath"])  # as the kernels: 0/0 is NaN, not an exception
 def _first_candidates(px, py, Jbar, obstacles, active, filtered, v0, kappa, epsilon, margin, v_max):
-    """kernels._first_projection_lanes on W lanes, with the rows it used as a (W, m, k) QP batch."""
+    """_first_projection_lanes on W lanes, with the rows it used as a (W, m, k) QP batch."""
     O, k, W = obstacles.shape[1], v0.shape[0], v0.shape[1]
     m = O + 2 * k
     arm_h = np.full(W, np.inf)
     A, b, h, norm, act = np.empty((k, W)), np.empty(W), np.empty(W), np.empty(W), np.empty(W, np.bool_)
     rows, violated, best, best_viol = np.empty((O, k + 2, W)), np.empty(W, np.bool_), np.empty(W, np.int64), np.empty(W)
     Ab, bb, cand, found = np.empty((k, W)), np.empty(W), np.empty((k, W)), np.empty(W, np.bool_)
-    kernels._first_projection_lanes(px, py, Jbar, obstacles, active, filtered, kappa, epsilon, margin, v_max, O, k, W,
+    _first_projection_lanes(px, py, Jbar, obstacles, active, filtered, kappa, epsilon, margin, v_max, O, k, W,
                                     v0, arm_h, A, b, h, norm, act, rows, violated, best, best_viol, Ab, bb, cand,
                                     found)
     A_all, b_all = np.zeros((W, m, k)), np.zeros((W, m))
@@ -445,7 +450,7 @@ def test_slp_vectorised_dispatchers_compile_with_slp_and_leave_numba_as_it_was()
     from numba.core import config
 
     before = config.SLP_VECTORIZE
-    slp = kernels._slp_vectorised(njit(_four_products))
+    slp = _slp_vectorised(njit(_four_products))
     plain = njit(_four_products)
     a, b = np.arange(4.0), np.arange(4.0) + 1
     for f in (slp, plain):
@@ -463,7 +468,7 @@ def _bits(x: np.ndarray) -> np.ndarray:
 
 @pytest.mark.slow
 def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
-    """The sub-step kernel is compiled with LLVM's SLP vectoriser (kernels._slp_vectorised), which
+    """The sub-step kernel is compiled with LLVM's SLP vectoriser (_slp_vectorised), which
     numba leaves off by default after miscompilations; the same code compiled without it (scalar
     instructions) must give the same bits, in both modes, with the filter, with an arm that goes
     non-finite and with a group whose size is not a multiple of the lanes."""
@@ -471,7 +476,7 @@ def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
     from numba.core import config
 
     before = config.SLP_VECTORIZE
-    plain = plain_njit(error_model="numpy", fastmath=kernels._JIT["fastmath"])(kernels._advance_arms.py_func)
+    plain = plain_njit(error_model="numpy", fastmath=_JIT["fastmath"])(_advance_arms.py_func)
     rng = np.random.default_rng(51)
     A = 37
     batch, q, v = _group(rng, 3, True, count=A)
@@ -491,9 +496,9 @@ def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
                     True, np.broadcast_to(centers, (A, 3, 2)).copy(), np.broadcast_to(radii, (A, 3)).copy(), mask,
                     0.5, 5.0, 0.01, 100.0, 1e-2, 5, v_max, *out[2:], None]
             if kernel == "slp":
-                kernels.group_advance(*kernels.kernel_sizes(3, 2), *args)
+                kernels.group_advance(*kernel_sizes(3, 2), *args)
             else:
-                plain(*kernels.kernel_sizes(3, 2), kernels._LANES, None, True, 0, A, *args)
+                plain(*kernel_sizes(3, 2), _LANES, None, True, 0, A, *args)
             runs.append([qk, vk, *out])
         finite, counts = runs[0][-1], runs[0][-3]
         assert not finite[3] and finite.sum() == A - 1
@@ -527,7 +532,7 @@ def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> Non
                    np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64), np.zeros(A),
                    np.zeros(A, bool)]
             for _ in range(2):  # the second call starts from the first's v_prev / has_prev
-                kernel(*kernels.kernel_sizes(n, k), batch.lam, batch.lengths, batch.base, batch.phi, passive, qk, vk,
+                kernel(*kernel_sizes(n, k), batch.lam, batch.lengths, batch.base, batch.phi, passive, qk, vk,
                        out[0], out[1], command, torque, filter_on, np.broadcast_to(centers, (A, 3, 2)).copy(),
                        np.broadcast_to(radii, (A, 3)).copy(), mask, 0.5, 5.0, 0.01, 100.0, 1e-2, 5, v_max, *out[2:],
                        None)
@@ -545,8 +550,8 @@ def test_generic_kernel_checks_its_sizes() -> None:
     batch, q, v = _group(rng, 9, True, count=1)
     args = (batch.lam, batch.lengths, batch.base, batch.phi, True, q, v)
     with pytest.raises(ValueError, match="n ≤ 8"):
-        kernels.group_advance_generic(*kernels.kernel_sizes(9, 8), *args)
+        kernels.group_advance_generic(*kernel_sizes(9, 8), *args)
     batch, q, v = _group(rng, 3, True, count=1)
     with pytest.raises(ValueError, match="kernel_sizes"):
-        kernels.group_advance_generic(*kernels.kernel_sizes(3, 3), batch.lam, batch.lengths, batch.base, batch.phi,
+        kernels.group_advance_generic(*kernel_sizes(3, 3), batch.lam, batch.lengths, batch.base, batch.phi,
                                       True, q, v)

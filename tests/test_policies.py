@@ -177,10 +177,8 @@ def test_registering_a_policy_makes_it_available_everywhere(registered, tmp_path
     assert "unknown policy 'nope'" in capsys.readouterr().err
 
 
-def test_the_old_decode_observation_call_still_works_with_a_deprecation_warning() -> None:
+def test_decode_observation_takes_the_layout() -> None:
     env = parallel_env("paper_pa_mixed_square")
     obs, _ = env.reset(seed=0)
-    new = decode_observation(obs["arm_3"], env.observation_layout)
-    with pytest.warns(DeprecationWarning, match="observation_layout"):
-        old = decode_observation(obs["arm_3"], 2, env.observation_layout.slots)
-    assert new.keys() == old.keys() and all(np.array_equal(new[key], old[key]) for key in new)
+    with pytest.raises(TypeError, match="observation_layout"):
+        decode_observation(obs["arm_3"], 2, env.observation_layout.slots)

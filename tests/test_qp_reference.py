@@ -1,5 +1,6 @@
 """The numpy reference of the safety QP (safety.active_set_projection) against the compiled kernel
-(kernels.qp_project), PIQP, and a KKT certificate independent of all three.
+(kernels.qp_project, and kernels.compiled_projection batched as project_velocity), PIQP, and a KKT
+certificate independent of all three.
 
 The QP is min ½‖v − v0‖² s.t. A v ≤ b: strictly convex, so a feasible v with v0 − v = Aᵀλ, λ ≥ 0
 and λ_j = 0 on slack rows is its unique optimum.
@@ -210,16 +211,25 @@ def test_numpy_matches_the_compiled_kernel(seed: int, feasible: bool) -> None:
         assert counts[FALLBACK] > 100, counts
 
 
-def test_project_velocity_numpy_equals_active_set() -> None:
-    """The ``solver="numpy"`` option of project_velocity: the same answers as the compiled path,
-    through the same nominal pre-check; it is not a simulator option (QP_SOLVERS)."""
-    assert "numpy" not in QP_SOLVERS
+def test_compiled_projection_equals_project_velocity() -> None:
+    """kernels.compiled_projection, the compiled QP for callers with many problems, gives the numpy
+    project_velocity's statuses and answers (within the Gram solve's rounding) on random problems,
+    infeasible ones included, through the same nominal pre-check."""
+    counts = np.zeros(3, dtype=int)
     for v0, A, b in _batches(2, feasible=False):
         ref = project_velocity(v0, A, b, solver="active_set")
-        res = project_velocity(v0, A, b, solver="numpy")
+        res = kernels.compiled_projection(v0, A, b)
         np.testing.assert_array_equal(res.status, ref.status)
         for i in range(len(v0)):
             assert np.linalg.norm(res.v[i] - ref.v[i]) <= _kernel_tolerance(v0[i], A[i], b[i], ref.v[i])
+        counts += np.bincount(res.status, minlength=3)
+    assert counts.min() > 50, counts  # every outcome is compared
+
+
+def test_the_simulator_solvers_are_the_references() -> None:
+    assert QP_SOLVERS == ("active_set", "piqp")
+    with pytest.raises(ValueError, match="unknown QP solver"):
+        project_velocity(np.zeros((1, 2)), np.zeros((1, 1, 2)), np.zeros((1, 1)), solver="numpy")
 
 
 def test_leading_batch_axes_and_explicit_mask() -> None:
@@ -346,7 +356,7 @@ def test_numpy_matches_piqp_on_feasible_problems() -> None:
     the independent KKT check, and such cases must stay rare."""
     solved = piqp_failed = 0
     for v0, A, b in _batches(3, feasible=True):
-        res = project_velocity(v0, A, b, solver="numpy")
+        res = project_velocity(v0, A, b, solver="active_set")
         pq = project_velocity(v0, A, b, solver="piqp")
         for i in range(len(v0)):
             if pq.status[i] == FALLBACK and res.status[i] == SOLVED:

@@ -1,6 +1,8 @@
 """The safety QP v* = argmin ½‖v − v0‖² s.t. A v ≤ b and its RCBF rows (docs/MODEL.md §5, Eq. 56–61).
 
-Optimality is certified independently of both solvers by the KKT conditions (the QP is strictly
+The solvers: project_velocity's numpy active set (the reference) and PIQP, and the compiled active
+set (kernels.compiled_projection), which must give the reference's answers.
+Optimality is certified independently of the solvers by the KKT conditions (the QP is strictly
 convex, so a feasible point with v0 − v = Aᵀλ, λ ≥ 0 on the active rows is the unique optimum);
 the multipliers come from scipy's NNLS.
 """
@@ -11,6 +13,7 @@ import numpy as np
 import pytest
 from scipy.optimize import nnls
 
+from pan1_env import kernels
 from pan1_env.cascade import reduced_jacobian
 from pan1_env.dynamics import ArmParams, end_effector
 from pan1_env.safety import (
@@ -24,6 +27,13 @@ from pan1_env.safety import (
 )
 
 N_PROBLEMS = 1000
+SOLVERS = ["active_set", "piqp", "compiled"]
+
+
+def _project(v0: np.ndarray, A: np.ndarray, b: np.ndarray, solver: str):
+    if solver == "compiled":
+        return kernels.compiled_projection(v0, A, b)
+    return project_velocity(v0, A, b, solver=solver)
 
 
 # --------------------------------------------------------------------------- problem generator
@@ -89,7 +99,7 @@ def _solve_grouped(problems, solver: str) -> list[tuple[np.ndarray, int]]:
         v0 = np.stack([problems[i][0] for i in idx])
         A = np.stack([problems[i][1] for i in idx])
         b = np.stack([problems[i][2] for i in idx])
-        res = project_velocity(v0, A, b, solver=solver)
+        res = _project(v0, A, b, solver)
         assert res.v.shape == v0.shape and res.status.shape == (len(idx),)
         for j, i in enumerate(idx):
             out[i] = (res.v[j], int(res.status[j]))
@@ -99,6 +109,11 @@ def _solve_grouped(problems, solver: str) -> list[tuple[np.ndarray, int]]:
 @pytest.fixture(scope="module")
 def active_set_answers(problems):
     return _solve_grouped(problems, "active_set")
+
+
+@pytest.fixture(scope="module")
+def compiled_answers(problems):
+    return _solve_grouped(problems, "compiled")
 
 
 @pytest.fixture(scope="module")
@@ -170,6 +185,17 @@ def test_solvers_agree(problems, active_set_answers, piqp_answers) -> None:
         np.testing.assert_allclose(va, vp, rtol=0, atol=1e-8, err_msg=f"{kind} {A} {b} {v0}")
 
 
+def test_compiled_active_set_is_the_reference(problems, active_set_answers, compiled_answers) -> None:
+    """The compiled enumeration takes the numpy reference's decisions (same status) and differs only
+    in the rounding of its Gram solve (tests/test_qp_reference.py bounds it by the rows' condition;
+    measured here under 1e-12), and its answers pass the KKT check on their own."""
+    for (v0, A, b, kind), (va, sa), (vc, sc) in zip(problems, active_set_answers, compiled_answers, strict=True):
+        assert sa == sc, (kind, A, b, v0)
+        tol = 1e-9 * (1.0 + np.linalg.norm(v0))
+        np.testing.assert_allclose(vc, va, rtol=0, atol=tol, err_msg=f"{kind} {A} {b} {v0}")
+        assert _kkt_violation(v0, A, b, vc) < 1e-9, (kind, A, b, v0, vc)
+
+
 # A problem found by an earlier version of the generator above (inputs rounded to 6 digits): one
 # binding row with a small multiplier (λ ≈ 1.4e-3) and ‖v0‖ ≈ 12.
 _HARD_V0 = np.array([1.240337, 3.043209, 8.836358, -8.048416])
@@ -210,7 +236,7 @@ def test_batched_equals_single(problems, active_set_answers) -> None:
         assert int(res.status[0]) == status
 
 
-@pytest.mark.parametrize("solver", ["active_set", "piqp"])
+@pytest.mark.parametrize("solver", SOLVERS)
 def test_feasible_v0_returned_unchanged(solver: str) -> None:
     rng = np.random.default_rng(1)
     for _ in range(100):
@@ -219,12 +245,12 @@ def test_feasible_v0_returned_unchanged(solver: str) -> None:
         v0 = rng.normal(size=k)
         b = A @ v0 + rng.uniform(0.0, 1.0, m)  # v0 satisfies every row (some nearly tight)
         b[rng.random(m) < 0.2] = np.inf
-        res = project_velocity(v0[None], A[None], b[None], solver=solver)
+        res = _project(v0[None], A[None], b[None], solver)
         np.testing.assert_array_equal(res.v[0], v0)
         assert res.status[0] == QPStatus.NOMINAL
 
 
-@pytest.mark.parametrize("solver", ["active_set", "piqp"])
+@pytest.mark.parametrize("solver", SOLVERS)
 def test_infeasible_gives_braking_fallback(solver: str) -> None:
     rng = np.random.default_rng(2)
     v0_list, A_list, b_list = [], [], []
@@ -254,7 +280,7 @@ def test_infeasible_gives_braking_fallback(solver: str) -> None:
     A_list.append(np.array([[0.0]]))
     b_list.append(np.array([-1.0]))
     for v0, A, b in zip(v0_list, A_list, b_list, strict=True):
-        res = project_velocity(v0[None], A[None], b[None], solver=solver)
+        res = _project(v0[None], A[None], b[None], solver)
         assert res.status[0] == QPStatus.FALLBACK, (A, b, v0, res)
         np.testing.assert_array_equal(res.v[0], np.zeros_like(v0))
 

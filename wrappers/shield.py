@@ -49,9 +49,7 @@ import gymnasium
 import numpy as np
 from pettingzoo.utils.wrappers import BaseParallelWrapper
 
-from pan1_env.engine import FilterParams
-from pan1_env.safety import QPStatus, robust_margin
-from pan1_env.validation import real
+from pan1_env.safety import FilterParams, QPStatus
 
 __all__ = ["SafetyShield", "GymSafetyShield", "shield_parameters"]
 
@@ -61,17 +59,9 @@ _NOMINAL, _SOLVED, _FALLBACK = (s.name.lower() for s in (QPStatus.NOMINAL, QPSta
 def shield_parameters(scenario, kappa: float | None, epsilon: float | None, margin: float | None,
                       tracking_bound: float | None, sensing_radius: float | None = None) -> FilterParams:
     """Validated filter parameters: κ, ε (default: the scenario's), the barrier margin (explicit,
-    or Γ(δ̄) from ``tracking_bound``; default: the scenario's) and the sensing radius (default: none)."""
-    kappa = real("SafetyShield: kappa", scenario.kappa if kappa is None else kappa, positive=True)
-    epsilon = real("SafetyShield: epsilon", scenario.epsilon if epsilon is None else epsilon, positive=True)
-    if margin is not None and tracking_bound is not None:
-        raise ValueError("SafetyShield: give margin or tracking_bound, not both")
-    if tracking_bound is not None:
-        margin = robust_margin(real("SafetyShield: tracking_bound", tracking_bound, non_negative=True), kappa, epsilon)
-    margin = real("SafetyShield: margin", scenario.safety_margin if margin is None else margin, non_negative=True)
-    if sensing_radius is not None:
-        sensing_radius = real("SafetyShield: sensing_radius", sensing_radius, positive=True)
-    return FilterParams(kappa, epsilon, margin, sensing_radius)
+    or Γ(δ̄) from ``tracking_bound``; default: the scenario's) and the sensing radius (default: none).
+    :meth:`FilterParams.of` owns the rules; errors name the argument after ``SafetyShield:``."""
+    return FilterParams.of(scenario, kappa, epsilon, margin, tracking_bound, sensing_radius, owner="SafetyShield")
 
 
 def _switch_on(core, kappa, epsilon, margin, tracking_bound, sensing_radius) -> None:

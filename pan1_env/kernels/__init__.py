@@ -15,8 +15,8 @@ small helpers) and :mod:`._numba_ext` (numba plumbing).
 The sub-step kernel advances the arms W at a time, one arm per lane of arrays whose last axis is
 the lanes, so that LLVM's SLP vectoriser (switched on for these kernels only:
 :func:`_slp_vectorised`) packs four arms into each AVX register; it keeps this scratch space in
-its own stack frame (:func:`_local`, fixed shapes from the ``kernel_sizes`` tuples), where LLVM
-can keep it in registers. A lane's results do not depend on the lane count or on the arms that
+its own stack frame (:func:`_local`, fixed shapes from the :func:`pan1_env.compiled.kernel_sizes`
+tuples), where LLVM can keep it in registers. A lane's results do not depend on the lane count or on the arms that
 share its group, bit for bit (tests/test_kernels.py).
 
 Importing this module imports numba (about half a second); :mod:`pan1_env` itself does not, so
@@ -26,9 +26,7 @@ Importing this module imports numba (about half a second); :mod:`pan1_env` itsel
 from __future__ import annotations
 
 from .. import compile_notice
-from ..compiled import kernel_sizes  # the first two arguments of group_advance
 from . import capsules, specialise
-from ._numba_ext import _JIT, _LANES, _local, _slp_vectorised
 from .observe import (
     edge_length_errors,
     formation_observations,
@@ -38,12 +36,11 @@ from .observe import (
     reach_observations,
     scale_command,
 )
-from .physics import _SERIES_MAX, _SERIES_SHORT, _rotate_lanes, _spd_solve, group_end_effectors, group_terms
-from .qp import STATUS_FALLBACK, STATUS_NOMINAL, STATUS_SOLVED, _first_projection_lanes, qp_project
-from .substep import GENERIC_MAX_LINKS, _advance_arms, group_advance, group_advance_generic, group_advance_parallel
+from .physics import group_end_effectors, group_terms
+from .qp import STATUS_FALLBACK, STATUS_NOMINAL, STATUS_SOLVED, compiled_projection, qp_project
+from .substep import GENERIC_MAX_LINKS, group_advance, group_advance_generic, group_advance_parallel
 
 __all__ = [
-    "kernel_sizes",
     "group_terms",
     "group_advance",
     "group_advance_parallel",
@@ -55,6 +52,7 @@ __all__ = [
     "group_observations",
     "group_observations_parallel",
     "qp_project",
+    "compiled_projection",
     "scale_command",
     "edge_length_errors",
     "formation_observations",
@@ -65,5 +63,3 @@ __all__ = [
 compile_notice.install()  # a first use of an arm kind compiles for tens of seconds: say so
 
 __all__ += ["STATUS_NOMINAL", "STATUS_SOLVED", "STATUS_FALLBACK"]
-_PRIVATE_FOR_TESTS = (_JIT, _LANES, _local, _slp_vectorised, _SERIES_MAX, _SERIES_SHORT, _rotate_lanes, _spd_solve,
-                      _first_projection_lanes, _advance_arms)

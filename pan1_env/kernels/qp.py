@@ -1,12 +1,16 @@
 """The safety filter's QP in compiled form: the exact active-set projection of one arm
-(:func:`_project_one`, :func:`qp_project`) and the filter rows and first candidate of W arms at once."""
+(:func:`_project_one`, :func:`qp_project`, and :func:`compiled_projection` batched as
+:func:`pan1_env.safety.project_velocity`) and the filter rows and first candidate of W arms at once.
+
+The numpy reference (:func:`pan1_env.safety.active_set_projection`) owns the algorithm and its
+tolerances; this module imports them from it, never the other way round."""
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-from ..safety import CANDIDATE_TOLERANCE, ROW_TOLERANCE  # one owner: the numpy reference QP
+from ..safety import CANDIDATE_TOLERANCE, ROW_TOLERANCE, FilterResult, project_with  # the numpy reference owns them
 from ._numba_ext import _JIT
 from .physics import _spd_solve
 
@@ -318,3 +322,18 @@ def _filter_rows_lanes(px, py, Jbar, obstacles, active, filtered, kappa, epsilon
             for t in range(k):
                 rows[j, t, w] = A[t, w]
             rows[j, k, w] = b[w]
+
+
+def _solve_compiled(v0: np.ndarray, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    active = np.isfinite(b)
+    v = np.empty_like(v0)
+    status = np.empty(v0.shape[0], dtype=np.int64)
+    qp_project(np.ascontiguousarray(v0), np.ascontiguousarray(A), np.where(active, b, 0.0), active, v, status)
+    return v, status != STATUS_FALLBACK
+
+
+def compiled_projection(v_desired: np.ndarray, A: np.ndarray, b: np.ndarray) -> FilterResult:
+    """:func:`pan1_env.safety.project_velocity` with ``solver="active_set"``, the enumeration run by
+    :func:`qp_project` instead of its numpy reference: for callers that solve many problems."""
+    return project_with(_solve_compiled, np.asarray(v_desired, dtype=float), np.asarray(A, dtype=float),
+                        np.asarray(b, dtype=float))
