@@ -16,11 +16,19 @@ from .reference import ReferencePolicy, decode_observation
 __all__ = ["load_model", "normalise_observation", "sb3_policy"]
 
 
+RL_EXTRA_HINT = ("install the rl extra: pip install torch --index-url https://download.pytorch.org/whl/cpu "
+                 "&& pip install 'pan1-env[rl]' (or pip install -e '.[rl]' in a clone)")
+
+
 def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
     """A PPO or SAC model saved by Stable-Baselines3 (on the CPU, one torch thread) and the
     ``model.json`` beside it (empty if there is none): env arguments and observation statistics."""
-    import torch
-    from stable_baselines3 import PPO, SAC
+    try:
+        import torch
+        from stable_baselines3 import PPO, SAC
+    except ImportError as err:
+        raise ImportError(f"running a trained model needs PyTorch and Stable-Baselines3 ({err}); "
+                          f"{RL_EXTRA_HINT}") from err
 
     path = Path(path)
     if not path.is_file():
@@ -48,17 +56,28 @@ def normalise_observation(flat: np.ndarray, norm: dict[str, Any] | None) -> np.n
 
 
 def sb3_policy(path: Path, env) -> Callable[[Mapping[str, np.ndarray]], dict[str, np.ndarray]]:
-    """A centralised SB3 model as a policy. ``model.json`` beside the model (written by
-    :func:`~pan1_env.baselines.training.train`) gives its observation normalisation and action mode;
-    a model trained on residual (or gain) actions runs on a velocity-mode env by adding the reference law
-    to its correction (or by re-weighting the law's terms with its gains)."""
+    """An SB3 model as a policy on the parallel env ``env`` (observations by agent → actions by agent).
+
+    A centralised model (trained on the concatenated observations and actions) acts for the team; a
+    per-arm model (``pan1-env train --param-sharing``: one network shared by the arms) acts for each arm on
+    its own observation, padded with zeros at the end to the largest arm's size and normalised with the
+    per-arm statistics of ``model.json``, and the arm takes the first k entries of its action (SuperSuit's
+    ``pad_observations_v0`` and ``pad_action_space_v0``, as in training). ``model.json`` beside the model
+    (written by :func:`~pan1_env.baselines.training.train`) gives its observation normalisation
+    (``observation_normalization``: ``mean``, ``var`` of the model's input vector, ``epsilon``, ``clip``)
+    and action mode; a model trained on residual (or gain) actions runs on a velocity-mode env by adding
+    the reference law to its correction (or by re-weighting the law's terms with its gains)."""
     model, meta = load_model(path)
     agents = list(env.possible_agents)
     sizes = [env.action_space(a).shape[0] for a in agents]
-    n_obs = sum(env.observation_space(a).shape[0] for a in agents)
-    if model.observation_space.shape != (n_obs,) or model.action_space.shape != (sum(sizes),):
-        raise ValueError(f"{path} was trained on spaces {model.observation_space.shape} → "
-                         f"{model.action_space.shape}, this scenario has ({n_obs},) → ({sum(sizes)},)")
+    obs_sizes = [env.observation_space(a).shape[0] for a in agents]
+    team_shapes, arm_shapes = ((sum(obs_sizes),), (sum(sizes),)), ((max(obs_sizes),), (max(sizes),))
+    shapes = (model.observation_space.shape, model.action_space.shape)
+    if shapes not in (team_shapes, arm_shapes):
+        raise ValueError(f"{path} was trained on spaces {shapes[0]} → {shapes[1]}; this scenario has "
+                         f"{team_shapes[0]} → {team_shapes[1]} for the team, {arm_shapes[0]} → {arm_shapes[1]} "
+                         "per arm (padded)")
+    per_arm = shapes == arm_shapes and (shapes != team_shapes or bool(meta.get("param_sharing")))
     from pan1_env.config import DEFAULT_GAIN_RANGE
 
     norm, trained = meta.get("observation_normalization"), meta.get("env_kwargs", {})
@@ -77,10 +96,19 @@ def sb3_policy(path: Path, env) -> Callable[[Mapping[str, np.ndarray]], dict[str
         reference = ReferencePolicy(env)  # the paper's law from observations, corrected or re-weighted
     splits = np.cumsum(sizes)[:-1]
 
-    def policy(obs):
+    def model_actions(obs) -> dict[str, np.ndarray]:
+        if per_arm:
+            batch = np.zeros((len(agents), max(obs_sizes)), np.float32)
+            for i, a in enumerate(agents):
+                batch[i, : obs_sizes[i]] = obs[a]
+            action, _ = model.predict(normalise_observation(batch, norm), deterministic=True)
+            return {a: np.asarray(action[i, : sizes[i]], np.float32) for i, a in enumerate(agents)}
         flat = normalise_observation(np.concatenate([obs[a] for a in agents]), norm)
         action, _ = model.predict(flat, deterministic=True)
-        actions = dict(zip(agents, np.split(np.asarray(action, np.float32), splits), strict=True))
+        return dict(zip(agents, np.split(np.asarray(action, np.float32), splits), strict=True))
+
+    def policy(obs):
+        actions = model_actions(obs)
         if reference is not None and trained_mode == "gain":
             return {a: reference.act(a, obs[a], gain_range ** np.clip(actions[a], -1, 1)) for a in agents}
         if reference is not None:

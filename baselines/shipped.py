@@ -19,6 +19,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 __all__ = ["pretrained", "available", "model_for", "package_model", "training_command", "PRETRAINED_DIR"]
 
 PRETRAINED_DIR = Path(__file__).resolve().parent / "pretrained"
@@ -67,11 +69,10 @@ def _serves(model: tuple, env: tuple) -> bool:
 
 
 def _env_task(env) -> tuple:
-    env = getattr(env, "unwrapped", env)
-    env = getattr(env, "parallel", env)  # the Gymnasium view holds the parallel env
-    random = getattr(env, "_random", False)
-    return _task("random" if random else env.scenario.name, env.random_options if random else None,
-                 env.action_mode, env.control_dt, env.physics_dt, None if random else env.scenario.ke)
+    config = getattr(env, "unwrapped", env).config  # any view of the env core, wrapped or not
+    random = config.random
+    return _task("random" if random else config.team.name, config.random_options if random else None,
+                 config.action_mode, config.control_dt, config.physics_dt, None if random else config.team.ke)
 
 
 def _model_task(meta: dict[str, Any]) -> tuple:
@@ -108,15 +109,46 @@ def model_for(env) -> str:
 
 
 def pretrained(name: str, env):
-    """The shipped model ``name`` as a policy on ``env`` (dict of observations → dict of actions).
-    A model trained on residual or gain actions runs on a velocity-mode env (the adapter computes the
+    """The shipped model ``name`` as a policy on ``env``, which may be:
+
+    * a parallel env (wrapped or not): the policy maps observations by agent to actions by agent;
+    * a Gymnasium env of a pan1_env id (``gymnasium.make("pan1_env:pan1_env/…")``, wrapped or not): the
+      policy maps its flat observation to its flat action;
+    * a registered id or scenario name: a parallel env of it is made, and the policy is as for one.
+
+    The env must pose the task the model was trained for (ValueError naming it otherwise), except that a
+    model trained on residual or gain actions runs on a velocity-mode env (the adapter computes the
     reference law from observations)."""
     from .sb3 import sb3_policy
 
     models = available()
     if name not in models:
         raise ValueError(f"no pretrained model {name!r}; shipped: {sorted(models) or 'none'}")
-    return sb3_policy(PRETRAINED_DIR / f"{name}.zip", env)
+    target = env
+    if isinstance(env, str):
+        from pan1_env.environment import parallel_env
+
+        target = parallel_env(env)
+    inner = getattr(target, "unwrapped", target)
+    gym_view = getattr(inner, "parallel", None)  # the Gymnasium view of the team: its parallel view
+    if not hasattr(inner, "config"):
+        raise TypeError(f"pretrained() needs a pan1_env env (parallel, Gymnasium or an id), got {type(env).__name__}")
+    if not _serves(_model_task(models[name]), _env_task(inner)):
+        _, mode, control_dt, physics_dt = _model_task(models[name])
+        raise ValueError(f"pretrained model {name!r} was trained for {describe(models[name])} ({mode} actions, "
+                         f"control_dt={control_dt}, physics_dt={physics_dt}); this env poses another task "
+                         "(model_for(env) names the model for an env's task)")
+    policy = sb3_policy(PRETRAINED_DIR / f"{name}.zip", gym_view if gym_view is not None else target)
+    if gym_view is None:
+        return policy
+    agents = gym_view.possible_agents
+    splits = np.cumsum([gym_view.observation_space(a).shape[0] for a in agents])[:-1]
+
+    def flat_policy(observation: np.ndarray) -> np.ndarray:
+        actions = policy(dict(zip(agents, np.split(np.asarray(observation, np.float32), splits), strict=True)))
+        return np.concatenate([actions[a] for a in agents])
+
+    return flat_policy
 
 
 def training_command(run: dict[str, Any], out: str = "runs/train") -> str:

@@ -19,8 +19,8 @@ so the same generator state gives the same scenario. Every draw is checked to be
 * **regular at the start** – J̄ has full rank (Assumption 1), with σ_min(J̄) ≥ ``min_sigma``.
 
 Arms start at rest (Lemma 1 needs it). With the default options (end-effectors only, still
-obstacles) no random number is drawn for the whole-arm options, so the same seed draws the same team
-as before they existed.
+obstacles) no random number is drawn for the whole-arm options, so a seed's end-effector team does not
+depend on them (the shipped models' held-out seeds stay the same teams).
 """
 
 from __future__ import annotations
