@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .config import SUCCESS_TOLERANCE
 from .dynamics import joint_positions
 
 __all__ = ["Renderer", "fit_shape"]
@@ -102,7 +103,8 @@ class Renderer:
         err = np.abs(np.linalg.norm(P[f.edges[:, 0]] - P[f.edges[:, 1]], axis=-1) - f.distances)
         for (a, b), e in zip(f.edges, err, strict=True):
             ax.plot(*fitted[[a, b]].T, "--", color="0.5", lw=1)
-            ax.plot(*P[[a, b]].T, "-", color="tab:green" if e < env.success_tolerance else "tab:orange", lw=1.5)
+            formed = e < getattr(env, "success_tolerance", SUCCESS_TOLERANCE)
+            ax.plot(*P[[a, b]].T, "-", color="tab:green" if formed else "tab:orange", lw=1.5)
         ax.set_xlim(lo[0], hi[0])
         ax.set_ylim(lo[1], hi[1])
         ax.set_aspect("equal")

@@ -98,8 +98,8 @@ def test_links_are_drawn_as_capsules_of_link_radius(whole_arm_env, draw, monkeyp
         np.testing.assert_allclose(_segment_distance(patch.get_xy(), a, b), rho, atol=1e-9)
 
     # the same state with the links unprotected: no capsule, and the frames differ only inside the capsules
-    monkeypatch.setattr(env, "scenario", dataclasses.replace(sc, bodies="end_effector", link_radius=0.0,
-                                                             inter_arm=False))
+    monkeypatch.setattr(env.engine, "teams", [dataclasses.replace(sc, bodies="end_effector", link_radius=0.0,
+                                                                    inter_arm=False)])
     plain, renderer = draw(env)
     assert not _gids(renderer, "capsule")
     changed = np.any(shaded != plain, axis=-1)
@@ -184,7 +184,7 @@ def test_obstacle_paths_are_drawn_and_in_view(whole_arm_env, draw, monkeypatch) 
         assert line.get_linestyle() == "--"
 
     # the same state with the obstacles still (their paths kept, so the same view): the frames differ on the paths
-    monkeypatch.setattr(env, "scenario", dataclasses.replace(sc, obstacle_speeds=np.zeros(len(sc.obstacles))))
+    monkeypatch.setattr(env.engine, "teams", [dataclasses.replace(sc, obstacle_speeds=np.zeros(len(sc.obstacles)))])
     without, r = draw(env)
     assert not _gids(r, "obstacle_path")
     changed = np.any(with_paths != without, axis=-1)
@@ -200,7 +200,7 @@ def test_obstacle_paths_are_drawn_and_in_view(whole_arm_env, draw, monkeypatch) 
     # a path that ends far out stays in view
     far = sc.obstacle_paths.copy()
     far[0] = [8.0, -6.0]
-    monkeypatch.setattr(env, "scenario", dataclasses.replace(sc, obstacle_paths=far))
+    monkeypatch.setattr(env.engine, "teams", [dataclasses.replace(sc, obstacle_paths=far)])
     _, r = draw(env)
     (x0, x1), (y0, y1) = r.ax.get_xlim(), r.ax.get_ylim()
     assert x0 < 0 < 8.0 < x1 and y0 < -6.0 < 0 < y1
