@@ -19,10 +19,40 @@ from .core import CoreView, FormationCore, first_copy, team_infos
 from .registration import RENDER_FPS, RENDER_MODES
 from .validation import float_array, forwards_keywords
 
-__all__ = ["CentralizedEnv"]
+__all__ = ["CentralizedEnv", "OneCopyGymEnv"]
 
 
-class CentralizedEnv(CoreView, gymnasium.Env):
+class OneCopyGymEnv(gymnasium.Env):
+    """A Gymnasium env over a one-copy env core (``self.core``): the agents' observations and actions
+    concatenated in agent order, the mean of the agents' rewards, the team's infos. Subclasses build the
+    core and call :meth:`_flat_spaces`."""
+
+    core: FormationCore
+
+    def _flat_spaces(self) -> None:
+        self.observation_space = gymnasium.spaces.Box(*self.core.flat_observation_bounds(), dtype=np.float32)
+        self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (sum(self.core.n_actuated),), np.float32)
+        self._needs_reset = True
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        if seed is not None:
+            self.core.seed([seed])
+        self.core.reset(options=options)
+        self._needs_reset = False
+        return self.core.flat_observations(self.core.observe())[0], first_copy(team_infos(self.core.infos()))
+
+    def step(self, action: np.ndarray):
+        if self._needs_reset:
+            raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
+        action = float_array("action", action, self.action_space.shape)
+        out = self.core.step(self.core.padded_actions(action[None]))
+        self._needs_reset = bool(len(out.ended))
+        return (self.core.flat_observations(out.observations)[0], float(out.reward[0].mean()),
+                bool(out.terminated[0]), bool(out.truncated[0]), first_copy(team_infos(out.infos)))
+
+
+class CentralizedEnv(CoreView, OneCopyGymEnv):
     """One agent controlling every arm of a formation scenario (``gymnasium.make("pan1_env/…")``).
 
     Takes the arguments of :class:`~pan1_env.environment.Pan1ParallelEnv` (``inspect.signature`` and
@@ -40,32 +70,13 @@ class CentralizedEnv(CoreView, gymnasium.Env):
         self.core: FormationCore = self.parallel.core
         self.render_mode = self.parallel.render_mode
         self.possible_agents = self.core.agents
-        self.observation_space = gymnasium.spaces.Box(*self.core.flat_observation_bounds(), dtype=np.float32)
-        self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (sum(self.core.n_actuated),), np.float32)
+        self._flat_spaces()
         self._splits = np.cumsum(self.core.n_actuated)[:-1]
-        self._needs_reset = True
 
     def agent_actions(self, action: np.ndarray) -> dict[str, np.ndarray]:
         """The flat action split into the agents' actions (agent order)."""
         parts = np.split(np.asarray(action, dtype=float), self._splits)
         return dict(zip(self.possible_agents, parts, strict=True))
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
-        if seed is not None:
-            self.core.seed([seed])
-        self.core.reset()
-        self._needs_reset = False
-        return self.core.flat_observations(self.core.observe())[0], first_copy(team_infos(self.core.infos()))
-
-    def step(self, action: np.ndarray):
-        if self._needs_reset:
-            raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
-        action = float_array("action", action, self.action_space.shape)
-        out = self.core.step(self.core.padded_actions(action[None]))
-        self._needs_reset = bool(len(out.ended))
-        return (self.core.flat_observations(out.observations)[0], float(out.reward[0].mean()),
-                bool(out.terminated[0]), bool(out.truncated[0]), first_copy(team_infos(out.infos)))
 
     def render(self):
         return self.parallel.render()

@@ -17,20 +17,20 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import gymnasium
 import numpy as np
 
+from .centralized import OneCopyGymEnv
 from .config import DEFAULT_CONTROL_DT, ReachConfig
-from .core import FormationCore, config_attributes, first_copy, team_infos
+from .core import FormationCore, config_attributes
 from .registration import DEFAULT_REACH_STEPS
 from .safety import FilterParams
 from .scenario import Scenario
-from .validation import float_array, hints_unknown_keywords
+from .validation import hints_unknown_keywords
 
 __all__ = ["PAReachEnv"]
 
 
-class PAReachEnv(gymnasium.Env):
+class PAReachEnv(OneCopyGymEnv):
     """One PAn−1 arm brings its end-effector to a goal without touching an obstacle.
 
     ## Description
@@ -131,9 +131,7 @@ class PAReachEnv(gymnasium.Env):
         self.engine = self.core.engine
         self.scenario = self.config.team
         self.arm = self.scenario.arms[0]
-        self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (self.arm.n_actuated,), np.float32)
-        self.observation_space = gymnasium.spaces.Box(*self.core.flat_observation_bounds(), dtype=np.float32)
-        self._needs_reset = True
+        self._flat_spaces()
 
     @property
     def safety_filter(self) -> FilterParams | None:
@@ -165,21 +163,7 @@ class PAReachEnv(gymnasium.Env):
             if point is None or point.shape != (2,) or not np.isfinite(point).all():
                 raise ValueError(f"options['goal'] must be 2 finite numbers (x, y), got {options['goal']!r}")
             options["goal"] = point
-        super().reset(seed=seed)
-        if seed is not None:
-            self.core.seed([seed])
-        self.core.reset(options=options)
-        self._needs_reset = False
-        return self.core.flat_observations(self.core.observe())[0], first_copy(team_infos(self.core.infos()))
-
-    def step(self, action: np.ndarray):
-        if self._needs_reset:
-            raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
-        a = float_array("action", action, self.action_space.shape)
-        out = self.core.step(a.reshape(1, 1, -1).copy())
-        self._needs_reset = bool(len(out.ended))
-        return (self.core.flat_observations(out.observations)[0], float(out.reward[0, 0]), bool(out.terminated[0]),
-                bool(out.truncated[0]), first_copy(team_infos(out.infos)))
+        return super().reset(seed=seed, options=options)
 
 
 config_attributes(PAReachEnv, ReachConfig, skip=("arm",))  # env.max_steps, env.goal_tolerance, … read the config
