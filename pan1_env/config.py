@@ -9,7 +9,8 @@ different setting is a new config (:func:`dataclasses.replace`).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+import inspect
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,8 +23,8 @@ from .safety import QP_SOLVERS, FilterParams, filter_parameters
 from .scenario import Scenario, load
 from .validation import positive_int, real, refuse_unknown, whole_ratio
 
-__all__ = ["FormationConfig", "ReachConfig", "ACTION_MODES", "DEFAULT_CONTROL_DT", "DEFAULT_GAIN_RANGE", "MAX_KE_DT",
-           "default_physics_dt", "SUCCESS_TOLERANCE"]
+__all__ = ["FormationConfig", "ReachConfig", "config_arguments", "ACTION_MODES", "DEFAULT_CONTROL_DT",
+           "DEFAULT_GAIN_RANGE", "MAX_KE_DT", "default_physics_dt", "SUCCESS_TOLERANCE"]
 
 ACTION_MODES = ("velocity", "torque", "residual", "gain")
 DEFAULT_CONTROL_DT = 0.05  # s per env step
@@ -198,6 +199,24 @@ class FormationConfig:
 
 
 ARGUMENTS = tuple(f.name for f in dataclasses.fields(FormationConfig) if f.init)
+
+
+def config_arguments(config: type) -> Callable[[Callable[..., None]], Callable[..., None]]:
+    """Decorator for a view's ``__init__(self, scenario, *, own…, **arguments)``: the signature ``help()``, IDEs
+    and ``inspect.signature`` show has ``**arguments`` replaced by the config's other arguments (keyword-only,
+    with their defaults and types), so that the list of arguments and their defaults is kept once, in the
+    config."""
+
+    def decorate(init: Callable[..., None]) -> Callable[..., None]:
+        own = inspect.signature(init)
+        params = [p for p in own.parameters.values() if p.kind is not p.VAR_KEYWORD]
+        taken = {p.name for p in params}
+        params += [inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=f.default, annotation=f.type)
+                   for f in dataclasses.fields(config) if f.init and f.name not in taken]
+        init.__signature__ = own.replace(parameters=params)  # type: ignore[attr-defined]
+        return init
+
+    return decorate
 
 
 @dataclass(frozen=True, eq=False)

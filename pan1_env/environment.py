@@ -16,12 +16,10 @@ import numpy as np
 from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec
 
-from .config import ARGUMENTS, DEFAULT_CONTROL_DT, DEFAULT_GAIN_RANGE, SUCCESS_TOLERANCE, FormationConfig
+from .config import FormationConfig, config_arguments
 from .core import CoreView, FormationCore, agent_infos
 from .observation import OBS_BOUND
-from .random_scenario import RandomScenarioOptions
 from .registration import RENDER_FPS, RENDER_MODES
-from .safety import FilterParams
 from .scenario import Scenario
 from .validation import float_array, forwarded_signature, hints_unknown_keywords
 
@@ -69,20 +67,12 @@ class Pan1ParallelEnv(CoreView, ParallelEnv):
                 "is_parallelizable": True}
 
     @hints_unknown_keywords
-    def __init__(self, scenario: str | Path | Scenario = "paper_pa3_square", *, action_mode: str = "velocity",
-                 control_dt: float = DEFAULT_CONTROL_DT, physics_dt: float | None = None, max_steps: int | None = None,
-                 render_mode: str | None = None, terminate_on_collision: bool = False,
-                 terminate_on_success: bool = False, success_tolerance: float = SUCCESS_TOLERANCE,
-                 formation_weight: float = 1.0, effort_weight: float = 0.0, collision_penalty: float = 0.0,
-                 success_bonus: float = 0.0, residual_gate: float = 0.0, intervention_penalty: float = 0.0,
-                 blocked_gate: float = 0.0,
-                 gain_range: float = DEFAULT_GAIN_RANGE, max_joint_speed: float = 2.0, max_torque: float = 5.0,
-                 n_obstacle_obs: int = 3, random_options: RandomScenarioOptions | Mapping[str, Any] | None = None,
-                 qp_solver: str = "active_set", safety_filter: bool | FilterParams = False) -> None:
+    @config_arguments(FormationConfig)
+    def __init__(self, scenario: str | Path | Scenario = "paper_pa3_square", *, render_mode: str | None = None,
+                 **arguments: Any) -> None:
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode must be None or one of {RENDER_MODES}, got {render_mode!r}")
-        arguments = {k: v for k, v in locals().items() if k in ARGUMENTS}
-        self.core = FormationCore(FormationConfig(**arguments), 1)
+        self.core = FormationCore(FormationConfig(scenario, **arguments), 1)
         self.render_mode = render_mode
         self.possible_agents = list(self.core.agents)
         self.agents: list[str] = []

@@ -20,9 +20,8 @@ from typing import Any
 import numpy as np
 
 from .centralized import OneCopyGymEnv
-from .config import DEFAULT_CONTROL_DT, ReachConfig
+from .config import ReachConfig, config_arguments
 from .core import FormationCore, config_attributes
-from .registration import DEFAULT_REACH_STEPS
 from .safety import FilterParams
 from .scenario import Scenario
 from .validation import hints_unknown_keywords
@@ -113,18 +112,12 @@ class PAReachEnv(OneCopyGymEnv):
     metadata = {"render_modes": []}
 
     @hints_unknown_keywords
+    @config_arguments(ReachConfig)
     def __init__(self, scenario: str | Path | Scenario = "paper_pa3_square", arm: int = 0, *,
-                 control_dt: float = DEFAULT_CONTROL_DT, physics_dt: float | None = None,
-                 max_steps: int = DEFAULT_REACH_STEPS, max_joint_speed: float = 2.0,
-                 safety_filter: bool | FilterParams = True, goal_tolerance: float = 0.02,
-                 goal_spread: float = np.pi / 2,
-                 goal_clearance: float = 0.05, terminate_on_success: bool = False,
-                 terminate_on_collision: bool = False, effort_weight: float = 0.0,
-                 collision_penalty: float = 0.0, n_obstacle_obs: int = 3, render_mode: str | None = None) -> None:
+                 render_mode: str | None = None, **arguments: Any) -> None:
         if render_mode is not None:
             raise ValueError(f"PAReachEnv has no render modes; render_mode must be None, got {render_mode!r}")
-        arguments = {k: v for k, v in locals().items() if k not in ("self", "render_mode", "__class__")}
-        self.core = FormationCore(ReachConfig(**arguments), 1)
+        self.core = FormationCore(ReachConfig(scenario, arm, **arguments), 1)
         self.config = self.core.config
         self.arm_index = self.config.arm
         self.render_mode = None
