@@ -54,6 +54,17 @@ def default_physics_dt(control_dt: float, ke: float, action_mode: str = "velocit
                      f"control_dt={control_dt} with K_e·dt ≤ {MAX_KE_DT} (K_e = {ke}); pass physics_dt")
 
 
+def _time_steps(config, put: Callable[[str, Any], None], ke: float, action_mode: str) -> None:
+    """A config's ``physics_dt`` (default: :func:`default_physics_dt`), checked against the tracker gain, and
+    ``substeps`` (``control_dt`` must be a whole multiple of it)."""
+    dt = default_physics_dt(config.control_dt, ke, action_mode) if config.physics_dt is None else config.physics_dt
+    put("physics_dt", real("physics_dt", dt, positive=True))
+    if ke * config.physics_dt > MAX_KE_DT:
+        raise ValueError(f"physics_dt={config.physics_dt} is too long for the tracker gain K_e={ke}: "
+                         f"K_e·physics_dt must be ≤ {MAX_KE_DT} for the backstepping loop to stay stable")
+    put("substeps", whole_ratio("control_dt", config.control_dt, "physics_dt", config.physics_dt))
+
+
 @dataclass(frozen=True, eq=False)
 class FormationConfig:
     """Every argument of the formation env, validated once (``ValueError`` naming the argument).
@@ -137,13 +148,7 @@ class FormationConfig:
             raise ValueError(f"qp_solver must be one of {QP_SOLVERS}, got {self.qp_solver!r}")
         self._resolve_team(put)
         ke = self.team.ke
-        physics_dt = default_physics_dt(self.control_dt, ke, self.action_mode) if self.physics_dt is None \
-            else self.physics_dt
-        put("physics_dt", real("physics_dt", physics_dt, positive=True))
-        if ke * self.physics_dt > MAX_KE_DT:
-            raise ValueError(f"physics_dt={self.physics_dt} is too long for the tracker gain K_e={ke}: "
-                             f"K_e·physics_dt must be ≤ {MAX_KE_DT} for the backstepping loop to stay stable")
-        put("substeps", whole_ratio("control_dt", self.control_dt, "physics_dt", self.physics_dt))
+        _time_steps(self, put, ke, self.action_mode)
         max_steps = int(np.ceil(self.team.horizon / self.control_dt - 1e-9)) if self.max_steps is None \
             else self.max_steps
         put("max_steps", positive_int("max_steps", max_steps))
@@ -264,12 +269,7 @@ class ReachConfig:
         put("terminate_on_collision", bool(self.terminate_on_collision))
         put("max_steps", positive_int("max_steps", self.max_steps))
         put("n_obstacle_obs", positive_int("n_obstacle_obs", self.n_obstacle_obs, minimum=0))
-        physics_dt = default_physics_dt(self.control_dt, source.ke) if self.physics_dt is None else self.physics_dt
-        put("physics_dt", real("physics_dt", physics_dt, positive=True))
-        if source.ke * self.physics_dt > MAX_KE_DT:
-            raise ValueError(f"physics_dt={self.physics_dt} is too long for the tracker gain K_e={source.ke}: "
-                             f"K_e·physics_dt must be ≤ {MAX_KE_DT}")
-        put("substeps", whole_ratio("control_dt", self.control_dt, "physics_dt", self.physics_dt))
+        _time_steps(self, put, source.ke, self.action_mode)
         # the engine holds a one-arm team: this arm and the scenario's obstacles (the formation is unused)
         put("team", dataclasses.replace(source, arms=(source.arms[self.arm],), q0=(source.q0[self.arm],)))
         put("safety_filter", filter_parameters(self.safety_filter, self.team))
