@@ -173,3 +173,11 @@ def test_scenarios_lists_random_and_every_gymnasium_id_in_good_english(capsys) -
     assert re.search(r"^\s+random: ", out, re.MULTILINE)
     for env_id in [*ENV_IDS, REACH_ENV_ID]:
         assert f"  {env_id}: " in out, env_id
+
+
+def test_benchmark_shows_a_progress_bar_per_row(tmp_path, capsys) -> None:
+    code = main(["benchmark", "--scenarios", "paper_pa_mixed_square", "--policies", "zero", "--shield", "on",
+                 "--episodes", "3", "--max-steps", "5", "--out", str(tmp_path)])
+    assert code == 0
+    err = capsys.readouterr().err
+    assert "paper_pa_mixed_square / zero / shield on" in err and "0/3" in err and "episode/s" in err
