@@ -543,7 +543,7 @@ def _check_algo_kwargs(cls, algo_kwargs: dict[str, Any] | None) -> None:
     from pan1_env.validation import refuse_unknown
 
     names = [name for name, p in inspect.signature(cls.__init__).parameters.items()
-             if name not in ("self", "policy", "env") and p.kind is not p.VAR_KEYWORD]
+             if name not in ("self", "policy", "env") and not name.startswith("_") and p.kind is not p.VAR_KEYWORD]
     refuse_unknown(f"algo_kwargs ({cls.__name__})", algo_kwargs or {}, names)
 
 
