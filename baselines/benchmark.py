@@ -24,15 +24,17 @@ centralised models). :func:`run_benchmark` returns the rows; :func:`markdown_tab
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 from .policies import BUILTIN_POLICIES, check_policy_name, make_policy
 
-__all__ = ["run_benchmark", "markdown_table", "plot_benchmark", "make_policy", "BUILTIN_POLICIES"]
+__all__ = ["run_benchmark", "markdown_table", "plot_benchmark", "benchmark_figure", "make_policy", "BUILTIN_POLICIES"]
 
 
 def _episode(env, policy, seed: int, shield: bool) -> dict[str, Any]:
@@ -65,8 +67,11 @@ def _episode(env, policy, seed: int, shield: bool) -> dict[str, Any]:
 def run_benchmark(scenarios: Sequence[str], policies: Sequence[str], episodes: int = 5, seed: int = 0,
                   shield_settings: Sequence[bool] = (True, False), max_steps: int | None = None,
                   env_kwargs: dict[str, Any] | None = None,
-                  progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
-    """Run every scenario × policy × shield combination on episodes seeded ``seed … seed+episodes−1``."""
+                  progress: Callable[[str], None] | None = None, bar: bool | None = False) -> list[dict[str, Any]]:
+    """Run every scenario × policy × shield combination on episodes seeded ``seed … seed+episodes−1``.
+
+    ``progress`` receives a line before and after each row; ``bar`` shows a tqdm bar of a row's episodes
+    on stderr (``None``: only when stderr is a terminal)."""
     from pan1_env.environment import parallel_env
     from pan1_env.registration import env_arguments
     from pan1_env.wrappers import SafetyShield
@@ -92,7 +97,13 @@ def run_benchmark(scenarios: Sequence[str], policies: Sequence[str], episodes: i
     for scenario, name, shield, env, policy in runs:
         if progress is not None:  # a row can take minutes: say what runs
             progress(f"{scenario} / {name} / shield {'on' if shield else 'off'}: {episodes} episodes …")
-        results = [_episode(env, policy, seed + k, shield) for k in range(episodes)]
+        label = f"{scenario} / {name} / shield {'on' if shield else 'off'}"
+        with tqdm(total=episodes, desc=label, unit="episode", file=sys.stderr, leave=False,
+                  disable=None if bar is None else not bar) as ticks:
+            results = []
+            for k in range(episodes):
+                results.append(_episode(env, policy, seed + k, shield))
+                ticks.update()
         times = [r["time_to_formation"] for r in results if r["success"]]
         arm_steps = sum(r["arm_steps"] for r in results)
         row = {
@@ -132,23 +143,39 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def plot_benchmark(rows: Sequence[dict[str, Any]], path: Path) -> Path:
-    """Bar charts of success rate and total cost per policy, shield on and off."""
+def benchmark_figure(rows: Sequence[dict[str, Any]]):
+    """The table as bar charts, one bar per row: success rate, time to formation (over successful
+    episodes; "never" where none succeeded) and total cost, with every axis from 0."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
+    labels = [f"{r['scenario']}\n{r['policy']} ({'shield' if r['shield'] else 'no shield'})" for r in rows]
+    x = np.arange(len(rows))
+    fig, ax = plt.subplots(1, 3, figsize=(max(10, 1.5 * len(rows)), 5))
+    colors = ["tab:green" if r["shield"] else "tab:gray" for r in rows]
+    ax[0].bar(x, [r["success_rate"] for r in rows], color=colors)
+    ax[0].set(title="success rate (formation error < 1 cm at the end)", ylim=(0, 1.05))
+    times = [r["mean_time_to_formation_s"] for r in rows]
+    ax[1].bar(x, [0.0 if t is None else t for t in times], color=colors)
+    top = max([t for t in times if t is not None], default=0.0)
+    ax[1].set(title="time to formation [s] (mean over successes)", ylim=(0, 1.1 * top if top > 0 else 1.0))
+    for i, t in enumerate(times):
+        if t is None:  # no bar would read as "instant": say it
+            ax[1].text(i, 0, "never", ha="center", va="bottom", rotation=90, fontsize=8)
+    costs = [r["total_cost"] for r in rows]
+    ax[2].bar(x, costs, color=colors)
+    # counts are never negative: without an explicit top, all-zero bars get a −0.04…0.04 axis
+    ax[2].set(title="total cost (arm-steps inside an obstacle)", ylim=(0, 1.1 * max(costs) if max(costs) > 0 else 1.0))
+    for a in ax:
+        a.set_xticks(x, labels, rotation=90, fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def plot_benchmark(rows: Sequence[dict[str, Any]], path: Path) -> Path:
+    """:func:`benchmark_figure` written to ``path``."""
     from pan1_env.figures import save_figure
 
-    labels = [f"{r['scenario']}\n{r['policy']} ({'shield' if r['shield'] else 'no shield'})" for r in rows]
-    fig, ax = plt.subplots(1, 2, figsize=(max(8, 1.1 * len(rows)), 5))
-    colors = ["tab:green" if r["shield"] else "tab:gray" for r in rows]
-    ax[0].bar(range(len(rows)), [r["success_rate"] for r in rows], color=colors)
-    ax[0].set(title="success rate (formation error < 1 cm at the end)", ylim=(0, 1.05))
-    ax[1].bar(range(len(rows)), [r["total_cost"] for r in rows], color=colors)
-    ax[1].set(title="total cost (arm-steps inside an obstacle)")
-    for a in ax:
-        a.set_xticks(range(len(rows)), labels, rotation=90, fontsize=7)
-    fig.tight_layout()
-    return save_figure(fig, path)
+    return save_figure(benchmark_figure(rows), path)

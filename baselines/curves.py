@@ -19,6 +19,12 @@ with ``run.json`` (the training arguments) and ``episodes.csv`` (one row per fin
    is seeded, so the same runs give the same numbers. A group of fewer than 3 seeds gets no band
    (``lo``/``hi`` are NaN) and a warning.
 
+A run with no finished episode (shorter than one episode of every copy) is drawn from its evaluation
+log, ``eval.csv`` (``--eval-every``), if it has one: one point per evaluation, not smoothed (each is
+already a mean over held-out episodes), and a warning says so. Without one, :func:`load_run` raises a
+``ValueError`` that gives the ``pan1-env train … --resume`` command that continues the run to its
+first episodes.
+
 Only numpy here; matplotlib is imported by :func:`plot_curves` (Agg backend) and nowhere else.
 """
 
@@ -75,11 +81,64 @@ def load_run(path: str | Path) -> dict[str, Any]:
             rows = [[_number(row[c]) for c in COLUMNS] for row in reader]
         except (TypeError, ValueError) as err:
             raise ValueError(f"{csv_path}, line {reader.line_num}: {err}") from None
+    source = "episodes.csv"
     if not rows:
-        raise ValueError(f"{csv_path}: empty, no finished episode logged yet")
+        rows = _evaluations(path / "eval.csv")
+        if not rows:
+            raise ValueError(f"{csv_path}: empty, no finished episode logged yet; {_what_to_run(path, meta)}")
+        source = "eval.csv"
+        warnings.warn(f"{path}: no finished training episode; plotting its evaluations (eval.csv) instead, "
+                      "one point per evaluation, not smoothed", UserWarning, stacklevel=2)
     table = np.array(rows, dtype=float)
     table = table[np.argsort(table[:, 0], kind="stable")]
-    return {"path": path, "meta": meta} | {c: table[:, i] for i, c in enumerate(COLUMNS)}
+    return {"path": path, "meta": meta, "source": source} | {c: table[:, i] for i, c in enumerate(COLUMNS)}
+
+
+def _evaluations(path: Path) -> list[list[float]]:
+    """The rows of ``eval.csv`` (written with ``--eval-every``) as episode rows: each evaluation, a mean
+    over held-out episodes, stands for one point (return: mean return, success: success at 1 cm, cost:
+    mean cost, length unknown). Empty if there is no such file or it has no row."""
+    if not path.is_file():
+        return []
+    with path.open(newline="") as fh:
+        reader = csv.DictReader(fh)
+        try:
+            return [[_number(r["timesteps"]), _number(r["mean_return"]), float("nan"), _number(r["cost"]),
+                     _number(r["success_1cm"])] for r in reader]
+        except (KeyError, TypeError, ValueError) as err:
+            raise ValueError(f"{path}, line {reader.line_num}: not an evaluation log ({err})") from None
+
+
+def _what_to_run(path: Path, meta: dict[str, Any]) -> str:
+    """What to run to get a run with no finished episode to its first episodes: the ``pan1-env train``
+    command that resumes it to the step at which every copy has finished one."""
+    import shlex
+
+    from .training import DEFAULT_N_ENVS, first_episode_end
+
+    try:
+        end = first_episode_end(meta["scenario"], meta.get("env_kwargs") or {}, int(meta.get("n_envs", DEFAULT_N_ENVS)),
+                                bool(meta.get("param_sharing")))
+    except (KeyError, TypeError, ValueError):  # a hand-written or foreign run.json: no command to give
+        return ("train it longer: pan1-env train --resume --out DIR --timesteps N with the run's own options, "
+                "or with a smaller --max-steps")
+    words = ["pan1-env", "train", "--algo", str(meta.get("algo", "ppo")), "--scenario", str(meta["scenario"]),
+             "--shield" if meta.get("shield", True) else "--no-shield", "--seed", str(meta.get("seed", 0))]
+    if int(meta.get("n_envs", DEFAULT_N_ENVS)) != DEFAULT_N_ENVS:
+        words += ["--n-envs", str(meta["n_envs"])]
+    if meta.get("param_sharing"):
+        words.append("--param-sharing")
+    if meta.get("normalize") is False:
+        words.append("--no-normalize")
+    for option, key in (("--env-kwargs", "env_kwargs"), ("--algo-kwargs", "algo_kwargs")):
+        if meta.get(key):
+            words += [option, json.dumps(meta[key])]
+    for option, key in (("--critic-warmup", "critic_warmup"), ("--cost-limit", "cost_limit"),
+                        ("--lagrangian-lr", "lagrangian_lr")):
+        if key in meta:
+            words += [option, str(meta[key])]
+    words += ["--out", str(path), "--resume", "--timesteps", str(max(end, int(meta.get("timesteps", 0))))]
+    return f"the first episodes end after {end:,} steps; continue the run with: {shlex.join(words)}"
 
 
 def _number(text: str | None) -> float:
@@ -166,11 +225,14 @@ def learning_curves(run_dirs: Sequence[str | Path], *, x: str = "timesteps", win
         grid = np.unique(np.linspace(first, last, points).round())
         n = len(group)
         entry: dict[str, Any] = {"runs": [r["path"] for r in group], "seeds": [r["meta"].get("seed") for r in group],
-                                 "n_seeds": n, "x": grid}
+                                 "n_seeds": n, "x": grid,
+                                 "from_evaluations": any(r.get("source") == "eval.csv" for r in group)}
         # the same resampled seeds for every metric; a group's band does not depend on the other groups
         idx = np.random.default_rng(seed).integers(0, n, size=(n_boot, n))
         for metric in METRICS:
-            per_seed = np.stack([_running_mean(v, r[metric], grid, window) for v, r in zip(xs, group, strict=True)])
+            # an evaluation is already a mean over held-out episodes: read off as it is
+            per_seed = np.stack([_running_mean(v, r[metric], grid, 1 if r.get("source") == "eval.csv" else window)
+                                 for v, r in zip(xs, group, strict=True)])
             mean = per_seed.mean(axis=0)
             if n >= MIN_SEEDS_FOR_BAND:
                 lo, hi = np.percentile(per_seed[idx].mean(axis=1), [tail, 100 - tail], axis=0)
@@ -235,8 +297,11 @@ def plot_curves(run_dirs: Sequence[str | Path], out: str | Path = "runs/curves.p
     axes[1].set_ylim(-0.05, 1.05)
     axes[0].legend(fontsize=8)
     axes[-1].set_xlabel("environment steps" if x == "timesteps" else "episodes")
+    evaluated = [name for name, g in curves.items() if g["from_evaluations"]]
     fig.suptitle(f"mean over seeds of the running mean of the last {window} episodes; band: "
-                 f"{kwargs.get('confidence', 0.95):.0%} bootstrap confidence interval of that mean", fontsize=9)
+                 f"{kwargs.get('confidence', 0.95):.0%} bootstrap confidence interval of that mean"
+                 + (f"\n{', '.join(evaluated)}: runs without a finished episode are drawn from their evaluations "
+                    "(eval.csv)" if evaluated else ""), fontsize=9)
     fig.tight_layout()
     csv_path = write_csv(curves, out.with_suffix(".csv"), x=x)
     return save_figure(fig, out), csv_path

@@ -10,13 +10,19 @@ the largest arm; SuperSuit steps its copies one by one, so this route is slower)
   boundary after every ``checkpoint_every`` steps and at the end (plus the replay buffer for SAC),
   each written atomically, and ``run.json`` (the arguments);
 * ``episodes.csv``: one row per finished episode: ``timesteps, return, length, cost, success``
-  (cost: arm-steps inside an obstacle; success: formation error below 1 cm at the end);
+  (cost: arm-steps inside an obstacle; success: formation error below 1 cm at the end; with
+  ``param_sharing`` one row per team episode, its return the mean of the arms');
 * ``eval.csv`` (with ``eval_every``): every ``eval_every`` steps, the deterministic policy on held-out
   teams (:mod:`pan1_env.baselines.evaluation`): success at 1, 2 and 5 cm, median final error, return,
   cost, time to formation;
 * ``model.zip``: the final model, and ``model.json`` beside it (and beside every checkpoint): what a
   policy needs to run the model on an env, the env arguments (``action_mode``…) and, with
   ``normalize``, the observation statistics (mean, variance, clip) the model was trained with.
+
+``timesteps`` is rounded once to the nearest whole number of collections (a PPO rollout of ``n_steps``
+× SB3 envs, or one SAC step of every env), announced on stderr at the start; a budget too short for
+any episode to end is announced too. ``env_kwargs`` and ``algo_kwargs`` are checked (names with a
+"did you mean", then values) before ``out`` is created.
 
 ``critic_warmup=N`` (PPO) trains only the value function for the first N steps, the actor frozen:
 useful for residual and gain actions, whose initial policy is the reference controller.
@@ -47,12 +53,13 @@ import json
 import pickle
 import random
 import re
+import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["train", "make_training_env", "ALGOS", "latest_checkpoint"]
+__all__ = ["train", "make_training_env", "ALGOS", "latest_checkpoint", "first_episode_end"]
 
 ALGOS = ("ppo", "sac", "ppo-lagrangian")  # ppo-lagrangian: PPO with a Lagrange multiplier on the cost
 DEFAULT_N_ENVS = 128  # copies in the batched engine
@@ -101,6 +108,7 @@ def _seeded_supersuit_class():
         keep the seed and pass it to the next ``reset`` of the SuperSuit vector env instead."""
 
         def __init__(self, venv) -> None:
+            self.venv = venv  # get_attr (render_mode) is asked during the base class's __init__
             super().__init__(venv)
             self._next_seed = None
 
@@ -115,6 +123,13 @@ def _seeded_supersuit_class():
 
         def step_wait(self):
             return self.venv.step_wait()
+
+        def get_attr(self, attr_name, indices=None):
+            # SuperSuit's vector env cannot answer get_attr; SB3 asks every wrapper's env for its
+            # render_mode and warns when it cannot be read. Training renders nothing.
+            if attr_name == "render_mode":
+                return [None for _ in range(self.num_envs if indices is None else len(self._get_indices(indices)))]
+            return super().get_attr(attr_name, indices)
 
     return SeededSuperSuit
 
@@ -137,14 +152,18 @@ def latest_checkpoint(out: Path) -> tuple[Path, int] | None:
 
 
 def _callbacks(out: Path, checkpoint_every: int, algo: str, total: int, progress: bool,
-               initial_costs: np.ndarray | None, sidecar):
+               initial_costs: np.ndarray | None, sidecar, team_size: int = 1):
     import torch
     from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
     from pan1_env.experiment import atomic_write
 
     class EpisodeLog(BaseCallback):
-        """Appends a CSV row per finished episode with its return, length, cost and success."""
+        """Appends a CSV row per finished episode with its return, length, cost and success.
+
+        With parameter sharing each arm is a sub-env of its own (``team_size`` consecutive sub-envs per
+        team, ending together): a team's episode is one row, its return the mean of its arms' returns
+        (the benchmark's convention) and its cost the sum of its arms' costs."""
 
         def _on_training_start(self) -> None:
             self.path = out / "episodes.csv"
@@ -165,12 +184,18 @@ def _callbacks(out: Path, checkpoint_every: int, algo: str, total: int, progress
             infos = self.locals["infos"]
             for i, info in enumerate(infos):
                 self.costs[i] += float(info.get("cost", 0.0))
-                if "episode" in info:
-                    success = bool(info.get("is_success", False))
-                    self.writer.writerow([self.num_timesteps, round(float(info["episode"]["r"]), 6),
-                                          int(info["episode"]["l"]), self.costs[i], int(success)])
-                    self.fh.flush()
-                    self.costs[i] = 0.0
+            for first in range(0, len(infos), team_size):
+                team = range(first, first + team_size)
+                ended = [i for i in team if "episode" in infos[i]]
+                if not ended:
+                    continue
+                info = infos[ended[0]]
+                success = bool(info.get("is_success", False))
+                ret = float(np.mean([infos[i]["episode"]["r"] for i in ended]))
+                self.writer.writerow([self.num_timesteps, round(ret, 6), int(info["episode"]["l"]),
+                                      float(self.costs[team].sum()), int(success)])
+                self.fh.flush()
+                self.costs[team] = 0.0
             if self.bar is not None:
                 self.bar.update(self.num_timesteps - self.bar.n)
             return True
@@ -178,6 +203,7 @@ def _callbacks(out: Path, checkpoint_every: int, algo: str, total: int, progress
         def _on_training_end(self) -> None:
             self.fh.close()
             if self.bar is not None:
+                self.bar.update(self.num_timesteps - self.bar.n)
                 self.bar.close()
 
     log = EpisodeLog()
@@ -313,23 +339,25 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
         raise ValueError("critic_warmup is for PPO's actor and critic; SAC has no warm-up here")
     if algo == "ppo-lagrangian" and param_sharing:
         raise ValueError("ppo-lagrangian trains on the batched vector env, not with param_sharing")
+    max_steps = _check_env_kwargs(scenario, env_kwargs)
     import torch
     from stable_baselines3 import PPO, SAC
 
     from pan1_env.experiment import atomic_write
 
+    cls = SAC if algo == "sac" else PPO
+    _check_algo_kwargs(cls, algo_kwargs)
     torch.set_num_threads(1)
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    cls = SAC if algo == "sac" else PPO
 
     def build_env():
         venv = make_training_env(scenario, shield, seed, n_envs, param_sharing, env_kwargs)
         if algo == "ppo-lagrangian":
             from .lagrangian import CostPenalisedVecEnv
 
-            horizon = venv.get_attr("template")[0].max_steps  # scales cost per step until episodes end
-            venv = CostPenalisedVecEnv(venv, cost_limit=cost_limit, lagrangian_lr=lagrangian_lr, episode_length=horizon)
+            # the episode length scales cost per step until episodes end
+            venv = CostPenalisedVecEnv(venv, cost_limit=cost_limit, lagrangian_lr=lagrangian_lr,
+                                       episode_length=max_steps)
         return _normalized(venv, normalize, algo_kwargs)
 
     done_steps = 0
@@ -365,12 +393,30 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
         _truncate_log(out / "lagrangian.csv", done_steps)
     else:
         venv = build_env()
+        defaults = {} if algo == "sac" else _ppo_defaults(timesteps, venv.num_envs, algo_kwargs or {})
+        kwargs = {"seed": seed, "verbose": 0, "device": "cpu", **defaults, **(algo_kwargs or {})}
+        try:
+            model = cls("MlpPolicy", venv, **kwargs)
+        except (TypeError, ValueError, AssertionError) as err:  # a bad value in algo_kwargs, before anything is written
+            venv.close()
+            raise ValueError(f"algo_kwargs: {cls.__name__} refused them: {err}") from None
+        out.mkdir(parents=True, exist_ok=True)
         for log_name in ("episodes.csv", "eval.csv", "lagrangian.csv"):
             if (out / log_name).exists():
                 (out / log_name).unlink()
-        defaults = PPO_DEFAULTS if algo != "sac" and not param_sharing else {}
-        kwargs = {"seed": seed, "verbose": 0, "device": "cpu", **defaults, **(algo_kwargs or {})}
-        model = cls("MlpPolicy", venv, **kwargs)
+    chunk = _steps_per_collection(model)
+    requested, timesteps = timesteps, max(chunk, int(timesteps / chunk + 0.5) * chunk)  # the nearest whole count
+    team_size = venv.num_envs // n_envs  # SB3 envs per copy: the arms with parameter sharing, else 1
+    if timesteps != requested:
+        _say(f"--timesteps {requested:,} rounded to {timesteps:,}: {_collection_text(model, team_size)}; "
+             "the progress bar, num_timesteps and the last checkpoint all stop there")
+    first_end = max_steps * venv.num_envs
+    if first_end > timesteps and previous is None:
+        per = "arm-steps (each arm counts)" if team_size > 1 else "steps"
+        _say(f"no episode may end in this run: an episode lasts up to {max_steps:,} steps and the {n_envs:,} "
+             f"copies advance together, so the first episodes end after {first_end:,} {per}, past the budget of "
+             f"{timesteps:,}; episodes.csv stays empty. Use --max-steps {_fit(timesteps, venv.num_envs)} or "
+             f"--n-envs {_fit(timesteps, max_steps * team_size)}, or a budget of at least {first_end:,}")
     meta = {"algo": algo, "scenario": scenario, "shield": shield, "timesteps": timesteps, "seed": seed,
             "n_envs": n_envs, "param_sharing": param_sharing, "env_kwargs": env_kwargs or {},
             "algo_kwargs": algo_kwargs or {}, "normalize": normalize}
@@ -399,7 +445,8 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
     if remaining > 0:
         from stable_baselines3.common.callbacks import CallbackList
 
-        callbacks = [_callbacks(out, checkpoint_every, algo, timesteps, progress, initial_costs, sidecar)]
+        callbacks = [_callbacks(out, checkpoint_every, algo, timesteps, progress, initial_costs, sidecar,
+                                team_size)]
         if eval_every and not param_sharing:
             from .evaluation import EVAL_SEEDS, eval_callback
 
@@ -448,6 +495,95 @@ def _critic_warmup(steps: int):
                 p.requires_grad_(trainable)
 
     return CriticWarmup()
+
+
+def first_episode_end(scenario: str, env_kwargs: dict[str, Any], n_envs: int, param_sharing: bool) -> int:
+    """The step count (as SB3 counts them, every copy and, with parameter sharing, every arm) at which
+    the first episodes of a training run reach their time limit."""
+    from pan1_env.config import FormationConfig
+    from pan1_env.registration import env_arguments
+
+    scenario, env_kwargs = env_arguments(scenario, env_kwargs)
+    config = FormationConfig.of(scenario, **env_kwargs)
+    return config.max_steps * n_envs * (config.team.n_arms if param_sharing else 1)
+
+
+def _say(text: str) -> None:
+    """A note for the person who started the run, at its start (stderr: stdout carries the summary)."""
+    print(f"pan1-env train: {text}", file=sys.stderr, flush=True)
+
+
+def _fit(budget: int, per: int) -> int:
+    """A setting that lets every copy finish about four episodes within ``budget`` steps."""
+    return max(1, budget // (4 * per))
+
+
+def _check_env_kwargs(scenario: str, env_kwargs: dict[str, Any] | None) -> int:
+    """``env_kwargs`` checked as the env will (names with a "did you mean", then values), before anything
+    is built or written; returns the episode length (``max_steps``)."""
+    from pan1_env.config import ARGUMENTS, FormationConfig
+    from pan1_env.validation import refuse_unknown
+
+    env_kwargs = dict(env_kwargs or {})
+    for key in ("scenario", "safety_filter"):
+        if key in env_kwargs:
+            raise ValueError(f"env_kwargs: {key!r} is set by the training's own "
+                             f"{'scenario' if key == 'scenario' else 'shield'} argument; leave it out")
+    refuse_unknown("env_kwargs", env_kwargs, [a for a in ARGUMENTS if a not in ("scenario", "safety_filter")])
+    try:
+        return FormationConfig.of(scenario, **env_kwargs).max_steps
+    except TypeError as err:
+        raise ValueError(f"env_kwargs: {err}") from None
+
+
+def _check_algo_kwargs(cls, algo_kwargs: dict[str, Any] | None) -> None:
+    """The names of ``algo_kwargs`` checked against the SB3 class's constructor ("did you mean")."""
+    import inspect
+
+    from pan1_env.validation import refuse_unknown
+
+    names = [name for name, p in inspect.signature(cls.__init__).parameters.items()
+             if name not in ("self", "policy", "env") and not name.startswith("_") and p.kind is not p.VAR_KEYWORD]
+    refuse_unknown(f"algo_kwargs ({cls.__name__})", algo_kwargs or {}, names)
+
+
+def _ppo_defaults(timesteps: int, num_envs: int, algo_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """PPO_DEFAULTS fitted to the budget and to the SB3 envs (B copies, or B × arms with parameter
+    sharing): one rollout never exceeds the budget, and the minibatch divides the rollout."""
+    n_steps = algo_kwargs.get("n_steps", min(PPO_DEFAULTS["n_steps"], max(1, timesteps // num_envs)))
+    out = {"n_steps": n_steps, "n_epochs": PPO_DEFAULTS["n_epochs"]}
+    if "batch_size" not in algo_kwargs:
+        out["batch_size"] = _divisor_near(n_steps * num_envs, PPO_DEFAULTS["batch_size"])
+    return out
+
+
+def _divisor_near(n: int, target: int) -> int:
+    """The divisor of ``n`` nearest ``target`` by ratio (at least 2 when n ≥ 2: SB3 needs it)."""
+    divisors = {d for k in range(1, int(n ** 0.5) + 1) if n % k == 0 for d in (k, n // k)}
+    divisors = {d for d in divisors if d >= 2} or {n}
+    return min(divisors, key=lambda d: (abs(np.log(d / target)), -d))
+
+
+def _steps_per_collection(model) -> int:
+    """The steps SB3 adds to ``num_timesteps`` between two checks of the budget: a whole rollout for
+    PPO, ``train_freq`` steps of every env for SAC (1 for a frequency counted in episodes)."""
+    from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
+    from stable_baselines3.common.type_aliases import TrainFrequencyUnit
+
+    if isinstance(model, OnPolicyAlgorithm):
+        return model.n_steps * model.n_envs
+    freq = model.train_freq
+    return model.n_envs * (freq.frequency if freq.unit == TrainFrequencyUnit.STEP else 1)
+
+
+def _collection_text(model, team_size: int) -> str:
+    from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
+
+    envs = f"{model.n_envs:,} SB3 envs ({model.n_envs // team_size:,} copies × {team_size} arms)" if team_size > 1 \
+        else f"{model.n_envs:,} copies"
+    if isinstance(model, OnPolicyAlgorithm):
+        return f"PPO collects whole rollouts of {model.n_steps:,} steps × {envs} = {_steps_per_collection(model):,}"
+    return f"SAC steps all {envs} together, {_steps_per_collection(model):,} steps at a time"
 
 
 def _normalized(venv, normalize: bool, algo_kwargs: dict[str, Any] | None):

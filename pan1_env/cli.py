@@ -6,11 +6,11 @@ Commands:
   with the paper's controller; writes ``metrics.json``, ``trajectory.npz`` and the figures.
 * ``paper [--out DIR] [--horizon S]``: the paper's whole Section 5 (both scenarios, both
   controllers), the Figure-8 overlays, and a Markdown table of the metrics (``summary.md``).
-* ``scenarios``: list the built-in scenarios.
+* ``scenarios``: list the built-in scenarios, ``random`` and the Gymnasium ids.
 * ``warmup [--kinds 4p 2f …] [--scenario NAME …] [--threaded]``: compile the kernels ahead of time.
-* ``animate SCENARIO --policy reference|zero|random|adversarial|sb3:PATH [--no-shield] --out FILE.gif``:
+* ``animate SCENARIO --policy reference|zero|random|adversarial|pretrained|sb3:PATH [--no-shield] --out FILE.gif``:
   a GIF of one env episode.
-* ``train --algo ppo|sac --scenario S --shield/--no-shield --timesteps T --seed K --out DIR``:
+* ``train --algo ppo|sac|ppo-lagrangian --scenario S --shield/--no-shield --timesteps T --seed K --out DIR``:
   Stable-Baselines3 training (the ``rl`` extra).
 * ``benchmark --scenarios … --policies reference,zero,random,sb3:PATH --episodes K --seed S``:
   the policy comparison (Markdown, JSON and a plot).
@@ -74,7 +74,7 @@ def _parser() -> argparse.ArgumentParser:
     paper.add_argument("--out", type=Path, default=Path("runs/paper"), help="output directory")
     _common(paper)
 
-    sub.add_parser("scenarios", help="list the built-in scenarios")
+    sub.add_parser("scenarios", help="list the built-in scenarios, 'random' and the Gymnasium ids")
 
     warm = sub.add_parser("warmup", help="compile the kernels ahead of time (once per arm kind; cached on disk)",
                           description="Compile (or load from numba's disk cache) the kernels the environments use, "
@@ -88,9 +88,11 @@ def _parser() -> argparse.ArgumentParser:
                       help="also compile the multi-threaded kernel the vector env uses for large batches")
 
     anim = sub.add_parser("animate", help="write a GIF of one episode of the environment")
-    anim.add_argument("scenario", help="built-in scenario name, path to a .toml file, or 'random'")
+    anim.add_argument("scenario", help="built-in scenario name, path to a .toml file, 'random' or a team id of "
+                                       "pan1_env.ENV_IDS")
     anim.add_argument("--policy", default="reference",
                       help="reference (the paper's nominal law on local observations), zero, random, adversarial, "
+                           "pretrained (the shipped model trained for the scenario's task), pretrained:NAME, "
                            "sb3:PATH, or a name registered with pan1_env.baselines.register_policy")
     anim.add_argument("--shield", action=argparse.BooleanOptionalAction, default=True,
                       help="behind the safety shield (with the reference policy this is the paper's safe "
@@ -102,7 +104,8 @@ def _parser() -> argparse.ArgumentParser:
     anim.add_argument("--seed", type=int, default=0, help="reset seed (and random policy seed)")
     anim.add_argument("--fps", type=_positive_int, default=20, help="frames per second of the GIF")
 
-    tr = sub.add_parser("train", help="train PPO or SAC with Stable-Baselines3 (needs the rl extra)")
+    tr = sub.add_parser("train", help="train PPO, SAC or PPO-Lagrangian with Stable-Baselines3 (needs the rl "
+                                      "extra)")
     tr.add_argument("--algo", choices=("ppo", "sac", "ppo-lagrangian"), default="ppo",
                     help="Stable-Baselines3 algorithm (ppo-lagrangian: PPO with a Lagrangian cost penalty)")
     tr.add_argument("--scenario", default="paper_pa3_square",
@@ -316,10 +319,22 @@ def _cmd_paper(args) -> int:
 
 def _cmd_scenarios(args) -> int:
     from . import scenario as scenario_mod
+    from .registration import ENV_IDS, REACH_ENV_ID
 
+    def count(n: int, noun: str) -> str:
+        return f"{n} {noun}{'' if n == 1 else 's'}"
+
+    print("built-in scenarios (pan1-env reproduce, animate, train, benchmark):")
     for name in scenario_mod.builtin_names():
         sc = scenario_mod.load(name)
-        print(f"{name}: {sc.n_arms} arms, {len(sc.obstacles)} obstacles, horizon {sc.horizon:g} s")
+        print(f"  {name}: {count(sc.n_arms, 'arm')}, {count(len(sc.obstacles), 'obstacle')}, "
+              f"horizon {sc.horizon:g} s")
+    print("  random: a new random team, formation and obstacles at every reset")
+    print("Gymnasium ids (gymnasium.make, and as a scenario of animate, train and benchmark):")
+    for env_id, options in ENV_IDS.items():
+        extra = {k: v for k, v in options.items() if k != "scenario"}
+        print(f"  {env_id}: scenario {options['scenario']}" + "".join(f", {k}={v}" for k, v in extra.items()))
+    print(f"  {REACH_ENV_ID}: one arm reaching a target (gymnasium.make only)")
     return 0
 
 
@@ -402,7 +417,7 @@ def _cmd_benchmark(args) -> int:
     shields = {"both": (True, False), "on": (True,), "off": (False,)}[args.shield]
     rows = run_benchmark([s for s in args.scenarios.split(",") if s], [p for p in args.policies.split(",") if p],
                          episodes=args.episodes, seed=args.seed, shield_settings=shields,
-                         max_steps=args.max_steps, progress=print)
+                         max_steps=args.max_steps, progress=print, bar=True)
     table = markdown_table(rows)
     atomic_write(args.out / "benchmark.md", lambda fh: fh.write(table + "\n"), mode="w")
     atomic_write(args.out / "benchmark.json", lambda fh: fh.write(json.dumps(rows, indent=2) + "\n"), mode="w")

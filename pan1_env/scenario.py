@@ -269,23 +269,31 @@ def _arm(entry: Any, defaults: Mapping[str, Any], src: str, index: int) -> tuple
     prefix = f"arms[{index}]"
     _known_keys(entry, prefix, src, _ARM_KEYS)
     merged = {**defaults, **entry}
+
+    def where(key: str) -> str:
+        """The key as the file spells it: a value inherited from [arm_defaults] is reported there."""
+        return f"arm_defaults.{key}" if key not in entry and key in defaults else f"{prefix}.{key}"
+
     vectors = {}
     for key in ("masses", "lengths", "com", "inertias"):
         if key not in merged:
             raise ScenarioError(src, f"{prefix}.{key}", "missing (give it here or in [arm_defaults])")
-        vectors[key] = _vector(merged[key], src, f"{prefix}.{key}")
-    n = vectors["masses"].size
+        vectors[key] = _vector(merged[key], src, where(key))
+    # the odd one out is the list whose size most of the others disagree with (masses on a tie)
+    sizes = [arr.size for arr in vectors.values()]
+    n = max(sizes, key=lambda s: (sizes.count(s), s == vectors["masses"].size))
     for key, arr in vectors.items():
         if arr.size != n:
-            raise ScenarioError(src, f"{prefix}.{key}",
-                                f"has {arr.size} entries but masses has {n}: one per link")
+            others = [k for k, a in vectors.items() if a.size == n]
+            raise ScenarioError(src, where(key), f"has {arr.size} entries but {', '.join(others)} "
+                                f"{'has' if len(others) == 1 else 'have'} {n}: one per link")
     if n < 2:
-        raise ScenarioError(src, f"{prefix}.masses", "an arm needs at least 2 links")
+        raise ScenarioError(src, where("masses"), "an arm needs at least 2 links")
     for key, arr in vectors.items():
         if np.any(arr <= 0):
-            raise ScenarioError(src, f"{prefix}.{key}", f"must be positive, got {arr.tolist()}")
+            raise ScenarioError(src, where(key), f"must be positive, got {arr.tolist()}")
     if np.any(vectors["com"] > vectors["lengths"]):
-        raise ScenarioError(src, f"{prefix}.com", "each centre of mass must lie on its link "
+        raise ScenarioError(src, where("com"), "each centre of mass must lie on its link "
                             f"(0 < com ≤ length), got com={vectors['com'].tolist()} "
                             f"lengths={vectors['lengths'].tolist()}")
     if "base" not in merged:

@@ -145,3 +145,39 @@ def test_train_offers_every_action_mode_of_the_env() -> None:
 
     (mode,) = [a for a in _subcommands()["train"]._actions if a.dest == "action_mode"]
     assert tuple(mode.choices) == ACTION_MODES
+
+
+def test_help_names_every_algorithm_and_policy_the_code_has(capsys) -> None:
+    import pytest
+
+    from pan1_env.baselines.training import ALGOS
+
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    top = " ".join(capsys.readouterr().out.split()).lower()
+    for algo in ALGOS:  # the top-level line of train names each algorithm
+        assert algo in top.replace("- ", "-"), (algo, top)  # argparse may wrap after a hyphen
+    (policy,) = [a for a in _subcommands()["animate"]._actions if a.dest == "policy"]
+    assert "pretrained" in policy.help and "pretrained:NAME" in policy.help
+
+
+def test_scenarios_lists_random_and_every_gymnasium_id_in_good_english(capsys) -> None:
+    import re
+
+    from pan1_env.registration import ENV_IDS, REACH_ENV_ID
+
+    assert main(["scenarios"]) == 0
+    out = capsys.readouterr().out
+    assert "paper_pa_mixed_square: 4 arms, 1 obstacle," in out
+    assert not re.search(r"\b1 (obstacles|arms)\b", out), out
+    assert re.search(r"^\s+random: ", out, re.MULTILINE)
+    for env_id in [*ENV_IDS, REACH_ENV_ID]:
+        assert f"  {env_id}: " in out, env_id
+
+
+def test_benchmark_shows_a_progress_bar_per_row(tmp_path, capsys) -> None:
+    code = main(["benchmark", "--scenarios", "paper_pa_mixed_square", "--policies", "zero", "--shield", "on",
+                 "--episodes", "3", "--max-steps", "5", "--out", str(tmp_path)])
+    assert code == 0
+    err = capsys.readouterr().err
+    assert "paper_pa_mixed_square / zero / shield on" in err and "0/3" in err and "episode/s" in err

@@ -204,3 +204,28 @@ def test_importing_the_package_does_not_import_matplotlib() -> None:
     code = "import sys, pan1_env, pan1_env.baselines.curves; assert 'matplotlib' not in sys.modules"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
+
+
+def test_a_run_without_episodes_is_drawn_from_its_evaluations(tmp_path, capsys) -> None:
+    run = write_run(tmp_path / "short", [], seed=0)
+    with (run / "eval.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["timesteps", "success_1cm", "success_2cm", "success_5cm", "median_final_error_m", "mean_return",
+                    "cost", "mean_time_to_formation_s"])
+        w.writerows([[1000, 0.0, 0.1, 0.2, 0.3, -50.0, 0.0, ""], [2000, 0.25, 0.5, 0.6, 0.02, -20.0, 1.0, 12.5]])
+    with pytest.warns(UserWarning, match="plotting its evaluations"):
+        loaded = load_run(run)
+    assert loaded["source"] == "eval.csv" and list(loaded["return"]) == [-50.0, -20.0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        (curves,) = learning_curves([run], window=100, points=3).values()
+    # each evaluation read as it is, not averaged with the ones before (the window is for episodes)
+    assert list(curves["x"]) == [1000, 1500, 2000]
+    assert list(curves["return"]["mean"]) == [-50.0, -50.0, -20.0]
+    assert list(curves["success"]["mean"]) == [0.0, 0.0, 0.25]
+    out = tmp_path / "c.png"
+    assert main(["plot", str(run), "--out", str(out)]) == 0 and out.exists()
+    assert "warning:" in capsys.readouterr().err
+    (run / "eval.csv").unlink()
+    with pytest.raises(ValueError, match="no finished episode logged yet; the first episodes end after"):
+        load_run(run)

@@ -53,8 +53,9 @@ def test_frames_number_the_arms_from_one_like_the_figures(name: str) -> None:
     for i, q0 in enumerate(sc.q0):
         q[i, : len(q0)] = q0
     P = np.array([end_effector(arm, q0) for arm, q0 in zip(sc.arms, sc.q0, strict=True)])
+    # what the renderer reads of an env (the edge colours compare with the env's success tolerance)
     env = SimpleNamespace(scenario=sc, joint_state=lambda: (q, np.zeros_like(q)), end_effectors=lambda: P,
-                          num_steps=0, control_dt=0.05)
+                          num_steps=0, control_dt=0.05, success_tolerance=0.01)
     renderer = Renderer()
     try:
         frame = renderer.draw(env)
@@ -62,3 +63,28 @@ def test_frames_number_the_arms_from_one_like_the_figures(name: str) -> None:
         assert [t.get_text() for t in renderer.ax.texts] == [str(i) for i in range(1, sc.n_arms + 1)]
     finally:
         renderer.close()
+
+
+def _bench_row(policy: str, shield: bool, success: float, time: float | None, cost: float) -> dict:
+    return {"scenario": "paper_pa3_square", "policy": policy, "shield": shield, "episodes": 2,
+            "success_rate": success, "mean_time_to_formation_s": time, "mean_return": -1.0, "total_cost": cost,
+            "min_clearance_m": 0.1, "intervention_rate": 0.0 if shield else None,
+            "fallback_steps": 0 if shield else None}
+
+
+def test_the_benchmark_figure_draws_the_table_with_axes_from_zero() -> None:
+    from pan1_env.baselines.benchmark import benchmark_figure
+
+    rows = [_bench_row("reference", True, 1.0, 31.5, 0.0), _bench_row("zero", True, 0.0, None, 0.0),
+            _bench_row("reference", False, 0.5, 20.0, 0.0)]
+    fig = benchmark_figure(rows)
+    success, time, cost = fig.axes
+    assert "time to formation" in time.get_title()
+    assert [p.get_height() for p in time.patches] == [31.5, 0.0, 20.0]
+    assert [t.get_text() for t in time.texts] == ["never"]  # the row without a success, not a zero bar
+    assert time.get_ylim()[0] == 0 and time.get_ylim()[1] >= 31.5
+    assert cost.get_ylim() == (0.0, 1.0)  # all-zero costs: not a −0.04…0.04 axis
+    assert [p.get_height() for p in success.patches] == [1.0, 0.0, 0.5]
+    rows[2]["total_cost"] = 7.0
+    cost = benchmark_figure(rows).axes[2]
+    assert cost.get_ylim()[0] == 0 and cost.get_ylim()[1] >= 7.0

@@ -57,3 +57,42 @@ def test_one_shielded_iteration_trains_the_shared_policy(example) -> None:
     assert runners["episode_return_mean"] < 0.0  # the formation error is never exactly zero from the start
     # behind the shield no arm ever enters an obstacle
     assert runners[example.COST_KEY] == 0.0
+
+
+def test_padding_gives_a_mixed_team_one_pair_of_spaces_and_changes_nothing_else(example) -> None:
+    import numpy as np
+
+    from pan1_env.environment import parallel_env
+
+    plain = parallel_env("paper_pa_mixed_square", max_steps=3)
+    padded = example.PadToLargestArm(parallel_env("paper_pa_mixed_square", max_steps=3))
+    sizes = {a: (plain.observation_space(a).shape[0], plain.action_space(a).shape[0]) for a in plain.possible_agents}
+    assert len(set(sizes.values())) > 1  # the team is mixed: arm_3 has one actuated joint fewer
+    n_obs, n_act = max(o for o, _ in sizes.values()), max(u for _, u in sizes.values())
+    assert all(padded.observation_space(a) == padded.observation_space("arm_0") for a in plain.possible_agents)
+    assert padded.observation_space("arm_0").shape == (n_obs,)
+    assert all(padded.action_space(a).shape == (n_act,) for a in plain.possible_agents)
+    obs_plain, _ = plain.reset(seed=4)
+    obs_padded, _ = padded.reset(seed=4)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        for a, o in obs_padded.items():
+            assert o.shape == (n_obs,) and padded.observation_space(a).contains(o)
+            n = sizes[a][0]
+            assert np.array_equal(o[:n], obs_plain[a]) and not o[n:].any()
+        actions = {a: rng.uniform(-1, 1, n_act).astype(np.float32) for a in padded.agents}
+        obs_padded, r_padded, *_ = padded.step(actions)
+        obs_plain, r_plain, *_ = plain.step({a: u[: sizes[a][1]] for a, u in actions.items()})
+        assert r_padded == r_plain
+
+
+@pytest.mark.slow
+def test_one_shared_policy_trains_a_mixed_team(example) -> None:
+    results = example.main(["--scenario", "paper_pa_mixed_square", "--iterations", "1", "--max-steps",
+                            str(MAX_STEPS), "--train-batch-size", str(BATCH), "--minibatch-size", "50",
+                            "--num-epochs", "1"])
+    runners, learners = results[0]["env_runners"], results[0]["learners"]
+    steps = runners["num_env_steps_sampled"]
+    assert runners["num_module_steps_sampled"] == {example.SHARED_POLICY: N_ARMS * steps}
+    assert math.isfinite(learners[example.SHARED_POLICY]["total_loss"])
+    assert runners[example.COST_KEY] == 0.0

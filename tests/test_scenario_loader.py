@@ -259,7 +259,11 @@ BROKEN = [
     # bad values
     ("negative_mass", _replace("passive_first_joint = false\n",
                                "passive_first_joint = false\nmasses = [0.2, -0.2]\n"), "arms[1].masses"),
-    ("zero_length", _replace("lengths = [0.5, 0.5]", "lengths = [0.5, 0.0]"), "arms[0].lengths"),
+    ("zero_length", _replace("lengths = [0.5, 0.5]", "lengths = [0.5, 0.0]"), "arm_defaults.lengths"),
+    # a value inherited from [arm_defaults] is reported there, and a size mismatch names the odd list out
+    ("defaults_negative_mass", _replace("masses = [0.2, 0.2]", "masses = [0.2, -0.2]"), "arm_defaults.masses"),
+    ("defaults_masses_three", _replace("masses = [0.2, 0.2]", "masses = [0.2, 0.2, 0.2]"),
+     "arm_defaults.masses"),
     ("com_beyond_link", _replace_nth("base = [1.0, 1.5]\n", "base = [1.0, 1.5]\ncom = [0.25, 0.6]\n", 0),
      "arms[2].com"),
     ("negative_radius", _replace("radius = 0.1", "radius = -0.1"), "obstacles[0].radius"),
@@ -274,7 +278,7 @@ BROKEN = [
     ("one_link", _replace("masses = [0.2, 0.2]\nlengths = [0.5, 0.5]\ncom = [0.25, 0.25]\n"
                           "inertias = [0.005, 0.005]",
                           "masses = [0.2]\nlengths = [0.5]\ncom = [0.25]\ninertias = [0.005]"),
-     "arms[0].masses"),
+     "arm_defaults.masses"),
     # time steps
     ("control_dt_not_multiple", _replace("control_dt = 0.005", "control_dt = 0.0025"),
      "simulation.control_dt"),

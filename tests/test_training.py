@@ -155,11 +155,70 @@ def test_unshielded_training_sees_cost(tmp_path) -> None:
     assert (tmp_path / "checkpoints" / "model_replay_buffer_600_steps.pkl").exists()
 
 
-def test_parameter_sharing_through_supersuit(tmp_path) -> None:
-    summary = train("ppo", "paper_pa3_square", shield=True, timesteps=512, seed=1, out=tmp_path,
-                    param_sharing=True, checkpoint_every=512, progress=False, env_kwargs={"max_steps": 32},
-                    algo_kwargs={"n_steps": 128, "batch_size": 128})
-    assert summary["n_episodes"] >= 4 and summary["total_cost"] == 0.0
+def test_parameter_sharing_keeps_its_budget_and_logs_one_row_per_team_episode(tmp_path) -> None:
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        # 2 copies × 4 arms = 8 SB3 envs; no n_steps given: the rollout is fitted to the budget (64 × 8)
+        summary = train("ppo", "paper_pa3_square", shield=True, timesteps=512, seed=1, out=tmp_path,
+                        param_sharing=True, n_envs=2, checkpoint_every=512, progress=False,
+                        env_kwargs={"max_steps": 32})
+    assert not [w for w in caught if "render_mode" in str(w.message)]
+    assert summary["timesteps"] == 512 and latest_checkpoint(tmp_path)[1] == 512
+    rows = _rows(tmp_path / "episodes.csv")
+    # 64 team steps per copy, episodes of 32: two per copy, one row each (not one per arm)
+    assert len(rows) == 4 and summary["n_episodes"] == 4
+    assert all(int(r["length"]) == 32 for r in rows) and summary["total_cost"] == 0.0
+
+
+def test_the_budget_is_rounded_once_and_said_and_every_count_agrees(tmp_path, capsys) -> None:
+    from stable_baselines3 import PPO
+
+    # 4 copies × 64 steps = rollouts of 256: 1000 rounds to 1024, announced before training
+    summary = train("ppo", "paper_pa_mixed_square", timesteps=1000, seed=0, out=tmp_path, n_envs=4,
+                    checkpoint_every=10_000, progress=True, env_kwargs={"max_steps": 16})
+    err = capsys.readouterr().err
+    assert "--timesteps 1,000 rounded to 1,024" in err and "256" in err
+    assert "no episode may end" not in err
+    assert summary["timesteps"] == 1024
+    assert json.loads((tmp_path / "run.json").read_text())["timesteps"] == 1024
+    assert latest_checkpoint(tmp_path)[1] == 1024
+    assert PPO.load(tmp_path / "model.zip", device="cpu").num_timesteps == 1024
+    assert "1024/1024" in err  # the progress bar ends at the same count
+    assert err.count("rounded to") == 1
+
+
+def test_a_run_shorter_than_an_episode_says_so_and_plot_says_what_to_run(tmp_path, capsys) -> None:
+    out = tmp_path / "short"
+    # the paper scenario's episodes are 2000 steps: with 4 copies the first end after 8000 steps
+    assert main(["train", "--scenario", "paper_pa_mixed_square", "--timesteps", "256", "--n-envs", "4",
+                 "--out", str(out), "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert "no episode may end in this run" in err and "8,000" in err
+    assert "--max-steps 16" in err and "--n-envs" in err
+    assert main(["plot", str(out), "--out", str(tmp_path / "c.png")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "no finished episode" in err
+    assert f"pan1-env train --algo ppo --scenario paper_pa_mixed_square --shield --seed 0 --n-envs 4 --out {out} " \
+           "--resume --timesteps 8000" in err
+    assert not (tmp_path / "c.png").exists()
+
+
+@pytest.mark.parametrize(("option", "text", "hint"), [
+    ("--env-kwargs", '{"sucess_bonus": 1}', "did you mean 'success_bonus'?"),
+    ("--env-kwargs", '{"success_bonus": "big"}', "success_bonus must be a number"),
+    ("--algo-kwargs", '{"gama": 0.9}', "did you mean 'gamma'?"),
+    ("--algo-kwargs", '{"batch_size": 1}', "batch_size"),
+])
+def test_a_typo_in_a_json_option_exits_2_with_one_line_and_creates_nothing(tmp_path, capsys, option, text,
+                                                                           hint) -> None:
+    out = tmp_path / "run"
+    assert main(["train", "--scenario", "paper_pa_mixed_square", "--out", str(out), option, text,
+                 "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pan1-env: error: ") and err.count("\n") == 1 and hint in err, err
+    assert not out.exists()
 
 
 def test_bad_training_arguments() -> None:
