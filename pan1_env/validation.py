@@ -101,7 +101,7 @@ def refuse_unknown(owner: str, keys: Iterable[str], known: Iterable[str], *,
     for key in keys:
         if key not in listed:
             hint = difflib.get_close_matches(str(key), listed, n=1)
-            raise error(f"{owner}: unknown option {key!r}" + (f"; did you mean {hint[0]!r}?" if hint else "")
+            raise error(f"{owner}: unknown option {key!r}" + (f"; did you mean {hint[0]!r}?" if hint else ".")
                         + f" Options: {', '.join(sorted(listed))}")
 
 
