@@ -69,7 +69,11 @@ def _serves(model: tuple, env: tuple) -> bool:
 
 
 def _env_task(env) -> tuple:
-    config = getattr(env, "unwrapped", env).config  # any view of the env core, wrapped or not
+    from pan1_env.config import FormationConfig
+
+    config = getattr(getattr(env, "unwrapped", env), "config", None)  # a team view of the env core, wrapped or not
+    if not isinstance(config, FormationConfig):
+        raise TypeError(f"the shipped models act on the team envs (parallel or Gymnasium), got {type(env).__name__}")
     random = config.random
     return _task("random" if random else config.team.name, config.random_options if random else None,
                  config.action_mode, config.control_dt, config.physics_dt, None if random else config.team.ke)
@@ -131,8 +135,9 @@ def pretrained(name: str, env):
         target = parallel_env(env)
     inner = getattr(target, "unwrapped", target)
     gym_view = getattr(inner, "parallel", None)  # the Gymnasium view of the team: its parallel view
-    if not hasattr(inner, "config"):
-        raise TypeError(f"pretrained() needs a pan1_env env (parallel, Gymnasium or an id), got {type(env).__name__}")
+    if not (hasattr(inner, "possible_agents") or gym_view is not None) or not hasattr(inner, "config"):
+        raise TypeError(f"pretrained() needs a pan1_env team env (parallel, Gymnasium or an id), got "
+                        f"{type(env).__name__}")
     if not _serves(_model_task(models[name]), _env_task(inner)):
         _, mode, control_dt, physics_dt = _model_task(models[name])
         raise ValueError(f"pretrained model {name!r} was trained for {describe(models[name])} ({mode} actions, "

@@ -29,16 +29,19 @@ class OneCopyGymEnv(gymnasium.Env):
 
     core: FormationCore
 
+    @property
+    def num_steps(self) -> int:
+        """Steps since the last reset."""
+        return int(self.core.steps[0])
+
     def _flat_spaces(self) -> None:
         self.observation_space = gymnasium.spaces.Box(*self.core.flat_observation_bounds(), dtype=np.float32)
         self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (sum(self.core.n_actuated),), np.float32)
         self._needs_reset = True
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        self.core.reset(options=options, seeds=None if seed is None else [seed])
         super().reset(seed=seed)
-        if seed is not None:
-            self.core.seed([seed])
-        self.core.reset(options=options)
         self._needs_reset = False
         return self.core.flat_observations(self.core.observe())[0], first_copy(team_infos(self.core.infos()))
 
@@ -77,6 +80,18 @@ class CentralizedEnv(CoreView, OneCopyGymEnv):
         """The flat action split into the agents' actions (agent order)."""
         parts = np.split(np.asarray(action, dtype=float), self._splits)
         return dict(zip(self.possible_agents, parts, strict=True))
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        out = super().reset(seed=seed, options=options)
+        if self.render_mode == "human":
+            self.render()
+        return out
+
+    def step(self, action: np.ndarray):
+        out = super().step(action)
+        if self.render_mode == "human":
+            self.render()
+        return out
 
     def render(self):
         return self.parallel.render()

@@ -3,7 +3,8 @@
 Every view of the formation env (PettingZoo parallel and AEC, the Gymnasium env of ``gymnasium.make``,
 the vector env, SB3's VecEnv) takes the same arguments; they are checked here, once, and the env core
 (:mod:`pan1_env.core`), the task and the engine read them from the config. A config is frozen: a
-different setting is a new config (:func:`dataclasses.replace`).
+different setting is a new config, :meth:`FormationConfig.replace` (which resolves the defaults again, where
+:func:`dataclasses.replace` would keep the resolved ones).
 """
 
 from __future__ import annotations
@@ -122,11 +123,13 @@ class FormationConfig:
     team: Scenario = field(init=False, repr=False)
     random: bool = field(init=False, repr=False)
     substeps: int = field(init=False, repr=False)
+    arguments: dict = field(init=False, repr=False)  # as given, before defaults were resolved: for replace()
 
     def __post_init__(self) -> None:
         def put(name: str, value: Any) -> None:
             object.__setattr__(self, name, value)
 
+        put("arguments", {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.init})
         if self.action_mode not in ACTION_MODES:
             raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {self.action_mode!r}")
         for name in ("control_dt", "success_tolerance", "max_joint_speed", "max_torque"):
@@ -198,9 +201,9 @@ class FormationConfig:
         return int(np.bincount(team.formation.edges.ravel(), minlength=team.n_arms).max())
 
     def replace(self, **changes: Any) -> FormationConfig:
-        """This config with ``changes`` (validated again)."""
-        fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.init}
-        return FormationConfig.of(**(fields | changes))
+        """This config's arguments with ``changes``, validated and resolved again (a default that depended on
+        a changed argument, such as ``physics_dt`` on ``action_mode``, follows it)."""
+        return FormationConfig.of(**(self.arguments | changes))
 
 
 ARGUMENTS = tuple(f.name for f in dataclasses.fields(FormationConfig) if f.init)
@@ -227,7 +230,8 @@ def config_arguments(config: type) -> Callable[[Callable[..., None]], Callable[.
 @dataclass(frozen=True, eq=False)
 class ReachConfig:
     """Every argument of the one-arm reach env (:class:`~pan1_env.reach.PAReachEnv` documents them), validated
-    once. Derived: ``team`` (a one-arm team: the chosen arm and the scenario's obstacles), ``substeps``."""
+    once; ``scenario`` is stored loaded. Derived: ``team`` (a one-arm team: the chosen arm and the scenario's
+    obstacles), ``substeps``."""
 
     scenario: str | Path | Scenario = "paper_pa3_square"
     arm: int = 0
@@ -256,7 +260,11 @@ class ReachConfig:
         def put(name: str, value: Any) -> None:
             object.__setattr__(self, name, value)
 
-        source = load(self.scenario)
+        scenario = env_arguments(self.scenario)[0] if isinstance(self.scenario, str) else self.scenario
+        if isinstance(scenario, str) and scenario == "random":
+            raise ValueError(f"the reach env takes an arm of a fixed scenario, not random teams ({self.scenario!r})")
+        source = load(scenario)
+        put("scenario", source)
         put("arm", positive_int("arm", self.arm, minimum=0))
         if self.arm >= source.n_arms:
             raise ValueError(f"arm must be below the scenario's {source.n_arms} arms, got {self.arm!r}")

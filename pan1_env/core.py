@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from gymnasium.utils.seeding import np_random
 
 from .compiled import kernels
 from .config import FormationConfig, ReachConfig
@@ -133,18 +134,24 @@ class FormationCore:
         return self._command
 
     def seed(self, seeds: list[int | None]) -> None:
-        """A fresh generator for every copy given a seed (``None``: keep the copy's generator)."""
+        """A fresh generator for every copy given a seed (``None``: keep the copy's generator), Gymnasium's:
+        ``np_random(seed)`` (a non-negative int; ``gymnasium.error.Error`` otherwise)."""
         if len(seeds) != self.copies:
             raise ValueError(f"reset(seed=...) needs an int or {self.copies} seeds, got {len(seeds)}")
-        for b, s in enumerate(seeds):
-            if s is not None:
-                self.rngs[b] = np.random.default_rng(s)
+        fresh = {b: np_random(s)[0] for b, s in enumerate(seeds) if s is not None}  # all checked, then set
+        for b, rng in fresh.items():
+            self.rngs[b] = rng
 
-    def reset(self, which: np.ndarray | None = None, options: dict | None = None) -> None:
-        """Start a new episode in the copies ``which`` (default: all): a new team from the copy's generator
-        for random scenarios, every arm at rest at its start, the task's state (``options``: the task's reset
-        options) and the clock at zero."""
+    def reset(self, which: np.ndarray | None = None, options: dict | None = None,
+              seeds: list[int | None] | None = None) -> None:
+        """Start a new episode in the copies ``which`` (default: all): with ``seeds`` (one per copy, or None)
+        fresh generators first, then a new team from the copy's generator for random scenarios, every arm at
+        rest at its start, the task's state (``options``: the task's reset options) and the clock at zero. A
+        bad option or seed changes nothing."""
         which = np.arange(self.copies) if which is None else np.asarray(which, dtype=np.int64)
+        options = self.task.reset_options(options)
+        if seeds is not None:
+            self.seed(seeds)
         if self.config.random:
             for b in which.tolist():
                 team = random_scenario(self.rngs[b], self.config.random_options)
@@ -199,7 +206,7 @@ class FormationCore:
         ended = np.flatnonzero(out.terminated | truncated)
         result = CoreStep(mats, out.reward, out.terminated, truncated, infos, ended)
         if autoreset and len(result.ended):
-            result.final_observations = [m.copy() for m in mats]
+            result.final_observations = mats  # observe() builds new arrays: the next call does not touch these
             result.final_infos = infos
             self.reset(result.ended)
             self.record = rec
@@ -210,7 +217,11 @@ class FormationCore:
         shape = out.cost.shape
         infos: dict[str, Any] = {"cost": out.cost, "min_clearance": out.measures["min_clearance"]}
         for name, value in out.terms.items():
-            infos[f"reward_{name}"] = np.zeros(shape) if rec is None else np.broadcast_to(value, shape).astype(float)
+            if rec is None:
+                value = np.zeros(shape)
+            elif np.shape(value) != shape:
+                value = np.broadcast_to(value, shape).astype(float)
+            infos[f"reward_{name}"] = value
         if self.engine.filter is not None:
             counts = np.zeros((*shape, 3), dtype=np.int64) if rec is None else rec.qp_counts
             infos["shield_intervened"] = counts[..., 1] + counts[..., 2] > 0
@@ -246,9 +257,13 @@ def agent_infos(infos: dict[str, np.ndarray], b: int = 0) -> list[dict[str, Any]
     out: list[dict[str, Any]] = [{} for _ in range(len(infos["cost"][b]))]
     for key, value in infos.items():
         row = value[b]
-        for i, info in enumerate(out):
-            v = row[i] if np.ndim(row) else row
-            info[key] = v.item() if isinstance(v, np.generic) else v
+        if row.ndim == 0:  # a team value, the same for every agent
+            for info in out:
+                info[key] = row.item()
+        else:  # per arm: numbers, or arrays (qp_counts)
+            values = row.tolist() if row.ndim == 1 else list(row)
+            for info, v in zip(out, values, strict=True):
+                info[key] = v
     return out
 
 
@@ -324,7 +339,7 @@ def config_attributes(view: type, config: type, skip: tuple[str, ...] = ()) -> t
     """Give the view class read-only attributes for the config's arguments (``env.control_dt`` is
     ``env.core.config.control_dt``), except ``skip`` and those the view names itself (the scenario, the filter)."""
     for f in dataclasses.fields(config):
-        if f.name not in ("scenario", "safety_filter", "team", *skip) and f.name not in view.__dict__:
+        if f.name not in ("scenario", "safety_filter", "team", "arguments", *skip) and f.name not in view.__dict__:
             setattr(view, f.name, property(lambda v, name=f.name: getattr(v.core.config, name),
                                            doc=f"The config's ``{f.name}``."))
     return view

@@ -105,9 +105,7 @@ class Pan1ParallelEnv(CoreView, ParallelEnv):
         return self.core.engine.positions()[0].copy()
 
     def reset(self, seed: int | None = None, options: dict | None = None):
-        if seed is not None:
-            self.core.seed([seed])
-        self.core.reset()
+        self.core.reset(options=options, seeds=None if seed is None else [seed])
         self.agents = list(self.possible_agents)
         obs, infos = self._observations(self.core.observe()), self._infos(self.core.infos())
         if self.render_mode == "human":

@@ -13,7 +13,6 @@ as the team environment (RCBF-QP filter, backstepping tracker, RK4) with one arm
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -122,8 +121,9 @@ class PAReachEnv(OneCopyGymEnv):
         self.arm_index = self.config.arm
         self.render_mode = None
         self.engine = self.core.engine
-        self.scenario = self.config.team
-        self.arm = self.scenario.arms[0]
+        self.scenario = self.config.scenario
+        self.task = self.core.task
+        self.arm = self.config.team.arms[0]
         self._flat_spaces()
 
     @property
@@ -145,18 +145,6 @@ class PAReachEnv(OneCopyGymEnv):
     def end_effector(self) -> np.ndarray:
         """The end-effector position (2,) (a copy)."""
         return self.engine.kinds[0].p[0].copy()
-
-    def reset(self, *, seed: int | None = None, options: Mapping[str, Any] | None = None):
-        options = dict(options or {})
-        if options.get("goal") is not None:  # checked before anything changes
-            try:
-                point = np.asarray(options["goal"], dtype=float)
-            except (TypeError, ValueError):
-                point = None
-            if point is None or point.shape != (2,) or not np.isfinite(point).all():
-                raise ValueError(f"options['goal'] must be 2 finite numbers (x, y), got {options['goal']!r}")
-            options["goal"] = point
-        return super().reset(seed=seed, options=options)
 
 
 config_attributes(PAReachEnv, ReachConfig, skip=("arm",))  # env.max_steps, env.goal_tolerance, … read the config

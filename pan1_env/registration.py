@@ -57,13 +57,14 @@ def env_arguments(name: str, overrides: dict[str, Any] | None = None) -> tuple[s
 
 def register_envs() -> None:
     """Register the package's Gymnasium ids (idempotent)."""
-    for env_id, kwargs in ENV_IDS.items():
+    for env_id in ENV_IDS:
         if env_id in gymnasium.registry:
             continue
         gymnasium.register(
             id=env_id,
             entry_point="pan1_env.centralized:CentralizedEnv",
-            kwargs=kwargs,
+            # the id itself: the env's config resolves it, merging random_options given to make() key by key
+            kwargs={"scenario": env_id},
         )
     if REACH_ENV_ID not in gymnasium.registry:
         gymnasium.register(id=REACH_ENV_ID, entry_point="pan1_env.reach:PAReachEnv")

@@ -96,11 +96,15 @@ class FormationTask:
         self.sizes = [layout.size(n) for n in layout.n]
         self.offsets = np.concatenate([[0], np.cumsum(self.sizes)])
 
-    def reset(self, copies: np.ndarray, rngs: list[np.random.Generator], engine: Engine,
-              options: dict | None = None) -> None:
-        """A new episode in ``copies`` (their arms at their start): no filter change of a previous command yet."""
+    @staticmethod
+    def reset_options(options: dict | None) -> dict:
+        """The reset options, checked before anything changes: the formation task takes none."""
         if options:
             raise ValueError(f"unknown reset option {sorted(options)[0]!r}; the formation env takes none")
+        return {}
+
+    def reset(self, copies: np.ndarray, rngs: list[np.random.Generator], engine: Engine, options: dict) -> None:
+        """A new episode in ``copies`` (their arms at their start): no filter change of a previous command yet."""
         self.blocked[copies] = 0.0
 
     def bounds(self, i: int) -> tuple[np.ndarray, np.ndarray]:
@@ -249,16 +253,29 @@ class ReachTask:
         self.terminate_on_success, self.terminate_on_collision = c.terminate_on_success, c.terminate_on_collision
         self.size = 3 * self.arm.n_links + 4 + OBSTACLE_FEATURES * c.n_obstacle_obs
 
-    def reset(self, copies: np.ndarray, rngs: list[np.random.Generator], engine: Engine,
-              options: dict | None = None) -> None:
-        """A goal for each copy in ``copies``: ``options["goal"]`` (x, y), or one drawn from the copy's generator:
-        the end-effector of a configuration reached from the start at rest (the actuated joints moved in a
-        straight line by up to ±``goal_spread`` rad each, the passive joint by zero momentum), redrawn until it
-        is ``goal_clearance`` clear of every obstacle."""
+    @staticmethod
+    def reset_options(options: dict | None) -> dict:
+        """The reset options, checked before anything changes: ``goal``, two finite numbers (x, y)."""
         options = dict(options or {})
         goal = options.pop("goal", None)
         if options:
             raise ValueError(f"unknown reset option {sorted(options)[0]!r}; the only option is 'goal'")
+        if goal is None:
+            return {}
+        try:
+            point = np.asarray(goal, dtype=float)
+        except (TypeError, ValueError):
+            point = None
+        if point is None or point.shape != (2,) or not np.isfinite(point).all():
+            raise ValueError(f"options['goal'] must be 2 finite numbers (x, y), got {goal!r}")
+        return {"goal": point}
+
+    def reset(self, copies: np.ndarray, rngs: list[np.random.Generator], engine: Engine, options: dict) -> None:
+        """A goal for each copy in ``copies``: ``options["goal"]`` (x, y), or one drawn from the copy's generator:
+        the end-effector of a configuration reached from the start at rest (the actuated joints moved in a
+        straight line by up to ±``goal_spread`` rad each, the passive joint by zero momentum), redrawn until it
+        is ``goal_clearance`` clear of every obstacle."""
+        goal = options.get("goal")
         for b in np.asarray(copies).tolist():
             self.goal[b] = self._draw_goal(rngs[b], engine, b) if goal is None else goal
 

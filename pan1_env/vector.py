@@ -116,10 +116,9 @@ class Pan1VectorEnv(CoreView, VectorEnv):
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
         """Reset every copy. ``seed``: an int (copy b gets ``seed + b``) or one seed (or None) per copy."""
-        if seed is not None:
-            B = self.num_envs
-            self.core.seed([seed + b for b in range(B)] if isinstance(seed, (int, np.integer)) else list(seed))
-        self.core.reset()
+        if isinstance(seed, (int, np.integer)):
+            seed = [seed + b for b in range(self.num_envs)]
+        self.core.reset(options=options, seeds=None if seed is None else list(seed))
         self._needs_reset = False
         return self.core.flat_observations(self.core.observe()), _masked(team_infos(self.core.infos()))
 

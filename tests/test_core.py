@@ -164,3 +164,43 @@ def test_config_validates_once_with_a_hint() -> None:
         FormationConfig(max_steps=0)
     config = FormationConfig("paper_pa3_square", control_dt=0.1)
     assert config.max_steps == 1000 and config.substeps == 10 and config.replace(max_steps=7).max_steps == 7
+
+
+def test_a_bad_reset_option_or_seed_is_refused_in_every_view_and_changes_nothing() -> None:
+    from pan1_env.reach import PAReachEnv
+
+    views = [parallel_env("random"), CentralizedEnv("random"), Pan1VectorEnv("random", 2), PAReachEnv()]
+    for env in views:
+        first = env.reset(seed=3)
+        rngs = [rng.bit_generator.state for rng in env.core.rngs]
+        state = env.core.engine.joint_state()[0].copy()
+        with pytest.raises(ValueError, match="reset option 'colour'"):
+            env.reset(seed=4, options={"colour": "red"})
+        with pytest.raises(gymnasium.error.Error):
+            env.reset(seed=-1)
+        assert rngs == [rng.bit_generator.state for rng in env.core.rngs]
+        np.testing.assert_array_equal(env.core.engine.joint_state()[0], state)
+        _assert_same(env.reset(seed=3), first)
+    reach = views[-1]
+    with pytest.raises(ValueError, match="2 finite numbers"):
+        reach.reset(options={"goal": (0.0, np.nan)})
+    _, _ = reach.reset(options={"goal": (0.5, 0.25)})
+    np.testing.assert_array_equal(reach.goal, [0.5, 0.25])
+
+
+def test_replace_resolves_the_defaults_again() -> None:
+    config = FormationConfig("paper_pa3_square")
+    assert config.physics_dt == 0.01 and config.max_steps == 2000
+    assert config.replace(action_mode="torque").physics_dt == 0.002  # torque mode's own default step
+    assert config.replace(control_dt=0.1).max_steps == 1000
+    assert config.replace(scenario="random").random and not config.random
+
+
+def test_the_gymnasium_view_renders_every_reset_and_step_in_human_mode(monkeypatch) -> None:
+    drawn = []
+    monkeypatch.setattr(CentralizedEnv, "render", lambda self: drawn.append(self.num_steps))
+    env = gymnasium.make("pan1_env:pan1_env/PaperPA3Square-v0", render_mode="human")
+    env.reset(seed=0)
+    for _ in range(2):
+        env.step(np.zeros(env.action_space.shape, np.float32))
+    assert drawn == [0, 1, 2]

@@ -91,7 +91,7 @@ def test_pretrained_takes_the_gymnasium_env_the_parallel_env_and_the_id() -> Non
 def test_pretrained_refuses_a_model_for_another_task_naming_its_task() -> None:
     with pytest.raises(ValueError, match="trained for pan1_env/WholeArmStaticFormation-v0"):
         pretrained("whole_arm_formation", parallel_env("random"))
-    with pytest.raises(TypeError, match="needs a pan1_env env"):
+    with pytest.raises(TypeError, match="needs a pan1_env team env"):
         pretrained("whole_arm_formation", object())
 
 
