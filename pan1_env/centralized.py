@@ -15,7 +15,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from .core import CoreView, FormationCore, first_copy, team_infos
+from .core import CoreView, FormationCore, team_info
 from .registration import RENDER_FPS, RENDER_MODES
 from .validation import float_array, forwards_keywords
 
@@ -43,7 +43,7 @@ class OneCopyGymEnv(gymnasium.Env):
         self.core.reset(options=options, seeds=None if seed is None else [seed])
         super().reset(seed=seed)
         self._needs_reset = False
-        return self.core.flat_observations(self.core.observe())[0], first_copy(team_infos(self.core.infos()))
+        return self.core.flat_observations(self.core.observe())[0], team_info(self.core.infos())
 
     def step(self, action: np.ndarray):
         if self._needs_reset:
@@ -52,7 +52,7 @@ class OneCopyGymEnv(gymnasium.Env):
         out = self.core.step(self.core.padded_actions(action[None]))
         self._needs_reset = bool(len(out.ended))
         return (self.core.flat_observations(out.observations)[0], float(out.reward[0].mean()),
-                bool(out.terminated[0]), bool(out.truncated[0]), first_copy(team_infos(out.infos)))
+                bool(out.terminated[0]), bool(out.truncated[0]), team_info(out.infos))
 
 
 class CentralizedEnv(CoreView, OneCopyGymEnv):

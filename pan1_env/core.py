@@ -35,7 +35,7 @@ from .random_scenario import random_scenario
 from .tasks import FormationTask, ReachTask
 from .validation import positive_int
 
-__all__ = ["FormationCore", "CoreStep", "CoreView", "team_infos", "agent_infos", "first_copy", "config_attributes",
+__all__ = ["FormationCore", "CoreStep", "CoreView", "team_infos", "team_info", "agent_infos", "config_attributes",
            "FAULT"]
 
 FAULT = "non-finite state in the physics step; episode truncated"
@@ -267,9 +267,25 @@ def agent_infos(infos: dict[str, np.ndarray], b: int = 0) -> list[dict[str, Any]
     return out
 
 
-def first_copy(infos: dict[str, np.ndarray]) -> dict[str, Any]:
-    """Copy 0's infos as Python scalars (arrays for ``qp_counts``): a one-copy view's."""
-    return {key: value[0].item() if np.ndim(value[0]) == 0 else value[0] for key, value in infos.items()}
+def team_info(infos: dict[str, np.ndarray], b: int = 0) -> dict[str, Any]:
+    """Copy b's team infos (:func:`team_infos`) as Python values, for a one-copy view: the same numbers,
+    without a numpy reduction per key where a Python one on a handful of arms is cheaper."""
+    out: dict[str, Any] = {}
+    for key, value in infos.items():
+        row = value[b]
+        if row.ndim == 0:
+            out[key] = row.item()
+        elif key == "qp_counts":
+            out[key] = row.sum(axis=0)
+        elif key.startswith("reward_"):
+            out[key] = float(row.mean())  # numpy's summation, as the vector view's
+        elif key == "cost":
+            out[key] = float(sum(row.tolist()))
+        elif key == "min_clearance":
+            out[key] = min(row.tolist())
+        else:
+            out[key] = any(row.tolist())
+    return out
 
 
 class CoreView:
