@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .bodies import capsule_clearance, obstacle_velocities
-from .compiled import kernel_sizes, kernels
+from .compiled import Control, Physics, Record, Shield, State, WholeArm, kernel_sizes, kernels, plain
 from .dynamics import ArmBatch, link_angles, mass_matrix
 from .safety import (
     QP_SOLVERS,
@@ -102,14 +102,14 @@ class _Kind:
         self.q, self.v, self.qd, self.p = (np.zeros((rows, self.n)), np.zeros((rows, self.k)),
                                            np.zeros((rows, self.n)), np.zeros((rows, 2)))
         self.v_prev, self.has_prev = np.zeros((rows, self.k)), np.zeros(rows, dtype=bool)
-        # the kernel's leading arguments: sizes, parameters and state (arrays updated in place, never replaced)
-        self.state_args = (*self.sizes, self.lam, self.lengths, self.base, self.phi, self.passive, self.q, self.v,
-                           self.v_prev, self.has_prev)
+        # the kernel's parameters and state (arrays updated in place, never replaced)
+        self.physics = Physics(self.lam, self.lengths, self.base, self.phi, bool(self.passive))
+        self.state = State(self.q, self.v, self.v_prev, self.has_prev)
         # the serial kernel: None until the first step decides (Engine._specialised), False while the
         # generic kernel stands in for the kind's own, True from then on
         self.specialised: bool | None = None
         self.generation = -1
-        self.whole: tuple | None = None  # the kernel's whole-arm argument (Engine._whole_arm_setup)
+        self.whole: WholeArm | None = None  # the kernel's whole-arm argument (Engine._whole_arm_setup)
 
     def __getstate__(self) -> dict:
         state = {**self.__dict__, "specialised": None}  # another process decides for itself
@@ -270,12 +270,13 @@ class Engine:
             first += rows
         self._team_joints, self._team_caps, self._team_start_time = joints, caps, start_time
 
-    def _whole_args(self, kind: _Kind) -> tuple:
+    def _whole_args(self, kind: _Kind) -> WholeArm:
         """The kernel's ``whole`` argument for a kind (:func:`pan1_env.kernels.substep.group_advance`)."""
         sensing = None if self.filter is None else self.filter.sensing_radius
-        return (kind.caps, kind.start_time, self.link_radius, self.link_bodies,
-                SENSING_RADIUS if sensing is None else sensing, SKIN, kind.joints, self.radii.shape[1], kind.angles,
-                False, True)
+        return WholeArm(caps=kind.caps, start_time=kind.start_time, link_radius=self.link_radius,
+                        link_bodies=self.link_bodies, sensing=SENSING_RADIUS if sensing is None else sensing,
+                        skin=SKIN, joints=kind.joints, n_world=self.radii.shape[1], angles=kind.angles, carried=False,
+                        finish=True)
 
     def _load_capsules(self, b: int, scenario: Scenario, mask: np.ndarray) -> None:
         """Copy b's capsules: its obstacles (start, path, radius, share 1) and the other arms' link slots
@@ -431,23 +432,24 @@ class Engine:
                                        None if clear is None else clear[kind.block],
                                        None if finite is None else finite[kind.block]) for kind in self.kinds]
             if clear is None:
-                clear, finite = calls[0][1][2], calls[0][1][-1]
+                clear, finite = calls[0][1].min_clear, calls[0][1].finite
             ok = finite.copy()  # the kernel marks an arm finite afresh each call
             P = self.joint_positions()
             between = np.full((B, N), np.inf)
             self._refresh_capsules(P)
             for sub in range(int(substeps)):
-                for kind, (args, _) in zip(self.kinds, calls, strict=True):
+                for kind, (control, out, shield) in zip(self.kinds, calls, strict=True):
                     # a call after the step's first starts from the link angles' sines and cosines the
                     # previous one ended with (`carried`, as one call's sub-steps do); only the last
                     # computes the joint velocities and end-effectors (`finish`)
-                    self._call(kind, args[:-1] + (args[-1][:-2] + (sub > 0, sub == substeps - 1),))
+                    self._call(kind, control, out, shield,
+                               kind.whole._replace(carried=sub > 0, finish=sub == substeps - 1))
                 # the kernel placed the obstacles from the clock itself; the clock moves on here
                 self._geometry("after_substep", B * N, self.copy_rows, self.others, self._team_joints, clear, finite,
                                ok, self._team_start_time, self._team_caps, self.radii.shape[1], self.link_radius,
                                self.physics_dt, sub < substeps - 1, self.elapsed, P, between)
             finite[:] = ok
-            for kind, (_, out) in zip(self.kinds, calls, strict=True):
+            for kind, (_, out, _) in zip(self.kinds, calls, strict=True):
                 self._finish(kind, out, torque, rec)
             np.minimum(rec.min_clearance, between, out=rec.min_clearance)
             self._place_obstacles()
@@ -492,39 +494,47 @@ class Engine:
     def _advance(self, kind: _Kind, command: np.ndarray, substeps: int, torque: bool, params: FilterParams | None,
                  rec: StepRecord) -> None:
         """The kernel call: every arm of a kind in every copy, ``substeps`` sub-steps."""
-        args, out = self._kernel_args(kind, command, substeps, torque, params, rec)
-        self._call(kind, args)
+        control, out, shield = self._kernel_args(kind, command, substeps, torque, params, rec)
+        self._call(kind, control, out, shield, kind.whole)
         self._finish(kind, out, torque, rec)
 
     def _kernel_args(self, kind: _Kind, command: np.ndarray, substeps: int, torque: bool,
                      params: FilterParams | None, rec: StepRecord, clear: np.ndarray | None = None,
-                     finite: np.ndarray | None = None) -> tuple[tuple, tuple]:
-        """The kernel's arguments for a kind, and its outputs: views of the record when one kind is the
-        team in order, else gathered copies of the record's rows (the kernel accumulates into them), or
-        for the running clearance and finite flags the caller's ``clear`` and ``finite`` (filled with them)."""
+                     finite: np.ndarray | None = None) -> tuple[Control, Record, Shield]:
+        """The kernel's control, outputs and filter for a kind: the outputs views of the record when one
+        kind is the team in order, else gathered copies of the record's rows (the kernel accumulates into
+        them), or for the running clearance and finite flags the caller's ``clear`` and ``finite`` (filled
+        with them)."""
         B, A, n, k = self.copies, kind.A, kind.n, kind.k
         rows = B * A
         if self.team_order:
-            out = (rec.v_star.reshape(rows, k), rec.tau.reshape(rows, n), rec.min_clearance.reshape(rows),
-                   rec.min_barrier.reshape(rows), rec.qp_counts.reshape(rows, 3),
-                   rec.max_tracking_error.reshape(rows), rec.finite.reshape(rows))
+            out = Record(v_star=rec.v_star.reshape(rows, k), tau=rec.tau.reshape(rows, n), qd=kind.qd, p=kind.p,
+                         min_clear=rec.min_clearance.reshape(rows), min_h=rec.min_barrier.reshape(rows),
+                         qp_counts=rec.qp_counts.reshape(rows, 3), max_track=rec.max_tracking_error.reshape(rows),
+                         finite=rec.finite.reshape(rows))
             cmd = np.ascontiguousarray(command.reshape(rows, k))
         else:
             cols = kind.cols
-            out = (np.empty((rows, k)), _kind_rows(rec.tau[:, cols, :n]), _kind_rows(rec.min_clearance[:, cols]),
-                   _kind_rows(rec.min_barrier[:, cols]), np.zeros((rows, 3), dtype=np.int64),
-                   _kind_rows(rec.max_tracking_error[:, cols]), np.ones(rows, dtype=bool))
+            out = Record(v_star=np.empty((rows, k)), tau=_kind_rows(rec.tau[:, cols, :n]), qd=kind.qd, p=kind.p,
+                         min_clear=_kind_rows(rec.min_clearance[:, cols]),
+                         min_h=_kind_rows(rec.min_barrier[:, cols]), qp_counts=np.zeros((rows, 3), dtype=np.int64),
+                         max_track=_kind_rows(rec.max_tracking_error[:, cols]), finite=np.ones(rows, dtype=bool))
             cmd = _kind_rows(command[:, cols, :k])
         if clear is not None:
-            clear[:], finite[:] = out[2], out[-1]
-            out = (*out[:2], clear, *out[3:-1], finite)
-        rcbf = _UNUSED_RCBF if params is None else (params.kappa, params.epsilon, params.margin)
-        obstacles = (kind.centers, kind.radii, kind.mask) if kind.whole is None else kind.no_obstacles
-        args = (*kind.state_args, cmd, torque, params is not None, *obstacles, *rcbf, self.ke, self.physics_dt,
-                substeps, self.max_speed, out[0], out[1], kind.qd, kind.p, *out[2:], kind.whole)
-        return args, out
+            clear[:], finite[:] = out.min_clear, out.finite
+            out = out._replace(min_clear=clear, finite=finite)
+        kappa, epsilon, margin = _UNUSED_RCBF if params is None else (params.kappa, params.epsilon, params.margin)
+        centers, radii, mask = (kind.centers, kind.radii, kind.mask) if kind.whole is None else kind.no_obstacles
+        shield = Shield(on=params is not None, centers=centers, radii=radii, mask=mask, kappa=kappa, epsilon=epsilon,
+                        margin=margin, v_max=self.max_speed)
+        return Control(cmd, torque, self.ke, self.physics_dt, substeps), out, shield
 
-    def _call(self, kind: _Kind, args: tuple) -> None:
+    def _call(self, kind: _Kind, control: Control, out: Record, shield: Shield, whole: WholeArm | None) -> None:
+        """One call of the sub-step kernel on every arm of a kind: the multi-threaded one for large batches,
+        else the kind's own or the generic one (:meth:`_specialised`). The groups go as plain tuples (see
+        :mod:`pan1_env.compiled`)."""
+        args = (*kind.sizes, plain(kind.physics), plain(kind.state), plain(control), plain(out), plain(shield),
+                plain(whole))
         chunks = self._chunks(len(kind.q))
         if chunks:
             kernels().group_advance_parallel(*args, chunks)
@@ -533,15 +543,17 @@ class Engine:
         else:
             kernels().group_advance_generic(*args)
 
-    def _finish(self, kind: _Kind, out: tuple, torque: bool, rec: StepRecord) -> None:
+    _RECORD_FIELDS = (("v_star", "v_star"), ("tau", "tau"), ("min_clear", "min_clearance"), ("min_h", "min_barrier"),
+                      ("qp_counts", "qp_counts"), ("max_track", "max_tracking_error"), ("finite", "finite"))
+
+    def _finish(self, kind: _Kind, out: Record, torque: bool, rec: StepRecord) -> None:
         """After a kind's kernel call(s): scatter gathered outputs back into the record."""
         B, A = self.copies, kind.A
         if torque:
             kind.has_prev[:] = False
         if not self.team_order:
-            for field, value in zip(("v_star", "tau", "min_clearance", "min_barrier", "qp_counts",
-                                     "max_tracking_error", "finite"), out, strict=True):
-                target = getattr(rec, field)
+            for name, field in self._RECORD_FIELDS:
+                value, target = getattr(out, name), getattr(rec, field)
                 if target.ndim == 3:
                     width = value.shape[1]
                     if field == "qp_counts":
@@ -613,7 +625,9 @@ class Engine:
         :func:`pan1_env.kernels.capsules.whole_arm_rows`."""
         K, f, n, k = kernels().capsules, self.filter, kind.n, kind.k
         arm, q = self.teams[r // kind.A].arms[kind.ids[r % kind.A]], kind.q[r]
-        caps, start_time, rho, links, sensing, skin = self._whole_args(kind)[:6]
+        whole = self._whole_args(kind)
+        caps, start_time, rho, links = whole.caps, whole.start_time, whole.link_radius, whole.link_bodies
+        sensing, skin = whole.sensing, whole.skin
         angles = link_angles(q) + kind.phi[r]
 
         def lane(x: np.ndarray) -> np.ndarray:  # one lane (W = 1) of the kernel's scratch: lanes last
