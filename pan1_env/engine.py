@@ -19,12 +19,13 @@ a time (velocity mode, one copy; slow, for cross-checks). A step goes through th
 
 from __future__ import annotations
 
+from collections import namedtuple
 from dataclasses import dataclass
 
 import numpy as np
 
 from .bodies import capsule_clearance, obstacle_velocities
-from .compiled import Control, Physics, Record, Shield, State, WholeArm, kernel_sizes, kernels, plain
+from .compiled import WholeArm, kernel_sizes, kernels, plain
 from .dynamics import ArmBatch
 from .piqp_filter import PiqpFilter, whole_arm_rows
 from .safety import QP_SOLVERS, FilterParams, clearance, filter_parameters
@@ -69,6 +70,13 @@ class StepRecord:
         return self.qp_counts[..., 2] > 0
 
 
+#: a kind's outputs from the kernel (views of a step's record, or gathered rows of it), in the kernel's order
+_Outputs = namedtuple("_Outputs", "v_star tau min_clear min_h qp_counts max_track finite")
+#: the record's field each of them goes to
+_RECORD_FIELDS = dict(zip(_Outputs._fields, ("v_star", "tau", "min_clearance", "min_barrier", "qp_counts",
+                                              "max_tracking_error", "finite"), strict=True))
+
+
 def _kind_rows(team: np.ndarray) -> np.ndarray:
     """A kind's columns of a team array ``(B, A, …)`` as its rows ``b·A + r``, C-contiguous (the kernel's
     layout): a copy, or with one copy a view."""
@@ -97,10 +105,9 @@ class _Kind:
         self.q, self.v, self.qd, self.p = (np.zeros((rows, self.n)), np.zeros((rows, self.k)),
                                            np.zeros((rows, self.n)), np.zeros((rows, 2)))
         self.v_prev, self.has_prev = np.zeros((rows, self.k)), np.zeros(rows, dtype=bool)
-        # the kernel's parameters and state (arrays updated in place, never replaced)
-        self.physics = Physics(self.lam, self.lengths, self.base, self.phi, bool(self.passive))
-        self.state = State(self.q, self.v, self.v_prev, self.has_prev)
-        self.fixed_args = (*self.sizes, plain(self.physics), plain(self.state))  # the kernel's leading arguments
+        # the kernel's leading arguments: sizes, parameters and state (arrays updated in place, never replaced)
+        self.state_args = (*self.sizes, self.lam, self.lengths, self.base, self.phi, self.passive, self.q, self.v,
+                           self.v_prev, self.has_prev)
         # the serial kernel: None until the first step decides (Engine._specialised), False while the
         # generic kernel stands in for the kind's own, True from then on
         self.specialised: bool | None = None
@@ -458,24 +465,24 @@ class Engine:
                                    None if clear is None else clear[kind.block],
                                    None if finite is None else finite[kind.block]) for kind in self.kinds]
         if clear is None:
-            clear, finite = calls[0][1].min_clear, calls[0][1].finite
+            first = calls[0][1]
+            clear, finite = first.min_clear, first.finite
         ok = finite.copy()  # the kernel marks an arm finite afresh each call
         P = self.joint_positions()
         between = np.full((B, N), np.inf)
         self.refresh_capsules(P)
         for sub in range(substeps):
-            for kind, (control, out, shield) in zip(self.kinds, calls, strict=True):
+            for kind, (args, _) in zip(self.kinds, calls, strict=True):
                 # a call after the step's first starts from the link angles' sines and cosines the
                 # previous one ended with (`carried`, as one call's sub-steps do); only the last
                 # computes the joint velocities and end-effectors (`finish`)
-                self._call(kind, control, out, shield,
-                           kind.whole._replace(carried=sub > 0, finish=sub == substeps - 1))
+                self._call(kind, args, kind.whole._replace(carried=sub > 0, finish=sub == substeps - 1))
             # the kernel placed the obstacles from the clock itself; the clock moves on here
             self._geometry("after_substep", B * N, self.copy_rows, self.others, self._team_joints, clear, finite,
                            ok, self._team_start_time, self._team_caps, self.radii.shape[1], self.link_radius,
                            self.physics_dt, sub < substeps - 1, self.elapsed, P, between)
         finite[:] = ok
-        for kind, (_, out, _) in zip(self.kinds, calls, strict=True):
+        for kind, (_, out) in zip(self.kinds, calls, strict=True):
             self._finish(kind, out, torque, rec)
         np.minimum(rec.min_clearance, between, out=rec.min_clearance)
         self.place_obstacles()
@@ -511,65 +518,62 @@ class Engine:
     def _advance(self, kind: _Kind, command: np.ndarray, substeps: int, torque: bool, params: FilterParams | None,
                  rec: StepRecord) -> None:
         """The kernel call: every arm of a kind in every copy, ``substeps`` sub-steps."""
-        control, out, shield = self._kernel_args(kind, command, substeps, torque, params, rec)
-        self._call(kind, control, out, shield, kind.whole)
+        args, out = self._kernel_args(kind, command, substeps, torque, params, rec)
+        self._call(kind, args, kind.whole)
         self._finish(kind, out, torque, rec)
 
     def _kernel_args(self, kind: _Kind, command: np.ndarray, substeps: int, torque: bool,
                      params: FilterParams | None, rec: StepRecord, clear: np.ndarray | None = None,
-                     finite: np.ndarray | None = None) -> tuple[Control, Record, Shield]:
-        """The kernel's control, outputs and filter for a kind: the outputs views of the record when one
-        kind is the team in order, else gathered copies of the record's rows (the kernel accumulates into
-        them), or for the running clearance and finite flags the caller's ``clear`` and ``finite`` (filled
-        with them)."""
+                     finite: np.ndarray | None = None) -> tuple[tuple, _Outputs]:
+        """The kernel's arguments for a kind but the last (``whole``: :meth:`_call`), and its outputs: views
+        of the record when one kind is the team in order, else gathered copies of the record's rows (the
+        kernel accumulates into them), or for the running clearance and finite flags the caller's ``clear``
+        and ``finite`` (filled with them)."""
         B, A, n, k = self.copies, kind.A, kind.n, kind.k
         rows = B * A
         if self.team_order:
-            out = Record(v_star=rec.v_star.reshape(rows, k), tau=rec.tau.reshape(rows, n), qd=kind.qd, p=kind.p,
-                         min_clear=rec.min_clearance.reshape(rows), min_h=rec.min_barrier.reshape(rows),
-                         qp_counts=rec.qp_counts.reshape(rows, 3), max_track=rec.max_tracking_error.reshape(rows),
-                         finite=rec.finite.reshape(rows))
+            out = _Outputs(rec.v_star.reshape(rows, k), rec.tau.reshape(rows, n), rec.min_clearance.reshape(rows),
+                           rec.min_barrier.reshape(rows), rec.qp_counts.reshape(rows, 3),
+                           rec.max_tracking_error.reshape(rows), rec.finite.reshape(rows))
             cmd = np.ascontiguousarray(command.reshape(rows, k))
         else:
             cols = kind.cols
-            out = Record(v_star=np.empty((rows, k)), tau=_kind_rows(rec.tau[:, cols, :n]), qd=kind.qd, p=kind.p,
-                         min_clear=_kind_rows(rec.min_clearance[:, cols]),
-                         min_h=_kind_rows(rec.min_barrier[:, cols]), qp_counts=np.zeros((rows, 3), dtype=np.int64),
-                         max_track=_kind_rows(rec.max_tracking_error[:, cols]), finite=np.ones(rows, dtype=bool))
+            out = _Outputs(np.empty((rows, k)), _kind_rows(rec.tau[:, cols, :n]),
+                           _kind_rows(rec.min_clearance[:, cols]), _kind_rows(rec.min_barrier[:, cols]),
+                           np.zeros((rows, 3), dtype=np.int64),
+                           _kind_rows(rec.max_tracking_error[:, cols]), np.ones(rows, dtype=bool))
             cmd = _kind_rows(command[:, cols, :k])
         if clear is not None:
             clear[:], finite[:] = out.min_clear, out.finite
             out = out._replace(min_clear=clear, finite=finite)
-        kappa, epsilon, margin = _UNUSED_RCBF if params is None else (params.kappa, params.epsilon, params.margin)
-        centers, radii, mask = (kind.centers, kind.radii, kind.mask) if kind.whole is None else kind.no_obstacles
-        shield = Shield(on=params is not None, centers=centers, radii=radii, mask=mask, kappa=kappa, epsilon=epsilon,
-                        margin=margin, v_max=self.max_speed)
-        return Control(cmd, torque, self.ke, self.physics_dt, substeps), out, shield
+        rcbf = _UNUSED_RCBF if params is None else (params.kappa, params.epsilon, params.margin)
+        obstacles = (kind.centers, kind.radii, kind.mask) if kind.whole is None else kind.no_obstacles
+        args = (*kind.state_args, cmd, torque, params is not None, *obstacles, *rcbf, self.ke, self.physics_dt,
+                substeps, self.max_speed, out.v_star, out.tau, kind.qd, kind.p, out.min_clear, out.min_h,
+                out.qp_counts, out.max_track, out.finite)
+        return args, out
 
-    def _call(self, kind: _Kind, control: Control, out: Record, shield: Shield, whole: WholeArm | None) -> None:
+    def _call(self, kind: _Kind, args: tuple, whole: WholeArm | None) -> None:
         """One call of the sub-step kernel on every arm of a kind: the multi-threaded one for large batches,
-        else the kind's own or the generic one (:meth:`_specialised`). The groups go as plain tuples (see
-        :mod:`pan1_env.compiled`)."""
-        args = (*kind.fixed_args, plain(control), plain(out), plain(shield), plain(whole))
+        else the kind's own or the generic one (:meth:`_specialised`); ``whole`` goes as a plain tuple."""
+        whole = plain(whole)
         chunks = self._chunks(len(kind.q))
         if chunks:
-            kernels().group_advance_parallel(*args, chunks)
-        elif self._specialised(kind, args):
-            kernels().group_advance(*args)
+            kernels().group_advance_parallel(*args, whole, chunks)
+        elif kind.specialised or self._specialised(kind, (*args, whole)):
+            kernels().group_advance(*args, whole)
         else:
-            kernels().group_advance_generic(*args)
+            kernels().group_advance_generic(*args, whole)
 
-    _RECORD_FIELDS = (("v_star", "v_star"), ("tau", "tau"), ("min_clear", "min_clearance"), ("min_h", "min_barrier"),
-                      ("qp_counts", "qp_counts"), ("max_track", "max_tracking_error"), ("finite", "finite"))
-
-    def _finish(self, kind: _Kind, out: Record, torque: bool, rec: StepRecord) -> None:
+    def _finish(self, kind: _Kind, out: _Outputs, torque: bool, rec: StepRecord) -> None:
         """After a kind's kernel call(s): scatter gathered outputs back into the record."""
         B, A = self.copies, kind.A
         if torque:
             kind.has_prev[:] = False
         if not self.team_order:
-            for name, field in self._RECORD_FIELDS:
-                value, target = getattr(out, name), getattr(rec, field)
+            for name, value in zip(_Outputs._fields, out, strict=True):
+                field = _RECORD_FIELDS[name]
+                target = getattr(rec, field)
                 if target.ndim == 3:
                     width = value.shape[1]
                     if field == "qp_counts":

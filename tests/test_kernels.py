@@ -8,7 +8,6 @@ from numba import njit
 
 from pan1_env import kernels
 from pan1_env.cascade import cascade_rk4_step, cascade_terms, passive_momentum, reduced_jacobian
-from pan1_env.compiled import Control, Physics, Record, Shield, State, plain
 from pan1_env.control import backstepping_torque
 from pan1_env.dynamics import ArmBatch, ArmParams, end_effector
 from pan1_env.safety import clearance, project_velocity, rcbf_constraints
@@ -55,16 +54,6 @@ def test_group_terms_match_reference(n: int, passive: bool) -> None:
         assert np.all(np.isnan(got["mom"]))
 
 
-def _groups(lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode, filter_on, centers, radii,
-            mask, kappa, epsilon, margin, ke, dt, n_sub, v_max, v_star, tau, qd, p, min_clear, min_h, qp_counts,
-            max_track, finite, whole):
-    """The sub-step kernel's named groups (pan1_env.compiled), as the plain tuples it takes."""
-    return (plain(Physics(lam, lengths, base, phi, passive)), plain(State(q, v, v_prev, has_prev)),
-            plain(Control(command, torque_mode, ke, dt, n_sub)),
-            plain(Record(v_star, tau, qd, p, min_clear, min_h, qp_counts, max_track, finite)),
-            plain(Shield(filter_on, centers, radii, mask, kappa, epsilon, margin, v_max)), plain(whole))
-
-
 def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False, centers=None, radii=None,
              mask=None, kappa=0.5, eps=5.0, margin=0.0, ke=100.0, dt=1e-3, n_sub=1, v_max=np.inf, parallel=False,
              sizes=None, n_chunks=2):
@@ -79,12 +68,12 @@ def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False
                clear=np.full(A, np.inf), min_h=np.full(A, np.inf), counts=np.zeros((A, 3), np.int64),
                track=np.zeros(A), finite=np.zeros(A, bool))
     sizes = kernels.kernel_sizes(q.shape[1], k) if sizes is None else sizes
-    args = (*sizes, *_groups(batch.lam, batch.lengths, batch.base, batch.phi,
+    args = (*sizes, batch.lam, batch.lengths, batch.base, batch.phi,
             batch.passive_first_joint, q, v, prev, has_prev,
             command, torque, filter_on, np.broadcast_to(centers, (A, *centers.shape)).copy(),
             np.broadcast_to(radii, (A, len(radii))).copy(), mask, kappa, eps, margin, ke, dt, n_sub,
             v_max, out["v_star"], out["tau"], out["qd"], out["p"], out["clear"], out["min_h"], out["counts"],
-            out["track"], out["finite"], None))
+            out["track"], out["finite"], None)
     if parallel:
         kernels.group_advance_parallel(*args, n_chunks)
     else:
@@ -352,10 +341,9 @@ def test_per_arm_obstacles_equal_one_arm_at_a_time() -> None:
                 clear=np.full(A, np.inf), min_h=np.full(A, np.inf), counts=np.zeros((A, 3), np.int64),
                 track=np.zeros(A), finite=np.zeros(A, bool))
     q_all, v_all = q.copy(), v.copy()
-    kernels.group_advance(*kernels.kernel_sizes(q.shape[1], k),
-                          *_groups(batch.lam, batch.lengths, batch.base, batch.phi, True, q_all, v_all,
-                                   np.zeros((A, k)), np.zeros(A, bool), command, False, True, centers, radii,
-                                   np.ones((A, 2), bool), 0.5, 5.0, 0.0, 100.0, 1e-3, 3, 2.0, *args.values(), None))
+    kernels.group_advance(*kernels.kernel_sizes(q.shape[1], k), batch.lam, batch.lengths, batch.base, batch.phi, True,
+                          q_all, v_all, np.zeros((A, k)), np.zeros(A, bool), command, False, True, centers, radii,
+                          np.ones((A, 2), bool), 0.5, 5.0, 0.0, 100.0, 1e-3, 3, 2.0, *args.values(), None)
     for i in range(A):
         one = ArmBatch(lam=batch.lam[i : i + 1], lengths=batch.lengths[i : i + 1], base=batch.base[i : i + 1],
                        phi=batch.phi[i : i + 1], passive_first_joint=True)
@@ -483,7 +471,7 @@ def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
     from numba.core import config
 
     before = config.SLP_VECTORIZE
-    unvectorised = plain_njit(error_model="numpy", fastmath=kernels._JIT["fastmath"])(kernels._advance_arms.py_func)
+    plain = plain_njit(error_model="numpy", fastmath=kernels._JIT["fastmath"])(kernels._advance_arms.py_func)
     rng = np.random.default_rng(51)
     A = 37
     batch, q, v = _group(rng, 3, True, count=A)
@@ -503,9 +491,9 @@ def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
                     True, np.broadcast_to(centers, (A, 3, 2)).copy(), np.broadcast_to(radii, (A, 3)).copy(), mask,
                     0.5, 5.0, 0.01, 100.0, 1e-2, 5, v_max, *out[2:], None]
             if kernel == "slp":
-                kernels.group_advance(*kernels.kernel_sizes(3, 2), *_groups(*args))
+                kernels.group_advance(*kernels.kernel_sizes(3, 2), *args)
             else:
-                unvectorised(*kernels.kernel_sizes(3, 2), kernels._LANES, None, True, 0, A, *_groups(*args))
+                plain(*kernels.kernel_sizes(3, 2), kernels._LANES, None, True, 0, A, *args)
             runs.append([qk, vk, *out])
         finite, counts = runs[0][-1], runs[0][-3]
         assert not finite[3] and finite.sum() == A - 1
@@ -539,11 +527,10 @@ def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> Non
                    np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64), np.zeros(A),
                    np.zeros(A, bool)]
             for _ in range(2):  # the second call starts from the first's v_prev / has_prev
-                kernel(*kernels.kernel_sizes(n, k),
-                       *_groups(batch.lam, batch.lengths, batch.base, batch.phi, passive, qk, vk, out[0], out[1],
-                                command, torque, filter_on, np.broadcast_to(centers, (A, 3, 2)).copy(),
-                                np.broadcast_to(radii, (A, 3)).copy(), mask, 0.5, 5.0, 0.01, 100.0, 1e-2, 5, v_max,
-                                *out[2:], None))
+                kernel(*kernels.kernel_sizes(n, k), batch.lam, batch.lengths, batch.base, batch.phi, passive, qk, vk,
+                       out[0], out[1], command, torque, filter_on, np.broadcast_to(centers, (A, 3, 2)).copy(),
+                       np.broadcast_to(radii, (A, 3)).copy(), mask, 0.5, 5.0, 0.01, 100.0, 1e-2, 5, v_max, *out[2:],
+                       None)
             runs.append([qk, vk, *out])
         finite, counts = runs[0][-1], runs[0][-3]
         assert not finite[3]
@@ -555,18 +542,11 @@ def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> Non
 
 def test_generic_kernel_checks_its_sizes() -> None:
     rng = np.random.default_rng(0)
-
-    def groups(batch, q, v):
-        A, n, k = len(q), q.shape[1], v.shape[1]
-        return _groups(batch.lam, batch.lengths, batch.base, batch.phi, True, q, v, np.zeros((A, k)), np.zeros(A, bool),
-                       np.zeros((A, k)), False, False, np.zeros((A, 0, 2)), np.zeros((A, 0)), np.zeros((A, 0), bool),
-                       0.5, 5.0, 0.0, 100.0, 1e-3, 1, np.inf, np.empty((A, k)), np.empty((A, k)), np.empty((A, n)),
-                       np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64),
-                       np.zeros(A), np.ones(A, bool), None)
-
     batch, q, v = _group(rng, 9, True, count=1)
+    args = (batch.lam, batch.lengths, batch.base, batch.phi, True, q, v)
     with pytest.raises(ValueError, match="n ≤ 8"):
-        kernels.group_advance_generic(*kernels.kernel_sizes(9, 8), *groups(batch, q, v))
+        kernels.group_advance_generic(*kernels.kernel_sizes(9, 8), *args)
     batch, q, v = _group(rng, 3, True, count=1)
     with pytest.raises(ValueError, match="kernel_sizes"):
-        kernels.group_advance_generic(*kernels.kernel_sizes(3, 3), *groups(batch, q, v))
+        kernels.group_advance_generic(*kernels.kernel_sizes(3, 3), batch.lam, batch.lengths, batch.base, batch.phi,
+                                      True, q, v)

@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from pan1_env import kernels
-from pan1_env.compiled import Control, Physics, Record, Shield, State, plain
 from pan1_env.environment import parallel_env
 from pan1_env.kernels import specialise
 
@@ -25,11 +24,10 @@ def _args(n: int, passive: bool, A: int = 2) -> tuple:
     k = n - 1 if passive else n
     z = lambda *shape: np.zeros(shape)  # noqa: E731
     lam = np.broadcast_to(np.eye(n), (A, n, n)).copy()
-    return (*kernels.kernel_sizes(n, k), plain(Physics(lam, np.full((A, n), 0.3), z(A, 2), z(A), passive)),
-            plain(State(z(A, n), z(A, k), z(A, k), np.zeros(A, bool))), plain(Control(z(A, k), False, 100.0, 0.01, 1)),
-            plain(Record(z(A, k), z(A, k), z(A, n), z(A, 2), np.full(A, np.inf), np.full(A, np.inf),
-                         np.zeros((A, 3), np.int64), z(A), np.ones(A, bool))),
-            plain(Shield(True, z(A, 0, 2), z(A, 0), np.zeros((A, 0), bool), 1.0, 1.0, 0.0, np.inf)), None)
+    return (*kernels.kernel_sizes(n, k), lam, np.full((A, n), 0.3), z(A, 2), z(A), passive, z(A, n), z(A, k), z(A, k),
+            np.zeros(A, bool), z(A, k), False, True, z(A, 0, 2), z(A, 0), np.zeros((A, 0), bool), 1.0, 1.0, 0.0, 100.0,
+            0.01, 1, np.inf, z(A, k), z(A, k), z(A, n), z(A, 2), np.full(A, np.inf), np.full(A, np.inf),
+            np.zeros((A, 3), np.int64), z(A), np.ones(A, bool), None)
 
 
 def test_policy_reads_the_environment(monkeypatch) -> None:
