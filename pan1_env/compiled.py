@@ -1,15 +1,28 @@
-"""The compiled kernels (:mod:`pan1_env.kernels`), loaded on first use, and the size tuple they take.
+"""The compiled kernels (:mod:`pan1_env.kernels`), loaded on first use, the size tuple they take, and
+the named whole-arm argument of the sub-step kernel.
 
 Importing :mod:`pan1_env.kernels` imports numba (about half a second), so the modules that
 ``import pan1_env`` reaches get it through :func:`kernels` when they first step, not at import time.
 A module-level reference, not an attribute on an env, so envs stay picklable.
+
+The sub-step kernel's whole-arm argument is built by name (:class:`WholeArm`, a field changed with
+``_replace``) and handed over as a plain tuple (:func:`plain`): numba types a plain tuple of arrays in
+its C dispatcher, a named one through Python (about half a microsecond a field).
 """
 
 from __future__ import annotations
 
+from collections import namedtuple
 from types import ModuleType
 
-__all__ = ["kernels", "kernel_sizes"]
+__all__ = ["kernels", "kernel_sizes", "plain", "WholeArm"]
+
+#: the sub-step kernel's ``whole`` argument for whole-arm safety (:mod:`pan1_env.kernels.capsules`), in its
+#: order: ``caps (A, C, CAPSULE_COLUMNS)``, ``start_time (A,)``, ``link_radius``, ``link_bodies``, ``sensing``,
+#: ``skin``, ``joints (A, L + 1, 2)`` (out), ``n_world`` (the world obstacles among the capsules),
+#: ``angles (A, 2, n)`` (in with ``carried``, out), ``carried``, ``finish``
+WholeArm = namedtuple("WholeArm", "caps start_time link_radius link_bodies sensing skin joints n_world angles carried "
+                                  "finish")
 
 _KERNELS: ModuleType | None = None
 
@@ -29,3 +42,8 @@ def kernel_sizes(n: int, k: int) -> tuple[tuple[int, ...], tuple[int, ...]]:
     ``k`` actuated joints: ``(0,) * n, (0,) * k``. Numba types a tuple by its length, so these hand
     the kernel n and k as compile-time constants."""
     return (0,) * n, (0,) * k
+
+
+def plain(group: tuple | None) -> tuple | None:
+    """A named argument as the plain tuple the kernel takes (None stays None)."""
+    return None if group is None else tuple(group)

@@ -11,33 +11,29 @@ backstepping law in velocity mode, and takes one RK4 step (docs/MODEL.md). It re
 (:mod:`pan1_env.tasks`); the environments are adapters over an engine and a task, and B = 1 is a
 batch of one.
 
-The filter's QP runs in the kernel (``qp_solver="active_set"``, exact); ``"piqp"`` solves the same rows
+The filter's QP runs in the kernel (``qp_solver="active_set"``, exact: :class:`KernelQP`); with
+``"piqp"`` the engine is given a :class:`~pan1_env.piqp_filter.PiqpFilter`, which solves the same rows
 (the paper's end-effector rows, or the whole-arm rows) with qpsolvers + PIQP instead, one sub-step at
-a time (velocity mode, one copy; slow, for cross-checks).
+a time (velocity mode, one copy; slow, for cross-checks). A step goes through the one it was given.
 """
 
 from __future__ import annotations
 
+from collections import namedtuple
 from dataclasses import dataclass
 
 import numpy as np
 
 from .bodies import capsule_clearance, obstacle_velocities
-from .compiled import kernel_sizes, kernels
-from .dynamics import ArmBatch, link_angles, mass_matrix
-from .safety import (
-    QP_SOLVERS,
-    FilterParams,
-    QPStatus,
-    clearance,
-    filter_parameters,
-    project_velocity,
-    rcbf_constraints,
-)
+from .compiled import WholeArm, kernel_sizes, kernels, plain
+from .dynamics import ArmBatch
+from .piqp_filter import PiqpFilter, whole_arm_rows
+from .safety import QP_SOLVERS, FilterParams, clearance, filter_parameters
 from .scenario import Scenario
 from .validation import real
 
-__all__ = ["Engine", "FilterParams", "StepRecord", "filter_parameters", "PARALLEL_THRESHOLD", "SENSING_RADIUS", "SKIN"]
+__all__ = ["Engine", "KernelQP", "FilterParams", "StepRecord", "filter_parameters", "PARALLEL_THRESHOLD",
+           "SENSING_RADIUS", "SKIN"]
 
 PARALLEL_THRESHOLD = 256  # arms of one kind from which the kernel runs on numba's thread pool
 #: m: with whole-arm safety, a body's filter takes a row for a capsule only when their clearance is at
@@ -72,6 +68,13 @@ class StepRecord:
         """``(B, N)``: the filter's QP was infeasible and its fallback ran in some sub-step (braking; with
         whole-arm safety the relaxed QPs of docs/SCENARIOS.md)."""
         return self.qp_counts[..., 2] > 0
+
+
+#: a kind's outputs from the kernel (views of a step's record, or gathered rows of it), in the kernel's order
+_Outputs = namedtuple("_Outputs", "v_star tau min_clear min_h qp_counts max_track finite")
+#: the record's field each of them goes to
+_RECORD_FIELDS = dict(zip(_Outputs._fields, ("v_star", "tau", "min_clearance", "min_barrier", "qp_counts",
+                                              "max_tracking_error", "finite"), strict=True))
 
 
 def _kind_rows(team: np.ndarray) -> np.ndarray:
@@ -109,7 +112,7 @@ class _Kind:
         # generic kernel stands in for the kind's own, True from then on
         self.specialised: bool | None = None
         self.generation = -1
-        self.whole: tuple | None = None  # the kernel's whole-arm argument (Engine._whole_arm_setup)
+        self.whole: WholeArm | None = None  # the kernel's whole-arm argument (Engine._whole_arm_setup)
 
     def __getstate__(self) -> dict:
         state = {**self.__dict__, "specialised": None}  # another process decides for itself
@@ -131,6 +134,21 @@ class _Kind:
         self.q0[sl] = np.array([scenario.q0[i] for i in self.ids])
 
 
+class KernelQP:
+    """The filter's QP solved in the sub-step kernel (exact active set, any number of copies, both
+    modes): a step is the engine's compiled step (:meth:`Engine.advance_compiled`)."""
+
+    name = "active_set"
+
+    @staticmethod
+    def check(copies: int, torque: bool = False) -> None:
+        """Everything is allowed."""
+
+    @staticmethod
+    def advance(engine: Engine, command: np.ndarray, substeps: int, torque: bool, rec: StepRecord) -> None:
+        engine.advance_compiled(command, substeps, torque, rec)
+
+
 class Engine:
     """B copies of a team's arms, the safety filter, and the single call into the sub-step kernel.
 
@@ -141,8 +159,9 @@ class Engine:
         physics_dt: the RK4 sub-step, seconds (default: the scenario's).
         safety_filter: ``False``, ``True`` (the scenario's κ, ε, margin) or a :class:`FilterParams`.
         max_speed: with the filter on, its QP also bounds every filtered speed by this (rad/s).
-        qp_solver: ``"active_set"`` (exact, in the kernel) or ``"piqp"`` (the same rows, whole-arm ones
-            included, solved by qpsolvers + PIQP; one copy, velocity mode only).
+        qp_solver: ``"active_set"`` (exact, in the kernel: :class:`KernelQP`) or ``"piqp"`` (the same rows,
+            whole-arm ones included, solved by qpsolvers + PIQP: :class:`~pan1_env.piqp_filter.PiqpFilter`;
+            one copy, velocity mode only).
         threads: ``"auto"`` (numba's thread pool from :data:`PARALLEL_THRESHOLD` arms of a kind),
             ``True`` or ``False``; the two kernels give the same results bit for bit.
     """
@@ -154,8 +173,9 @@ class Engine:
             raise ValueError(f"unknown qp_solver {qp_solver!r}; choose one of {QP_SOLVERS}")
         if threads not in ("auto", True, False):
             raise ValueError(f"threads must be 'auto', True or False, got {threads!r}")
-        if qp_solver == "piqp" and copies != 1:
-            raise ValueError("qp_solver='piqp' steps one copy; use the compiled 'active_set' QP for batches")
+        #: the solver of the filter's QPs, which a step goes through
+        self.qp: KernelQP | PiqpFilter = PiqpFilter() if qp_solver == "piqp" else KernelQP()
+        self.qp.check(int(copies))
         self.physics_dt = real("physics_dt", scenario.physics_dt if physics_dt is None else physics_dt, positive=True)
         self.copies, self.qp_solver, self.threads = int(copies), qp_solver, threads
         self.max_speed = float(max_speed)
@@ -202,7 +222,7 @@ class Engine:
             for kind in self.kinds:
                 kind.caps, kind.start_time = self._team_caps[kind.block], self._team_start_time[kind.block]
                 kind.joints = self._team_joints[kind.block]
-                kind.whole = self._whole_args(kind)
+                kind.whole = self.whole_arm_args(kind)
 
     # ------------------------------------------------------------------ set-up
     def set_safety_filter(self, safety_filter: bool | FilterParams) -> None:
@@ -217,7 +237,7 @@ class Engine:
                 self._load_capsules(b, team, team.obstacle_mask())
         for kind in self.kinds:
             if kind.whole is not None:
-                kind.whole = self._whole_args(kind)
+                kind.whole = self.whole_arm_args(kind)
 
     def load_team(self, b: int, scenario: Scenario) -> None:
         """Put ``scenario``'s team (same arm kinds in the same order) into copy ``b``; it starts there
@@ -265,17 +285,18 @@ class Engine:
             kind.block = block
             self.copy_rows[:, kind.ids] = first + np.arange(rows).reshape(B, kind.A)
             kind.angles = np.zeros((rows, 2, kind.n))
-            kind.whole = self._whole_args(kind)
+            kind.whole = self.whole_arm_args(kind)
             kind.no_obstacles = (np.empty((rows, 0, 2)), np.empty((rows, 0)), np.empty((rows, 0), dtype=bool))
             first += rows
         self._team_joints, self._team_caps, self._team_start_time = joints, caps, start_time
 
-    def _whole_args(self, kind: _Kind) -> tuple:
+    def whole_arm_args(self, kind: _Kind) -> WholeArm:
         """The kernel's ``whole`` argument for a kind (:func:`pan1_env.kernels.substep.group_advance`)."""
         sensing = None if self.filter is None else self.filter.sensing_radius
-        return (kind.caps, kind.start_time, self.link_radius, self.link_bodies,
-                SENSING_RADIUS if sensing is None else sensing, SKIN, kind.joints, self.radii.shape[1], kind.angles,
-                False, True)
+        return WholeArm(caps=kind.caps, start_time=kind.start_time, link_radius=self.link_radius,
+                        link_bodies=self.link_bodies, sensing=SENSING_RADIUS if sensing is None else sensing,
+                        skin=SKIN, joints=kind.joints, n_world=self.radii.shape[1], angles=kind.angles, carried=False,
+                        finish=True)
 
     def _load_capsules(self, b: int, scenario: Scenario, mask: np.ndarray) -> None:
         """Copy b's capsules: its obstacles (start, path, radius, share 1) and the other arms' link slots
@@ -406,80 +427,85 @@ class Engine:
             raise ValueError(f"command must have shape {(B, N, self.k_max)}, got {command.shape}")
         if isinstance(substeps, bool) or not isinstance(substeps, (int, np.integer)) or substeps < 1:
             raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
-        piqp = self.filter is not None and self.qp_solver == "piqp"
-        if piqp and torque:
-            raise ValueError("the torque-mode filter needs qp_solver='active_set'")
         if any(kind.specialised is False for kind in self.kinds):
             kernels().specialise.start_background()  # from the second step on: see Engine._specialised
         blank = self._blank  # fresh arrays every step: records handed out are never overwritten
         rec = StepRecord(blank.v_star.copy(), blank.tau.copy(), blank.min_clearance.copy(), blank.min_barrier.copy(),
                          blank.qp_counts.copy(), blank.max_tracking_error.copy(), blank.finite.copy())
-        if piqp and self.whole_arm:
-            for _ in range(int(substeps)):
-                self._piqp_whole_substep(command, rec)
-            self._place_obstacles()
-        elif self.inter_arm:
-            # every arm's filter sees the others' capsules as they are at each sub-step: one kernel call per
-            # sub-step (each kind's outputs gathered once: the kernel accumulates minima, maxima and counts
-            # over calls), then one compiled pass (after_substep) that refreshes the capsules from the
-            # joints the kernel left and measures the clearance between arms, seeded with the obstacle
-            # clearance so far (pairs that cannot lower it are skipped). The kinds' running clearances and
-            # finite flags live in team-level arrays (views of the record with one kind in team order).
-            B, N = self.copies, self.n_arms
-            clear, finite = (None, None) if self.team_order else (np.empty(B * N), np.empty(B * N, dtype=bool))
-            calls = [self._kernel_args(kind, command, 1, torque, self.filter, rec,
-                                       None if clear is None else clear[kind.block],
-                                       None if finite is None else finite[kind.block]) for kind in self.kinds]
-            if clear is None:
-                clear, finite = calls[0][1][2], calls[0][1][-1]
-            ok = finite.copy()  # the kernel marks an arm finite afresh each call
-            P = self.joint_positions()
-            between = np.full((B, N), np.inf)
-            self._refresh_capsules(P)
-            for sub in range(int(substeps)):
-                for kind, (args, _) in zip(self.kinds, calls, strict=True):
-                    # a call after the step's first starts from the link angles' sines and cosines the
-                    # previous one ended with (`carried`, as one call's sub-steps do); only the last
-                    # computes the joint velocities and end-effectors (`finish`)
-                    self._call(kind, args[:-1] + (args[-1][:-2] + (sub > 0, sub == substeps - 1),))
-                # the kernel placed the obstacles from the clock itself; the clock moves on here
-                self._geometry("after_substep", B * N, self.copy_rows, self.others, self._team_joints, clear, finite,
-                               ok, self._team_start_time, self._team_caps, self.radii.shape[1], self.link_radius,
-                               self.physics_dt, sub < substeps - 1, self.elapsed, P, between)
-            finite[:] = ok
-            for kind, (_, out) in zip(self.kinds, calls, strict=True):
-                self._finish(kind, out, torque, rec)
-            np.minimum(rec.min_clearance, between, out=rec.min_clearance)
-            self._place_obstacles()
-        else:
-            if self.whole_arm:
-                self._refresh_capsules()
-            for kind in self.kinds:
-                if piqp and kind.mask.any():
-                    for _ in range(int(substeps)):
-                        self._piqp_substep(kind, command, rec)
-                else:
-                    self._advance(kind, command, int(substeps), torque, self.filter, rec)
-            if self.whole_arm:
-                self._tick(int(substeps))
+        self.qp.advance(self, command, int(substeps), torque, rec)
         rec.all_finite = bool(rec.finite.all())
         if not rec.all_finite:  # a faulty arm stopped early: include the (finite) state it was left in
             np.minimum(rec.min_clearance, self.clearance(), out=rec.min_clearance)
         return rec
 
+    def advance_compiled(self, command: np.ndarray, substeps: int, torque: bool, rec: StepRecord) -> None:
+        """Every arm of every copy ``substeps`` sub-steps through the sub-step kernel, its QP included,
+        into ``rec``: one kernel call per kind, or with ``inter_arm`` one per kind and sub-step."""
+        if self.inter_arm:
+            self._advance_inter_arm(command, substeps, torque, rec)
+            return
+        if self.whole_arm:
+            self.refresh_capsules()
+        for kind in self.kinds:
+            self._advance(kind, command, substeps, torque, self.filter, rec)
+        if self.whole_arm:
+            self._tick(substeps)
+
+    def _advance_inter_arm(self, command: np.ndarray, substeps: int, torque: bool, rec: StepRecord) -> None:
+        """:meth:`advance_compiled` with other arms in each arm's filter, which sees their capsules as they
+        are at each sub-step: one kernel call per sub-step (each kind's outputs gathered once: the kernel
+        accumulates minima, maxima and counts over calls), then one compiled pass (after_substep) that
+        refreshes the capsules from the joints the kernel left and measures the clearance between arms,
+        seeded with the obstacle clearance so far (pairs that cannot lower it are skipped). The kinds'
+        running clearances and finite flags live in team-level arrays (views of the record with one kind
+        in team order)."""
+        B, N = self.copies, self.n_arms
+        clear, finite = (None, None) if self.team_order else (np.empty(B * N), np.empty(B * N, dtype=bool))
+        calls = [self._kernel_args(kind, command, 1, torque, self.filter, rec,
+                                   None if clear is None else clear[kind.block],
+                                   None if finite is None else finite[kind.block]) for kind in self.kinds]
+        if clear is None:
+            first = calls[0][1]
+            clear, finite = first.min_clear, first.finite
+        ok = finite.copy()  # the kernel marks an arm finite afresh each call
+        P = self.joint_positions()
+        between = np.full((B, N), np.inf)
+        self.refresh_capsules(P)
+        for sub in range(substeps):
+            for kind, (args, _) in zip(self.kinds, calls, strict=True):
+                # a call after the step's first starts from the link angles' sines and cosines the
+                # previous one ended with (`carried`, as one call's sub-steps do); only the last
+                # computes the joint velocities and end-effectors (`finish`)
+                self._call(kind, args, kind.whole._replace(carried=sub > 0, finish=sub == substeps - 1))
+            # the kernel placed the obstacles from the clock itself; the clock moves on here
+            self._geometry("after_substep", B * N, self.copy_rows, self.others, self._team_joints, clear, finite,
+                           ok, self._team_start_time, self._team_caps, self.radii.shape[1], self.link_radius,
+                           self.physics_dt, sub < substeps - 1, self.elapsed, P, between)
+        finite[:] = ok
+        for kind, (_, out) in zip(self.kinds, calls, strict=True):
+            self._finish(kind, out, torque, rec)
+        np.minimum(rec.min_clearance, between, out=rec.min_clearance)
+        self.place_obstacles()
+
+    def advance_kind(self, kind: _Kind, command: np.ndarray, substeps: int, rec: StepRecord, *,
+                     filtered: bool) -> None:
+        """One kernel call in velocity mode: every arm of ``kind`` ``substeps`` sub-steps at ``command``,
+        through the filter or not (for a solver that filters by itself: :mod:`pan1_env.piqp_filter`)."""
+        self._advance(kind, command, substeps, False, self.filter if filtered else None, rec)
+
     def _tick(self, substeps: int) -> None:
         """Advance every copy's clock by ``substeps`` sub-steps, and the obstacles with it."""
         self.elapsed += substeps * self.physics_dt
-        self._place_obstacles()
+        self.place_obstacles()
 
-    def _place_obstacles(self) -> None:
+    def place_obstacles(self) -> None:
         """``centers`` and ``velocities`` (which observations and :meth:`clearance` read) where every copy's
         clock puts the obstacles, as the filter places them (whole-arm safety: from the capsules)."""
         if self.speeds.any():
             kernels().capsules.obstacles_now(self.copy_rows, self._team_caps, self.elapsed, self.centers,
                                              self.velocities)
 
-    def _refresh_capsules(self, P: np.ndarray | None = None) -> None:
+    def refresh_capsules(self, P: np.ndarray | None = None) -> None:
         """Before a kernel call: every copy's time, and (``inter_arm``) the other arms' link segments
         from their joints ``P`` (:meth:`joint_positions`, as they are now), which each arm's filter holds
         for the call (one sub-step)."""
@@ -493,54 +519,60 @@ class Engine:
                  rec: StepRecord) -> None:
         """The kernel call: every arm of a kind in every copy, ``substeps`` sub-steps."""
         args, out = self._kernel_args(kind, command, substeps, torque, params, rec)
-        self._call(kind, args)
+        self._call(kind, args, kind.whole)
         self._finish(kind, out, torque, rec)
 
     def _kernel_args(self, kind: _Kind, command: np.ndarray, substeps: int, torque: bool,
                      params: FilterParams | None, rec: StepRecord, clear: np.ndarray | None = None,
-                     finite: np.ndarray | None = None) -> tuple[tuple, tuple]:
-        """The kernel's arguments for a kind, and its outputs: views of the record when one kind is the
-        team in order, else gathered copies of the record's rows (the kernel accumulates into them), or
-        for the running clearance and finite flags the caller's ``clear`` and ``finite`` (filled with them)."""
+                     finite: np.ndarray | None = None) -> tuple[tuple, _Outputs]:
+        """The kernel's arguments for a kind but the last (``whole``: :meth:`_call`), and its outputs: views
+        of the record when one kind is the team in order, else gathered copies of the record's rows (the
+        kernel accumulates into them), or for the running clearance and finite flags the caller's ``clear``
+        and ``finite`` (filled with them)."""
         B, A, n, k = self.copies, kind.A, kind.n, kind.k
         rows = B * A
         if self.team_order:
-            out = (rec.v_star.reshape(rows, k), rec.tau.reshape(rows, n), rec.min_clearance.reshape(rows),
-                   rec.min_barrier.reshape(rows), rec.qp_counts.reshape(rows, 3),
-                   rec.max_tracking_error.reshape(rows), rec.finite.reshape(rows))
+            out = _Outputs(rec.v_star.reshape(rows, k), rec.tau.reshape(rows, n), rec.min_clearance.reshape(rows),
+                           rec.min_barrier.reshape(rows), rec.qp_counts.reshape(rows, 3),
+                           rec.max_tracking_error.reshape(rows), rec.finite.reshape(rows))
             cmd = np.ascontiguousarray(command.reshape(rows, k))
         else:
             cols = kind.cols
-            out = (np.empty((rows, k)), _kind_rows(rec.tau[:, cols, :n]), _kind_rows(rec.min_clearance[:, cols]),
-                   _kind_rows(rec.min_barrier[:, cols]), np.zeros((rows, 3), dtype=np.int64),
-                   _kind_rows(rec.max_tracking_error[:, cols]), np.ones(rows, dtype=bool))
+            out = _Outputs(np.empty((rows, k)), _kind_rows(rec.tau[:, cols, :n]),
+                           _kind_rows(rec.min_clearance[:, cols]), _kind_rows(rec.min_barrier[:, cols]),
+                           np.zeros((rows, 3), dtype=np.int64),
+                           _kind_rows(rec.max_tracking_error[:, cols]), np.ones(rows, dtype=bool))
             cmd = _kind_rows(command[:, cols, :k])
         if clear is not None:
-            clear[:], finite[:] = out[2], out[-1]
-            out = (*out[:2], clear, *out[3:-1], finite)
+            clear[:], finite[:] = out.min_clear, out.finite
+            out = out._replace(min_clear=clear, finite=finite)
         rcbf = _UNUSED_RCBF if params is None else (params.kappa, params.epsilon, params.margin)
         obstacles = (kind.centers, kind.radii, kind.mask) if kind.whole is None else kind.no_obstacles
         args = (*kind.state_args, cmd, torque, params is not None, *obstacles, *rcbf, self.ke, self.physics_dt,
-                substeps, self.max_speed, out[0], out[1], kind.qd, kind.p, *out[2:], kind.whole)
+                substeps, self.max_speed, out.v_star, out.tau, kind.qd, kind.p, out.min_clear, out.min_h,
+                out.qp_counts, out.max_track, out.finite)
         return args, out
 
-    def _call(self, kind: _Kind, args: tuple) -> None:
+    def _call(self, kind: _Kind, args: tuple, whole: WholeArm | None) -> None:
+        """One call of the sub-step kernel on every arm of a kind: the multi-threaded one for large batches,
+        else the kind's own or the generic one (:meth:`_specialised`); ``whole`` goes as a plain tuple."""
+        whole = plain(whole)
         chunks = self._chunks(len(kind.q))
         if chunks:
-            kernels().group_advance_parallel(*args, chunks)
-        elif self._specialised(kind, args):
-            kernels().group_advance(*args)
+            kernels().group_advance_parallel(*args, whole, chunks)
+        elif kind.specialised or self._specialised(kind, (*args, whole)):
+            kernels().group_advance(*args, whole)
         else:
-            kernels().group_advance_generic(*args)
+            kernels().group_advance_generic(*args, whole)
 
-    def _finish(self, kind: _Kind, out: tuple, torque: bool, rec: StepRecord) -> None:
+    def _finish(self, kind: _Kind, out: _Outputs, torque: bool, rec: StepRecord) -> None:
         """After a kind's kernel call(s): scatter gathered outputs back into the record."""
         B, A = self.copies, kind.A
         if torque:
             kind.has_prev[:] = False
         if not self.team_order:
-            for field, value in zip(("v_star", "tau", "min_clearance", "min_barrier", "qp_counts",
-                                     "max_tracking_error", "finite"), out, strict=True):
+            for name, value in zip(_Outputs._fields, out, strict=True):
+                field = _RECORD_FIELDS[name]
                 target = getattr(rec, field)
                 if target.ndim == 3:
                     width = value.shape[1]
@@ -551,94 +583,11 @@ class Engine:
                 else:
                     target[:, kind.cols] = value.reshape(B, A)
 
-    def _piqp_substep(self, kind: _Kind, command: np.ndarray, rec: StepRecord) -> None:
-        """One velocity-mode sub-step whose RCBF-QP is solved by qpsolvers + PIQP (one copy)."""
-        A, k, f = kind.A, kind.k, self.filter
-        p, Jbar, _ = self.kind_terms(kind)
-        rows, b, h = rcbf_constraints(p, Jbar, kind.centers[0], kind.radii[0], f.kappa, f.epsilon,
-                                      active=kind.mask, margin=f.margin)
-        if np.isfinite(self.max_speed):
-            box = np.concatenate([np.eye(k), -np.eye(k)])
-            rows = np.concatenate([rows, np.broadcast_to(box, (A, 2 * k, k))], axis=1)
-            b = np.concatenate([b, np.full((A, 2 * k), self.max_speed)], axis=1)
-        result = project_velocity(command[0, kind.ids, :k], rows, b, solver="piqp")
-        v_star = np.zeros_like(command)
-        v_star[0, kind.ids, :k] = result.v
-        finite = rec.finite.copy()
-        self._advance(kind, v_star, 1, False, None, rec)  # counted as a nominal sub-step: recount below
-        rec.finite &= finite
-        rec.qp_counts[0, kind.ids] += np.eye(3, dtype=np.int64)[result.status] - np.eye(3, dtype=np.int64)[0]
-        rec.min_barrier[0, kind.ids] = np.minimum(rec.min_barrier[0, kind.ids],
-                                                  np.where(kind.mask, h, np.inf).min(axis=-1))
-
-    def _piqp_whole_substep(self, command: np.ndarray, rec: StepRecord) -> None:
-        """One velocity-mode sub-step of whole-arm safety whose QPs are solved by qpsolvers + PIQP (one
-        copy): every filtered arm's rows are the kernel's (:func:`pan1_env.kernels.capsules.whole_arm_rows`
-        at the arm's state, the clock and the other arms where they are now), an infeasible QP takes the
-        kernel's fallback (the rows without the robust term, then the least violating velocity), and
-        every arm then advances one sub-step unfiltered at its v*."""
-        f, dt = self.filter, self.physics_dt
-        self._refresh_capsules(self.joint_positions() if self.inter_arm else None)
-        v_star = np.zeros_like(command)
-        status = np.zeros(self.n_arms, dtype=np.int64)
-        h_min = np.full(self.n_arms, np.inf)
-        for kind in self.kinds:
-            for r, i in enumerate(kind.ids):
-                v0 = command[0, i, :kind.k]
-                if not (kind.caps[r, :, kernels().capsules.CAP_ACTIVE] != 0.0).any():
-                    v_star[0, i, :kind.k] = v0
-                    continue
-                A, b, h_min[i] = self._whole_arm_rows(kind, r, v0, f.epsilon)
-                result = project_velocity(v0[None], A[None], b[None], solver="piqp")
-                status[i], v_star[0, i, :kind.k] = result.status[0], result.v[0]
-                if status[i] == QPStatus.FALLBACK:  # as the kernel: without the robust term, then least violation
-                    A, b, _ = self._whole_arm_rows(kind, r, v0, np.inf)
-                    retry = project_velocity(v0[None], A[None], b[None], solver="piqp")
-                    v_star[0, i, :kind.k] = retry.v[0]
-                    if retry.status[0] == QPStatus.FALLBACK:
-                        v_star[0, i, :kind.k] = self._least_violation(kind, v0, A, b)
-        for kind in self.kinds:
-            finite = rec.finite.copy()
-            self._advance(kind, v_star, 1, False, None, rec)  # counted as a nominal sub-step: recount below
-            rec.finite &= finite
-        rec.qp_counts[0] += np.eye(3, dtype=np.int64)[status] - np.eye(3, dtype=np.int64)[0]
-        np.minimum(rec.min_barrier[0], h_min, out=rec.min_barrier[0])
-        self.elapsed += dt
-        if self.inter_arm:
-            np.minimum(rec.min_clearance, self.inter_arm_clearance(), out=rec.min_clearance)
-
     def _whole_arm_rows(self, kind: _Kind, r: int, v0: np.ndarray, epsilon: float) -> tuple:
-        """The kernel's whole-arm rows ``(A (m, k), b (m,), smallest barrier)`` of row r of a kind (arm
-        ``ids[r % A]`` of copy ``r // A``), built from the arm's state by
-        :func:`pan1_env.kernels.capsules.whole_arm_rows`."""
-        K, f, n, k = kernels().capsules, self.filter, kind.n, kind.k
-        arm, q = self.teams[r // kind.A].arms[kind.ids[r % kind.A]], kind.q[r]
-        caps, start_time, rho, links, sensing, skin = self._whole_args(kind)[:6]
-        angles = link_angles(q) + kind.phi[r]
+        """:func:`pan1_env.piqp_filter.whole_arm_rows` of this engine (benchmarks/bench.py counts rows with it)."""
+        return whole_arm_rows(self, kind, r, v0, epsilon)
 
-        def lane(x: np.ndarray) -> np.ndarray:  # one lane (W = 1) of the kernel's scratch: lanes last
-            return np.ascontiguousarray(x[..., None])
-
-        m_max = (n if links else 1) * caps.shape[1] + 2 * k
-        A, b, active = np.zeros((m_max, k)), np.zeros(m_max), np.zeros(m_max, dtype=bool)
-        m, h = K.whole_arm_rows(r, 0, n, k, kind.passive, links, rho, sensing, skin, self.physics_dt,
-                                lane(kind.lengths[r]), kind.base[r, :1].copy(), kind.base[r, 1:].copy(),
-                                lane(np.cos(angles)), lane(np.sin(angles)), lane(kind.qd[r]),
-                                lane(mass_matrix(arm, q)), caps, start_time[r], f.kappa, epsilon, f.margin,
-                                self.max_speed, v0.copy(), A, b, active, np.empty((n + 1, 2)),
-                                np.empty((caps.shape[1], K.NEAR_COLUMNS)))
-        return A[:m], b[:m], h
-
-    def _least_violation(self, kind: _Kind, v0: np.ndarray, A: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """The kernel's last resort for an infeasible whole-arm QP (its rows end with the speed box when
-        the speed is bounded): :func:`pan1_env.kernels.capsules.least_violation`."""
-        m, k = A.shape
-        v = np.empty(k)
-        kernels().capsules.least_violation(
-            v0.copy(), A.copy(), b.copy(), np.ones(m, dtype=bool), m, k, 2 * k if np.isfinite(self.max_speed) else 0,
-            v, np.empty(m), np.empty(m), np.empty(m, dtype=np.int64), np.empty(k, dtype=np.int64), np.empty((k, k)),
-            np.empty(k), np.empty(k), np.empty(k), np.empty((k, k)), np.empty(k), np.empty(m), np.empty(m))
-        return v
+    _refresh_capsules = refresh_capsules  # benchmarks/bench.py's name
 
     @staticmethod
     def _specialised(kind: _Kind, args: tuple) -> bool:

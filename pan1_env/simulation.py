@@ -1,12 +1,13 @@
-"""The paper's closed loop for one team: :class:`Simulation`, a one-copy view of the engine.
+"""The paper's closed loop for one team: :class:`Simulation`, an engine of one copy and its clock.
 
 ``pan1-env reproduce`` (:mod:`pan1_env.experiment`) drives it with the paper's controller: the
 distributed formation law :meth:`Simulation.nominal_velocity` (Eq. 39) as the command, recomputed
 every control step, filtered by the RCBF-QP (Eq. 61) at every physics sub-step for the "safe"
 controller, tracked by the backstepping torque (Eq. 64) and integrated by RK4. The stepping itself
-is :class:`~pan1_env.engine.Engine`'s with B = 1; this class adds the clock, the running smallest
-clearance and the reference-layer quantities of one team (docs/MODEL.md), with arrays over the
-team's arms (padded team arrays use NaN beyond an arm's size).
+is its :class:`~pan1_env.engine.Engine`'s (``self.engine``, B = 1); this class adds the clock, the
+running smallest clearance and the reference-layer quantities of one team (docs/MODEL.md), with
+arrays over the team's arms (padded team arrays use NaN beyond an arm's size), where the engine's
+have a leading copy axis.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from .scenario import Scenario
 __all__ = ["Simulation", "StepRecord"]
 
 
-class Simulation(Engine):
+class Simulation:
     """One copy of a scenario's team under the paper's controller.
 
     Args:
@@ -36,34 +37,53 @@ class Simulation(Engine):
     def __init__(self, scenario: Scenario, *, safety_filter=True, qp_solver: str = "active_set",
                  physics_dt: float | None = None) -> None:
         self.scenario = scenario
-        super().__init__(scenario, 1, physics_dt=physics_dt, safety_filter=safety_filter, qp_solver=qp_solver)
+        self.engine = Engine(scenario, 1, physics_dt=physics_dt, safety_filter=safety_filter, qp_solver=qp_solver)
+        self.reset()
 
-    def reset(self, q0: list[np.ndarray] | None = None) -> None:  # type: ignore[override]
+    @property
+    def n_arms(self) -> int:
+        return self.engine.n_arms
+
+    @property
+    def n_max(self) -> int:
+        """The most links of any arm (the width of padded joint arrays)."""
+        return self.engine.n_max
+
+    @property
+    def k_max(self) -> int:
+        """The most actuated joints of any arm (the width of a command)."""
+        return self.engine.k_max
+
+    @property
+    def physics_dt(self) -> float:
+        return self.engine.physics_dt
+
+    def reset(self, q0: list[np.ndarray] | None = None) -> None:
         """Put every arm at rest at ``q0`` (default: the scenario's), time 0."""
         if q0 is not None and len(q0) != self.n_arms:
             raise ValueError(f"q0 needs one configuration per arm ({self.n_arms}), got {len(q0)}")
-        super().reset(None if q0 is None else [0], q0)
+        self.engine.reset(None if q0 is None else [0], q0)
         self.time = 0.0
         self.min_clearance = self.clearance()  # (N,) running minimum since reset
 
     def positions(self) -> np.ndarray:
         """End-effectors ``(N, 2)``."""
-        return super().positions()[0]
+        return self.engine.positions()[0]
 
     def joint_state(self, pad: float = np.nan) -> tuple[np.ndarray, np.ndarray]:
         """Padded ``q (N, n_max)`` and ``q̇ (N, n_max)`` (copies)."""
-        q, qd = super().joint_state(pad)
+        q, qd = self.engine.joint_state(pad)
         return q[0].copy(), qd[0].copy()
 
     def clearance(self) -> np.ndarray:
-        """Smallest ‖p_i − o_j‖ − r_j over obstacles for each arm, ``(N,)`` (inf with none)."""
-        return super().clearance()[0]
+        """Smallest clearance of each arm's protected bodies, ``(N,)`` (inf with nothing to hit)."""
+        return self.engine.clearance()[0]
 
     def passive_momentum(self) -> np.ndarray:
         """Σ_α M_1α q̇_α for every arm, ``(N,)`` (NaN for fully actuated arms)."""
         out = np.full(self.n_arms, np.nan)
-        for kind in self.kinds:
-            out[kind.ids] = self.kind_terms(kind)[2]
+        for kind in self.engine.kinds:
+            out[kind.ids] = self.engine.kind_terms(kind)[2]
         return out
 
     def nominal_velocity(self) -> np.ndarray:
@@ -72,12 +92,12 @@ class Simulation(Engine):
         z = edge_vectors(formation.incidence, self.positions())
         e_hat = formation_gradient(formation.incidence, z, edge_errors(z, formation.distances))
         out = np.zeros((self.n_arms, self.k_max))
-        for kind in self.kinds:
-            _, Jbar, _ = self.kind_terms(kind)
+        for kind in self.engine.kinds:
+            _, Jbar, _ = self.engine.kind_terms(kind)
             out[kind.ids, : kind.k] = nominal_velocity(Jbar, e_hat[kind.ids], self.scenario.kp)
         return out
 
-    def step(self, command: np.ndarray, substeps: int, *, torque: bool = False,  # type: ignore[override]
+    def step(self, command: np.ndarray, substeps: int, *, torque: bool = False,
              max_speed: float | None = None) -> StepRecord:
         """Hold ``command (N, k_max)`` for ``substeps`` physics steps; the record's arrays are the
         team's ``(N, …)`` (``finite`` per arm). ``max_speed`` bounds the filtered speeds (rad/s)."""
@@ -85,8 +105,8 @@ class Simulation(Engine):
         if command.shape != (self.n_arms, self.k_max):
             raise ValueError(f"command must have shape {(self.n_arms, self.k_max)}, got {command.shape}")
         if max_speed is not None:
-            self.max_speed = float(max_speed)
-        rec = super().step(command[None], substeps, torque=torque)
+            self.engine.max_speed = float(max_speed)
+        rec = self.engine.step(command[None], substeps, torque=torque)
         self.time += int(substeps) * self.physics_dt
         out = StepRecord(rec.v_star[0], rec.tau[0], rec.min_clearance[0], rec.min_barrier[0], rec.qp_counts[0],
                          rec.max_tracking_error[0], rec.finite[0], rec.all_finite)
