@@ -185,9 +185,11 @@ def _filter_rows(venv, sample: int = 256) -> tuple[float, int, int]:
     filter: a row per obstacle the arm's filter sees; whole-arm: a row per (body, capsule) pair within
     sensing range that can bind inside the speed box (:func:`pan1_env.kernels.capsules.whole_arm_rows`),
     of bodies × capsule slots."""
+    from pan1_env.piqp_filter import whole_arm_rows
+
     engine = venv.engine
     if engine.whole_arm:  # the capsules and clocks where the next sub-step would take them
-        engine._refresh_capsules(engine.joint_positions() if engine.inter_arm else None)
+        engine.refresh_capsules(engine.joint_positions() if engine.inter_arm else None)
     counts, possible = [], 0
     for kind in engine.kinds:
         rows = range(0, len(kind.q), max(1, len(kind.q) // sample))
@@ -197,7 +199,7 @@ def _filter_rows(venv, sample: int = 256) -> tuple[float, int, int]:
             continue
         box = 2 * kind.k if np.isfinite(engine.max_speed) else 0
         possible = max(possible, (kind.n if engine.link_bodies else 1) * kind.caps.shape[1])
-        counts += [len(engine._whole_arm_rows(kind, r, np.zeros(kind.k), engine.filter.epsilon)[1]) - box
+        counts += [len(whole_arm_rows(engine, kind, r, np.zeros(kind.k), engine.filter.epsilon)[1]) - box
                    for r in rows]
     return float(np.mean(counts)), int(max(counts)), possible
 

@@ -75,6 +75,7 @@ class FormationCore:
         team = c.team
         self.engine = Engine(team, B, physics_dt=c.physics_dt, safety_filter=c.safety_filter or False,
                              max_speed=c.max_joint_speed, qp_solver=c.qp_solver, threads=threads)
+        self.set_safety_filter(c.safety_filter or False)  # refused here, as later, where the solver cannot do it
         self.task = TASKS[type(c)](c, B)
         self.layout: ObservationLayout | None = getattr(self.task, "layout", None)
         self.agents = [f"arm_{i}" for i in range(team.n_arms)]
@@ -92,6 +93,14 @@ class FormationCore:
         groups = [ids for _, ids in self.layout.groups] if self.layout is not None else [np.arange(1)]
         order = sorted((i, g, r) for g, ids in enumerate(groups) for r, i in enumerate(ids.tolist()))
         self._observation_rows = [(g, r) for _, g, r in order]
+
+    def set_safety_filter(self, safety_filter) -> None:
+        """Switch the engine's filter (``False``, ``True`` or a :class:`~pan1_env.safety.FilterParams`), after
+        its QP solver has checked that it can filter this env (PIQP: one copy, velocity mode)."""
+        check = getattr(self.engine.qp, "check", None)
+        if safety_filter is not False and check is not None:
+            check(self.copies, torque=self.config.action_mode == "torque")
+        self.engine.set_safety_filter(safety_filter)
 
     @property
     def k_max(self) -> int:
@@ -339,7 +348,7 @@ class CoreView:
         """Switch the RCBF-QP filter on (``True``: the scenario's κ, ε, margin; or a
         :class:`~pan1_env.safety.FilterParams`) or off (``False``), from the next physics sub-step.
         :class:`~pan1_env.wrappers.SafetyShield` calls this."""
-        self.core.engine.set_safety_filter(safety_filter)
+        self.core.set_safety_filter(safety_filter)
 
     @property
     def last_step(self) -> StepRecord | None:

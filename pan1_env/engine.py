@@ -27,7 +27,7 @@ import numpy as np
 from .bodies import capsule_clearance, obstacle_velocities
 from .compiled import WholeArm, kernel_sizes, kernels, plain
 from .dynamics import ArmBatch
-from .piqp_filter import PiqpFilter, whole_arm_rows
+from .piqp_filter import PiqpFilter
 from .safety import QP_SOLVERS, FilterParams, clearance, filter_parameters
 from .scenario import Scenario
 from .validation import real
@@ -557,7 +557,7 @@ class Engine:
         """One call of the sub-step kernel on every arm of a kind: the multi-threaded one for large batches,
         else the kind's own or the generic one (:meth:`_specialised`); ``whole`` goes as a plain tuple."""
         whole = plain(whole)
-        chunks = self._chunks(len(kind.q))
+        chunks = self.chunks(len(kind.q))
         if chunks:
             kernels().group_advance_parallel(*args, whole, chunks)
         elif kind.specialised or self._specialised(kind, (*args, whole)):
@@ -583,12 +583,6 @@ class Engine:
                 else:
                     target[:, kind.cols] = value.reshape(B, A)
 
-    def _whole_arm_rows(self, kind: _Kind, r: int, v0: np.ndarray, epsilon: float) -> tuple:
-        """:func:`pan1_env.piqp_filter.whole_arm_rows` of this engine (benchmarks/bench.py counts rows with it)."""
-        return whole_arm_rows(self, kind, r, v0, epsilon)
-
-    _refresh_capsules = refresh_capsules  # benchmarks/bench.py's name
-
     @staticmethod
     def _specialised(kind: _Kind, args: tuple) -> bool:
         """Whether the kind steps with its own compiled kernel (``group_advance``) rather than the generic
@@ -607,14 +601,14 @@ class Engine:
 
     def _geometry(self, name: str, rows: int, *args) -> None:
         """The whole-arm geometry pass ``name`` of :mod:`pan1_env.kernels.capsules` over ``rows`` arms, or its
-        ``_parallel`` twin on numba's threads when :meth:`_chunks` says so."""
-        chunks = self._chunks(rows)
+        ``_parallel`` twin on numba's threads when :meth:`chunks` says so."""
+        chunks = self.chunks(rows)
         if chunks:
             getattr(kernels().capsules, name + "_parallel")(*args, chunks)
         else:
             getattr(kernels().capsules, name)(*args)
 
-    def _chunks(self, rows: int) -> int:
+    def chunks(self, rows: int) -> int:
         """0 to run a kernel call on one thread, else its number of chunks on numba's thread pool."""
         if not (self.threads is True or (self.threads == "auto" and rows >= PARALLEL_THRESHOLD)):
             return 0

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from .config import SUCCESS_TOLERANCE
 from .formation import edge_length_errors, edge_vectors
 from .safety import QPStatus
 from .scenario import Scenario
@@ -29,7 +30,6 @@ from .simulation import Simulation
 __all__ = ["CONTROLLERS", "RunResult", "run", "write_outputs", "atomic_write"]
 
 CONTROLLERS = ("nominal", "safe")
-SUCCESS_EDGE_ERROR_M = 0.01
 MAX_SAMPLES = 10_000_000  # trajectory samples a run may record
 
 
@@ -111,7 +111,7 @@ def run(
     qp_counts = np.zeros(3, dtype=int)
     sample_state(0)
     # last time the largest edge error was ≥ 1 cm (None: never)
-    last_bad_time = 0.0 if np.abs(traj["edge_error"][0]).max() >= SUCCESS_EDGE_ERROR_M else None
+    last_bad_time = 0.0 if np.abs(traj["edge_error"][0]).max() >= SUCCESS_TOLERANCE else None
     t0 = time.perf_counter()
     r = 0
     for c in range(n_control):
@@ -128,7 +128,7 @@ def run(
         if sim.time > 1.0:
             np.maximum(max_track_after_1s, rec.max_tracking_error, out=max_track_after_1s)
         qp_counts += rec.qp_counts.sum(axis=0)
-        if np.abs(edge_error()).max() >= SUCCESS_EDGE_ERROR_M:
+        if np.abs(edge_error()).max() >= SUCCESS_TOLERANCE:
             last_bad_time = sim.time
         if bar is not None and (c + 1) % 100 == 0:
             bar.update((c + 1) * substeps - bar.n)
@@ -167,7 +167,7 @@ def run(
         "min_clearance_m": _finite_or_none(min_clear.min()),
         "collided": bool(np.any(min_clear < 0)),
         "final_max_edge_error_m": final_edge,
-        "time_to_edge_error_1cm_s": None if final_edge >= SUCCESS_EDGE_ERROR_M
+        "time_to_edge_error_1cm_s": None if final_edge >= SUCCESS_TOLERANCE
         else (0.0 if last_bad_time is None else last_bad_time),
         "max_tracking_error": float(max_track.max()),
         "max_tracking_error_after_1s": float(max_track_after_1s.max()),

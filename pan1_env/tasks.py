@@ -179,7 +179,7 @@ class FormationTask:
         velocities = engine.obstacle_velocities() if self.layout.obstacle_velocity else None
         return self.layout.build_with_errors(q, qd, engine.positions(), engine.bases, self.edges, self.distances,
                                              engine.centers, engine.radii, self.max_joint_speed,
-                                             engine._chunks(engine.copies * engine.n_arms), velocities=velocities)
+                                             engine.chunks(engine.copies * engine.n_arms), velocities=velocities)
 
     def flat(self, mats: list[np.ndarray]) -> np.ndarray:
         """The agents' observations concatenated in agent order, ``(B, Σ size)``."""

@@ -204,3 +204,14 @@ def test_the_gymnasium_view_renders_every_reset_and_step_in_human_mode(monkeypat
     for _ in range(2):
         env.step(np.zeros(env.action_space.shape, np.float32))
     assert drawn == [0, 1, 2]
+
+
+def test_a_filter_the_qp_solver_cannot_run_is_refused_when_it_is_switched_on() -> None:
+    from pan1_env.wrappers import SafetyShield
+
+    with pytest.raises(ValueError, match="torque-mode filter needs qp_solver='active_set'"):
+        parallel_env("paper_pa3_square", action_mode="torque", qp_solver="piqp", safety_filter=True)
+    env = parallel_env("paper_pa3_square", action_mode="torque", qp_solver="piqp")
+    with pytest.raises(ValueError, match="torque-mode filter needs qp_solver='active_set'"):
+        SafetyShield(env)
+    assert env.safety_filter is None

@@ -98,7 +98,7 @@ def test_step_record_shapes_and_padding() -> None:
 def test_threaded_kernel_steps_as_the_serial_one_bit_for_bit(name: str) -> None:
     team = scenario.load(name)
     engines = [Engine(team, 6, safety_filter=True, max_speed=2.0, threads=t) for t in (False, True)]
-    assert engines[1]._chunks(6) > 0 and engines[0]._chunks(6) == 0
+    assert engines[1].chunks(6) > 0 and engines[0].chunks(6) == 0
     for command in _commands(engines[0], 10, scale=2.0):
         serial, threaded = (e.step(command, 5) for e in engines)
         for field in ("v_star", "tau", "min_clearance", "min_barrier", "qp_counts", "max_tracking_error", "finite"):
