@@ -51,7 +51,8 @@ class OneCopyGymEnv(gymnasium.Env):
         action = float_array("action", action, self.action_space.shape)
         out = self.core.step(self.core.padded_actions(action[None]))
         self._needs_reset = bool(len(out.ended))
-        return (self.core.flat_observations(out.observations)[0], float(out.reward[0].mean()),
+        reward = float(np.add.reduce(out.reward[0])) / out.reward.shape[1]  # the arms' mean, as mean() sums
+        return (self.core.flat_observations(out.observations)[0], reward,
                 bool(out.terminated[0]), bool(out.truncated[0]), team_info(out.infos))
 
 

@@ -287,7 +287,7 @@ def team_info(infos: dict[str, np.ndarray], b: int = 0) -> dict[str, Any]:
         elif key == "qp_counts":
             out[key] = row.sum(axis=0)
         elif key.startswith("reward_"):
-            out[key] = float(row.mean())  # numpy's summation, as the vector view's
+            out[key] = float(np.add.reduce(row)) / row.size  # numpy's summation and division, as mean()
         elif key == "cost":
             out[key] = float(sum(row.tolist()))
         elif key == "min_clearance":
