@@ -10,6 +10,7 @@ from pan1_env.dynamics import end_effector
 from pan1_env.environment import parallel_env
 from pan1_env.reach import PAReachEnv
 from pan1_env.registration import REACH_ENV_ID
+from pan1_env.scenario import load
 from pan1_env.wrappers import GymSafetyShield, SafetyShield
 
 
@@ -156,3 +157,10 @@ def test_bad_actions_and_calls() -> None:
         env.step(np.zeros(3))
     with pytest.raises(TypeError, match="filter built in"):
         GymSafetyShield(gymnasium.make(REACH_ENV_ID))
+
+
+def test_the_reach_env_takes_the_ids_of_fixed_scenarios() -> None:
+    env, mixed = PAReachEnv("pan1_env/PaperMixedPA-v0", 3), load("paper_pa_mixed_square")
+    assert env.scenario.name == mixed.name and env.arm == mixed.arms[3]
+    with pytest.raises(ValueError, match="takes an arm of a fixed scenario, not random teams"):
+        PAReachEnv("pan1_env/RandomFormation-v0")
