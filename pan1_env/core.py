@@ -12,8 +12,9 @@ Infos (:meth:`FormationCore.infos`) are flat arrays, the same keys after a reset
 * per arm ``(B, N)``: ``cost`` (1.0 where the arm's protected bodies entered an obstacle after a
   sub-step), ``min_clearance`` (m), ``reward_<term>`` (the reward's weighted terms, which sum to it:
   ``formation``, and ``effort``, ``collision``, ``success``, ``intervention`` when their weights are not
-  zero; 0 at a reset), and with the safety filter on ``shield_intervened``, ``shield_fallback`` and
-  ``qp_counts (B, N, 3)`` (sub-steps per QP status: nominal, solved, fallback);
+  zero; 0 at a reset; ``(B, 1)`` for a term every arm shares, such as ``formation``), and with the safety
+  filter on ``shield_intervened``, ``shield_fallback`` and ``qp_counts (B, N, 3)`` (sub-steps per QP
+  status: nominal, solved, fallback);
 * per copy ``(B,)``: ``formation_error`` (m, largest edge-length error), ``is_success``, and ``fault`` (a
   message, "" for the copies without one) only in a step where some copy's state went non-finite.
 """
@@ -225,12 +226,9 @@ class FormationCore:
     def _infos(self, out, rec: StepRecord | None) -> dict[str, np.ndarray]:
         shape = out.cost.shape
         infos: dict[str, Any] = {"cost": out.cost, "min_clearance": out.measures["min_clearance"]}
-        for name, value in out.terms.items():
-            if rec is None:
-                value = np.zeros(shape)
-            elif np.shape(value) != shape:
-                value = np.broadcast_to(value, shape).astype(float)
-            infos[f"reward_{name}"] = value
+        for name, value in out.terms.items():  # a term every arm shares stays (B, 1)
+            infos[f"reward_{name}"] = np.zeros((shape[0], np.shape(value)[1] if np.ndim(value) == 2 else 1)) \
+                if rec is None else value if np.ndim(value) == 2 else np.full((shape[0], 1), float(value))
         if self.engine.filter is not None:
             counts = np.zeros((*shape, 3), dtype=np.int64) if rec is None else rec.qp_counts
             infos["shield_intervened"] = counts[..., 1] + counts[..., 2] > 0
@@ -266,9 +264,10 @@ def agent_infos(infos: dict[str, np.ndarray], b: int = 0) -> list[dict[str, Any]
     out: list[dict[str, Any]] = [{} for _ in range(len(infos["cost"][b]))]
     for key, value in infos.items():
         row = value[b]
-        if row.ndim == 0:  # a team value, the same for every agent
+        if row.ndim == 0 or row.shape == (1,):  # a team value, or a term every arm shares
+            v = row.item() if row.ndim == 0 else row.tolist()[0]
             for info in out:
-                info[key] = row.item()
+                info[key] = v
         else:  # per arm: numbers, or arrays (qp_counts)
             values = row.tolist() if row.ndim == 1 else list(row)
             for info, v in zip(out, values, strict=True):

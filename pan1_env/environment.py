@@ -83,6 +83,7 @@ class Pan1ParallelEnv(CoreView, ParallelEnv):
                               for a, k in zip(self.possible_agents, n_actuated, strict=True)}
         self.state_space = gymnasium.spaces.Box(-OBS_BOUND, OBS_BOUND, (self.core.state_size,), np.float32)
         self._actions = np.zeros((1, len(n_links), self.core.k_max))
+        self._uniform = len(set(n_actuated)) == 1
         self._renderer = None
 
     def observation_space(self, agent: str) -> gymnasium.spaces.Box:
@@ -141,6 +142,14 @@ class Pan1ParallelEnv(CoreView, ParallelEnv):
         if set(actions) != set(self.agents):
             missing, extra = sorted(set(self.agents) - set(actions)), sorted(set(actions) - set(self.agents))
             raise ValueError(f"actions must have one entry per live agent; missing {missing}, unexpected {extra}")
+        if self._uniform:  # one conversion for the team when every arm has as many actions
+            try:
+                batch = np.asarray([actions[a] for a in self.possible_agents], dtype=float)
+            except (TypeError, ValueError):
+                batch = None  # a bad action: found and named below
+            if batch is not None and batch.shape == self._actions.shape[1:]:
+                self._actions[0] = batch
+                return self._actions
         for i, agent in enumerate(self.possible_agents):
             self._actions[0, i, : self.core.n_actuated[i]] = float_array(f"action for {agent}", actions[agent],
                                                                          self.action_spaces[agent].shape)
