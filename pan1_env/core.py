@@ -90,6 +90,7 @@ class FormationCore:
         k_max = max(self.n_actuated)
         self._columns = np.concatenate([i * k_max + np.arange(k) for i, k in enumerate(self.n_actuated)])
         self._command = np.zeros((B, team.n_arms, k_max))
+        self._uniform_actions = len(set(self.n_actuated)) == 1
         # (layout group, row in the group) of each agent's observation, in agent order
         groups = [ids for _, ids in self.layout.groups] if self.layout is not None else [np.arange(1)]
         order = sorted((i, g, r) for g, ids in enumerate(groups) for r, i in enumerate(ids.tolist()))
@@ -140,7 +141,10 @@ class FormationCore:
     def padded_actions(self, flat: np.ndarray) -> np.ndarray:
         """A flat team action ``(B, Σ k_i)`` (agent order) as the padded ``(B, N, k_max)`` array :meth:`step`
         takes (a scratch array of the core's, overwritten by the next call)."""
-        self._command.reshape(self.copies, -1)[:, self._columns] = flat
+        if self._uniform_actions:  # every arm has k_max actions: the padded array is the flat one reshaped
+            self._command.reshape(self.copies, -1)[:] = flat
+        else:
+            self._command.reshape(self.copies, -1)[:, self._columns] = flat
         return self._command
 
     def seed(self, seeds: list[int | None]) -> None:
@@ -208,12 +212,13 @@ class FormationCore:
         self.steps += 1
         state, mats = self.task.observe(engine)
         out = self.task.evaluate(rec, engine, state, effort, command=None if torque else actions)
-        finite = rec.finite.all(axis=1)
-        truncated = (self.steps >= c.max_steps) | ~finite
+        truncated = self.steps >= c.max_steps
         infos = self._infos(out, rec)
-        if not finite.all():
+        if not rec.all_finite:  # a numerical fault truncates its copies
+            finite = rec.finite.all(axis=1)
+            truncated |= ~finite
             infos["fault"] = np.where(finite, "", FAULT)
-        ended = np.flatnonzero(out.terminated | truncated)
+        ended = (out.terminated | truncated).nonzero()[0]
         result = CoreStep(mats, out.reward, out.terminated, truncated, infos, ended)
         if autoreset and len(result.ended):
             result.final_observations = mats  # observe() builds new arrays: the next call does not touch these
@@ -283,6 +288,8 @@ def team_info(infos: dict[str, np.ndarray], b: int = 0) -> dict[str, Any]:
         row = value[b]
         if row.ndim == 0:
             out[key] = row.item()
+        elif len(row) == 1:  # one arm (or a term every arm shares): its own value
+            out[key] = row[0] if key == "qp_counts" else row.tolist()[0]
         elif key == "qp_counts":
             out[key] = row.sum(axis=0)
         elif key.startswith("reward_"):

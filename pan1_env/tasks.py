@@ -95,6 +95,9 @@ class FormationTask:
         self.kp = np.full(copies, float(scenario.kp))
         self.sizes = [layout.size(n) for n in layout.n]
         self.offsets = np.concatenate([[0], np.cumsum(self.sizes)])
+        # every arm in one layout group, in agent order: the flat observation is a reshape
+        in_order = layout.groups[0][1].tolist() == list(range(len(self.sizes)))
+        self._one_group_in_order = len(layout.groups) == 1 and in_order
 
     @staticmethod
     def reset_options(options: dict | None) -> dict:
@@ -182,7 +185,7 @@ class FormationTask:
 
     def flat(self, mats: list[np.ndarray]) -> np.ndarray:
         """The agents' observations concatenated in agent order, ``(B, Σ size)``."""
-        if len(mats) == 1 and self.layout.groups[0][1].tolist() == list(range(len(self.sizes))):
+        if self._one_group_in_order:
             return mats[0].reshape(len(mats[0]), -1)
         out = np.empty((len(mats[0]), self.offsets[-1]), dtype=np.float32)
         for (_, ids), mat in zip(self.layout.groups, mats, strict=True):
