@@ -266,18 +266,18 @@ def team_infos(infos: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 def agent_infos(infos: dict[str, np.ndarray], b: int = 0) -> list[dict[str, Any]]:
     """Copy b's infos per agent, in agent order: per-arm values at the agent's index, team values as they are
     (Python scalars; arrays for ``qp_counts``)."""
-    out: list[dict[str, Any]] = [{} for _ in range(len(infos["cost"][b]))]
-    for key, value in infos.items():
+    n = len(infos["cost"][b])
+    columns = []  # each key's values in agent order
+    for value in infos.values():
         row = value[b]
-        if row.ndim == 0 or row.shape == (1,):  # a team value, or a term every arm shares
-            v = row.item() if row.ndim == 0 else row.tolist()[0]
-            for info in out:
-                info[key] = v
+        if row.ndim == 0:  # a team value
+            columns.append((row.item(),) * n)
+        elif row.shape == (1,):  # a term every arm shares
+            columns.append(row.tolist() * n)
         else:  # per arm: numbers, or arrays (qp_counts)
-            values = row.tolist() if row.ndim == 1 else list(row)
-            for info, v in zip(out, values, strict=True):
-                info[key] = v
-    return out
+            columns.append(row.tolist() if row.ndim == 1 else list(row))
+    keys = list(infos)
+    return [dict(zip(keys, values, strict=True)) for values in zip(*columns, strict=True)]
 
 
 def team_info(infos: dict[str, np.ndarray], b: int = 0) -> dict[str, Any]:
