@@ -43,7 +43,8 @@ class OneCopyGymEnv(gymnasium.Env):
         self.core.reset(options=options, seeds=None if seed is None else [seed])
         super().reset(seed=seed)
         self._needs_reset = False
-        return self.core.flat_observations(self.core.observe())[0], team_info(self.core.infos())
+        mats, infos = self.core.start()
+        return self.core.flat_observations(mats)[0], team_info(infos)
 
     def step(self, action: np.ndarray):
         if self._needs_reset:

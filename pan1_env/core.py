@@ -74,8 +74,8 @@ class FormationCore:
         self.config = c = config
         self.copies = B = positive_int("num_envs", copies)
         team = c.team
-        self.engine = Engine(team, B, physics_dt=c.physics_dt, safety_filter=c.safety_filter or False,
-                             max_speed=c.max_joint_speed, qp_solver=c.qp_solver, threads=threads)
+        self.engine = Engine(team, B, physics_dt=c.physics_dt, max_speed=c.max_joint_speed, qp_solver=c.qp_solver,
+                             threads=threads)
         self.set_safety_filter(c.safety_filter or False)  # refused here, as later, where the solver cannot do it
         self.task = TASKS[type(c)](c, B)
         self.layout: ObservationLayout | None = getattr(self.task, "layout", None)
@@ -180,11 +180,12 @@ class FormationCore:
         """Every agent's observation, one float32 array ``(B, A, size)`` per layout group."""
         return self.task.observe(self.engine)[1]
 
-    def infos(self) -> dict[str, np.ndarray]:
-        """The infos of the state just reset (no step yet): the same keys a step gives."""
-        state = self.task.observe(self.engine)[0]
-        return self._infos(self.task.evaluate(None, self.engine, state, np.zeros((self.copies, len(self.agents)))),
-                           None)
+    def start(self) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
+        """The observations (as :meth:`observe`) and infos of the state just reset (no step yet): the same
+        infos keys a step gives."""
+        state, mats = self.task.observe(self.engine)
+        out = self.task.evaluate(None, self.engine, state, np.zeros((self.copies, len(self.agents))))
+        return mats, self._infos(out, None)
 
     def commands(self, actions: np.ndarray) -> np.ndarray:
         """Turn actions ``(B, N, k_max)`` in place into the engine's commands from the current state (clip to
@@ -231,9 +232,10 @@ class FormationCore:
     def _infos(self, out, rec: StepRecord | None) -> dict[str, np.ndarray]:
         shape = out.cost.shape
         infos: dict[str, Any] = {"cost": out.cost, "min_clearance": out.measures["min_clearance"]}
-        for name, value in out.terms.items():  # a term every arm shares stays (B, 1)
-            infos[f"reward_{name}"] = np.zeros((shape[0], np.shape(value)[1] if np.ndim(value) == 2 else 1)) \
-                if rec is None else value if np.ndim(value) == 2 else np.full((shape[0], 1), float(value))
+        for name, value in out.terms.items():  # (B, N), or (B, 1) for a term every arm shares
+            if np.ndim(value) < 2:  # a number for every copy and arm (the intervention term before any command)
+                value = np.full((shape[0], 1), float(value))
+            infos[f"reward_{name}"] = value if rec is not None else np.zeros_like(value, dtype=float)
         if self.engine.filter is not None:
             counts = np.zeros((*shape, 3), dtype=np.int64) if rec is None else rec.qp_counts
             infos["shield_intervened"] = counts[..., 1] + counts[..., 2] > 0
@@ -250,17 +252,27 @@ def team_infos(infos: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     team reward is), ``shield_*`` whether any arm's filter acted; per-copy keys as they are."""
     out: dict[str, np.ndarray] = {}
     for key, value in infos.items():
-        if key in ("cost", "qp_counts"):
-            out[key] = value.sum(axis=1)
-        elif key == "min_clearance":
-            out[key] = value.min(axis=1)
-        elif key.startswith("shield_"):
-            out[key] = value.any(axis=1)
-        elif key.startswith("reward_"):
-            out[key] = value.mean(axis=1)
-        else:
-            out[key] = value
+        rule = _team_rule(key)
+        out[key] = value if rule is None else getattr(value, rule)(axis=1)
     return out
+
+
+_PYTHON_RULES = {"sum": lambda values: float(sum(values)), "min": min, "any": any}
+
+
+def _team_rule(key: str) -> str | None:
+    """How the team views gather an info over the arms (the name of the array reduction), None for a per-copy
+    info: costs and QP counts add up, the clearance is the smallest, a shield flag is any arm's, a reward
+    term is averaged as the team reward is."""
+    if key in ("cost", "qp_counts"):
+        return "sum"
+    if key == "min_clearance":
+        return "min"
+    if key.startswith("shield_"):
+        return "any"
+    if key.startswith("reward_"):
+        return "mean"
+    return None
 
 
 def agent_infos(infos: dict[str, np.ndarray], b: int = 0) -> list[dict[str, Any]]:
@@ -285,21 +297,17 @@ def team_info(infos: dict[str, np.ndarray], b: int = 0) -> dict[str, Any]:
     without a numpy reduction per key where a Python one on a handful of arms is cheaper."""
     out: dict[str, Any] = {}
     for key, value in infos.items():
-        row = value[b]
+        row, rule = value[b], _team_rule(key)
         if row.ndim == 0:
             out[key] = row.item()
         elif len(row) == 1:  # one arm (or a term every arm shares): its own value
             out[key] = row[0] if key == "qp_counts" else row.tolist()[0]
+        elif rule == "mean":
+            out[key] = float(np.add.reduce(row)) / row.size  # numpy's summation and division, as mean()
         elif key == "qp_counts":
             out[key] = row.sum(axis=0)
-        elif key.startswith("reward_"):
-            out[key] = float(np.add.reduce(row)) / row.size  # numpy's summation and division, as mean()
-        elif key == "cost":
-            out[key] = float(sum(row.tolist()))
-        elif key == "min_clearance":
-            out[key] = min(row.tolist())
-        else:
-            out[key] = any(row.tolist())
+        else:  # sum, min or any of a handful of Python numbers
+            out[key] = _PYTHON_RULES[rule](row.tolist())
     return out
 
 

@@ -108,7 +108,8 @@ class Pan1ParallelEnv(CoreView, ParallelEnv):
     def reset(self, seed: int | None = None, options: dict | None = None):
         self.core.reset(options=options, seeds=None if seed is None else [seed])
         self.agents = list(self.possible_agents)
-        obs, infos = self._observations(self.core.observe()), self._infos(self.core.infos())
+        mats, infos = self.core.start()
+        obs, infos = self._observations(mats), self._infos(infos)
         if self.render_mode == "human":
             self.render()
         return obs, infos

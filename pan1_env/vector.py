@@ -120,7 +120,8 @@ class Pan1VectorEnv(CoreView, VectorEnv):
             seed = [seed + b for b in range(self.num_envs)]
         self.core.reset(options=options, seeds=None if seed is None else list(seed))
         self._needs_reset = False
-        return self.core.flat_observations(self.core.observe()), _masked(team_infos(self.core.infos()))
+        mats, infos = self.core.start()
+        return self.core.flat_observations(mats), _masked(team_infos(infos))
 
     def step(self, actions: np.ndarray):
         if self._needs_reset:
