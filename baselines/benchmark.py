@@ -53,8 +53,8 @@ def _episode(env, policy, seed: int, shield: bool) -> dict[str, Any]:
             clearance = min(clearance, info["min_clearance"])
             arm_steps += 1
             if shield:
-                interventions += int(info["shield"]["intervened"])
-                fallbacks += int(info["shield"]["fallback"])
+                interventions += int(info["shield_intervened"])
+                fallbacks += int(info["shield_fallback"])
         if not next(iter(infos.values()))["is_success"]:
             last_failure = steps * core.control_dt
     final = next(iter(infos.values())) if infos else {"is_success": False}

@@ -13,7 +13,7 @@ episode: the summary below plus its class; the thresholds) to ``--out``, and pri
 ``--unshielded`` also runs every seed without the shield and records its final error and cost (the
 same law and team: what the shield changes).
 
-Only public API is read: the infos (``formation_error``, ``min_clearance``, ``infos[agent]["shield"]``),
+Only public API is read: the infos (``formation_error``, ``min_clearance``, the ``shield_*`` keys),
 ``env.state()`` (per arm q, q̇, end-effector p), ``env.unwrapped.scenario`` (arms, formation, obstacles,
 ``obstacle_mask()``, κ, ε), :func:`pan1_env.cascade.reduced_jacobian`, :func:`pan1_env.dynamics.jacobian`
 and :func:`pan1_env.safety.rcbf_constraints`.
@@ -199,17 +199,17 @@ def run_episode(env, policy, seed: int) -> dict:
     cost = 0.0
     steps = 0
     while env.agents:
-        obs, _, _, _, infos = env.step(policy(obs))
+        actions = policy(obs)
+        obs, _, _, _, infos = env.step(actions)
         steps += 1
         flags = np.zeros(n_arms, dtype=bool)
         for i, a in enumerate(agents):
             info = infos[a]
             min_clearance[i] = min(min_clearance[i], info["min_clearance"])
             cost += info["cost"]
-            sh = info.get("shield")
-            if sh is not None and sh["intervened"]:
-                req = np.asarray(sh["requested"], float)
-                change = np.linalg.norm(np.asarray(sh["applied"], float) - req)
+            if info.get("shield_intervened"):
+                req = np.asarray(actions[a], float)
+                change = np.linalg.norm(np.asarray(info["shield_applied"], float) - req)
                 flags[i] = change >= ACTION_CHANGE_ABS and change >= ACTION_CHANGE_REL * np.linalg.norm(req)
         blocked.append(flags)
         positions.append(team_state(env, scenario)[2])
@@ -251,8 +251,8 @@ def run_episode(env, policy, seed: int) -> dict:
         "min_clearance_episode": float(np.min(min_clearance)),
         "cost": float(cost),
         "blocked_fraction": np.mean(np.array(blocked), axis=0).tolist(),
-        "intervened_final": [bool(infos[a].get("shield", {}).get("intervened", False)) for a in agents],
-        "nominal_action": [float(np.max(np.abs(infos[a]["shield"]["requested"]))) if "shield" in infos[a] else 0.0
+        "intervened_final": [bool(infos[a].get("shield_intervened", False)) for a in agents],
+        "nominal_action": [float(np.max(np.abs(actions[a]))) if "shield_applied" in infos[a] else 0.0
                            for a in agents],
         "robust_ratio": robust,
         "travel": np.linalg.norm(positions[-1] - positions[0], axis=1).tolist(),

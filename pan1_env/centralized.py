@@ -2,7 +2,7 @@
 
 Its observation is the concatenation of every agent's observation (agent order ``arm_0``, ``arm_1``, …),
 its action the concatenation of every agent's action, its reward the mean of the agents' rewards, and its
-infos the team's (:func:`pan1_env.core.team_infos`): ``cost`` the number of arms that entered an obstacle
+infos the team's (:meth:`pan1_env.core.FormationCore.team_infos`): ``cost`` the number of arms that entered an obstacle
 in the step, ``min_clearance``, ``formation_error``, ``is_success``, ``reward_<term>`` (averaged over the
 arms, as the reward), and with the filter on ``shield_intervened``, ``shield_fallback``, ``qp_counts``.
 :class:`~pan1_env.vector.Pan1VectorEnv` is the same view for B copies.
@@ -15,7 +15,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from .core import CoreView, FormationCore, team_info
+from .core import CoreView, FormationCore
 from .registration import RENDER_FPS, RENDER_MODES
 from .validation import float_array, forwards_keywords
 
@@ -44,7 +44,7 @@ class OneCopyGymEnv(gymnasium.Env):
         super().reset(seed=seed)
         self._needs_reset = False
         mats, infos = self.core.start()
-        return self.core.flat_observations(mats)[0], team_info(infos)
+        return self.core.flat_observations(mats)[0], self.core.team_info(infos)
 
     def step(self, action: np.ndarray):
         if self._needs_reset:
@@ -54,7 +54,7 @@ class OneCopyGymEnv(gymnasium.Env):
         self._needs_reset = bool(len(out.ended))
         reward = float(np.add.reduce(out.reward[0])) / out.reward.shape[1]  # the arms' mean, as mean() sums
         return (self.core.flat_observations(out.observations)[0], reward,
-                bool(out.terminated[0]), bool(out.truncated[0]), team_info(out.infos))
+                bool(out.terminated[0]), bool(out.truncated[0]), self.core.team_info(out.infos))
 
 
 class CentralizedEnv(CoreView, OneCopyGymEnv):

@@ -13,8 +13,13 @@ Infos (:meth:`FormationCore.infos`) are flat arrays, the same keys after a reset
   sub-step), ``min_clearance`` (m), ``reward_<term>`` (the reward's weighted terms, which sum to it:
   ``formation``, and ``effort``, ``collision``, ``success``, ``intervention`` when their weights are not
   zero; 0 at a reset; ``(B, 1)`` for a term every arm shares, such as ``formation``), and with the safety
-  filter on ``shield_intervened``, ``shield_fallback`` and ``qp_counts (B, N, 3)`` (sub-steps per QP
-  status: nominal, solved, fallback);
+  filter on its report of the step: ``shield_intervened`` (the QP changed the command at some sub-step),
+  ``shield_fallback`` (its QP was infeasible and the fallback ran), ``shield_status`` (the worst QP status
+  over the sub-steps, 0 nominal, 1 solved, 2 fallback: :class:`~pan1_env.safety.QPStatus`),
+  ``shield_min_barrier`` (the smallest barrier value the filter saw; inf with none), ``shield_applied
+  (B, N, k_max)`` float32 (the command applied at the last sub-step, in action units: the filtered velocity
+  v*/``max_joint_speed``, or the torque/``max_torque``; 0 in the padding) and ``qp_counts (B, N, 3)``
+  (sub-steps per QP status);
 * per copy ``(B,)``: ``formation_error`` (m, largest edge-length error), ``is_success``, and ``fault`` (a
   message, "" for the copies without one) only in a step where some copy's state went non-finite.
 """
@@ -36,8 +41,7 @@ from .random_scenario import random_scenario
 from .tasks import FormationTask, ReachTask
 from .validation import positive_int
 
-__all__ = ["FormationCore", "CoreStep", "CoreView", "team_infos", "team_info", "agent_infos", "config_attributes",
-           "FAULT"]
+__all__ = ["FormationCore", "CoreStep", "CoreView", "config_attributes", "per_arm", "FAULT"]
 
 FAULT = "non-finite state in the physics step; episode truncated"
 TASKS = {FormationConfig: FormationTask, ReachConfig: ReachTask}
@@ -90,6 +94,11 @@ class FormationCore:
         k_max = max(self.n_actuated)
         self._columns = np.concatenate([i * k_max + np.arange(k) for i, k in enumerate(self.n_actuated)])
         self._command = np.zeros((B, team.n_arms, k_max))
+        # each arm's actuated joints among the torque record's n_max columns (its last k), and its padding
+        k = np.asarray(self.n_actuated)[:, None]
+        slot = np.minimum(np.arange(k_max), k - 1)
+        self._actuated_joints = (np.asarray(self.n_links)[:, None] - k + slot)[None]
+        self._padding = np.arange(k_max) >= k
         self._uniform_actions = len(set(self.n_actuated)) == 1
         # (layout group, row in the group) of each agent's observation, in agent order
         groups = [ids for _, ids in self.layout.groups] if self.layout is not None else [np.arange(1)]
@@ -229,6 +238,74 @@ class FormationCore:
             result.observations = self.observe()
         return result
 
+    def agent_infos(self, infos: dict[str, np.ndarray], b: int = 0) -> list[dict[str, Any]]:
+        """Copy b's infos per agent, in agent order: per-arm values at the agent's index (``shield_applied``
+        the agent's own k_i entries), team values as they are (Python scalars; arrays for ``qp_counts`` and
+        ``shield_applied``)."""
+        n = len(self.agents)
+        columns = []  # each key's values in agent order
+        for key, value in infos.items():
+            if key == "shield_applied":
+                columns.append([row[:k] for row, k in zip(value[b], self.n_actuated, strict=True)])
+            elif key == "qp_counts":
+                columns.append(list(value[b]))
+            elif _team_rule(key) is None:  # a team value
+                columns.append((value[b].item(),) * n)
+            else:  # per arm, or one value every arm shares
+                row = value[b].tolist()
+                columns.append(row if len(row) == n else row * n)
+        keys = list(infos)
+        return [dict(zip(keys, values, strict=True)) for values in zip(*columns, strict=True)]
+
+    def team_infos(self, infos: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """The infos per copy ``(B,)``, as the team views give them: ``cost`` the number of arms that entered
+        an obstacle, ``min_clearance`` and ``shield_min_barrier`` the smallest, ``reward_<term>`` the mean
+        over arms (as the team reward is), ``shield_intervened``/``_fallback`` any arm's, ``shield_status``
+        the worst, ``shield_applied (B, Σ k_i)`` laid out as the flat team action; per-copy keys as they are."""
+        out: dict[str, np.ndarray] = {}
+        for key, value in infos.items():
+            rule = _team_rule(key)
+            if rule == "flat":
+                out[key] = value.reshape(self.copies, -1)[:, self._columns]
+            else:
+                out[key] = value if rule is None else getattr(value, rule)(axis=1)
+        return out
+
+    def team_info(self, infos: dict[str, np.ndarray], b: int = 0) -> dict[str, Any]:
+        """Copy b's :meth:`team_infos` as Python values, for a one-copy view: the same numbers, without a
+        numpy reduction per key where a Python one on a handful of arms is cheaper."""
+        out: dict[str, Any] = {}
+        for key, value in infos.items():
+            rule = _team_rule(key)
+            if rule is None:
+                out[key] = value[b].item()
+            elif rule == "flat":
+                out[key] = value[b].reshape(-1)[self._columns]
+            elif key == "qp_counts":
+                out[key] = value[b].sum(axis=0)
+            else:
+                row = value[b].tolist()
+                out[key] = row[0] if len(row) == 1 else _gather(rule, row)
+        return out
+
+    def _shield_infos(self, rec: StepRecord | None, shape: tuple[int, int]) -> dict[str, np.ndarray]:
+        """The filter's report of the step (the module docstring lists it)."""
+        if rec is None:
+            counts = np.zeros((*shape, 3), dtype=np.int64)
+            applied, min_barrier = np.zeros((*shape, self.k_max), dtype=np.float32), np.full(shape, np.inf)
+        else:
+            counts, min_barrier = rec.qp_counts, rec.min_barrier
+            if self.config.action_mode == "torque":
+                applied = np.take_along_axis(rec.tau, self._actuated_joints, axis=2)
+            else:
+                applied = rec.v_star.copy()
+            applied[:, self._padding] = 0.0
+            applied = (applied * (1.0 / self.config.action_scale)).astype(np.float32)
+        solved, fallback = counts[..., 1] > 0, counts[..., 2] > 0
+        return {"shield_intervened": solved | fallback, "shield_fallback": fallback,
+                "shield_status": np.where(fallback, 2, solved.astype(np.int64)), "shield_min_barrier": min_barrier,
+                "shield_applied": applied, "qp_counts": counts}
+
     def _infos(self, out, rec: StepRecord | None) -> dict[str, np.ndarray]:
         shape = out.cost.shape
         infos: dict[str, Any] = {"cost": out.cost, "min_clearance": out.measures["min_clearance"]}
@@ -237,78 +314,40 @@ class FormationCore:
                 value = np.full((shape[0], 1), float(value))
             infos[f"reward_{name}"] = value if rec is not None else np.zeros_like(value, dtype=float)
         if self.engine.filter is not None:
-            counts = np.zeros((*shape, 3), dtype=np.int64) if rec is None else rec.qp_counts
-            infos["shield_intervened"] = counts[..., 1] + counts[..., 2] > 0
-            infos["shield_fallback"] = counts[..., 2] > 0
-            infos["qp_counts"] = counts
+            infos.update(self._shield_infos(rec, shape))
         infos.update((key, value) for key, value in out.measures.items() if key != "min_clearance")
         infos["is_success"] = out.success
         return infos
 
 
-def team_infos(infos: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """The core's infos per copy ``(B,)``, as the team views give them: ``cost`` the number of arms that
-    entered an obstacle, ``min_clearance`` the smallest, ``reward_<term>`` the mean over arms (as the
-    team reward is), ``shield_*`` whether any arm's filter acted; per-copy keys as they are."""
-    out: dict[str, np.ndarray] = {}
-    for key, value in infos.items():
-        rule = _team_rule(key)
-        out[key] = value if rule is None else getattr(value, rule)(axis=1)
-    return out
-
-
-_PYTHON_RULES = {"sum": lambda values: float(sum(values)), "min": min, "any": any}
+# How the team views gather an info over the arms (an array reduction's name), None for a per-copy info:
+# costs and QP counts add up, clearances and barriers take the smallest, a flag is any arm's, the status the
+# worst, the applied commands are laid out as the team's flat action, a reward term is averaged as the team
+# reward is.
+_TEAM_RULES = {"cost": "sum", "qp_counts": "sum", "min_clearance": "min", "shield_min_barrier": "min",
+               "shield_intervened": "any", "shield_fallback": "any", "shield_status": "max", "shield_applied": "flat"}
 
 
 def _team_rule(key: str) -> str | None:
-    """How the team views gather an info over the arms (the name of the array reduction), None for a per-copy
-    info: costs and QP counts add up, the clearance is the smallest, a shield flag is any arm's, a reward
-    term is averaged as the team reward is."""
-    if key in ("cost", "qp_counts"):
-        return "sum"
-    if key == "min_clearance":
-        return "min"
-    if key.startswith("shield_"):
-        return "any"
-    if key.startswith("reward_"):
-        return "mean"
-    return None
+    return _TEAM_RULES.get(key, "mean" if key.startswith("reward_") else None)
 
 
-def agent_infos(infos: dict[str, np.ndarray], b: int = 0) -> list[dict[str, Any]]:
-    """Copy b's infos per agent, in agent order: per-arm values at the agent's index, team values as they are
-    (Python scalars; arrays for ``qp_counts``)."""
-    n = len(infos["cost"][b])
-    columns = []  # each key's values in agent order
-    for value in infos.values():
-        row = value[b]
-        if row.ndim == 0:  # a team value
-            columns.append((row.item(),) * n)
-        elif row.shape == (1,):  # a term every arm shares
-            columns.append(row.tolist() * n)
-        else:  # per arm: numbers, or arrays (qp_counts)
-            columns.append(row.tolist() if row.ndim == 1 else list(row))
-    keys = list(infos)
-    return [dict(zip(keys, values, strict=True)) for values in zip(*columns, strict=True)]
+def per_arm(key: str) -> bool:
+    """Whether an info of the core is per arm (``(B, N, …)``, or ``(B, 1)`` for a reward term every arm
+    shares) rather than per copy (``(B,)``)."""
+    return _team_rule(key) is not None
 
 
-def team_info(infos: dict[str, np.ndarray], b: int = 0) -> dict[str, Any]:
-    """Copy b's team infos (:func:`team_infos`) as Python values, for a one-copy view: the same numbers,
-    without a numpy reduction per key where a Python one on a handful of arms is cheaper."""
-    out: dict[str, Any] = {}
-    for key, value in infos.items():
-        row, rule = value[b], _team_rule(key)
-        if row.ndim == 0:
-            out[key] = row.item()
-        elif len(row) == 1:  # one arm (or a term every arm shares): its own value
-            out[key] = row[0] if key == "qp_counts" else row.tolist()[0]
-        elif rule == "mean":
-            out[key] = float(np.add.reduce(row)) / row.size  # numpy's summation and division, as mean()
-        elif key == "qp_counts":
-            out[key] = row.sum(axis=0)
-        else:  # sum, min or any of a handful of Python numbers
-            out[key] = _PYTHON_RULES[rule](row.tolist())
-    return out
+def _gather(rule: str, row: list) -> Any:
+    """``rule`` over a few arms' Python values, equal to numpy's reduction of them: below 8 values numpy sums
+    one after another, as ``sum`` does (its pairwise summation starts at 8 values)."""
+    if rule == "mean":
+        return (sum(row) if len(row) < 8 else float(np.add.reduce(row))) / len(row)
+    if rule == "sum":
+        return sum(row) if len(row) < 8 else float(np.add.reduce(row))
+    if rule == "min":  # NaN wins, as in numpy (a copy whose state went non-finite)
+        return float("nan") if any(x != x for x in row) else min(row)
+    return max(row) if rule == "max" else any(row)
 
 
 class CoreView:

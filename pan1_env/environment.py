@@ -17,7 +17,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec
 
 from .config import FormationConfig, config_arguments
-from .core import CoreView, FormationCore, agent_infos
+from .core import CoreView, FormationCore
 from .observation import OBS_BOUND
 from .registration import RENDER_FPS, RENDER_MODES
 from .scenario import Scenario
@@ -175,7 +175,7 @@ class Pan1ParallelEnv(CoreView, ParallelEnv):
             self._renderer = None
 
     def _infos(self, infos: dict[str, np.ndarray]) -> dict[str, dict[str, Any]]:
-        return dict(zip(self.possible_agents, agent_infos(infos), strict=True))
+        return dict(zip(self.possible_agents, self.core.agent_infos(infos), strict=True))
 
     def _observations(self, mats: list[np.ndarray]) -> dict[str, np.ndarray]:
         return {agent: obs[0] for agent, obs in zip(self.possible_agents, self.core.per_agent(mats), strict=True)}

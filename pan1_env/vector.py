@@ -17,7 +17,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from .config import FormationConfig
-from .core import CoreView, FormationCore, team_infos
+from .core import CoreView, FormationCore
 from .engine import PARALLEL_THRESHOLD
 from .safety import FilterParams
 from .scenario import Scenario
@@ -68,7 +68,7 @@ class Pan1VectorEnv(CoreView, VectorEnv):
     ## Infos
 
     Arrays over copies, each with Gymnasium's ``_key`` mask: the team infos of
-    :class:`~pan1_env.centralized.CentralizedEnv` (:func:`pan1_env.core.team_infos`): ``cost`` (number of
+    :class:`~pan1_env.centralized.CentralizedEnv` (:meth:`pan1_env.core.FormationCore.team_infos`): ``cost`` (number of
     arms that entered an obstacle in the step), ``min_clearance`` (m), ``formation_error`` (m),
     ``is_success``, ``reward_<term>`` (averaged over the agents like the reward), with the safety filter
     ``shield_intervened``, ``shield_fallback`` and ``qp_counts``; ``fault`` (strings, masked) for a copy
@@ -121,7 +121,7 @@ class Pan1VectorEnv(CoreView, VectorEnv):
         self.core.reset(options=options, seeds=None if seed is None else list(seed))
         self._needs_reset = False
         mats, infos = self.core.start()
-        return self.core.flat_observations(mats), _masked(team_infos(infos))
+        return self.core.flat_observations(mats), _masked(self.core.team_infos(infos))
 
     def step(self, actions: np.ndarray):
         if self._needs_reset:
@@ -129,7 +129,7 @@ class Pan1VectorEnv(CoreView, VectorEnv):
         a = float_array("actions", actions, self.action_space.shape)
         out = self.core.step(self.core.padded_actions(a), autoreset=True)
         obs = self.core.flat_observations(out.observations)
-        infos = _masked(team_infos(out.infos))
+        infos = _masked(self.core.team_infos(out.infos))
         if "fault" in infos:
             infos["_fault"] = out.infos["fault"] != ""
         if len(out.ended):

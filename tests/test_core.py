@@ -14,7 +14,7 @@ import pytest
 
 from pan1_env.centralized import CentralizedEnv
 from pan1_env.config import ACTION_MODES, FormationConfig
-from pan1_env.core import FormationCore, team_infos
+from pan1_env.core import FormationCore
 from pan1_env.environment import parallel_env
 from pan1_env.vector import Pan1VectorEnv
 
@@ -136,11 +136,38 @@ def test_team_infos_aggregate_the_arms_as_the_reward_does() -> None:
     core.reset()
     actions = np.random.default_rng(0).uniform(-1, 1, (2, 4, core.k_max))
     out = core.step(actions)
-    team = team_infos(out.infos)
+    team = core.team_infos(out.infos)
     np.testing.assert_allclose(team["reward_formation"] + team["reward_effort"], out.reward.mean(axis=1), atol=1e-12)
     np.testing.assert_array_equal(team["cost"], out.infos["cost"].sum(axis=1))
     np.testing.assert_array_equal(team["min_clearance"], out.infos["min_clearance"].min(axis=1))
     np.testing.assert_array_equal(team["shield_intervened"], out.infos["shield_intervened"].any(axis=1))
+    np.testing.assert_array_equal(team["shield_status"], out.infos["shield_status"].max(axis=1))
+    # the applied commands laid out as the flat team action: arm i's k_i entries in agent order
+    flat = [np.concatenate([row[i, :k] for i, k in enumerate(core.n_actuated)]) for row in out.infos["shield_applied"]]
+    np.testing.assert_array_equal(team["shield_applied"], flat)
+    for b in range(2):  # the one-copy views' Python reduction gives the same numbers
+        one = core.team_info(out.infos, b)
+        assert set(one) == set(team)
+        for key, value in one.items():
+            np.testing.assert_array_equal(value, team[key][b], err_msg=key)
+
+
+@pytest.mark.parametrize("mode", ["velocity", "torque", "residual"])
+def test_shield_report_is_flat_and_in_action_units(mode: str) -> None:
+    core = FormationCore(FormationConfig("paper_pa_mixed_square", safety_filter=True, action_mode=mode), 1)
+    core.seed([3])
+    core.reset()
+    _, infos = core.start()
+    assert (infos["shield_applied"] == 0).all() and (infos["shield_min_barrier"] == np.inf).all()
+    out = core.step(np.random.default_rng(3).uniform(-1, 1, (1, 4, core.k_max)))
+    applied, rec = out.infos["shield_applied"][0], core.record
+    for i, (n, k) in enumerate(zip(core.n_links, core.n_actuated, strict=True)):
+        command = rec.tau[0, i, n - k : n] if mode == "torque" else rec.v_star[0, i, :k]
+        np.testing.assert_allclose(applied[i, :k], command / core.config.action_scale, rtol=1e-6)
+        assert (applied[i, k:] == 0).all()
+    counts = out.infos["qp_counts"][0]
+    np.testing.assert_array_equal(out.infos["shield_status"][0], np.where(counts[:, 2] > 0, 2, counts[:, 1] > 0))
+    assert all(np.ndim(v) > 0 and v.dtype != object for v in out.infos.values())
 
 
 def test_every_view_accepts_every_registered_id() -> None:

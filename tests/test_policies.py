@@ -83,7 +83,7 @@ def _episode(env, policy) -> tuple[float, int, int, dict]:
     while env.agents:
         obs, _, _, _, infos = env.step(policy(obs))
         cost += sum(info["cost"] for info in infos.values())
-        intervened += sum(info.get("shield", {}).get("intervened", 0) for info in infos.values())
+        intervened += sum(info.get("shield_intervened", 0) for info in infos.values())
         steps += 1
     return cost, intervened, steps, infos
 

@@ -48,8 +48,8 @@ def _soak(mode: str, arm_steps: int, first_seed: int) -> dict:
                 stats["faults"] += int("fault" in info)
                 stats["cost"] += info["cost"]
                 stats["min_clearance_m"] = min(stats["min_clearance_m"], info["min_clearance"])
-                stats["fallback_steps"] += int(info["shield"]["fallback"])
-                stats["interventions"] += int(info["shield"]["intervened"])
+                stats["fallback_steps"] += int(info["shield_fallback"])
+                stats["interventions"] += int(info["shield_intervened"])
                 stats["arm_steps"] += 1
         stats["episodes"] += 1
         seed += 1

@@ -76,7 +76,7 @@ def test_piqp_shield_matches_active_set_in_the_env() -> None:
         while env.agents:
             obs, _, _, _, infos = env.step({a: rng.uniform(-1, 1, env.action_space(a).shape) for a in env.agents})
             out.append(np.concatenate([obs[a] for a in env.possible_agents]))
-            solved += infos["arm_3"]["shield"]["qp_counts"][1]
+            solved += infos["arm_3"]["qp_counts"][1]
         rollouts.append((np.array(out), solved))
     assert rollouts[0][1] == rollouts[1][1] > 0
     np.testing.assert_allclose(rollouts[0][0], rollouts[1][0], atol=1e-4)

@@ -217,7 +217,7 @@ def _whole_arm_episode(seed: int, kind: str, *, shield: bool, speed=(0.0, 0.0), 
     while env.agents:
         _, _, _, _, infos = env.step(act(t))
         closest = min(closest, *(info["min_clearance"] for info in infos.values()))
-        fallback = any(info.get("shield", {}).get("fallback", False) for info in infos.values())
+        fallback = any(info.get("shield_fallback", False) for info in infos.values())
         now_inside = _penetration(core) > 0.0
         begins = now_inside and not inside
         hits, hits_in_fallback = hits + begins, hits_in_fallback + (begins and fallback)

@@ -21,15 +21,16 @@ hit and are left out of its QP. If the QP is infeasible the fallback is braking 
 of a still obstacle decreases). A scenario with whole-arm safety (``bodies = "links"``, ``inter_arm``
 or moving obstacles) protects every link from the obstacles where they are at each sub-step and from
 the other arms' capsules, and its fallback drops the robust term, then violates the rows least
-(docs/SCENARIOS.md, "Whole-arm safety"). ``infos[agent]["shield"]`` reports, for the step:
-``requested`` (the action sent),
-``applied`` (the action actually applied at the last sub-step, in the same normalised units; in
-residual mode the whole filtered velocity v*/``max_joint_speed``, reference included),
-``intervened`` (the QP changed the action at some sub-step), ``min_barrier`` (the smallest barrier
-value h = ‖p − o‖² − r² seen by the filter; with whole-arm safety the smallest of its pairs in sensing
-range, against the capsules inflated by the skin; inf when there is none), ``status``
-(the worst QP status over the sub-steps: ``"nominal"``, ``"solved"`` or ``"fallback"``),
-``fallback`` (the QP was infeasible and the fallback was used) and ``qp_counts`` (sub-steps per status).
+(docs/SCENARIOS.md, "Whole-arm safety"). The env's infos report the filter's work in every step, as flat
+numbers that TorchRL's and RLlib's PettingZoo wrappers take as they are: ``shield_intervened`` (the QP
+changed the action at some sub-step), ``shield_fallback`` (the QP was infeasible and the fallback was
+used), ``shield_status`` (the worst QP status over the sub-steps: 0 nominal, 1 solved, 2 fallback),
+``shield_min_barrier`` (the smallest barrier value h = ‖p − o‖² − r² the filter saw; with whole-arm safety
+the smallest of its pairs in sensing range, against the capsules inflated by the skin; inf when there is
+none), ``shield_applied`` (the action actually applied at the last sub-step, in the action's normalised
+units; in residual mode the whole filtered velocity v*/``max_joint_speed``, reference included) and
+``qp_counts`` (sub-steps per status). The Gymnasium view gathers them over the arms
+(:meth:`~pan1_env.core.FormationCore.team_infos`).
 
 With ``sensing_radius=s`` (m) an end-effector scenario is filtered through the whole-arm rows with the
 end-effector as the body: an obstacle gets a row only within s (plus what the gap can close in a
@@ -43,17 +44,12 @@ h ≥ 0, not only in the inflated one h ≥ −Γ(δ̄).
 
 from __future__ import annotations
 
-from typing import Any
-
 import gymnasium
-import numpy as np
 from pettingzoo.utils.wrappers import BaseParallelWrapper
 
-from pan1_env.safety import FilterParams, QPStatus
+from pan1_env.safety import FilterParams
 
 __all__ = ["SafetyShield", "GymSafetyShield", "shield_parameters"]
-
-_NOMINAL, _SOLVED, _FALLBACK = (s.name.lower() for s in (QPStatus.NOMINAL, QPStatus.SOLVED, QPStatus.FALLBACK))
 
 
 def shield_parameters(scenario, kappa: float | None, epsilon: float | None, margin: float | None,
@@ -69,32 +65,6 @@ def _switch_on(core, kappa, epsilon, margin, tracking_bound, sensing_radius) -> 
     if core.safety_filter is not None:
         raise ValueError("this env is already shielded; wrap it once")
     core.set_safety_filter(shield_parameters(core.scenario, kappa, epsilon, margin, tracking_bound, sensing_radius))
-
-
-def _shield_infos(core, actions: dict[str, np.ndarray]) -> dict[str, dict[str, Any]]:
-    """Per-agent reports of the last step, from the env's public ``last_step`` record."""
-    rec = core.last_step
-    if rec is None:
-        return {}
-    velocity = core.action_mode != "torque"  # velocity and residual modes: v* in units of max_joint_speed
-    applied = ((rec.v_star[0] if velocity else rec.tau[0]) * (1.0 / core.action_scale)).astype(np.float32)
-    counts = rec.qp_counts[0]
-    min_barrier = rec.min_barrier[0].tolist()
-    out = {}
-    for i, (agent, (_, solved, fallback)) in enumerate(zip(core.possible_agents, counts.tolist(), strict=True)):
-        if agent not in actions:
-            continue
-        n, k = core.n_links[i], core.n_actuated[i]
-        out[agent] = {
-            "requested": np.array(actions[agent], dtype=np.float32),
-            "applied": applied[i, :k] if velocity else applied[i, n - k : n],
-            "intervened": solved + fallback > 0,
-            "min_barrier": min_barrier[i],
-            "status": _FALLBACK if fallback else (_SOLVED if solved else _NOMINAL),
-            "fallback": fallback > 0,
-            "qp_counts": counts[i],
-        }
-    return out
 
 
 class SafetyShield(BaseParallelWrapper):
@@ -119,18 +89,11 @@ class SafetyShield(BaseParallelWrapper):
             raise TypeError(f"SafetyShield wraps a pan1_env parallel env, got {type(core).__name__}")
         _switch_on(core, kappa, epsilon, margin, tracking_bound, sensing_radius)
 
-    def step(self, actions):
-        obs, rewards, terms, truncs, infos = self.env.step(actions)
-        for agent, info in _shield_infos(self.env.unwrapped, actions).items():
-            infos[agent]["shield"] = info
-        return obs, rewards, terms, truncs, infos
-
 
 class GymSafetyShield(gymnasium.Wrapper):
     """Shield the Gymnasium view (:class:`~pan1_env.registration.CentralizedEnv`).
 
-    ``info["shield"]`` holds the per-arm reports; ``info["shield_intervened"]`` and
-    ``info["shield_fallback"]`` summarise them. Arguments as :class:`SafetyShield`.
+    The infos' ``shield_*`` keys report the filter over the team. Arguments as :class:`SafetyShield`.
     """
 
     def __init__(self, env: gymnasium.Env, kappa: float | None = None, epsilon: float | None = None,
@@ -142,13 +105,3 @@ class GymSafetyShield(gymnasium.Wrapper):
             hint = " (PAReachEnv has the filter built in: safety_filter=True)" if hasattr(inner, "arm_index") else ""
             raise TypeError(f"GymSafetyShield wraps a pan1_env team Gymnasium env, got {type(inner).__name__}{hint}")
         _switch_on(inner.parallel, kappa, epsilon, margin, tracking_bound, sensing_radius)
-
-    def step(self, action):
-        obs, reward, terminated, truncated, info = self.env.step(action)
-        inner = self.env.unwrapped
-        core = inner.parallel
-        reports = _shield_infos(core, inner.agent_actions(action))
-        info["shield"] = reports
-        info["shield_intervened"] = any(r["intervened"] for r in reports.values())
-        info["shield_fallback"] = any(r["fallback"] for r in reports.values())
-        return obs, reward, terminated, truncated, info
