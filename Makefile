@@ -20,7 +20,7 @@ $(VENV)/.core: pyproject.toml
 # torch first, from the local CPU build: otherwise stable-baselines3 pulls the CUDA wheels
 $(VENV)/.dev: $(VENV)/.core
 	$(PY) -m pip install --quiet torch==2.13.0
-	$(PY) -m pip install --quiet -e ".[dev,check,rl]"
+	$(PY) -m pip install --quiet -e ".[dev,check,rl,marl]"
 	touch $@
 
 # Ray RLlib pins gymnasium 1.2.2: its own venv keeps the main one on the newest gymnasium
@@ -36,7 +36,7 @@ demo: $(VENV)/.core
 
 test: $(VENV)/.dev $(RAYVENV)/.ray
 	$(PY) -m ruff check .
-	$(PY) -m pytest -q -n 2 --durations=15 tests
+	PAN1_REQUIRE_MARL=1 $(PY) -m pytest -q -n 2 --durations=15 tests
 	PAN1_REQUIRE_RAY=1 $(RAYPY) -m pytest -q -p no:cacheprovider tests/test_rllib.py
 
 lint: $(VENV)/.dev

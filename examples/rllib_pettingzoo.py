@@ -10,17 +10,17 @@ plugs into RLlib's new API stack: the env is registered with :func:`ray.tune.reg
 in :class:`~ray.rllib.env.wrappers.pettingzoo_env.ParallelPettingZooEnv`; every arm maps to ONE shared policy
 (parameter sharing), so all the arms' experience trains the same network. ``--scenario`` takes any scenario
 (a built-in name, a ``.toml`` path, ``random``) or registered id (``pan1-env scenarios`` lists them). Arms of a
-team may differ in links and actuated joints: :class:`PadToLargestArm` zero-pads every observation to the
-largest arm's and gives every arm the largest action, of which an arm uses its own first entries (what
-SuperSuit's ``pad_observations_v0`` and ``pad_action_space_v0`` do for ``pan1-env train --param-sharing``;
+team may differ in links and actuated joints: :class:`~pan1_env.wrappers.PadToLargestArm` zero-pads every
+observation to the largest arm's and gives every arm the largest action, of which an arm uses its own first
+entries (what SuperSuit's ``pad_observations_v0`` and ``pad_action_space_v0`` do for ``pan1-env train --param-sharing``;
 SuperSuit is not in the ``ray`` extra), so one network fits them all.
 ``--num-env-runners 0`` samples in the driver process; more runners sample in parallel Ray actors, on this
 machine or, with ``--address auto`` (or ``ray://HOST:10001``), on a running Ray cluster: every node needs
 ``pan1_env`` installed and its kernels compiled (docs/TRAINING.md, *More than one machine*). The printed
 episode return is the team's: the sum over the arms.
 
-The shield's ``infos[agent]["shield"]`` (a dict of numpy arrays) passes through RLlib as it is; no wrapper is
-needed. A small callback sums ``infos[agent]["cost"]`` over each episode and the arms and reports its mean as
+The infos are flat numbers and arrays (the shield's report included), which RLlib passes through as they are. A
+small callback sums ``infos[agent]["cost"]`` over each episode and the arms and reports its mean as
 ``result["env_runners"]["episode_cost_mean"]`` (0 behind the shield).
 """
 
@@ -29,10 +29,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-import gymnasium
-import numpy as np
 import ray
-from pettingzoo.utils.wrappers import BaseParallelWrapper
 from ray.rllib.algorithms.ppo import PPOConfig
 from ray.rllib.core.rl_module.multi_rl_module import MultiRLModuleSpec
 from ray.rllib.core.rl_module.rl_module import RLModuleSpec
@@ -40,49 +37,12 @@ from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 from ray.tune.registry import register_env
 
 from pan1_env.environment import parallel_env
-from pan1_env.wrappers import SafetyShield
+from pan1_env.wrappers import PadToLargestArm, SafetyShield
 
 ENV_NAME = "pan1_formation"
 SHARED_POLICY = "shared"
 COST_KEY = "episode_cost_mean"
 DEFAULT_SCENARIO = "paper_pa3_square"
-
-
-class PadToLargestArm(BaseParallelWrapper):
-    """Every arm sees the largest arm's spaces: its observation zero-padded at the end, and an action
-    of the largest size of which it applies its own first entries (the rest is ignored)."""
-
-    def __init__(self, env) -> None:
-        super().__init__(env)
-        obs = {a: env.observation_space(a) for a in env.possible_agents}
-        act = {a: env.action_space(a) for a in env.possible_agents}
-        self._obs_size = {a: space.shape[0] for a, space in obs.items()}
-        self._act_size = {a: space.shape[0] for a, space in act.items()}
-        n_obs, n_act = max(self._obs_size.values()), max(self._act_size.values())
-        # the union of the arms' bounds, an arm's padding (0) included where it has one
-        low = np.min([np.pad(space.low, (0, n_obs - space.shape[0])) for space in obs.values()], axis=0)
-        high = np.max([np.pad(space.high, (0, n_obs - space.shape[0])) for space in obs.values()], axis=0)
-        self._obs_space = gymnasium.spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
-        self._act_space = gymnasium.spaces.Box(-1.0, 1.0, shape=(n_act,), dtype=np.float32)
-
-    def observation_space(self, agent):
-        return self._obs_space
-
-    def action_space(self, agent):
-        return self._act_space
-
-    def _pad(self, observations: dict) -> dict:
-        n = self._obs_space.shape[0]
-        return {a: np.pad(np.asarray(o, dtype=np.float32), (0, n - len(o))) for a, o in observations.items()}
-
-    def reset(self, seed=None, options=None):
-        observations, infos = self.env.reset(seed=seed, options=options)
-        return self._pad(observations), infos
-
-    def step(self, actions):
-        own = {a: np.asarray(u)[: self._act_size[a]] for a, u in actions.items()}
-        observations, rewards, terminated, truncated, infos = self.env.step(own)
-        return self._pad(observations), rewards, terminated, truncated, infos
 
 
 def make_env(config: dict[str, Any]) -> ParallelPettingZooEnv:

@@ -1,5 +1,7 @@
-"""Safety wrappers: the RCBF-QP shield for the PettingZoo env and the Gymnasium view."""
+"""Wrappers: the RCBF-QP shield for the PettingZoo env and the Gymnasium view, and padding a mixed team's
+arms to one set of spaces."""
 
+from .padding import PadToLargestArm
 from .shield import GymSafetyShield, SafetyShield, shield_parameters
 
-__all__ = ["SafetyShield", "GymSafetyShield", "shield_parameters"]
+__all__ = ["SafetyShield", "GymSafetyShield", "shield_parameters", "PadToLargestArm"]

@@ -1,0 +1,145 @@
+"""The env as TorchRL's batched multi-agent environment: B copies × N arms in one call, one group ``arms``.
+
+``torchrl_env(scenario, num_envs=B, **env_kwargs)`` builds a :class:`torchrl.envs.EnvBase` over the env
+core (:class:`~pan1_env.core.FormationCore`), the same engine and task as every other view, with no
+per-copy Python loop. Needs the ``marl`` extra (``pip install -e ".[marl]"``, PyTorch's CPU wheel first:
+see the README); ``import pan1_env`` does not import torch.
+
+Keys (batch size ``[B]``; every arm of a copy starts and ends its episode together):
+
+* ``("arms", "observation") [B, N, obs]`` float32: each arm's local observation, zero-padded at its end to
+  the largest arm's size; ``("arms", "action_mask") [B, N, k_max]`` bool: which action entries the arm
+  uses; ``"state" [B, state_size]``: the global state, for centralised critics.
+* ``("arms", "action") [B, N, k_max]`` in [−1, 1]: an arm applies its own first k_i entries, the rest is
+  ignored. Arms of different kinds (link counts, PA or fully actuated) are padded into one group rather
+  than split into one group per kind, so that one shared network (BenchMARL's default,
+  ``share_policy_params``) serves a whole random team, whose kinds change with the team.
+* ``("arms", "reward") [B, N, 1]``, and beside the observation ``("arms", "cost") [B, N, 1]`` (1.0 where the
+  arm entered an obstacle at some sub-step of the step, the safety-gymnasium convention; 0 after a reset):
+  constrained learners read it from ``("next", "arms", "cost")``.
+* ``done``, ``terminated``, ``truncated``: ``[B, 1]`` and under ``arms`` ``[B, N, 1]``.
+* ``("arms", "info", key)``: the per-arm infos of :mod:`pan1_env.core` as ``[B, N]`` (``[B, N, k_max]``
+  for ``shield_applied``, ``[B, N, 3]`` for ``qp_counts``): ``min_clearance``, ``reward_<term>``, and with the
+  filter on ``shield_intervened``, ``shield_fallback``, ``shield_status``, ``shield_min_barrier``; and
+  ``("info", key) [B]`` for the per-copy ones (``formation_error``, ``is_success``).
+
+A reset honours TorchRL's ``"_reset"`` mask (only the copies it marks start again). ``set_seed(s)`` seeds
+copy b with s + b, as :class:`~pan1_env.vector.Pan1VectorEnv` does, so the two give the same episodes.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from .config import FormationConfig
+from .core import FormationCore, per_arm
+
+__all__ = ["torchrl_env", "Pan1TorchRLEnv"]
+
+GROUP = "arms"
+
+
+def torchrl_env(scenario: Any = "paper_pa3_square", num_envs: int = 1, *, threads: bool | str = "auto",
+                **env_kwargs: Any) -> Pan1TorchRLEnv:
+    """B copies of ``scenario`` (a built-in name, a ``.toml`` path, ``"random"`` or a registered id) as one
+    TorchRL environment; ``env_kwargs`` are :class:`~pan1_env.config.FormationConfig`'s (``safety_filter``
+    among them: off by default, as in the parallel env)."""
+    return Pan1TorchRLEnv(FormationCore(FormationConfig(scenario, **env_kwargs), num_envs, threads=threads))
+
+
+class Pan1TorchRLEnv(EnvBase):
+    """A TorchRL view of a :class:`~pan1_env.core.FormationCore` (see the module docstring)."""
+
+    batch_locked = True
+
+    def __init__(self, core: FormationCore) -> None:
+        B, N, k = core.copies, len(core.agents), core.k_max
+        super().__init__(device="cpu", batch_size=torch.Size([B]))
+        self.core = core
+        bounds = [core.task.bounds(i) for i in range(N)]
+        self._sizes = [len(lo) for lo, _ in bounds]
+        size = max(self._sizes)
+        low, high = np.zeros((N, size), np.float32), np.zeros((N, size), np.float32)
+        for i, (lo, hi) in enumerate(bounds):
+            low[i, : len(lo)], high[i, : len(hi)] = lo, hi
+        self._observation = np.zeros((B, N, size), np.float32)
+        self._mask = torch.from_numpy(np.arange(k) < np.asarray(core.n_actuated)[:, None]).expand(B, N, k)
+        core.reset()
+        _, infos = core.start()  # the info keys and shapes, the same after every reset and step
+        self._arm_keys = [key for key in infos if per_arm(key) and key != "cost"]
+        self._copy_keys = [key for key in infos if not per_arm(key) and infos[key].dtype.kind in "biuf"]
+        low, high = torch.from_numpy(low).expand(B, N, size), torch.from_numpy(high).expand(B, N, size)
+        arm = {"observation": Bounded(low, high, shape=(B, N, size), dtype=torch.float32),
+               "action_mask": Bounded(False, True, shape=(B, N, k), dtype=torch.bool),
+               "cost": Unbounded(shape=(B, N, 1), dtype=torch.float32),
+               "info": Composite({key: Unbounded(shape=(B, N, *infos[key].shape[2:]), dtype=_dtype(infos[key]))
+                                  for key in self._arm_keys}, shape=(B, N))}
+        self.observation_spec = Composite({
+            GROUP: Composite(arm, shape=(B, N)),
+            "state": Unbounded(shape=(B, core.state_size), dtype=torch.float32),
+            "info": Composite({key: Unbounded(shape=(B,), dtype=_dtype(infos[key])) for key in self._copy_keys},
+                              shape=(B,))}, shape=(B,))
+        self.action_spec = Composite({GROUP: Composite({"action": Bounded(-1.0, 1.0, shape=(B, N, k),
+                                                                          dtype=torch.float32)}, shape=(B, N))},
+                                     shape=(B,))
+        self.reward_spec = Composite({GROUP: Composite({"reward": Unbounded(shape=(B, N, 1), dtype=torch.float32)},
+                                                       shape=(B, N))}, shape=(B,))
+        flag = {name: Bounded(False, True, shape=(B, 1), dtype=torch.bool)
+                for name in ("done", "terminated", "truncated")}
+        arm_flag = {name: Bounded(False, True, shape=(B, N, 1), dtype=torch.bool) for name in flag}
+        self.done_spec = Composite({**flag, GROUP: Composite(arm_flag, shape=(B, N))}, shape=(B,))
+
+    def _set_seed(self, seed: int | None) -> None:
+        if seed is not None:
+            self.core.seed([seed + b for b in range(self.core.copies)])
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
+        which = None
+        if tensordict is not None and "_reset" in tensordict.keys():
+            which = tensordict.get("_reset").reshape(self.core.copies, -1).any(-1).nonzero().squeeze(-1).numpy()
+        self.core.reset(which)
+        mats, infos = self.core.start()
+        return self._observations(mats, infos)
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        actions = tensordict.get((GROUP, "action")).detach().cpu().numpy().astype(np.float64)
+        out = self.core.step(actions)
+        td = self._observations(out.observations, out.infos)
+        B, N = out.reward.shape
+        terminated = torch.from_numpy(out.terminated.reshape(B, 1))
+        truncated = torch.from_numpy(out.truncated.reshape(B, 1))
+        done = terminated | truncated
+        td.set((GROUP, "reward"), torch.from_numpy(out.reward.astype(np.float32)).reshape(B, N, 1))
+        for name, value in (("done", done), ("terminated", terminated), ("truncated", truncated)):
+            td.set(name, value)
+            td.set((GROUP, name), value[:, None].expand(B, N, 1).clone())
+        return td
+
+    def _observations(self, mats: list[np.ndarray], infos: dict[str, np.ndarray]) -> TensorDictBase:
+        B, N = self._observation.shape[:2]
+        obs = self._observation.copy()
+        for (_, ids), mat in zip(self.core.layout.groups, mats, strict=True):
+            obs[:, ids, : mat.shape[-1]] = mat
+        arm_info = {key: _tensor(np.broadcast_to(infos[key], (B, N, *infos[key].shape[2:]))) for key in self._arm_keys}
+        cost = torch.from_numpy(infos["cost"].astype(np.float32)).reshape(B, N, 1)
+        return TensorDict({
+            GROUP: TensorDict({"observation": torch.from_numpy(obs), "action_mask": self._mask.clone(), "cost": cost,
+                               "info": TensorDict(arm_info, batch_size=(B, N))}, batch_size=(B, N)),
+            "state": torch.from_numpy(self.core.state()),
+            "info": TensorDict({key: torch.from_numpy(infos[key].copy()) for key in self._copy_keys}, batch_size=(B,)),
+        }, batch_size=(B,))
+
+
+def _tensor(value: np.ndarray) -> torch.Tensor:
+    """A tensor of its own (the core's arrays and broadcast views are not the env's to hand out)."""
+    return torch.from_numpy(np.array(value))
+
+
+def _dtype(value: np.ndarray) -> torch.dtype:
+    return torch.from_numpy(np.zeros(1, dtype=value.dtype)).dtype

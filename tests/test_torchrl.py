@@ -1,0 +1,116 @@
+"""TorchRL on the env: its own PettingZooWrapper on the parallel env, as a MARL researcher's first try would
+use it (arms of different kinds through :class:`~pan1_env.wrappers.PadToLargestArm`), and the native batched
+env (:func:`pan1_env.marl.torchrl_env`): TorchRL's ``check_env_specs``, shielded and not, for a uniform team,
+a mixed team, random teams and whole-arm teams, and the native env against the vector env."""
+
+import os
+
+import numpy as np
+import pytest
+
+if os.environ.get("PAN1_REQUIRE_MARL"):  # set by `make test`, which installs the marl extra: missing is a failure
+    import torchrl  # noqa: F401
+else:
+    pytest.importorskip("torchrl")
+
+import torch  # noqa: E402
+from torchrl.envs.libs.pettingzoo import PettingZooWrapper  # noqa: E402
+from torchrl.envs.utils import check_env_specs, step_mdp  # noqa: E402
+
+from pan1_env.environment import parallel_env  # noqa: E402
+from pan1_env.marl import torchrl_env  # noqa: E402
+from pan1_env.vector import Pan1VectorEnv  # noqa: E402
+from pan1_env.wrappers import PadToLargestArm, SafetyShield  # noqa: E402
+
+SHIELD_KEYS = ("shield_intervened", "shield_fallback", "shield_status", "shield_min_barrier", "shield_applied",
+               "qp_counts")
+
+
+def _wrapped(scenario: str, shield: bool, pad: bool = False) -> PettingZooWrapper:
+    env = parallel_env(scenario, max_steps=12)
+    if shield:
+        env = SafetyShield(env)
+    if pad:
+        env = PadToLargestArm(env)
+    return PettingZooWrapper(env=env, use_mask=False, return_state=True)
+
+
+@pytest.mark.parametrize("shield", [True, False])
+@pytest.mark.parametrize(("scenario", "pad"), [("paper_pa3_square", False), ("paper_pa_mixed_square", True),
+                                               ("random", True), ("pan1_env/WholeArmStaticFormation-v0", True)])
+def test_pettingzoo_wrapper_specs_hold(scenario: str, pad: bool, shield: bool) -> None:
+    env = _wrapped(scenario, shield, pad)
+    check_env_specs(env, seed=0)
+    rollout = env.rollout(12, break_when_any_done=False)
+    info = rollout["next", "arm", "info"]
+    assert set(SHIELD_KEYS) <= set(info.keys()) if shield else not set(SHIELD_KEYS) & set(info.keys())
+    assert info["cost"].shape == (12, 4)
+    if shield:
+        assert info["shield_applied"].shape == (12, 4, env.action_spec["arm", "action"].shape[-1])
+
+
+def test_the_wrapper_steps_the_env_as_it_is() -> None:
+    """The same actions through TorchRL and straight into the env give the same rewards and observations."""
+    env = _wrapped("paper_pa_mixed_square", shield=True, pad=True)
+    env.set_seed(5)
+    td = env.reset()
+    twin = PadToLargestArm(SafetyShield(parallel_env("paper_pa_mixed_square", max_steps=12)))
+    obs, _ = twin.reset(seed=5)
+    np.testing.assert_allclose(td["arm", "observation"].numpy(), np.stack([obs[a] for a in twin.possible_agents]))
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        action = rng.uniform(-1, 1, env.action_spec["arm", "action"].shape).astype(np.float32)
+        td["arm", "action"] = torch.as_tensor(action)
+        td = env.step(td)
+        obs, rewards, _, _, _ = twin.step(dict(zip(twin.possible_agents, action, strict=True)))
+        np.testing.assert_allclose(td["next", "arm", "observation"].numpy(), np.stack(list(obs.values())), atol=1e-6)
+        np.testing.assert_allclose(td["next", "arm", "reward"].numpy().ravel(), list(rewards.values()), atol=1e-6)
+        td = step_mdp(td)
+
+
+@pytest.mark.parametrize("shield", [True, False])
+@pytest.mark.parametrize("scenario", ["paper_pa3_square", "paper_pa_mixed_square", "random",
+                                      "pan1_env/WholeArmStaticFormation-v0"])
+def test_native_env_specs_hold(scenario: str, shield: bool) -> None:
+    env = torchrl_env(scenario, num_envs=3, max_steps=10, safety_filter=shield)
+    check_env_specs(env, seed=0)
+    rollout = env.rollout(25, break_when_any_done=False)  # past two ends: TorchRL resets the ended copies
+    assert rollout["next", "arms", "reward"].shape == (3, 25, 4, 1)
+    assert rollout["next", "done"].sum() == 6
+    assert ("shield_applied" in rollout["next", "arms", "info"].keys()) == shield
+    if shield:
+        assert rollout["next", "arms", "cost"].sum() == 0
+
+
+@pytest.mark.parametrize("scenario", ["paper_pa_mixed_square", "random"])
+def test_native_env_matches_the_vector_env_step_for_step(scenario: str) -> None:
+    """The same seeds and actions give the vector env's observations (per arm, unpadded), rewards (the
+    vector env's is the arms' mean), costs and ends, through the reset of the copies that end (random teams:
+    the same new teams from the same generators)."""
+    B = 3
+    env = torchrl_env(scenario, num_envs=B, max_steps=6, safety_filter=True)
+    venv = Pan1VectorEnv(scenario, B, max_steps=6)
+    env.set_seed(11)
+    td = env.reset()
+    obs, _ = venv.reset(seed=11)
+    core = env.core
+    sizes, ks = env._sizes, core.n_actuated
+    rng = np.random.default_rng(0)
+    for _ in range(9):  # the copies end at step 6 and start again
+        per_arm = np.concatenate([td["arms", "observation"][:, i, :n].numpy() for i, n in enumerate(sizes)], axis=1)
+        np.testing.assert_array_equal(per_arm, obs)
+        flat = rng.uniform(-1, 1, (B, sum(ks))).astype(np.float32)
+        padded = np.zeros((B, 4, core.k_max), np.float32)
+        for i, (start, k) in enumerate(zip(np.cumsum([0, *ks[:-1]]), ks, strict=True)):
+            padded[:, i, :k] = flat[:, start : start + k]
+        td["arms", "action"] = torch.from_numpy(padded)
+        td = env.step(td)
+        obs, reward, terminated, truncated, info = venv.step(flat)
+        np.testing.assert_allclose(td["next", "arms", "reward"].numpy()[..., 0].mean(axis=1), reward, atol=1e-6)
+        np.testing.assert_array_equal(td["next", "arms", "cost"].numpy()[..., 0].sum(axis=1), info["cost"])
+        np.testing.assert_array_equal(td["next", "done"].numpy()[:, 0], terminated | truncated)
+        if truncated.any():  # the vector env starts them in the same step; TorchRL resets them now
+            final = np.concatenate([td["next", "arms", "observation"][:, i, :n].numpy() for i, n in enumerate(sizes)],
+                                   axis=1)
+            np.testing.assert_array_equal(final[truncated], np.stack(info["final_obs"][truncated]))
+        td = env.reset(step_mdp(td)) if truncated.any() else step_mdp(td)
