@@ -44,8 +44,11 @@ holder dies however it dies:
   module (its numba cache object's ``save_overload`` and ``load_overload`` are wrapped here, so the
   children, in-process compilations and ``pan1-env warmup`` all take it, and so do
   :func:`_in_disk_cache` and a child's last look before compiling). It is not held during the
-  compilation itself (which the claim serialises per kind), so that a reader waits for a save of a few
-  milliseconds, never for a compilation of tens of seconds.
+  compilation itself (which the claim serialises per kind), so that a reader waits at most for a save
+  (pickling and writing a few MB), never for a compilation of tens of seconds.
+
+The claim and lock files are empty and stay (one claim per kind and source version); deleting a file
+others may have open would let two processes lock two different files of one name.
 
 Why the lock, from numba 0.68's ``numba/core/caching.py``: ``IndexDataCacheFile.save`` loads the
 index (one file per function, holding all its signatures), picks for a new key the first data name
@@ -304,7 +307,8 @@ def background_generation() -> int:
 def _finished() -> None:
     global _child, _generation
     child, _child = _child, None
-    if child.returncode == -getattr(signal, "SIGALRM", 0) != 0:  # its bound (LIMIT) ran out
+    alarm = getattr(signal, "SIGALRM", None)  # none on Windows
+    if alarm is not None and child.returncode == -alarm:  # its bound (LIMIT) ran out
         compile_notice.notify(f"the background compilation of a sub-step kernel took longer than {LIMIT} s and "
                               f"was stopped; the generic kernel goes on")
     elif child.returncode != 0:
