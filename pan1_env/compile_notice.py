@@ -1,11 +1,12 @@
 """A notice whenever numba compiles a sub-step kernel, so that a first use is never silent.
 
 The sub-step kernel is specialised for each arm kind (number of links n, number of actuated joints k):
-the first use of a kind compiles it (about 10 s and a few hundred MB on a 2-core machine) and numba
-caches the result on disk, so later processes load it instead. Until a kind's own kernel is compiled,
-the engine steps it with the generic kernel (one compilation, about 7 s, for every kind; the same
-results, slower) and compiles the kind's own in a background process
-(:mod:`pan1_env.kernels.specialise`, which says so when it starts one). :func:`install` listens to
+the first use of a kind compiles it (11–15 s and a few hundred MB on a quiet 2-core machine, 16–31 s
+on a busy one) and numba caches the result on disk, so later processes load it instead. Until a kind's
+own kernel is compiled, the engine steps it with the generic kernel (one compilation, about 7 s, for
+every kind; the same results, slower) and compiles the kind's own in a background process
+(:mod:`pan1_env.kernels.specialise`, which says so when it asks for one), which finishes and caches it
+even if the process that asked has ended. :func:`install` listens to
 numba's compile events (``numba.core.event``, which fire only for a real compilation, not for a cache
 load) and says which kernel is being compiled, that it happens once, how long it took and where the
 cache lives.
@@ -117,9 +118,10 @@ class _KernelCompileNotice(numba_event.Listener):
                    f"cached in {cache} for later runs. It steps new arm kinds at once, 3-4x slower than "
                    f"their own kernels, which compile in the background")
         else:
-            notify(f"compiling the sub-step kernel for {kind}: once per arm kind, about {20 if twice else 10} s "
-                   f"on a 2-core machine; cached in {cache} for later runs "
-                   f"(`pan1-env warmup` compiles ahead of time)")
+            # measured 11-15 s at a load average below 1 (kernels.specialise), 16-31 s on a busy machine
+            notify(f"compiling the sub-step kernel for {kind}: once per arm kind, about "
+                   f"{'20-30' if twice else '10-15'} s on a quiet 2-core machine, longer on a busy one; cached in "
+                   f"{cache} for later runs (`pan1-env warmup` compiles ahead of time)")
 
     def on_end(self, event) -> None:
         found = self._kind(event)

@@ -1,10 +1,13 @@
 """Which serial kernel an arm kind steps with (pan1_env.kernels.specialise): its own once it is compiled
 or in the disk cache, else the generic kernel (same results bit for bit) while a background process
-compiles its own; and that background process itself."""
+compiles its own; and that background process itself: detached (it outlives a short script), bounded,
+reaped, one per kind across processes, and not losing another's cache entry."""
 
 from __future__ import annotations
 
 import os
+import pickle
+import signal
 import subprocess
 import sys
 import time
@@ -115,58 +118,205 @@ print("switched", [kind.specialised for kind in kinds])
 print("child", specialise._child)
 """
 
+_ONE_KIND = {"n_arms": 2, "links": 2, "passive_fraction": 0.0}  # two fully actuated 2-link arms: one kind
+
+# steps a new kind twice (the background compilation starts at the second step) and exits at once
 _EARLY = r"""
 import numpy as np
 from pan1_env.environment import parallel_env
 from pan1_env.kernels import specialise
-env = parallel_env("random", random_options={"n_arms": 2, "links": (3, 2)})
+env = parallel_env("random", random_options=KIND)
 env.reset(seed=0)
-for _ in range(2):  # the background compilation starts at the second step
+for _ in range(2):
     env.step({a: np.zeros(env.action_space(a).shape) for a in env.agents})
-print(specialise._child.pid)
+print(specialise._child.pid, flush=True)
+""".replace("KIND", repr(_ONE_KIND))
+
+# a next process: one step, then whether its kind steps with its own kernel and how many children it started
+_NEXT = r"""
+import numpy as np
+from pan1_env.environment import parallel_env
+from pan1_env.kernels import specialise
+env = parallel_env("random", random_options=KIND)
+env.reset(seed=0)
+env.step({a: np.zeros(env.action_space(a).shape) for a in env.agents})
+print([kind.specialised for kind in env.unwrapped.engine.kinds], specialise._started)
+""".replace("KIND", repr(_ONE_KIND))
+
+# steps a new kind until it switches to its own kernel (at most 10 minutes); says how many children it started
+_UNTIL = r"""
+import time
+import numpy as np
+from pan1_env.environment import parallel_env
+from pan1_env.kernels import specialise
+env = parallel_env("random", random_options=KIND)
+env.reset(seed=0)
+kinds, start = env.unwrapped.engine.kinds, time.monotonic()
+while not all(kind.specialised for kind in kinds) and time.monotonic() - start < 600:
+    env.step({a: np.zeros(env.action_space(a).shape) for a in env.agents})
+    if not env.agents:
+        env.reset(seed=0)
+    time.sleep(0.05)
+print([kind.specialised for kind in kinds], specialise._started, flush=True)
+""".replace("KIND", repr(_ONE_KIND))
+
+
+def _cache_env(tmp_path) -> dict:
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"), PAN1_ENV_KERNELS="auto")
+    return env
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie does not count)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def _wait_for(condition, timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(0.2)
+    return condition()
+
+
+linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc; detaches with fcntl")
+
+
+@linux_only
+@pytest.mark.slow
+def test_a_short_script_leaves_the_kernel_cached(tmp_path) -> None:
+    """A script that steps a new kind twice and exits at once neither waits for its background
+    compilation nor ends it; that finishes on its own, and the next process steps the kind with its
+    own kernel from the cache, starting no compilation."""
+    env = _cache_env(tmp_path)
+    run = subprocess.run([sys.executable, "-c", _EARLY], env=env, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert "cached for later runs even if this process ends first" in run.stderr
+    pid = int(run.stdout.split()[-1])
+    assert _alive(pid), "the script ended (or waited for) its background compilation"
+    assert _wait_for(lambda: not _alive(pid), specialise.LIMIT + 60), "the child outlived its bound"
+    again = subprocess.run([sys.executable, "-c", _NEXT], env=env, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert again.stdout.split("\n")[0] == "[True] 0", again.stdout + again.stderr[-2000:]
+    assert "sub-step kernel for arms" not in again.stderr, again.stderr[-2000:]
+
+
+@linux_only
+def test_the_child_is_detached_bounded_and_reaped(tmp_path, monkeypatch) -> None:
+    """A background process runs in its own session, ends itself when its bound runs out, and is reaped
+    by its parent at once (no zombie)."""
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))  # nothing cached: it would compile
+    child = specialise._spawn([specialise._signature(_args(5, True))], None, limit=3)
+    try:
+        assert os.getsid(child.pid) == child.pid
+        assert _wait_for(lambda: child.returncode is not None, 120), "not reaped (a zombie, or still running)"
+        assert child.returncode == -signal.SIGALRM
+        assert not os.path.exists(f"/proc/{child.pid}")
+    finally:
+        if child.returncode is None:
+            child.kill()
+
+
+def test_a_kind_claimed_elsewhere_starts_no_child(monkeypatch) -> None:
+    """While another process holds a kind's claim, asking for that kind starts no child but watches the
+    claim; when it comes free the engine is told to look again, and the kind is queued here if the
+    other compilation left nothing in the cache."""
+    if specialise.fcntl is None:
+        pytest.skip("no claims without fcntl")
+    spawned = []
+    monkeypatch.setattr(specialise, "_spawn", lambda sigs, claim, limit=0: spawned.append(sigs))
+    monkeypatch.setattr(specialise, "_in_disk_cache", lambda dispatcher, sig: False)
+    for name, value in (("_pending", []), ("_requested", set()), ("_watching", {}), ("_next_watch", 0.0)):
+        monkeypatch.setattr(specialise, name, value)
+    monkeypatch.setattr(specialise, "_child", None)
+    sig = specialise._signature(_args(6, True))
+    held = specialise._take_claim(specialise._claim_file(sig))  # "another process's" child
+    assert held is not None
+    try:
+        specialise._pending.append(sig)
+        specialise.start_background()
+        assert spawned == [] and list(specialise._watching) == [sig]
+        generation = specialise.background_generation()
+        assert specialise.background_generation() == generation, "nothing changed while it is held"
+    finally:
+        os.close(held)
+    specialise._next_watch = 0.0
+    assert specialise.background_generation() == generation + 1
+    assert specialise._watching == {} and specialise._pending == [sig]
+    specialise.start_background()
+    assert spawned == [[sig]]
+
+
+@linux_only
+@pytest.mark.slow
+def test_two_parents_asking_for_the_same_kind_start_one_compilation(tmp_path) -> None:
+    """Two scripts stepping the same new kind at once into one cache: one of them starts a background
+    compilation, the other waits for it, and both switch to the kind's own kernel."""
+    env = _cache_env(tmp_path)
+    runs = [subprocess.Popen([sys.executable, "-c", _UNTIL], env=env, stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    outs = [run.communicate(timeout=900) for run in runs]
+    for run, (_, err) in zip(runs, outs, strict=True):
+        assert run.returncode == 0, err[-2000:]
+    started = [out.split("\n")[0] for out, _ in outs]
+    assert sorted(started) == ["[True] 0", "[True] 1"], outs
+
+
+# a background process whose cache save first waits for the other's (a barrier in the directory argv[1])
+# and then takes a second between loading numba's cache index and saving it: without the cache lock the
+# two load-modify-saves overlap and one entry is lost
+_RACING_CHILD = r"""
+import os, sys, time
+from pan1_env.kernels import specialise
+from pan1_env.kernels.substep import group_advance
+barrier, cache = sys.argv[1], group_advance._cache
+locked_save, save_index = cache.save_overload, cache._cache_file._save_index
+
+def save_overload(sig, data):
+    open(os.path.join(barrier, str(os.getpid())), "w").close()
+    while len(os.listdir(barrier)) < 2:
+        time.sleep(0.05)
+    return locked_save(sig, data)
+
+def slow_save_index(overloads):
+    time.sleep(1.0)
+    save_index(overloads)
+
+cache.save_overload, cache._cache_file._save_index = save_overload, slow_save_index
+sys.exit(specialise._main())
+"""
+
+_IN_CACHE = r"""
+import pickle, sys
+from pan1_env.kernels import specialise
+from pan1_env.kernels.substep import group_advance
+print([specialise._in_disk_cache(group_advance, sig) for sig in pickle.loads(sys.stdin.buffer.read())])
 """
 
 
-def _gone(pid: int, wait: float = 10.0) -> bool:
-    deadline = time.monotonic() + wait
-    while time.monotonic() < deadline:
-        if not os.path.exists(f"/proc/{pid}"):
-            return True
-        time.sleep(0.1)
-    return False
-
-
 @pytest.mark.slow
-def test_a_new_kind_steps_at_once_and_switches_when_its_kernel_is_compiled(tmp_path) -> None:
-    """In an empty cache: the first step uses the generic kernel, and from the second a background
-    compilation runs per kind; the engine switches to each kind's own kernel once it is in the cache;
-    the next process loads them and starts no child."""
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
-    env.pop("PAN1_ENV_KERNELS", None)
-    first = subprocess.run([sys.executable, "-c", _SWITCH], env=env, capture_output=True, text=True, timeout=900)
-    assert first.returncode == 0, first.stderr[-2000:]
-    lines = first.stdout.split("\n")
-    assert lines[0].startswith("first [False, False] ") and lines[1] == "switched [True, True]", first.stdout
-    assert "compiling the generic sub-step kernel" in first.stderr
-    assert "while their own kernel compiles in a background process" in first.stderr
-    again = subprocess.run([sys.executable, "-c", _SWITCH], env=env, capture_output=True, text=True, timeout=900)
-    assert again.returncode == 0, again.stderr[-2000:]
-    assert again.stdout.split("\n")[:3] == ["first [True, True] None", "switched [True, True]", "child None"]
-    assert "compil" not in again.stderr, again.stderr[-2000:]
-
-
-@pytest.mark.slow
-def test_the_background_compilation_ends_with_its_process(tmp_path) -> None:
-    """A process that ends while its background compilation runs ends that too (no orphan, no zombie)."""
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
-    env.pop("PAN1_ENV_KERNELS", None)
-    run = subprocess.run([sys.executable, "-c", _EARLY], env=env, capture_output=True, text=True, timeout=900)
-    assert run.returncode == 0, run.stderr[-2000:]
-    assert _gone(int(run.stdout.split()[-1]))
-    # killed outright (no atexit): the child gets SIGTERM from the kernel (PR_SET_PDEATHSIG)
-    script = _EARLY.replace("print(specialise._child.pid)", "print(specialise._child.pid, flush=True)\n"
-                            "import os, signal; os.kill(os.getpid(), signal.SIGKILL)")
-    run = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=900)
-    assert run.returncode == -9, run.stderr[-2000:]
-    if sys.platform.startswith("linux"):
-        assert _gone(int(run.stdout.split()[-1]))
+def test_two_children_of_different_kinds_both_land_in_the_index(tmp_path) -> None:
+    """Two background processes saving different kinds into one cache at the same moment both keep
+    their entry (the cache lock makes numba's load-modify-save of the index one step)."""
+    if specialise.fcntl is None:
+        pytest.skip("no cache lock without fcntl")
+    env = _cache_env(tmp_path)
+    barrier = tmp_path / "barrier"
+    barrier.mkdir()
+    sigs = [specialise._signature(_args(2, False)), specialise._signature(_args(3, True))]
+    children = [subprocess.Popen([sys.executable, "-c", _RACING_CHILD, str(barrier)], stdin=subprocess.PIPE,
+                                 stderr=subprocess.PIPE, env=env) for _ in sigs]
+    for child, sig in zip(children, sigs, strict=True):
+        child.stdin.write(pickle.dumps([sig]))
+        child.stdin.close()
+    for child in children:
+        assert child.wait(timeout=900) == 0, child.stderr.read()[-2000:]
+    check = subprocess.run([sys.executable, "-c", _IN_CACHE], input=pickle.dumps(sigs), env=env,
+                           capture_output=True, timeout=600)
+    assert check.returncode == 0, check.stderr[-2000:]
+    assert check.stdout.decode().split("\n")[0] == "[True, True]"
