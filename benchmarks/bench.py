@@ -16,6 +16,8 @@ Prints a Markdown table of medians (each over several repeats) and the ratios th
   arm-sub-step of the shielded vector env at B = 1024 on the same random teams;
 * the exact compiled QP against qpsolvers + PIQP, per solve, on the same random filter problems;
 * the shielded step for teams of 4, 16 and 64 arms (random polygons of PA3 arms), and 64 against 4;
+* the batched TorchRL env (``pan1_env.marl``, shielded random teams) against VMAS ``navigation`` (4 agents,
+  CPU) at B = 1024, in agent-steps per second (needs the ``marl`` and ``bench`` extras);
 * ``pan1-env reproduce`` of each paper scenario (the simulation loop, nominal and safe);
 * ``import pan1_env`` in a fresh interpreter; the cold start of an arm kind and of a 5p + 2f team (empty
   numba cache: first step and peak memory).
@@ -476,6 +478,53 @@ def bench_training(timesteps: int) -> list[tuple[str, float, str]]:
             ("ratio: our training steps/s / the DummyVecEnv's (target ≥ 10)", rates["ours"] / rates["peer"], "ratio")]
 
 
+def bench_marl(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
+    """The batched TorchRL env (shielded random 4-arm teams) against VMAS ``navigation`` with 4 agents, both
+    at B copies on the CPU in this process, in agent-steps per second; and the TorchRL layer's cost against
+    the vector env on the same teams."""
+    try:
+        import torch
+        import vmas
+        from torchrl.envs.utils import step_mdp
+
+        from pan1_env.marl import torchrl_env
+    except ImportError as error:
+        return [("TorchRL env rows", float("nan"), f"needs the marl and bench extras ({error.name} missing)")]
+    from pan1_env.vector import Pan1VectorEnv
+
+    env = torchrl_env("random", num_envs=B, safety_filter=True)
+    env.set_seed(0)
+    state = {"td": env.reset()}
+    action = torch.from_numpy(np.random.default_rng(0).uniform(-1, 1, (B, 4, env.core.k_max)).astype(np.float32))
+
+    def ours():
+        state["td"]["arms", "action"] = action
+        state["td"] = step_mdp(env.step(state["td"]))
+
+    peer = vmas.make_env("navigation", num_envs=B, device="cpu", continuous_actions=True, n_agents=4, seed=0)
+    peer.reset()
+    moves = [torch.rand(B, 2) * 2 - 1 for _ in range(4)]
+
+    def theirs():
+        peer.step(moves)
+
+    venv = Pan1VectorEnv("random", B)
+    vector = _vector_stepper(venv)
+    for step in (ours, theirs, vector):
+        step()
+    inner = max(1, 4096 // B)
+    t_ours, t_peer = _alternating_medians(ours, theirs, repeats, inner)
+    t_torchrl, t_vector = _alternating_medians(ours, vector, repeats, inner)
+    agents = 4 * B
+    return [(f"TorchRL env (pan1_env.marl), shielded random teams, B = {B}: agent-steps per second", agents / t_ours,
+             "rate"),
+            (f"VMAS navigation (4 agents, CPU, torch threads {torch.get_num_threads()}), B = {B}: agent-steps per "
+             "second", agents / t_peer, "rate"),
+            ("ratio: our TorchRL env / VMAS, agent-steps per second (target ≥ 3)", t_peer / t_ours, "ratio"),
+            ("ratio: TorchRL env step / vector env step on the same teams (the TorchRL layer's cost)",
+             t_torchrl / t_vector, "ratio")]
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer repeats and a 10 s reproduce horizon")
@@ -493,6 +542,7 @@ def main() -> int:
     rows += bench_whole_arm(repeats)
     rows += bench_qp(300 if args.quick else 2000)
     rows += bench_team_scaling(repeats, inner)
+    rows += bench_marl(repeats)
     rows += bench_reproduce(10.0 if args.quick else 100.0)
     try:
         rows += bench_training(16_384 if args.quick else 65_536)
