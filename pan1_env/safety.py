@@ -148,7 +148,7 @@ def robust_margin(delta: float, kappa: float, epsilon: float, decay: float = 0.0
 
     and {h̃ ≥ −Γ} is forward invariant. ``arms`` is how many arms' tracking errors act on the row: 2 for
     an inter-arm row that both arms filter with half the rate each (each brings its own −ε δ²/4)."""
-    delta, kappa, epsilon, decay = float(delta), float(kappa), float(epsilon), float(decay)
+    delta, kappa, epsilon, decay = float(delta), float(kappa), float(epsilon), _decay("robust_margin", decay, arms)
     x = arms * epsilon * delta**2 / (4.0 * kappa)
     if decay == 0.0 or x == 0.0:
         return x
@@ -168,8 +168,15 @@ def tracking_bound(margin: float, kappa: float, epsilon: float, decay: float = 0
     """δ̄: the largest tracking error that a filter with ``margin`` still keeps out of the obstacles (h ≥ 0),
     the inverse of :func:`robust_margin`: Γ(δ̄) = margin gives δ̄ = 2 √(κ · margin · e^{λ · margin} / (arms · ε)).
     A tracking error δ ≤ δ̄ keeps h̃ ≥ −Γ(δ) ≥ −margin, so h = h̃ + margin ≥ 0."""
-    margin, kappa, epsilon, decay = float(margin), float(kappa), float(epsilon), float(decay)
+    margin, kappa, epsilon, decay = float(margin), float(kappa), float(epsilon), _decay("tracking_bound", decay, arms)
     return 2.0 * float(np.sqrt(kappa * margin * np.exp(decay * margin) / (arms * epsilon)))
+
+
+def _decay(owner: str, decay: float, arms: int) -> float:
+    """λ as a float, refused below 0: Γ's formula needs an ε(h̃) that does not fall as h̃ grows."""
+    if isinstance(arms, bool) or not isinstance(arms, (int, np.integer)) or arms < 1:
+        raise ValueError(f"{owner}: arms must be an integer ≥ 1, got {arms!r}")
+    return real(f"{owner}: decay", decay, non_negative=True)
 
 
 def robust_epsilon(h: np.ndarray, epsilon: float, decay: float = 0.0) -> np.ndarray:
@@ -217,6 +224,8 @@ def activation_gate(clearance: np.ndarray, on: float, width: float) -> np.ndarra
     (C¹: the cubic's slope vanishes at both ends, its steepest is 1.5/width). ``width`` = 0 is a hard
     range (σ = 1 up to ``on``, then 0). What :func:`cbf_rows` does with σ, and why rows it relaxes
     cannot be violated: docs/MODEL.md §5, *Activation*."""
+    on = real("activation_gate: on", on, non_negative=True)
+    width = real("activation_gate: width", width, non_negative=True)
     c = np.asarray(clearance, dtype=float)
     if width == 0.0:
         return np.where(c <= on, 1.0, 0.0)

@@ -167,6 +167,15 @@ def test_robust_margin_solves_its_equation_and_inverts_tracking_bound(decay: flo
     assert robust_margin(0.2, KAPPA, EPSILON) == pytest.approx(EPSILON * 0.04 / (4 * KAPPA))  # Eq. 57
 
 
+def test_bad_parameters_are_refused_by_name() -> None:
+    with pytest.raises(ValueError, match="robust_margin: decay must be non-negative"):
+        robust_margin(0.1, KAPPA, EPSILON, decay=-1.0)
+    with pytest.raises(ValueError, match="tracking_bound: arms must be an integer ≥ 1"):
+        tracking_bound(0.1, KAPPA, EPSILON, arms=0)
+    with pytest.raises(ValueError, match="activation_gate: width must be non-negative"):
+        activation_gate(np.zeros(2), 0.05, -0.01)
+
+
 def test_activation_gate_is_c1_and_only_relaxes() -> None:
     on, width = 0.05, 0.04
     c = np.linspace(-0.1, 0.2, 30001)
