@@ -121,7 +121,7 @@ def barrier(p: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> np.ndarray
     return np.sum(d * d, axis=-1) - radii**2
 
 
-barrier_squared = barrier  # the paper's form by its name among BARRIERS
+_squared_barrier = barrier  # the module-level function, which rcbf_constraints' keyword `barrier` shadows
 
 
 def clearance(p: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> np.ndarray:
@@ -307,7 +307,7 @@ def rcbf_constraints(
     Returns:
         ``A (..., O, k)``, ``b (..., O)``, ``h (..., O)`` (h before tightening, in the chosen form).
     """
-    h_sq = barrier_values = barrier_squared(p, centers, radii)
+    h_sq = barrier_values = _squared_barrier(p, centers, radii)
     Lg = barrier_lie_derivative(p, Jbar, centers)
     if barrier == "squared" and decay == 0.0 and gate is None:  # the paper's rows, written out
         A = -Lg
