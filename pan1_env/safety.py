@@ -29,6 +29,19 @@ module, like the rest of the reference layer, imports nothing compiled.
 :class:`FilterParams` holds κ, ε and the margin (and the whole-arm filter's sensing range) as the
 envs and the engine take them (:func:`filter_parameters`).
 
+**Barrier choices** (docs/MODEL.md §5, *Barrier choices*; the numpy specification the compiled filter
+will be tested against). Every protected pair (end-effector–obstacle, link–obstacle, link–link) has a
+distance d ≥ 0 to keep above a radius R (r, r + ρ or 2ρ):
+
+* barrier ``"squared"`` (the paper's): h = d² − R², its row 2 d ∇d g0;
+* barrier ``"distance"``: h = d − R (metres, ‖∇_p h‖ = 1), its row ∇d g0 (:func:`shaped_barrier`);
+* robust term ‖L_g0 h‖² / ε(h̃) with ε(h̃) = ε e^{λ h̃} (:func:`robust_epsilon`; λ = 0 is the paper's
+  constant ε; a tunable ISSf term after Alan, Taylor, He, Orosz & Ames, arXiv 2103.08041);
+* activation: every pair, a hard range, or a smooth gate σ(clearance) that relaxes a row before it
+  drops it (:func:`activation_gate`, :func:`cbf_rows`).
+
+:func:`robust_margin` Γ(δ) and :func:`tracking_bound` δ̄(margin) hold for each choice.
+
 If the desired velocity already satisfies every row it is the optimum and is returned unchanged.
 If the QP is infeasible (or the solver fails) the documented fallback is **braking**: v* = 0, so
 q̇ = g0·0 = 0 and no barrier can decrease; the status says so.
@@ -55,7 +68,13 @@ __all__ = [
     "clearance",
     "barrier_lie_derivative",
     "robust_margin",
+    "tracking_bound",
+    "robust_epsilon",
+    "shaped_barrier",
+    "activation_gate",
+    "cbf_rows",
     "rcbf_constraints",
+    "BARRIERS",
     "QPStatus",
     "FilterResult",
     "project_velocity",
@@ -67,6 +86,8 @@ __all__ = [
 ]
 
 QP_SOLVERS = ("active_set", "piqp")
+#: the barrier forms of :func:`shaped_barrier`: the paper's squared distance, or the distance itself
+BARRIERS = ("squared", "distance")
 
 
 @dataclass(frozen=True)
@@ -100,6 +121,9 @@ def barrier(p: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> np.ndarray
     return np.sum(d * d, axis=-1) - radii**2
 
 
+_squared_barrier = barrier  # the module-level function, which rcbf_constraints' keyword `barrier` shadows
+
+
 def clearance(p: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> np.ndarray:
     """Signed distance ‖p − o_j‖ − r_j to each obstacle's boundary (negative inside): ``(..., O)``."""
     return np.linalg.norm(p[..., None, :] - centers, axis=-1) - radii
@@ -111,9 +135,143 @@ def barrier_lie_derivative(p: np.ndarray, Jbar: np.ndarray, centers: np.ndarray)
     return 2.0 * np.einsum("...oc,...ck->...ok", d, Jbar)
 
 
-def robust_margin(delta: float, kappa: float, epsilon: float) -> float:
-    """Γ(δ) = ε δ² / (4 κ): how far outside the safe set a tracking error δ can push (Eq. 57)."""
-    return epsilon * delta**2 / (4.0 * kappa)
+def robust_margin(delta: float, kappa: float, epsilon: float, decay: float = 0.0, arms: int = 1) -> float:
+    """Γ(δ): how far below zero a tracking error ‖v − v*‖ ≤ δ can push the filtered barrier h̃ = h − margin
+    (Eq. 57, docs/MODEL.md §5). In the barrier's own unit (m² squared, m distance).
+
+    On a row, ḣ̃ = L_g0 h · (v* + ẽ) ≥ −κ h̃ + ‖L_g0 h‖²/ε(h̃) − ‖L_g0 h‖ δ ≥ −κ h̃ − ε(h̃) δ²/4 (the
+    square completed in ‖L_g0 h‖), whatever the row's gradient and so whatever the barrier's form.
+    ε(h̃) = ε e^{λ h̃} (``decay`` λ, :func:`robust_epsilon`) is increasing, so ḣ̃ ≥ 0 wherever
+    κ (−h̃) ≥ ε e^{λ h̃} δ²/4, i.e. below h̃ = −Γ with
+
+        κ Γ e^{λ Γ} = arms · ε δ² / 4,     Γ = W(λ · arms · ε δ² / (4 κ)) / λ    (Lambert W; λ → 0: arms · ε δ²/(4κ))
+
+    and {h̃ ≥ −Γ} is forward invariant. ``arms`` is how many arms' tracking errors act on the row: 2 for
+    an inter-arm row that both arms filter with half the rate each (each brings its own −ε δ²/4)."""
+    delta, kappa, epsilon, decay = float(delta), float(kappa), float(epsilon), _decay("robust_margin", decay, arms)
+    x = arms * epsilon * delta**2 / (4.0 * kappa)
+    if decay == 0.0 or x == 0.0:
+        return x
+    # W(y) for y ≥ 0 by Newton's method on w e^w = y from log1p(y) (an upper bound, so it descends
+    # monotonically; W is concave and increasing): a few steps reach machine precision
+    y = decay * x
+    w = float(np.log1p(y))
+    for _ in range(100):
+        step = (w - y * np.exp(-w)) / (1.0 + w)
+        w -= step
+        if abs(step) <= 1e-15 * (1.0 + w):
+            break
+    return w / decay
+
+
+def tracking_bound(margin: float, kappa: float, epsilon: float, decay: float = 0.0, arms: int = 1) -> float:
+    """δ̄: the largest tracking error that a filter with ``margin`` still keeps out of the obstacles (h ≥ 0),
+    the inverse of :func:`robust_margin`: Γ(δ̄) = margin gives δ̄ = 2 √(κ · margin · e^{λ · margin} / (arms · ε)).
+    A tracking error δ ≤ δ̄ keeps h̃ ≥ −Γ(δ) ≥ −margin, so h = h̃ + margin ≥ 0."""
+    margin, kappa, epsilon, decay = float(margin), float(kappa), float(epsilon), _decay("tracking_bound", decay, arms)
+    return 2.0 * float(np.sqrt(kappa * margin * np.exp(decay * margin) / (arms * epsilon)))
+
+
+def _decay(owner: str, decay: float, arms: int) -> float:
+    """λ as a float, refused below 0: Γ's formula needs an ε(h̃) that does not fall as h̃ grows."""
+    if isinstance(arms, bool) or not isinstance(arms, (int, np.integer)) or arms < 1:
+        raise ValueError(f"{owner}: arms must be an integer ≥ 1, got {arms!r}")
+    return real(f"{owner}: decay", decay, non_negative=True)
+
+
+def robust_epsilon(h: np.ndarray, epsilon: float, decay: float = 0.0) -> np.ndarray:
+    """The tunable robustness ε(h̃) = ε e^{λ h̃} (λ = ``decay`` ≥ 0, in the barrier's inverse unit).
+
+    At the set's edge (h̃ = 0) it is the paper's ε; far inside it grows, so the robust term
+    ‖L_g0 h‖²/ε(h̃) fades where the class-K term κ h̃ already keeps the row slack (Alan et al., arXiv
+    2103.08041, use this exponential as their example of an increasing tuning function). λ = 0 is the
+    paper's constant ε. The exponent is capped so that far rows give a finite ε (then 1/ε ≈ 0)."""
+    return epsilon * np.exp(np.minimum(decay * np.asarray(h, dtype=float), 700.0))
+
+
+def shaped_barrier(h_squared: np.ndarray, radius: np.ndarray | float, barrier: str,
+                   *derivatives: np.ndarray) -> tuple[np.ndarray, ...]:
+    """A squared barrier h = d² − R² and its derivatives (rows L_g0 h, ∂h/∂t, each ``(..., k)`` or
+    ``(...)``) in the chosen form: ``"squared"`` returns them unchanged; ``"distance"`` returns
+    h = d − R with d = √(h + R²) and every derivative divided by 2d (∂d = ∂(d²)/(2d)).
+
+    The distance barrier has ‖∇_p h‖ = 1 for the body's point p, so its row ‖L_g0 h‖ = ‖J̄ᵀ n‖ stays
+    bounded by the arm's reach while κ h grows with d: far pairs stop binding (the squared barrier's
+    row and κ h both grow like d²). Its gradient is undefined at d = 0 (the body's point on the
+    obstacle's centre or segment, deep inside); there the rows are 0 and h = −R.
+
+    ``radius`` broadcasts against ``h_squared``. Returns ``(h, *derivatives)``."""
+    if barrier not in BARRIERS:
+        raise ValueError(f"unknown barrier {barrier!r}; choose one of {BARRIERS}")
+    h_squared = np.asarray(h_squared, dtype=float)
+    if barrier == "squared":
+        return (h_squared, *(np.asarray(x, dtype=float) for x in derivatives))
+    radius = np.asarray(radius, dtype=float)
+    d = np.sqrt(np.maximum(h_squared + radius**2, 0.0))
+    inv = np.where(d > 0.0, 0.5 / np.where(d > 0.0, d, 1.0), 0.0)
+    out = []
+    for x in derivatives:
+        x = np.asarray(x, dtype=float)
+        out.append(x * (inv[..., None] if x.ndim > inv.ndim else inv))
+    return (d - radius, *out)
+
+
+def activation_gate(clearance: np.ndarray, on: float, width: float) -> np.ndarray:
+    """The smooth activation σ ∈ [0, 1] of a row by its pair's clearance c (m):
+
+        σ = 1 for c ≤ on,   σ = 0 for c ≥ on + width,   σ = 1 − (3 s² − 2 s³), s = (c − on)/width, between
+
+    (C¹: the cubic's slope vanishes at both ends, its steepest is 1.5/width). ``width`` = 0 is a hard
+    range (σ = 1 up to ``on``, then 0). What :func:`cbf_rows` does with σ, and why rows it relaxes
+    cannot be violated: docs/MODEL.md §5, *Activation*."""
+    on = real("activation_gate: on", on, non_negative=True)
+    width = real("activation_gate: width", width, non_negative=True)
+    c = np.asarray(clearance, dtype=float)
+    if width == 0.0:
+        return np.where(c <= on, 1.0, 0.0)
+    s = np.clip((c - on) / width, 0.0, 1.0)
+    return 1.0 - s * s * (3.0 - 2.0 * s)
+
+
+def cbf_rows(
+    h: np.ndarray,
+    row: np.ndarray,
+    kappa: float,
+    epsilon: float,
+    margin: float = 0.0,
+    decay: float = 0.0,
+    dh_dt: np.ndarray | float = 0.0,
+    share: np.ndarray | float = 1.0,
+    gate: np.ndarray | None = None,
+    speed: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The QP rows ``A v ≤ b`` of any barrier ``h (...)`` with row L_g0 h ``(..., k)`` (either form):
+
+        −L_g0 h · v ≤ share · κ h̃ + ∂h/∂t − ‖L_g0 h‖² / ε(h̃),      h̃ = h − margin,  ε(h̃) = ε e^{λ h̃}
+
+    (the robust ISSf condition of Eq. 56 with the tightened barrier, a moving obstacle's ∂h/∂t, and the
+    rate ``share`` of a pair two arms filter: ½ each). With ``gate`` σ ``(...)`` in [0, 1]
+    (:func:`activation_gate`) the row becomes the convex combination of itself and the trivially true
+    0 ≤ S, S = ``speed`` · Σ_t |L_g0 h_t| (the most −L_g0 h · v can be inside the speed box |v_t| ≤ speed):
+
+        −σ L_g0 h · v ≤ σ b + (1 − σ) S.
+
+    σ = 1 is the row itself, σ = 0 a zero row with b ≥ 0 (the QP drops it), and in between a relaxation
+    that every v meeting the row meets: the gate can only enlarge the feasible set, and it moves the
+    half-space continuously (no jump of v* when a pair comes into range). Returns ``(A, b)``."""
+    h = np.asarray(h, dtype=float)
+    row = np.asarray(row, dtype=float)
+    ht = h - margin
+    A = -row
+    b = share * kappa * ht + dh_dt - np.sum(row * row, axis=-1) / robust_epsilon(ht, epsilon, decay)
+    if gate is not None:
+        if speed is None or not np.isfinite(speed):
+            raise ValueError("cbf_rows: a gate needs the finite speed bound of the box rows")
+        sigma = np.asarray(gate, dtype=float)
+        S = speed * np.sum(np.abs(row), axis=-1)
+        A = sigma[..., None] * A
+        b = sigma * b + (1.0 - sigma) * S
+    return A, b
 
 
 def rcbf_constraints(
@@ -125,6 +283,11 @@ def rcbf_constraints(
     epsilon: float,
     active: np.ndarray | None = None,
     margin: float = 0.0,
+    *,
+    barrier: str = "squared",
+    decay: float = 0.0,
+    gate: tuple[float, float] | None = None,
+    speed: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The QP rows ``A v ≤ b`` of Eq. 61 and the barrier values used.
 
@@ -135,19 +298,28 @@ def rcbf_constraints(
         kappa, epsilon: the class-K gain κ and the robustness parameter ε.
         active: optional boolean mask ``(..., O)``; rows where it is False are switched off
             (A = 0, b = +inf), e.g. obstacles beyond an arm's reach.
-        margin: Γ(δ̄) to tighten the set (h − margin replaces h).
+        margin: Γ(δ̄) to tighten the set (h − margin replaces h), in the barrier's unit.
+        barrier: ``"squared"`` (the paper's h = ‖p − o‖² − r²) or ``"distance"`` (h = ‖p − o‖ − r).
+        decay: λ of the tunable ε(h̃) = ε e^{λ h̃} (0: the paper's constant ε).
+        gate: ``(on, width)`` of :func:`activation_gate` on the clearance ‖p − o‖ − r (None: every
+            obstacle; width 0: a hard range); needs ``speed``, the joint speed bound, see :func:`cbf_rows`.
 
     Returns:
-        ``A (..., O, k)``, ``b (..., O)``, ``h (..., O)`` (h before tightening).
+        ``A (..., O, k)``, ``b (..., O)``, ``h (..., O)`` (h before tightening, in the chosen form).
     """
-    h = barrier(p, centers, radii)
+    h_sq = barrier_values = _squared_barrier(p, centers, radii)
     Lg = barrier_lie_derivative(p, Jbar, centers)
-    A = -Lg
-    b = kappa * (h - margin) - np.sum(Lg * Lg, axis=-1) / epsilon
+    if barrier == "squared" and decay == 0.0 and gate is None:  # the paper's rows, written out
+        A = -Lg
+        b = kappa * (h_sq - margin) - np.sum(Lg * Lg, axis=-1) / epsilon
+    else:
+        barrier_values, Lg = shaped_barrier(h_sq, radii, barrier, Lg)
+        sigma = None if gate is None else activation_gate(clearance(p, centers, radii), *gate)
+        A, b = cbf_rows(barrier_values, Lg, kappa, epsilon, margin, decay, gate=sigma, speed=speed)
     if active is not None:
         A = np.where(active[..., None], A, 0.0)
         b = np.where(active, b, np.inf)
-    return A, b, h
+    return A, b, barrier_values
 
 
 class QPStatus(IntEnum):
