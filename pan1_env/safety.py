@@ -152,16 +152,9 @@ def robust_margin(delta: float, kappa: float, epsilon: float, decay: float = 0.0
     x = arms * epsilon * delta**2 / (4.0 * kappa)
     if decay == 0.0 or x == 0.0:
         return x
-    # W(y) for y ≥ 0 by Newton's method on w e^w = y from log1p(y) (an upper bound, so it descends
-    # monotonically; W is concave and increasing): a few steps reach machine precision
-    y = decay * x
-    w = float(np.log1p(y))
-    for _ in range(100):
-        step = (w - y * np.exp(-w)) / (1.0 + w)
-        w -= step
-        if abs(step) <= 1e-15 * (1.0 + w):
-            break
-    return w / decay
+    from scipy.special import lambertw  # here, not at import: scipy.special costs `import pan1_env` time
+
+    return float(lambertw(decay * x).real) / decay
 
 
 def tracking_bound(margin: float, kappa: float, epsilon: float, decay: float = 0.0, arms: int = 1) -> float:
