@@ -280,9 +280,9 @@ class FormationCore:
             if rule is None:
                 out[key] = value[b].item()
             elif rule == "flat":
-                out[key] = value[b].reshape(-1)[self._columns]
+                out[key] = value[b].reshape(-1) if self._uniform_actions else value[b].reshape(-1)[self._columns]
             elif key == "qp_counts":
-                out[key] = value[b].sum(axis=0)
+                out[key] = value[b, 0] if value.shape[1] == 1 else value[b].sum(axis=0)
             else:
                 row = value[b].tolist()
                 out[key] = row[0] if len(row) == 1 else _gather(rule, row)
@@ -298,12 +298,13 @@ class FormationCore:
             if self.config.action_mode == "torque":
                 applied = np.take_along_axis(rec.tau, self._actuated_joints, axis=2)
             else:
-                applied = rec.v_star.copy()
-            applied[:, self._padding] = 0.0
-            applied = (applied * (1.0 / self.config.action_scale)).astype(np.float32)
+                applied = rec.v_star
+            if not self._uniform_actions:  # the padding (NaN in the record) reads 0
+                applied = np.where(self._padding, 0.0, applied)
+            applied = np.multiply(applied, 1.0 / self.config.action_scale, dtype=np.float32)
         solved, fallback = counts[..., 1] > 0, counts[..., 2] > 0
         return {"shield_intervened": solved | fallback, "shield_fallback": fallback,
-                "shield_status": np.where(fallback, 2, solved.astype(np.int64)), "shield_min_barrier": min_barrier,
+                "shield_status": np.where(fallback, 2, solved), "shield_min_barrier": min_barrier,
                 "shield_applied": applied, "qp_counts": counts}
 
     def _infos(self, out, rec: StepRecord | None) -> dict[str, np.ndarray]:
