@@ -485,21 +485,26 @@ def bench_marl(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
     try:
         import torch
         import vmas
-        from torchrl.envs.utils import step_mdp
 
         from pan1_env.marl import torchrl_env
     except ImportError as error:
         return [("TorchRL env rows", float("nan"), f"needs the marl and bench extras ({error.name} missing)")]
     from pan1_env.vector import Pan1VectorEnv
 
+    venv = Pan1VectorEnv("random", B)
+    vector = _vector_stepper(venv)  # cycles four seeded random flat actions
     env = torchrl_env("random", num_envs=B, safety_filter=True)
     env.set_seed(0)
-    state = {"td": env.reset()}
-    action = torch.from_numpy(np.random.default_rng(0).uniform(-1, 1, (B, 4, env.core.k_max)).astype(np.float32))
+    # the same four actions, each arm's entries in its padded row; ended copies reset as the collectors do
+    venv.action_space.seed(0)
+    actions = [torch.from_numpy(env.core.padded_actions(venv.action_space.sample()).astype(np.float32))
+               for _ in range(4)]
+    state = {"td": env.reset(), "i": 0}
 
     def ours():
-        state["td"]["arms", "action"] = action
-        state["td"] = step_mdp(env.step(state["td"]))
+        state["td"]["arms", "action"] = actions[state["i"] % 4]
+        state["td"] = env.step_and_maybe_reset(state["td"])[1]
+        state["i"] += 1
 
     peer = vmas.make_env("navigation", num_envs=B, device="cpu", continuous_actions=True, n_agents=4, seed=0)
     peer.reset()
@@ -508,8 +513,6 @@ def bench_marl(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
     def theirs():
         peer.step(moves)
 
-    venv = Pan1VectorEnv("random", B)
-    vector = _vector_stepper(venv)
     for step in (ours, theirs, vector):
         step()
     inner = max(1, 4096 // B)

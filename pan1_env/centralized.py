@@ -2,9 +2,10 @@
 
 Its observation is the concatenation of every agent's observation (agent order ``arm_0``, ``arm_1``, …),
 its action the concatenation of every agent's action, its reward the mean of the agents' rewards, and its
-infos the team's (:meth:`pan1_env.core.FormationCore.team_infos`): ``cost`` the number of arms that entered an obstacle
-in the step, ``min_clearance``, ``formation_error``, ``is_success``, ``reward_<term>`` (averaged over the
-arms, as the reward), and with the filter on ``shield_intervened``, ``shield_fallback``, ``qp_counts``.
+infos the team's (:meth:`pan1_env.core.FormationCore.team_infos`): ``cost`` the number of arms that entered an
+obstacle in the step, ``min_clearance``, ``formation_error``, ``is_success``, ``reward_<term>`` (averaged over
+the arms, as the reward), and with the filter on its report (``shield_intervened``, ``shield_fallback``,
+``shield_status``, ``shield_min_barrier``, ``shield_applied`` laid out as the action, ``qp_counts``).
 :class:`~pan1_env.vector.Pan1VectorEnv` is the same view for B copies.
 """
 

@@ -295,13 +295,14 @@ class FormationCore:
             applied, min_barrier = np.zeros((*shape, self.k_max), dtype=np.float32), np.full(shape, np.inf)
         else:
             counts, min_barrier = rec.qp_counts, rec.min_barrier
-            if self.config.action_mode == "torque":
-                applied = np.take_along_axis(rec.tau, self._actuated_joints, axis=2)
-            else:
-                applied = rec.v_star
+            c = self.config
+            if c.action_mode == "torque":
+                applied, unit = np.take_along_axis(rec.tau, self._actuated_joints, axis=2), c.max_torque
+            else:  # velocity, residual and gain modes: the filtered velocity in units of the largest speed
+                applied, unit = rec.v_star, c.max_joint_speed
             if not self._uniform_actions:  # the padding (NaN in the record) reads 0
                 applied = np.where(self._padding, 0.0, applied)
-            applied = np.multiply(applied, 1.0 / self.config.action_scale, dtype=np.float32)
+            applied = np.multiply(applied, 1.0 / unit, dtype=np.float32)
         solved, fallback = counts[..., 1] > 0, counts[..., 2] > 0
         return {"shield_intervened": solved | fallback, "shield_fallback": fallback,
                 "shield_status": np.where(fallback, 2, solved), "shield_min_barrier": min_barrier,

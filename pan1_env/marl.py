@@ -13,7 +13,7 @@ Keys (batch size ``[B]``; every arm of a copy starts and ends its episode togeth
 * ``("arms", "action") [B, N, k_max]`` in [−1, 1]: an arm applies its own first k_i entries, the rest is
   ignored. Arms of different kinds (link counts, PA or fully actuated) are padded into one group rather
   than split into one group per kind, so that one shared network (BenchMARL's default,
-  ``share_policy_params``) serves a whole random team, whose kinds change with the team.
+  ``share_policy_params``) serves every arm of a team, whatever its kinds.
 * ``("arms", "reward") [B, N, 1]``, and beside the observation ``("arms", "cost") [B, N, 1]`` (1.0 where the
   arm entered an obstacle at some sub-step of the step, the safety-gymnasium convention; 0 after a reset):
   constrained learners read it from ``("next", "arms", "cost")``.
@@ -100,10 +100,12 @@ class Pan1TorchRLEnv(EnvBase):
             self.core.seed([seed + b for b in range(self.core.copies)])
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
-        which = None
-        if tensordict is not None and "_reset" in tensordict.keys():
-            which = tensordict.get("_reset").reshape(self.core.copies, -1).any(-1).nonzero().squeeze(-1).numpy()
-        self.core.reset(which)
+        which = None  # every copy, unless a reset mask (the root's or the group's, as TorchRL writes them) says
+        for key in ("_reset", (GROUP, "_reset")):
+            if tensordict is not None and key in tensordict.keys(include_nested=True):
+                marked = tensordict.get(key).reshape(self.core.copies, -1).any(-1).numpy()
+                which = marked if which is None else which | marked
+        self.core.reset(None if which is None else which.nonzero()[0])
         mats, infos = self.core.start()
         return self._observations(mats, infos)
 

@@ -89,9 +89,11 @@ class PAReachEnv(OneCopyGymEnv):
 
     ``cost``, ``min_clearance`` (smallest ‖p − o‖ − r over the step's sub-steps), ``distance``
     (‖goal − p‖), ``is_success``, with the filter on ``shield_intervened`` (the filter changed the command
-    in a sub-step), ``shield_fallback`` (its QP was infeasible and the braking fallback ran) and
-    ``qp_counts``; ``reward_<term>``: the reward's terms (``reward_distance``, and ``reward_effort`` and
-    ``reward_collision`` when their weights are not zero), which sum to it (0 after a reset).
+    in a sub-step), ``shield_fallback`` (its QP was infeasible and the braking fallback ran),
+    ``shield_status`` (0 nominal, 1 solved, 2 fallback), ``shield_min_barrier``, ``shield_applied`` (the
+    action applied, v*/``max_joint_speed``) and ``qp_counts``; ``reward_<term>``: the reward's terms
+    (``reward_distance``, and ``reward_effort`` and ``reward_collision`` when their weights are not zero),
+    which sum to it (0 after a reset).
 
     ## Arguments
 

@@ -71,7 +71,8 @@ class Pan1VectorEnv(CoreView, VectorEnv):
     :class:`~pan1_env.centralized.CentralizedEnv` (:meth:`pan1_env.core.FormationCore.team_infos`): ``cost`` (number of
     arms that entered an obstacle in the step), ``min_clearance`` (m), ``formation_error`` (m),
     ``is_success``, ``reward_<term>`` (averaged over the agents like the reward), with the safety filter
-    ``shield_intervened``, ``shield_fallback`` and ``qp_counts``; ``fault`` (strings, masked) for a copy
+    its report (``shield_intervened``, ``shield_fallback``, ``shield_status``, ``shield_min_barrier``,
+    ``shield_applied`` laid out as the action, ``qp_counts``); ``fault`` (strings, masked) for a copy
     truncated by a non-finite state.
 
     ## Arguments

@@ -152,9 +152,11 @@ def test_team_infos_aggregate_the_arms_as_the_reward_does() -> None:
             np.testing.assert_array_equal(value, team[key][b], err_msg=key)
 
 
-@pytest.mark.parametrize("mode", ["velocity", "torque", "residual"])
+@pytest.mark.parametrize("mode", ["velocity", "torque", "residual", "gain"])
 def test_shield_report_is_flat_and_in_action_units(mode: str) -> None:
-    core = FormationCore(FormationConfig("paper_pa_mixed_square", safety_filter=True, action_mode=mode), 1)
+    config = FormationConfig("paper_pa_mixed_square", safety_filter=True, action_mode=mode, max_joint_speed=2.0,
+                             max_torque=10.0)
+    core = FormationCore(config, 1)
     core.seed([3])
     core.reset()
     _, infos = core.start()
@@ -162,8 +164,9 @@ def test_shield_report_is_flat_and_in_action_units(mode: str) -> None:
     out = core.step(np.random.default_rng(3).uniform(-1, 1, (1, 4, core.k_max)))
     applied, rec = out.infos["shield_applied"][0], core.record
     for i, (n, k) in enumerate(zip(core.n_links, core.n_actuated, strict=True)):
-        command = rec.tau[0, i, n - k : n] if mode == "torque" else rec.v_star[0, i, :k]
-        np.testing.assert_allclose(applied[i, :k], command / core.config.action_scale, rtol=1e-6)
+        # the torque over max_torque, else the filtered velocity over max_joint_speed (gain mode too)
+        command = rec.tau[0, i, n - k : n] / 10.0 if mode == "torque" else rec.v_star[0, i, :k] / 2.0
+        np.testing.assert_allclose(applied[i, :k], command, rtol=1e-6)
         assert (applied[i, k:] == 0).all()
     counts = out.infos["qp_counts"][0]
     np.testing.assert_array_equal(out.infos["shield_status"][0], np.where(counts[:, 2] > 0, 2, counts[:, 1] > 0))
@@ -243,3 +246,22 @@ def test_a_filter_the_qp_solver_cannot_run_is_refused_when_it_is_switched_on() -
     with pytest.raises(ValueError, match="torque-mode filter needs qp_solver='active_set'"):
         SafetyShield(env)
     assert env.safety_filter is None
+
+
+def test_one_copy_team_info_equals_the_batched_one_for_large_teams_and_nan() -> None:
+    """Nine arms (numpy's pairwise summation starts at 8) and a non-finite clearance: the one-copy Python
+    reductions give the batched numpy ones bit for bit."""
+    config = FormationConfig("random", random_options={"n_arms": 9}, safety_filter=True, effort_weight=0.1)
+    core = FormationCore(config, 2)
+    core.seed([0, 1])
+    core.reset()
+    out = core.step(np.random.default_rng(1).uniform(-1, 1, (2, 9, core.k_max)))
+    infos = dict(out.infos)
+    infos["min_clearance"] = infos["min_clearance"].copy()
+    infos["min_clearance"][1, 4] = np.nan
+    infos["reward_effort"] = infos["reward_effort"] * np.linspace(1e-3, 1e12, 9)  # magnitudes that round
+    team = core.team_infos(infos)
+    for b in range(2):
+        for key, value in core.team_info(infos, b).items():
+            np.testing.assert_array_equal(value, team[key][b], err_msg=key)
+    assert np.isnan(core.team_info(infos, 1)["min_clearance"])

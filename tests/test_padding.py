@@ -20,6 +20,8 @@ def test_each_arm_applies_its_own_entries_and_sees_its_observation_first() -> No
     assert len(set(sizes.values())) > 1  # a mixed team, else this test shows nothing
     k = max(sizes.values())
     assert all(env.action_space(a).shape == (k,) for a in env.possible_agents)
+    assert env.action_spaces == {a: env.action_space(a) for a in env.possible_agents}
+    assert env.observation_spaces == {a: env.observation_space(a) for a in env.possible_agents}
     obs, _ = env.reset(seed=2)
     twin_obs, _ = twin.reset(seed=2)
     rng = np.random.default_rng(2)

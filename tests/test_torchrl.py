@@ -14,6 +14,7 @@ else:
     pytest.importorskip("torchrl")
 
 import torch  # noqa: E402
+from tensordict import TensorDict  # noqa: E402
 from torchrl.envs.libs.pettingzoo import PettingZooWrapper  # noqa: E402
 from torchrl.envs.utils import check_env_specs, step_mdp  # noqa: E402
 
@@ -114,3 +115,44 @@ def test_native_env_matches_the_vector_env_step_for_step(scenario: str) -> None:
                                    axis=1)
             np.testing.assert_array_equal(final[truncated], np.stack(info["final_obs"][truncated]))
         td = env.reset(step_mdp(td)) if truncated.any() else step_mdp(td)
+
+
+def test_partial_resets_match_the_vector_env() -> None:
+    """Copies that end at different steps (collisions end them) are reset alone, through the collector's path
+    (``step_and_maybe_reset``), and start the same new episodes as the vector env's autoreset; the others go on."""
+    B, kwargs = 6, {"max_steps": 60, "terminate_on_collision": True, "safety_filter": False}
+    env = torchrl_env("paper_pa3_square", num_envs=B, **kwargs)
+    venv = Pan1VectorEnv("paper_pa3_square", B, **kwargs)
+    env.set_seed(0)
+    td = env.reset()
+    obs, _ = venv.reset(seed=0)
+    ks, rng, partial = env.core.n_actuated, np.random.default_rng(0), 0
+    for _ in range(30):
+        flat = rng.uniform(-1, 1, (B, sum(ks))).astype(np.float32)
+        padded = np.zeros((B, len(ks), env.core.k_max), np.float32)
+        for i, (start, k) in enumerate(zip(np.cumsum([0, *ks[:-1]]), ks, strict=True)):
+            padded[:, i, :k] = flat[:, start : start + k]
+        td["arms", "action"] = torch.from_numpy(padded)
+        td, root = env.step_and_maybe_reset(td)
+        obs, reward, terminated, truncated, info = venv.step(flat)
+        done = td["next", "done"].numpy()[:, 0]
+        np.testing.assert_array_equal(done, terminated | truncated)
+        partial += 0 < done.sum() < B
+        np.testing.assert_allclose(td["next", "arms", "reward"].numpy()[..., 0].mean(axis=1), reward, atol=1e-6)
+        np.testing.assert_array_equal(root["arms", "observation"].numpy().reshape(B, -1), obs)
+        np.testing.assert_array_equal(env.core.steps, venv.core.steps)
+        td = root
+    assert partial > 5  # the test saw copies end alone
+
+
+@pytest.mark.parametrize("key", ["_reset", ("arms", "_reset")])
+def test_a_reset_mask_resets_only_its_copies(key) -> None:
+    env = torchrl_env("paper_pa3_square", num_envs=3, max_steps=10)
+    env.set_seed(0)
+    td = env.rollout(3)  # three steps of every copy
+    assert env.core.steps.tolist() == [3, 3, 3]
+    mask = torch.tensor([True, False, False])
+    td = TensorDict({key: mask.reshape(3, 1) if key == "_reset" else mask.reshape(3, 1).expand(3, 4).clone()},
+                    batch_size=[3])
+    env.reset(td)
+    assert env.core.steps.tolist() == [0, 3, 3]

@@ -33,6 +33,14 @@ class PadToLargestArm(BaseParallelWrapper):
         self._obs_space = gymnasium.spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
         self._act_space = gymnasium.spaces.Box(-1.0, 1.0, shape=(n_act,), dtype=np.float32)
 
+    @property
+    def observation_spaces(self) -> dict:
+        return dict.fromkeys(self.possible_agents, self._obs_space)
+
+    @property
+    def action_spaces(self) -> dict:
+        return dict.fromkeys(self.possible_agents, self._act_space)
+
     def observation_space(self, agent):
         return self._obs_space
 
