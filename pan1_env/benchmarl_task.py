@@ -1,0 +1,113 @@
+"""The env as a BenchMARL task: ``Experiment(task=Pan1Task("random", {...}), ...)`` runs MAPPO, IPPO, … on it.
+
+:class:`Pan1Task` is a BenchMARL ``TaskClass`` whose environment is :func:`pan1_env.marl.torchrl_env` (B copies
+in one batched call, so BenchMARL needs no ``SerialEnv`` around it). Its ``name`` is any scenario or registered
+id (``"paper_pa3_square"``, ``"random"``, ``"pan1_env/WholeArmStaticFormation-v0"``), its ``config`` the env's
+keywords (:class:`~pan1_env.config.FormationConfig`; ``safety_filter`` defaults to True here: the shield is
+on while the policies learn). :data:`TASKS` gives the three standard tasks with their defaults, and
+``pan1_env/benchmarl_tasks/*.yaml`` the same as YAML files, for ``Pan1Task.from_yaml(path)``.
+
+What BenchMARL sees: one group ``arms``; the models' input is each arm's own observation (the policy acts on
+local observations; a MAPPO critic may also read the global ``state``); the per-arm ``cost`` and the shield's
+report are infos, which :meth:`Pan1Task.log_info` logs as the mean cost per arm-step and the share of
+arm-steps the filter changed. Needs BenchMARL (the ``benchmarl`` extra, with its own TorchRL pin).
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any
+
+from benchmarl.environments.common import TaskClass
+from tensordict import TensorDictBase
+from torchrl.data import Composite
+from torchrl.envs import EnvBase
+
+from .marl import GROUP, torchrl_env
+
+__all__ = ["Pan1Task", "TASKS", "YAML_DIR"]
+
+#: the standard tasks: the paper's two squares and the random and whole-arm teams, shielded
+TASKS = {
+    "paper_pa3_square": {"safety_filter": True},
+    "paper_pa_mixed_square": {"safety_filter": True},
+    "random": {"safety_filter": True},
+    "pan1_env/WholeArmStaticFormation-v0": {"safety_filter": True},
+}
+YAML_DIR = Path(__file__).with_name("benchmarl_tasks")
+
+
+class Pan1Task(TaskClass):
+    """A pan1-env scenario as a BenchMARL task (see the module docstring)."""
+
+    def __init__(self, name: str = "random", config: dict[str, Any] | None = None) -> None:
+        super().__init__(name, {"safety_filter": True, **(config or {})})
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> Pan1Task:
+        """A task from a YAML file of this package's form: ``scenario: NAME`` and the env's keywords."""
+        import yaml
+
+        config = yaml.safe_load(Path(path).read_text()) or {}
+        return cls(config.pop("scenario", "random"), config)
+
+    def get_env_fun(self, num_envs: int, continuous_actions: bool, seed: int | None, device: Any):
+        if not continuous_actions:
+            raise ValueError("pan1-env tasks have continuous actions only")
+        name, config = self.name, copy.deepcopy(self.config)
+
+        def make() -> EnvBase:
+            env = torchrl_env(name, num_envs=num_envs, **config)
+            if seed is not None:
+                env.set_seed(seed)
+            return env.to(device)
+
+        return make
+
+    def supports_continuous_actions(self) -> bool:
+        return True
+
+    def supports_discrete_actions(self) -> bool:
+        return False
+
+    def max_steps(self, env: EnvBase) -> int:
+        return env.core.config.max_steps
+
+    def has_render(self, env: EnvBase) -> bool:
+        return False
+
+    def group_map(self, env: EnvBase) -> dict[str, list[str]]:
+        return {GROUP: list(env.core.agents)}
+
+    def observation_spec(self, env: EnvBase) -> Composite:
+        spec = env.full_observation_spec_unbatched
+        return Composite({GROUP: Composite({"observation": spec[GROUP, "observation"]},
+                                           shape=spec[GROUP].shape)})
+
+    def info_spec(self, env: EnvBase) -> Composite | None:
+        spec = env.full_observation_spec_unbatched
+        return Composite({GROUP: Composite({"cost": spec[GROUP, "cost"], "info": spec[GROUP, "info"]},
+                                           shape=spec[GROUP].shape)})
+
+    def state_spec(self, env: EnvBase) -> Composite | None:
+        return Composite({"state": env.full_observation_spec_unbatched["state"]})
+
+    def action_mask_spec(self, env: EnvBase) -> Composite | None:
+        return None  # continuous actions: an arm ignores its padding entries itself
+
+    def action_spec(self, env: EnvBase) -> Composite:
+        return env.full_action_spec_unbatched
+
+    @staticmethod
+    def env_name() -> str:
+        return "pan1_env"
+
+    @staticmethod
+    def log_info(batch: TensorDictBase) -> dict[str, float]:
+        """The collected batch's mean cost per arm-step and, with the shield, the share of arm-steps it changed."""
+        out = {"cost_per_arm_step": batch.get(("next", GROUP, "cost")).float().mean().item()}
+        intervened = ("next", GROUP, "info", "shield_intervened")
+        if intervened in batch.keys(True, True):
+            out["shield_intervention_rate"] = batch.get(intervened).float().mean().item()
+        return out

@@ -1,0 +1,51 @@
+"""The BenchMARL task: BenchMARL's own Experiment runs MAPPO on it for a few thousand frames, behind the
+shield, and logs the cost and the shield's work (skipped without BenchMARL; `make test` runs it in a venv of its
+own, .venv-benchmarl, where a missing BenchMARL is a failure)."""
+
+import importlib.util
+import os
+from pathlib import Path
+
+import pytest
+
+if os.environ.get("PAN1_REQUIRE_BENCHMARL"):
+    import benchmarl  # noqa: F401
+else:
+    pytest.importorskip("benchmarl")
+
+from torchrl.envs.utils import check_env_specs  # noqa: E402
+
+from pan1_env.benchmarl_task import TASKS, YAML_DIR, Pan1Task  # noqa: E402
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "benchmarl_mappo.py"
+
+
+@pytest.mark.parametrize("name", sorted(TASKS))
+def test_the_task_builds_envs_benchmarl_can_use(name: str) -> None:
+    task = Pan1Task(name, {"max_steps": 20})
+    env = task.get_env_fun(num_envs=3, continuous_actions=True, seed=0, device="cpu")()
+    check_env_specs(env, seed=0)
+    assert task.group_map(env) == {"arms": [f"arm_{i}" for i in range(4)]}
+    assert list(task.observation_spec(env).keys(True, True)) == [("arms", "observation")]
+    assert task.max_steps(env) == 20 and env.core.engine.filter is not None  # shielded by default
+    with pytest.raises(ValueError, match="continuous"):
+        task.get_env_fun(num_envs=1, continuous_actions=False, seed=0, device="cpu")
+
+
+def test_the_yaml_files_name_the_standard_tasks() -> None:
+    names = {Pan1Task.from_yaml(path).name for path in YAML_DIR.glob("*.yaml")}
+    assert names == set(TASKS)
+
+
+@pytest.mark.slow
+def test_mappo_runs_a_few_thousand_frames_and_logs_the_cost(tmp_path: Path) -> None:
+    spec = importlib.util.spec_from_file_location("benchmarl_mappo", EXAMPLE)
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    experiment = example.main(["--task", str(YAML_DIR / "random.yaml"), "--frames", "3000", "--batch", "1000",
+                               "--copies", "10", "--epochs", "1", "--out", str(tmp_path)])
+    assert experiment.total_frames >= 3000 and experiment.n_iters_performed == 3
+    scalars = next(tmp_path.rglob("scalars"))
+    costs = (scalars / "cost_per_arm_step.csv").read_text().split()
+    assert len(costs) == 3 and all(float(row.split(",")[-1]) == 0.0 for row in costs)  # behind the shield
+    assert (scalars / "shield_intervention_rate.csv").exists()
