@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import ast
 import inspect
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -231,3 +233,14 @@ def test_the_reference_layer_imports_nothing_compiled() -> None:
     compiled = {(name, t) for name, targets in imported.items() if not is_compiled(name) for t in targets
                 if is_compiled(t)}
     assert not compiled, f"the numpy reference layer reaches compiled code: {sorted(compiled)}"
+
+
+def test_the_package_and_its_views_import_no_heavy_library() -> None:
+    """``import pan1_env`` and every env view stay light: torch, TorchRL, SB3 and matplotlib load only
+    where they are used (pan1_env.marl, the rl baselines, the figures)."""
+    heavy = ("torch", "torchrl", "tensordict", "stable_baselines3", "matplotlib", "benchmarl")
+    code = ("import sys, pan1_env, pan1_env.environment, pan1_env.centralized, pan1_env.vector, pan1_env.reach, "
+            "pan1_env.wrappers, pan1_env.baselines; "
+            f"print([m for m in {heavy!r} if m in sys.modules])")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0 and done.stdout.strip() == "[]", done.stdout + done.stderr
