@@ -5,8 +5,10 @@ This module owns the equations of docs/MODEL.md §1 (the paper's Eq. 1–8 and 1
     λ_αα = I_α + m_α l_α² + L_α² Σ_{γ>α} m_γ
     λ_αβ = m_β L_α l_β + L_α L_β Σ_{γ>β} m_γ            (α < β)
     M̄_αβ = λ_αβ cos(θ_β − θ_α),  C̄_αβ = −λ_αβ θ̇_β sin(θ_β − θ_α)
-    M = Sᵀ M̄ S,  C = Sᵀ C̄ S,  M q̈ + C q̇ = τ     (θ = S q, S lower-triangular ones)
+    M = Sᵀ M̄ S,  C = Sᵀ C̄ S,  M q̈ + C q̇ = τ − b q̇₁ e₁   (θ = S q, S lower-triangular ones)
     p_end = p0 + Σ_α L_α [sin(θ_α + φ), cos(θ_α + φ)]
+
+The damping term −b q̇₁ e₁ acts only while joint 1 is passive (docs/MODEL.md §7); b = 0 by default.
 
 Joint angles are relative; link angles θ are measured from the base frame's vertical axis,
 positive clockwise (see docs/MODEL.md §6). There is no gravity: the plane is horizontal.
@@ -18,6 +20,7 @@ leading batch shape. With an :class:`ArmBatch`, ``B`` must equal the number of s
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -38,6 +41,9 @@ __all__ = [
     "end_effector",
     "jacobian",
     "kinetic_energy",
+    "damping_torque",
+    "forward_dynamics",
+    "faulted",
 ]
 
 
@@ -50,6 +56,17 @@ def _positive_vector(name: str, values: Sequence[float]) -> np.ndarray:
     if np.any(arr <= 0):
         raise ValueError(f"ArmParams.{name} must be positive, got {arr.tolist()}")
     return arr
+
+
+def _damping(value: object) -> float:
+    # A negative b would pump energy into the arm and a NaN would poison every step silently.
+    try:
+        b = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise ValueError(f"ArmParams.passive_damping must be a number ≥ 0, got {value!r}") from None
+    if not np.isfinite(b) or b < 0:
+        raise ValueError(f"ArmParams.passive_damping must be finite and ≥ 0 (N·m·s/rad), got {value!r}")
+    return b
 
 
 @dataclass(frozen=True)
@@ -65,10 +82,13 @@ class ArmParams:
         phi: rotation ``φ`` of the base frame from the world frame, radians.
         passive_first_joint: ``True`` for a PAn−1 arm (joint 1 unactuated), ``False`` for a fully
             actuated arm.
+        passive_damping: viscous damping ``b ≥ 0`` of joint 1 in N·m·s/rad, acting (as the torque
+            −b q̇₁) only while joint 1 is passive: from the start on a PAn−1 arm, from the fault on
+            a fully actuated one (docs/MODEL.md §7). 0, the paper's frictionless model, by default.
 
     Raises:
         ValueError: on mismatched lengths, fewer than two links, non-positive or non-finite
-            values, or a centre of mass outside its link.
+            values, a centre of mass outside its link, or a negative or non-finite damping.
     """
 
     masses: np.ndarray
@@ -78,6 +98,7 @@ class ArmParams:
     base: np.ndarray = field(default_factory=lambda: np.zeros(2))
     phi: float = 0.0
     passive_first_joint: bool = True
+    passive_damping: float = 0.0
 
     def __post_init__(self) -> None:
         names = ("masses", "lengths", "com", "inertias")
@@ -105,6 +126,7 @@ class ArmParams:
         object.__setattr__(self, "base", base)
         object.__setattr__(self, "phi", phi)
         object.__setattr__(self, "passive_first_joint", bool(self.passive_first_joint))
+        object.__setattr__(self, "passive_damping", _damping(self.passive_damping))
         lam = _lambda(arrays["masses"], arrays["lengths"], arrays["com"], arrays["inertias"])
         lam.setflags(write=False)
         object.__setattr__(self, "_lambda", lam)
@@ -139,6 +161,7 @@ class ArmParams:
             )
             and self.phi == other.phi
             and self.passive_first_joint == other.passive_first_joint
+            and self.passive_damping == other.passive_damping
         )
 
     __hash__ = None  # type: ignore[assignment]
@@ -157,6 +180,7 @@ class ArmBatch:
     base: np.ndarray  # (B, 2)
     phi: np.ndarray  # (B,)
     passive_first_joint: bool = True
+    passive_damping: np.ndarray | float = 0.0  # (B,) or one b for all
 
     @classmethod
     def stack(cls, arms: Sequence[ArmParams]) -> ArmBatch:
@@ -175,6 +199,7 @@ class ArmBatch:
             base=np.stack([arm.base for arm in arms]),
             phi=np.array([arm.phi for arm in arms]),
             passive_first_joint=arms[0].passive_first_joint,
+            passive_damping=np.array([arm.passive_damping for arm in arms]),
         )
 
     @property
@@ -302,3 +327,36 @@ def kinetic_energy(arm: Arm, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
     """Kinetic energy ½ q̇ᵀ M(q) q̇ (the only energy: there is no gravity)."""
     qd = checked_joints(arm, qd, "qd")
     return 0.5 * np.einsum("...a,...ab,...b->...", qd, mass_matrix(arm, q), qd)
+
+
+def damping_torque(arm: Arm, qd: np.ndarray) -> np.ndarray:
+    """The viscous torque at a passive joint 1 as a full joint vector: ``[−b q̇₁, 0, …, 0]``.
+
+    Zero while joint 1 is actuated: the model takes a working drive to cancel its joint's friction,
+    so a fully actuated arm moves as in the paper until its fault (docs/MODEL.md §7).
+    """
+    qd = checked_joints(arm, qd, "qd")
+    out = np.zeros_like(qd)
+    if arm.passive_first_joint:
+        out[..., 0] = -np.asarray(arm.passive_damping, dtype=float) * qd[..., 0]
+    return out
+
+
+def forward_dynamics(arm: Arm, q: np.ndarray, qd: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """q̈ = M⁻¹ (τ − C q̇ − b q̇₁ e₁) for the full joint torque ``tau`` (all n entries; a passive
+    joint's entry should be 0). The damping term is :func:`damping_torque`."""
+    rhs = np.asarray(tau, dtype=float) - coriolis_vector(arm, q, qd) + damping_torque(arm, qd)
+    return np.linalg.solve(mass_matrix(arm, q), rhs[..., None])[..., 0]
+
+
+def faulted(arm: Arm) -> Arm:
+    """The same arm after joint 1 lost its actuator: a PAn−1 arm with the same parameters and b.
+
+    The state is not part of the arm, so a fault keeps q, q̇ and the momentum p₁ (docs/MODEL.md §7).
+
+    Raises:
+        ValueError: if joint 1 is passive already (there is no actuator to lose).
+    """
+    if arm.passive_first_joint:
+        raise ValueError("faulted: joint 1 of this arm is passive already; a fault needs an actuated joint 1")
+    return dataclasses.replace(arm, passive_first_joint=True)
