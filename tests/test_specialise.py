@@ -212,7 +212,9 @@ def test_the_child_is_detached_bounded_and_reaped(tmp_path, monkeypatch) -> None
     """A background process runs in its own session, ends itself when its bound runs out, and is reaped
     by its parent at once (no zombie)."""
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))  # nothing cached: it would compile
-    child = specialise._spawn([specialise._signature(_args(5, True))], None, limit=3)
+    # a bound long enough that the child is still there when its session is read, even on a busy machine
+    # (it imports numba and then compiles for longer than that)
+    child = specialise._spawn([specialise._signature(_args(5, True))], None, limit=10)
     try:
         assert os.getsid(child.pid) == child.pid
         assert _wait_for(lambda: child.returncode is not None, 120), "not reaped (a zombie, or still running)"
@@ -223,12 +225,14 @@ def test_the_child_is_detached_bounded_and_reaped(tmp_path, monkeypatch) -> None
             child.kill()
 
 
-def test_a_kind_claimed_elsewhere_starts_no_child(monkeypatch) -> None:
+def test_a_kind_claimed_elsewhere_starts_no_child(monkeypatch, tmp_path) -> None:
     """While another process holds a kind's claim, asking for that kind starts no child but watches the
     claim; when it comes free the engine is told to look again, and the kind is queued here if the
     other compilation left nothing in the cache."""
     if specialise.fcntl is None:
         pytest.skip("no claims without fcntl")
+    # the claims beside a stand-in index in tmp_path, not in the package's own cache
+    monkeypatch.setattr(specialise, "_index_file", lambda dispatcher: str(tmp_path / "group_advance-1.py3.nbi"))
     spawned = []
     monkeypatch.setattr(specialise, "_spawn", lambda sigs, claim, limit=0: spawned.append(sigs))
     monkeypatch.setattr(specialise, "_in_disk_cache", lambda dispatcher, sig: False)
@@ -272,7 +276,8 @@ def test_two_parents_asking_for_the_same_kind_start_one_compilation(tmp_path) ->
 # and then takes a second between loading numba's cache index and saving it: without the cache lock the
 # two load-modify-saves overlap and one entry is lost
 _RACING_CHILD = r"""
-import os, sys, time
+import os, signal, sys, time
+signal.alarm(600)  # bounded even if the other dies before the barrier
 from pan1_env.kernels import specialise
 from pan1_env.kernels.substep import group_advance
 barrier, cache = sys.argv[1], group_advance._cache
@@ -310,13 +315,21 @@ def test_two_children_of_different_kinds_both_land_in_the_index(tmp_path) -> Non
     barrier = tmp_path / "barrier"
     barrier.mkdir()
     sigs = [specialise._signature(_args(2, False)), specialise._signature(_args(3, True))]
-    children = [subprocess.Popen([sys.executable, "-c", _RACING_CHILD, str(barrier)], stdin=subprocess.PIPE,
-                                 stderr=subprocess.PIPE, env=env) for _ in sigs]
-    for child, sig in zip(children, sigs, strict=True):
-        child.stdin.write(pickle.dumps([sig]))
-        child.stdin.close()
-    for child in children:
-        assert child.wait(timeout=900) == 0, child.stderr.read()[-2000:]
+    children = []
+    try:
+        for sig in sigs:
+            child = subprocess.Popen([sys.executable, "-c", _RACING_CHILD, str(barrier)], stdin=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, env=env)
+            children.append(child)
+            child.stdin.write(pickle.dumps([sig]))
+            child.stdin.close()
+        for child in children:
+            assert child.wait(timeout=900) == 0, child.stderr.read()[-2000:]
+    finally:  # one failing leaves the other at the barrier: end it
+        for child in children:
+            if child.poll() is None:
+                child.kill()
+                child.wait()
     check = subprocess.run([sys.executable, "-c", _IN_CACHE], input=pickle.dumps(sigs), env=env,
                            capture_output=True, timeout=600)
     assert check.returncode == 0, check.stderr[-2000:]
