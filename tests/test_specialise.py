@@ -5,6 +5,7 @@ reaped, one per kind across processes, and not losing another's cache entry."""
 
 from __future__ import annotations
 
+import errno
 import os
 import pickle
 import signal
@@ -18,7 +19,7 @@ import pytest
 from pan1_env import kernels
 from pan1_env.compiled import kernel_sizes
 from pan1_env.environment import parallel_env
-from pan1_env.kernels import specialise
+from pan1_env.kernels import specialise, substep
 
 TEAM = {"n_arms": 2, "links": (3, 2)}  # a PA2 arm and a fully actuated 2-link arm
 
@@ -211,7 +212,9 @@ def test_the_child_is_detached_bounded_and_reaped(tmp_path, monkeypatch) -> None
     """A background process runs in its own session, ends itself when its bound runs out, and is reaped
     by its parent at once (no zombie)."""
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))  # nothing cached: it would compile
-    child = specialise._spawn([specialise._signature(_args(5, True))], None, limit=3)
+    # a bound long enough that the child is still there when its session is read, even on a busy machine
+    # (it imports numba and then compiles for longer than that)
+    child = specialise._spawn([specialise._signature(_args(5, True))], None, limit=10)
     try:
         assert os.getsid(child.pid) == child.pid
         assert _wait_for(lambda: child.returncode is not None, 120), "not reaped (a zombie, or still running)"
@@ -222,12 +225,14 @@ def test_the_child_is_detached_bounded_and_reaped(tmp_path, monkeypatch) -> None
             child.kill()
 
 
-def test_a_kind_claimed_elsewhere_starts_no_child(monkeypatch) -> None:
+def test_a_kind_claimed_elsewhere_starts_no_child(monkeypatch, tmp_path) -> None:
     """While another process holds a kind's claim, asking for that kind starts no child but watches the
     claim; when it comes free the engine is told to look again, and the kind is queued here if the
     other compilation left nothing in the cache."""
     if specialise.fcntl is None:
         pytest.skip("no claims without fcntl")
+    # the claims beside a stand-in index in tmp_path, not in the package's own cache
+    monkeypatch.setattr(specialise, "_index_file", lambda dispatcher: str(tmp_path / "group_advance-1.py3.nbi"))
     spawned = []
     monkeypatch.setattr(specialise, "_spawn", lambda sigs, claim, limit=0: spawned.append(sigs))
     monkeypatch.setattr(specialise, "_in_disk_cache", lambda dispatcher, sig: False)
@@ -271,7 +276,8 @@ def test_two_parents_asking_for_the_same_kind_start_one_compilation(tmp_path) ->
 # and then takes a second between loading numba's cache index and saving it: without the cache lock the
 # two load-modify-saves overlap and one entry is lost
 _RACING_CHILD = r"""
-import os, sys, time
+import os, signal, sys, time
+signal.alarm(600)  # bounded even if the other dies before the barrier
 from pan1_env.kernels import specialise
 from pan1_env.kernels.substep import group_advance
 barrier, cache = sys.argv[1], group_advance._cache
@@ -309,14 +315,165 @@ def test_two_children_of_different_kinds_both_land_in_the_index(tmp_path) -> Non
     barrier = tmp_path / "barrier"
     barrier.mkdir()
     sigs = [specialise._signature(_args(2, False)), specialise._signature(_args(3, True))]
-    children = [subprocess.Popen([sys.executable, "-c", _RACING_CHILD, str(barrier)], stdin=subprocess.PIPE,
-                                 stderr=subprocess.PIPE, env=env) for _ in sigs]
-    for child, sig in zip(children, sigs, strict=True):
-        child.stdin.write(pickle.dumps([sig]))
-        child.stdin.close()
-    for child in children:
-        assert child.wait(timeout=900) == 0, child.stderr.read()[-2000:]
+    children = []
+    try:
+        for sig in sigs:
+            child = subprocess.Popen([sys.executable, "-c", _RACING_CHILD, str(barrier)], stdin=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, env=env)
+            children.append(child)
+            child.stdin.write(pickle.dumps([sig]))
+            child.stdin.close()
+        for child in children:
+            assert child.wait(timeout=900) == 0, child.stderr.read()[-2000:]
+    finally:  # one failing leaves the other at the barrier: end it
+        for child in children:
+            if child.poll() is None:
+                child.kill()
+                child.wait()
     check = subprocess.run([sys.executable, "-c", _IN_CACHE], input=pickle.dumps(sigs), env=env,
                            capture_output=True, timeout=600)
     assert check.returncode == 0, check.stderr[-2000:]
     assert check.stdout.decode().split("\n")[0] == "[True, True]"
+
+
+def test_a_file_system_without_locks_reads_the_cache_unlocked(monkeypatch) -> None:
+    """Where flock fails with "no locks here" (NFS without lockd: ENOLCK), there is no lock rather than
+    a lock never had: a cached kind reads as cached (else every process would start a child for ever)."""
+    if specialise.fcntl is None:
+        pytest.skip("no locks without fcntl")
+    monkeypatch.delenv("PAN1_ENV_KERNELS", raising=False)
+    compiled = _args(2, True)
+    kernels.group_advance(*compiled)  # compiled or loaded: in the disk cache
+    sig = specialise._signature(compiled)
+
+    def no_locks(fd, mode):
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(specialise.fcntl, "flock", no_locks)
+    with specialise._cache_lock(kernels.group_advance, exclusive=False, wait=0.1) as held:
+        assert held is None
+    assert specialise._in_disk_cache(kernels.group_advance, sig)
+
+
+def test_every_cached_kernel_saves_and_loads_under_its_lock(monkeypatch) -> None:
+    """The parallel per-kind kernel and the generic kernel's _advance_arms (several signatures per
+    index, like group_advance) take their cache lock too."""
+    if specialise.fcntl is None:
+        pytest.skip("no locks without fcntl")
+    taken = []
+    real = specialise._cache_lock
+
+    def recording(dispatcher, exclusive, wait=specialise._LOCK_WAIT):
+        taken.append((dispatcher, exclusive))
+        return real(dispatcher, exclusive, wait)
+
+    monkeypatch.setattr(specialise, "_cache_lock", recording)
+    sig = specialise._signature(_args(4, True))  # not compiled in this test: load finds nothing or loads
+    for dispatcher in (kernels.group_advance, kernels.group_advance_parallel, substep._advance_arms):
+        dispatcher._cache.load_overload(sig, dispatcher.targetctx)
+        assert taken[-1] == (dispatcher, False), dispatcher
+
+
+def test_the_guard_survives_another_numba(monkeypatch, tmp_path) -> None:
+    """A cache object without numba 0.68's private attributes is left alone, with one notice and no
+    exception; and the wrappers pass whatever arguments numba gives them."""
+    if specialise.fcntl is None:
+        pytest.skip("no locks without fcntl")
+    notices = []
+    monkeypatch.setattr(specialise.compile_notice, "notify", notices.append)
+    monkeypatch.setattr(specialise, "_noticed_unguarded", False)
+
+    class Cache:  # numba's cache object, its index renamed
+        _cache_path = str(tmp_path)
+        calls = []
+
+        def save_overload(self, *args, **kwargs):
+            self.calls.append((args, kwargs))
+
+        load_overload = save_overload
+
+    class Dispatcher:
+        __name__ = "kernel"
+        targetctx = None
+        _cache = Cache()
+
+    other = Dispatcher()
+    monkeypatch.setattr(specialise, "_cached_dispatchers", lambda: [other, other])
+    specialise._guard_all()
+    assert len(notices) == 1 and "without a lock" in notices[0]
+    assert not hasattr(other._cache, "_pan1_env_locked")
+    specialise._guard_all()
+    assert len(notices) == 1, "said once"
+
+    class File:
+        _index_name = "kernel-1.py3.nbi"
+
+    other._cache._cache_file = File()
+    assert specialise._guard_cache(other)
+    other._cache.save_overload("sig", "data", extra=1)  # a signature numba 0.68 does not have
+    other._cache.load_overload("sig")
+    assert Cache.calls == [(("sig", "data"), {"extra": 1}), (("sig",), {})]
+    assert os.path.exists(tmp_path / "kernel-1.py3.nbi.lock")
+
+
+def test_no_claim_key_and_no_readable_cache(monkeypatch) -> None:
+    """numba's private index key gone: no exception into the step, a child without a claim; and where
+    the cache cannot be read at all, the kind switches when its child exits cleanly."""
+    monkeypatch.delenv("PAN1_ENV_KERNELS", raising=False)
+    for name, value in (("_pending", []), ("_requested", set()), ("_watching", {}), ("_trusted", set()),
+                        ("_child_sigs", []), ("_generation", 0), ("_started", 0)):
+        monkeypatch.setattr(specialise, name, value)
+    monkeypatch.setattr(specialise, "_child", None)
+
+    def no_key(sig):
+        raise AttributeError("'Cache' object has no attribute '_index_key'")
+
+    class Child:
+        returncode = None
+        pid = 0
+
+        def poll(self):
+            return self.returncode
+
+    child, spawned = Child(), []
+    monkeypatch.setattr(specialise, "_claim_file", no_key)
+    monkeypatch.setattr(specialise, "_spawn", lambda sigs, claim, limit=0: spawned.append((sigs, claim)) or child)
+    monkeypatch.setattr(specialise, "_cached_state", lambda dispatcher, sig: None)  # cannot tell
+    args = _args(6, True)
+    sig = specialise._signature(args)
+    assert not specialise.specialised_ready(args)
+    specialise.start_background()
+    assert spawned == [([sig], None)]
+    assert not specialise.specialised_ready(args), "still compiling"
+    child.returncode = 0
+    specialise.background_generation()
+    assert specialise.specialised_ready(args), "a clean exit is trusted where the cache cannot be read"
+    assert specialise._child is None and len(spawned) == 1
+
+
+@pytest.mark.skipif(not hasattr(os, "fork") or specialise.fcntl is None, reason="fork and flock")
+def test_a_forked_worker_keeps_no_claim(tmp_path) -> None:
+    """A claim (or lock) open when a worker forks is the parent's alone: once the parent lets go it is
+    free, though the worker lives on (a flock belongs to the open file, which a fork shares)."""
+    path = str(tmp_path / "kind.claim")
+    held = specialise._take_claim(path)
+    assert held is not None
+    read, write = os.pipe()
+    ready_read, ready_write = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the worker (its at-fork hooks have run): says it is there, lives until told to end
+        try:
+            os.close(write)
+            os.write(ready_write, b"r")
+            os.read(read, 1)
+        finally:
+            os._exit(0)
+    try:
+        os.close(read)
+        assert os.read(ready_read, 1) == b"r"
+        specialise._close(held)
+        assert specialise._claim_free(path), "the forked worker still holds the parent's claim"
+    finally:
+        for fd in (write, ready_read, ready_write):
+            os.close(fd)
+        os.waitpid(pid, 0)

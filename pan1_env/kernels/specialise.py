@@ -66,8 +66,15 @@ for every reader that takes it: :func:`_in_disk_cache`, the gate before the engi
 :func:`group_advance`, reads the index and checks the data file under the shared lock, so it says True
 only for a complete entry; numba's own load under it sees the same; and an entry once complete keeps
 its data name and file (a later save adds new names only), so a later concurrent save cannot disturb
-it. If the lock cannot be had within a minute (a file system without ``flock``, a holder stuck), a
-save or load goes ahead without it, as numba does on its own, and :func:`_in_disk_cache` says False.
+it. Every other ``cache=True`` kernel of the package (``group_advance_parallel``, the generic kernel's
+``_advance_arms``, the helpers they call, the geometry and observation kernels) has its own lock, the
+same way (:func:`_cached_dispatchers` says why). If a lock cannot be had within a minute (a holder
+stuck), a save or load goes ahead without it, as numba does on its own, and :func:`_in_disk_cache`
+says False; on a file system without ``flock`` (NFS without lockd, some FUSE or CIFS mounts) there
+is no lock at all: saves and loads go ahead at once, as numba's own, and :func:`_in_disk_cache` reads
+the index unlocked. Where numba's private cache objects are not as expected (another numba), no lock
+is taken (one notice says so), no claims either, and a kind switches to its own kernel when its
+child exits cleanly, the only word left.
 
 Windows has no ``fcntl``: there the child is not detached, no claims or locks are taken, and the child
 is ended at the interpreter's exit (the behaviour before); a process that ends before the
@@ -78,6 +85,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import errno
 import hashlib
 import os
 import pickle
@@ -93,6 +101,7 @@ except ImportError:  # Windows: no claims, no locks (module docstring)
     fcntl = None
 
 from .. import compile_notice
+from . import capsules, observe, physics, qp, substep
 from .substep import GENERIC_MAX_LINKS, group_advance
 
 __all__ = ["POLICIES", "LIMIT", "policy", "specialised_ready", "start_background", "background_generation",
@@ -113,6 +122,9 @@ _child: subprocess.Popen | None = None
 _child_sigs: list = []
 _generation = 0  # background compilations finished (successfully or not), here or in another process
 _started = 0  # background processes this process started
+_trusted: set = set()  # kinds whose child exited cleanly where the disk cache cannot be read (_cached_state)
+_open_fds: set = set()  # lock and claim descriptors this process holds open: closed in a forked child
+_noticed_unguarded = False
 
 
 def policy() -> str:
@@ -133,18 +145,33 @@ def _index_file(dispatcher) -> str | None:
     try:
         cache = dispatcher._cache
         return os.path.join(cache._cache_path, cache._cache_file._index_name)
-    except AttributeError:  # no disk cache, another numba
+    except Exception:  # noqa: BLE001 -- no disk cache (NullCache), another numba's layout
         return None
 
 
 def _open_lock_file(path: str) -> int:
     os.makedirs(os.path.dirname(path), exist_ok=True)
-    return os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    _open_fds.add(fd)  # a forked child closes its copy (_forget_in_fork)
+    return fd
 
 
-def _flock(fd: int, mode: int, wait: float) -> bool:
+def _close(fd: int) -> None:
+    """Close a descriptor of :func:`_open_lock_file` (releasing its lock), unless a fork closed it."""
+    if fd in _open_fds:
+        _open_fds.discard(fd)
+        os.close(fd)
+
+
+# flock's answers meaning "this file system has no locks" (NFS without lockd, some FUSE and CIFS
+# mounts), not "someone holds it"; any other OSError but "would block" is read the same way
+_NO_LOCKS = {errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOTSUP, errno.ENOSYS, errno.EINVAL}
+
+
+def _flock(fd: int, mode: int, wait: float) -> bool | None:
     """Take ``flock`` ``mode`` on ``fd`` within ``wait`` s (non-blocking tries, so a stuck holder cannot
-    hang the caller); False if it could not."""
+    hang the caller); False if another holder kept it that long, None if the file system has no locks
+    (then waiting would never help, and a False would read as "a save in progress" for ever)."""
     deadline = time.monotonic() + wait
     while True:
         try:
@@ -154,15 +181,16 @@ def _flock(fd: int, mode: int, wait: float) -> bool:
             if time.monotonic() >= deadline:
                 return False
             time.sleep(0.005)
-        except OSError:  # a file system without flock
-            return False
+        except OSError:  # _NO_LOCKS, or an error no waiting cures: no lock here
+            return None
 
 
 @contextlib.contextmanager
 def _cache_lock(dispatcher, exclusive: bool, wait: float = _LOCK_WAIT):
     """Hold the dispatcher's cache lock (module docstring) for the block; yields True when held, False
-    when it could not be had in ``wait`` s, None where there is no lock (no fcntl or no disk cache).
-    Never nest it in one thread: a second descriptor's request would wait for the first."""
+    when it could not be had in ``wait`` s, None where there is no lock (no fcntl, no disk cache, a file
+    system without flock). Never nest it in one thread: a second descriptor's request would wait for
+    the first."""
     index = _index_file(dispatcher) if fcntl is not None else None
     fd = None
     if index is not None:
@@ -176,47 +204,95 @@ def _cache_lock(dispatcher, exclusive: bool, wait: float = _LOCK_WAIT):
     try:
         yield _flock(fd, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH, wait)
     finally:
-        os.close(fd)  # releases the lock
+        _close(fd)  # releases the lock
 
 
-def _guard_cache(dispatcher) -> None:
+def _guard_cache(dispatcher) -> bool:
     """Make every save of ``dispatcher``'s entries into numba's disk cache hold the cache lock
-    exclusively and every load hold it shared, in this process (module docstring)."""
+    exclusively and every load hold it shared, in this process (module docstring). False (and the
+    dispatcher left as numba made it) where numba's private cache objects are not as expected."""
+    if fcntl is None:
+        return False
     cache = getattr(dispatcher, "_cache", None)
-    if fcntl is None or _index_file(dispatcher) is None or getattr(cache, "_pan1_env_locked", False):
-        return
-    save, load = cache.save_overload, cache.load_overload
+    if getattr(cache, "_pan1_env_locked", False):
+        return True
+    save, load = getattr(cache, "save_overload", None), getattr(cache, "load_overload", None)
+    if _index_file(dispatcher) is None or not callable(save) or not callable(load):
+        return False
 
-    def save_overload(sig, data):
+    # (*args, **kwargs): numba's private signatures may change; the lock does not depend on them
+    def save_overload(*args, **kwargs):
         with _cache_lock(dispatcher, exclusive=True):
-            return save(sig, data)
+            return save(*args, **kwargs)
 
-    def load_overload(sig, target_context):
+    def load_overload(*args, **kwargs):
         with _cache_lock(dispatcher, exclusive=False):
-            return load(sig, target_context)
+            return load(*args, **kwargs)
 
-    cache.save_overload, cache.load_overload = save_overload, load_overload
-    cache._pan1_env_locked = True
+    try:
+        cache.save_overload, cache.load_overload = save_overload, load_overload
+        cache._pan1_env_locked = True
+    except Exception:  # noqa: BLE001 -- a cache object that takes no attributes: leave it as it is
+        return False
+    return True
 
 
-_guard_cache(group_advance)
+def _cached_dispatchers() -> list:
+    """Every dispatcher of this package with a disk cache (``cache=True``): the per-kind kernels, the
+    generic kernel's :func:`~pan1_env.kernels.substep._advance_arms`, and all the helpers they call.
+    Each may hold several signatures in its one index (a helper called from kernels of different kinds,
+    a parallel kernel at several argument types), so two processes saving at once can lose an entry or
+    file one under the wrong key; and even a function with one signature can, after a source change
+    (numbering restarts at 1), read an older data file in the moment between the index save and the
+    data save. So all of them save and load under their own lock."""
+    found = {}
+    for module in (physics, qp, substep, capsules, observe):
+        for value in vars(module).values():
+            if hasattr(value, "targetctx") and hasattr(value, "_cache") and id(value) not in found:
+                found[id(value)] = value
+    return list(found.values())
 
 
-def _in_disk_cache(dispatcher, sig) -> bool:
+def _guard_all() -> None:
+    global _noticed_unguarded
+    if fcntl is None:
+        return
+    missing = [d for d in _cached_dispatchers() if type(d._cache).__name__ != "NullCache" and not _guard_cache(d)]
+    if missing and not _noticed_unguarded:  # another numba: lose the lock, not the kernels
+        _noticed_unguarded = True
+        compile_notice.notify(f"numba's cache objects are not as this version expects, so {len(missing)} kernels "
+                              f"(e.g. {getattr(missing[0], '__name__', missing[0])}) are cached without a lock; "
+                              f"processes compiling at the same time may compile a kernel again")
+
+
+_guard_all()
+
+
+def _cached_state(dispatcher, sig) -> bool | None:
     """Whether numba would load ``sig`` from the disk cache instead of compiling it: its key is in the
     function's cache index (a small pickle; a stale index reads as empty) and the data file exists, read
-    under the shared cache lock, so that an entry being saved reads as absent until it is complete.
-    Reads numba's private cache objects (numba 0.68); if they are not there, says False."""
+    under the shared cache lock, so that an entry being saved reads as absent until it is complete
+    (read without it where the file system has no locks). Reads numba's private cache objects (numba
+    0.68); None if they are not there (cannot tell), False if the cache cannot be read."""
     cache = getattr(dispatcher, "_cache", None)
     try:
         key = cache._index_key(sig, dispatcher.targetctx.codegen())
+        load_index, data_path = cache._cache_file._load_index, cache._cache_file._data_path
+    except Exception:  # noqa: BLE001 -- another numba's layout: cannot tell
+        return None
+    try:
         with _cache_lock(dispatcher, exclusive=False, wait=10.0) as held:
             if held is False:  # a save still going on (or stuck): not yet
                 return False
-            name = cache._cache_file._load_index().get(key)
-            return name is not None and os.path.exists(cache._cache_file._data_path(name))
-    except Exception:  # noqa: BLE001 -- another numba, a cache that cannot be read: treat as absent
+            name = load_index().get(key)
+            return name is not None and os.path.exists(data_path(name))
+    except Exception:  # noqa: BLE001 -- a cache that cannot be read: treat as absent
         return False
+
+
+def _in_disk_cache(dispatcher, sig) -> bool:
+    """Whether ``sig`` can be loaded from the disk cache (:func:`_cached_state`; False if it cannot tell)."""
+    return _cached_state(dispatcher, sig) is True
 
 
 def _claim_file(sig) -> str | None:
@@ -230,15 +306,15 @@ def _claim_file(sig) -> str | None:
 
 def _take_claim(path: str) -> int | None:
     """A descriptor holding the claim ``path`` exclusively, or None if another process holds it.
-    Raises OSError if the file cannot be used at all."""
+    Raises OSError if the file cannot be used at all (a file system without flock included)."""
     fd = _open_lock_file(path)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
-        os.close(fd)
+        _close(fd)
         return None
     except OSError:
-        os.close(fd)
+        _close(fd)
         raise
     return fd
 
@@ -249,7 +325,7 @@ def _claim_free(path: str) -> bool:
     except OSError:
         return True  # the file went away or cannot be used: stop watching it
     if fd is not None:
-        os.close(fd)
+        _close(fd)
     return fd is not None
 
 
@@ -265,7 +341,7 @@ def specialised_ready(args) -> bool:
     if mode == "generic":
         return False
     sig = _signature(args)
-    if sig in group_advance.overloads or _in_disk_cache(group_advance, sig):
+    if sig in group_advance.overloads or sig in _trusted or _in_disk_cache(group_advance, sig):
         return True
     if sig not in _requested:
         _requested.add(sig)
@@ -314,6 +390,8 @@ def _finished() -> None:
     elif child.returncode != 0:
         compile_notice.notify(f"the background compilation of a sub-step kernel failed (exit status "
                               f"{child.returncode}); the generic kernel goes on")
+    else:  # where the cache cannot be read (another numba), a clean exit is the only word: trust it
+        _trusted.update(sig for sig in _child_sigs if _cached_state(group_advance, sig) is None)
     _generation += 1
     _start_next()
 
@@ -326,8 +404,10 @@ def _start_next() -> None:
         try:
             path = _claim_file(sig)
             claim = _take_claim(path) if path is not None else None
-        except OSError:  # a claim file we cannot use: compile without one, as where there are none
-            path = None
+        except Exception:  # noqa: BLE001 -- a claim file we cannot use (OSError) or numba's private key
+            # gone (AttributeError, …): compile without a claim, as where there are none; never raise
+            # into Engine.step
+            path = claim = None
         if path is not None and claim is None:  # another process's child compiles it
             _watching[sig] = path
             continue
@@ -344,7 +424,7 @@ def _start_next() -> None:
             _child = None
         finally:
             if claim is not None:
-                os.close(claim)  # the child holds it now (its own copy of the descriptor), or nobody
+                _close(claim)  # the child holds it now (its own copy of the descriptor), or nobody
 
 
 def _spawn(sigs: list, claim: int | None, limit: int = LIMIT) -> subprocess.Popen:
@@ -384,12 +464,19 @@ def stop_background() -> None:
 def _forget_in_fork() -> None:
     """A forked process (a vector env's worker) does not own its parent's child: it must neither
     wait for it nor end it; it asks for its own if it needs one (and the claims keep the two from
-    compiling the same kind)."""
+    compiling the same kind). Nor its parent's locks and claims: a flock belongs to the open file,
+    which the fork shares, so a worker keeping its copy would hold the parent's cache lock or claim
+    after the parent let go, for as long as the worker lives. Only closed, never unlocked: an unlock
+    here would release the parent's lock too."""
     global _child
     _child = None
     _pending.clear()
     _requested.clear()
     _watching.clear()
+    for fd in list(_open_fds):
+        _open_fds.discard(fd)
+        with contextlib.suppress(OSError):
+            os.close(fd)
 
 
 if fcntl is None:  # not detached (Windows): ended with its process, as before
