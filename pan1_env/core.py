@@ -100,10 +100,16 @@ class FormationCore:
         self._actuated_joints = (np.asarray(self.n_links)[:, None] - k + slot)[None]
         self._padding = np.arange(k_max) >= k
         self._uniform_actions = len(set(self.n_actuated)) == 1
+        self._team_plans: dict[tuple[str, ...], list] = {}  # team_info's reading of each key, per key set
         # (layout group, row in the group) of each agent's observation, in agent order
         groups = [ids for _, ids in self.layout.groups] if self.layout is not None else [np.arange(1)]
         order = sorted((i, g, r) for g, ids in enumerate(groups) for r, i in enumerate(ids.tolist()))
         self._observation_rows = [(g, r) for _, g, r in order]
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state["_team_plans"] = {}  # functions made on the fly do not pickle; they are made again on use
+        return state
 
     def set_safety_filter(self, safety_filter) -> None:
         """Switch the engine's filter (``False``, ``True`` or a :class:`~pan1_env.safety.FilterParams`), after
@@ -274,19 +280,27 @@ class FormationCore:
     def team_info(self, infos: dict[str, np.ndarray], b: int = 0) -> dict[str, Any]:
         """Copy b's :meth:`team_infos` as Python values, for a one-copy view: the same numbers, without a
         numpy reduction per key where a Python one on a handful of arms is cheaper."""
-        out: dict[str, Any] = {}
-        for key, value in infos.items():
-            rule = _team_rule(key)
-            if rule is None:
-                out[key] = value[b].item()
-            elif rule == "flat":
-                out[key] = value[b].reshape(-1) if self._uniform_actions else value[b].reshape(-1)[self._columns]
-            elif key == "qp_counts":
-                out[key] = value[b, 0] if value.shape[1] == 1 else value[b].sum(axis=0)
-            else:
-                row = value[b].tolist()
-                out[key] = row[0] if len(row) == 1 else _gather(rule, row)
-        return out
+        plan = self._team_plans.get(tuple(infos))
+        if plan is None:
+            plan = self._team_plans[tuple(infos)] = [(key, self._one_copy_rule(key, value)) for key, value in
+                                                     infos.items()]
+        return {key: gather(infos[key], b) for key, gather in plan}
+
+    def _one_copy_rule(self, key: str, value: np.ndarray):
+        """How :meth:`team_info` reads ``key`` of copy b (a function of the info's array and b), chosen once
+        per key: the keys and their shapes stay the same from step to step."""
+        rule = _team_rule(key)
+        if rule is None:
+            return np.ndarray.item  # value.item(b): a per-copy number, without an intermediate scalar
+        if rule == "flat":
+            if self._uniform_actions:
+                return lambda v, b: v[b].reshape(-1)
+            return lambda v, b: v[b].reshape(-1)[self._columns]
+        if value.shape[1] == 1:  # one arm, or a term every arm shares: its own value
+            return (lambda v, b: v[b, 0]) if value.ndim == 3 else (lambda v, b: v.item(b, 0))
+        if key == "qp_counts":
+            return lambda v, b: v[b].sum(axis=0)
+        return lambda v, b: _gather(rule, v[b].tolist())
 
     def _shield_infos(self, rec: StepRecord | None, shape: tuple[int, int]) -> dict[str, np.ndarray]:
         """The filter's report of the step (the module docstring lists it)."""
