@@ -149,6 +149,16 @@ class KernelQP:
         engine.advance_compiled(command, substeps, torque, rec)
 
 
+def _undamped(scenario: Scenario) -> None:
+    """Refuse a damped passive joint: the numpy reference models it (pan1_env.cascade), the kernels not yet, and
+    an engine that dropped it would simulate another arm without a word."""
+    damped = [i for i, arm in enumerate(scenario.arms) if arm.passive_damping]
+    if damped:
+        raise ValueError(f"arm {damped[0]}: passive_damping={scenario.arms[damped[0]].passive_damping} is modelled by "
+                         "the numpy reference (pan1_env.cascade) only; the engine simulates undamped joints "
+                         "(passive_damping=0)")
+
+
 class Engine:
     """B copies of a team's arms, the safety filter, and the single call into the sub-step kernel.
 
@@ -176,6 +186,7 @@ class Engine:
         #: the solver of the filter's QPs, which a step goes through
         self.qp: KernelQP | PiqpFilter = PiqpFilter() if qp_solver == "piqp" else KernelQP()
         self.qp.check(int(copies))
+        _undamped(scenario)
         self.physics_dt = real("physics_dt", scenario.physics_dt if physics_dt is None else physics_dt, positive=True)
         self.copies, self.qp_solver, self.threads = int(copies), qp_solver, threads
         self.max_speed = float(max_speed)
@@ -245,6 +256,7 @@ class Engine:
         if [a.n_links for a in scenario.arms] != self.n_links or [a.n_actuated for a in scenario.arms] != \
                 self.n_actuated:
             raise ValueError("the scenario's team structure does not match the engine's")
+        _undamped(scenario)
         if scenario.ke != self.ke or len(scenario.obstacles) != self.radii.shape[1]:
             raise ValueError("a loaded team must keep the tracker gain K_e and the number of obstacles")
         if (scenario.bodies == "links", scenario.inter_arm, scenario.link_radius) != \

@@ -137,3 +137,14 @@ def test_piqp_filter_agrees_with_the_compiled_qp() -> None:
         counts = counts + kernel.qp_counts.sum(axis=(0, 1))
     assert counts[1] > 0, "the filter should change some commands"
     np.testing.assert_allclose(engines["piqp"].joint_state()[0], engines["active_set"].joint_state()[0], atol=1e-6)
+
+
+def test_a_damped_passive_joint_is_refused_not_dropped() -> None:
+    """The kernels do not model passive_damping yet: an engine must refuse it rather than simulate another arm."""
+    team = scenario.load("paper_pa3_square")
+    damped = dataclasses.replace(team, arms=(dataclasses.replace(team.arms[0], passive_damping=0.3), *team.arms[1:]))
+    with pytest.raises(ValueError, match="arm 0: passive_damping=0.3"):
+        Engine(damped)
+    engine = Engine(team)
+    with pytest.raises(ValueError, match="passive_damping"):
+        engine.load_team(0, damped)
