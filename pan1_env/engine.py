@@ -42,7 +42,8 @@ SENSING_RADIUS = 0.1
 #: m: with whole-arm safety the filter keeps every capsule this much (plus an obstacle's travel in one
 #: sub-step) farther out than its radius, against what a sub-step's discretisation lets through
 SKIN = 0.002
-_UNUSED_RCBF = (1.0, 1.0, 0.0)  # κ, ε, margin passed to the kernel with the filter off (it reads none)
+#: κ, ε, margin, distance barrier, λ passed to the kernel with the filter off (it reads none)
+_UNUSED_RCBF = (1.0, 1.0, 0.0, False, 0.0)
 
 
 @dataclass
@@ -228,8 +229,15 @@ class Engine:
     def set_safety_filter(self, safety_filter: bool | FilterParams) -> None:
         """Switch the filter off (``False``) or on (``True``: the scenario's parameters, or a
         :class:`FilterParams`); it acts from the next sub-step."""
-        self.filter = filter_parameters(safety_filter, self.teams[0])
-        sensing = None if self.filter is None else self.filter.sensing_radius
+        params = filter_parameters(safety_filter, self.teams[0])
+        sensing = None if params is None else params.sensing_radius
+        if params is not None and not params.paper and (self.whole_arm or sensing is not None):
+            # the whole-arm rows (kernels/capsules.py) are the paper's only so far: refuse rather than
+            # silently run another filter than the one asked for
+            raise ValueError(f"barrier={params.barrier!r}, decay={params.decay} are available for the end-effector "
+                             "filter only (no sensing_radius, bodies = \"end_effector\", no inter-arm rows or "
+                             "moving obstacles); the whole-arm filter takes barrier='squared', decay=0")
+        self.filter = params
         if sensing is not None and not self.whole_arm:  # the end-effector as the body of the whole-arm rows
             self.whole_arm = True
             self._whole_arm_setup()
@@ -546,7 +554,8 @@ class Engine:
         if clear is not None:
             clear[:], finite[:] = out.min_clear, out.finite
             out = out._replace(min_clear=clear, finite=finite)
-        rcbf = _UNUSED_RCBF if params is None else (params.kappa, params.epsilon, params.margin)
+        rcbf = _UNUSED_RCBF if params is None else (params.kappa, params.epsilon, params.margin,
+                                                    params.barrier == "distance", params.decay)
         obstacles = (kind.centers, kind.radii, kind.mask) if kind.whole is None else kind.no_obstacles
         args = (*kind.state_args, cmd, torque, params is not None, *obstacles, *rcbf, self.ke, self.physics_dt,
                 substeps, self.max_speed, out.v_star, out.tau, kind.qd, kind.p, out.min_clear, out.min_h,

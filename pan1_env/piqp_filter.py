@@ -71,7 +71,7 @@ class PiqpFilter:
         A, k, f = kind.A, kind.k, engine.filter
         p, Jbar, _ = engine.kind_terms(kind)
         rows, b, h = rcbf_constraints(p, Jbar, kind.centers[0], kind.radii[0], f.kappa, f.epsilon,
-                                      active=kind.mask, margin=f.margin)
+                                      active=kind.mask, margin=f.margin, barrier=f.barrier, decay=f.decay)
         if np.isfinite(engine.max_speed):
             box = np.concatenate([np.eye(k), -np.eye(k)])
             rows = np.concatenate([rows, np.broadcast_to(box, (A, 2 * k, k))], axis=1)
