@@ -229,15 +229,8 @@ class Engine:
     def set_safety_filter(self, safety_filter: bool | FilterParams) -> None:
         """Switch the filter off (``False``) or on (``True``: the scenario's parameters, or a
         :class:`FilterParams`); it acts from the next sub-step."""
-        params = filter_parameters(safety_filter, self.teams[0])
-        sensing = None if params is None else params.sensing_radius
-        if params is not None and not params.paper and (self.whole_arm or sensing is not None):
-            # the whole-arm rows (kernels/capsules.py) are the paper's only so far: refuse rather than
-            # silently run another filter than the one asked for
-            raise ValueError(f"barrier={params.barrier!r}, decay={params.decay} are available for the end-effector "
-                             "filter only (no sensing_radius, bodies = \"end_effector\", no inter-arm rows or "
-                             "moving obstacles); the whole-arm filter takes barrier='squared', decay=0")
-        self.filter = params
+        self.filter = filter_parameters(safety_filter, self.teams[0])
+        sensing = None if self.filter is None else self.filter.sensing_radius
         if sensing is not None and not self.whole_arm:  # the end-effector as the body of the whole-arm rows
             self.whole_arm = True
             self._whole_arm_setup()

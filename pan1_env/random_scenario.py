@@ -74,8 +74,7 @@ class RandomScenarioOptions:
         obstacle_path_length: range of the length of a moving obstacle's path, metres.
         barrier: the filter's barrier in the drawn scenario, ``"squared"`` (the paper's) or ``"distance"``.
         decay: λ ≥ 0 of the filter's tunable ε(h̃) = ε e^{λ h̃} in the drawn scenario (0: the paper's).
-            Neither changes what is drawn; both need ``bodies="end_effector"`` and still obstacles
-            unless they are the paper's (the whole-arm filter takes the paper's choices only).
+            Neither changes what is drawn.
     """
 
     n_arms: int = 4
@@ -161,9 +160,6 @@ class RandomScenarioOptions:
         if not isinstance(self.barrier, str) or self.barrier not in BARRIERS:
             raise ValueError(f"RandomScenarioOptions.barrier must be one of {BARRIERS}, got {self.barrier!r}")
         object.__setattr__(self, "decay", real("RandomScenarioOptions.decay", self.decay, non_negative=True))
-        if (self.barrier != "squared" or self.decay != 0.0) and (self.bodies != "end_effector" or self.moving):
-            raise ValueError("RandomScenarioOptions.barrier and decay other than 'squared' and 0 need "
-                             "bodies='end_effector' and still obstacles (the whole-arm filter takes the paper's)")
 
     @property
     def moving(self) -> bool:

@@ -499,8 +499,8 @@ class FilterParams:
 
     ``barrier``: ``"squared"`` (the paper's h = ‖p − o‖² − r²) or ``"distance"`` (h = ‖p − o‖ − r,
     :func:`shaped_barrier`); ``decay``: λ ≥ 0 of the tunable robustness ε(h̃) = ε e^{λ h̃}
-    (:func:`robust_epsilon`; 0 is the paper's constant ε). The engine's compiled filter takes both for
-    the end-effector rows; the whole-arm rows (and ``sensing_radius``) take the paper's choices only."""
+    (:func:`robust_epsilon`; 0 is the paper's constant ε). The engine's compiled filter takes both, for
+    the end-effector rows and the whole-arm ones (links, other arms, moving obstacles, ``sensing_radius``)."""
 
     kappa: float
     epsilon: float

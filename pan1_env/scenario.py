@@ -11,7 +11,7 @@ the README ("Scenario files"); in short::
     [controller]  kp, ke                                   (K_P, K_e)
     [safety]      kappa, epsilon, margin = 0, ignore_unreachable_obstacles = true,
                   bodies = "end_effector" | "links", link_radius = 0, inter_arm = false,
-                  barrier = "squared" | "distance", decay = 0     (end-effector filter only)
+                  barrier = "squared" | "distance", decay = 0
     [arm_defaults] masses, lengths, com, inertias, passive_first_joint, phi   (optional)
     [[arms]]      base, q0, and any arm_defaults key to override it
     [formation]   shape = "square" | "polygon" with size,  or  edges + distances (0-based arms)
@@ -366,11 +366,6 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
         raise ScenarioError(src, "safety.barrier", f"unknown barrier {barrier!r}; allowed values are "
                             + ", ".join(f'"{b}"' for b in BARRIERS))
     decay = _number(saf, "decay", src, "safety", positive=False, default=0.0)
-    if (barrier != "squared" or decay != 0.0) and bodies != "end_effector":
-        # the whole-arm rows (pan1_env/kernels/capsules.py) are the paper's only so far
-        key = "safety.barrier" if barrier != "squared" else "safety.decay"
-        raise ScenarioError(src, key, 'the filter choices need bodies = "end_effector" (the whole-arm filter '
-                            'takes barrier = "squared", decay = 0)')
 
     defaults = _table(data, "arm_defaults", src, _ARM_PARAM_KEYS, required=False)
     arms_raw = data.get("arms")
@@ -442,10 +437,6 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
             if c[j] <= 0:
                 raise ScenarioError(src, f"arms[{i}].q0", f"the end-effector starts inside or on obstacle {j} "
                                     f"(clearance {c[j]:.4f} m); move the arm or the obstacle")
-    if obstacle_paths is not None and (barrier != "squared" or decay != 0.0):
-        key = "safety.barrier" if barrier != "squared" else "safety.decay"
-        raise ScenarioError(src, key, "moving obstacles are filtered by the whole-arm rows, which take "
-                            'barrier = "squared", decay = 0')
     rho = link_radius if bodies == "links" else 0.0
     _check_paths(obstacles, obstacle_paths, arms, rho, src)
     if bodies == "links":

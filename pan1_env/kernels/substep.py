@@ -223,7 +223,8 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                             qv0[t] = vdes[t, w]
                         m_w, h_w = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, skin, dt,
                                                   ln, bx, by, c, s, qd, M, caps, start_time[arm[w]] + _s * dt, kappa,
-                                                  epsilon, margin, v_max, qv0, wA, wb, wact, wP, wnear)
+                                                  epsilon, margin, distance, decay, v_max, qv0, wA, wb, wact, wP,
+                                                  wnear)
                         arm_h[w] = min(arm_h[w], h_w)
                         status[w] = _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand,
                                                  qL, qy, wviol, wnorm)
@@ -234,7 +235,8 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                             # moving obstacle out); reported as a fallback either way
                             m_w, _ = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, skin, dt,
                                                     ln, bx, by, c, s, qd, M, caps, start_time[arm[w]] + _s * dt,
-                                                    kappa, np.inf, margin, v_max, qv0, wA, wb, wact, wP, wnear)
+                                                    kappa, np.inf, margin, distance, decay, v_max, qv0, wA, wb,
+                                                    wact, wP, wnear)
                             if _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand, qL, qy,
                                             wviol, wnorm) == STATUS_FALLBACK:
                                 least_violation(qv0, wA, wb, wact, m_w, k, 2 * k if v_max < np.inf else 0, qvs, wb0,
@@ -446,7 +448,7 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     The end-effector filter's rows (:func:`pan1_env.kernels.qp._rcbf_row_lanes`) take κ ``kappa``, ε
     ``epsilon``, the margin, the barrier (``distance`` True: h = ‖p − o‖ − r, else the paper's
     squared one) and λ ``decay`` of the tunable ε(h̃) = ε e^{λ h̃} (0: the paper's constant ε);
-    ``min_h`` is then in that barrier's unit. The whole-arm rows take κ, ε and the margin only.
+    ``min_h`` is then in that barrier's unit. The whole-arm rows (``whole``) take the same choices.
 
     Velocity mode (``torque_mode`` False): ``command`` is the desired active velocity; each
     sub-step filters it through the RCBF-QP when ``filter_on`` (against the obstacles of ``mask``)
