@@ -42,7 +42,8 @@ SENSING_RADIUS = 0.1
 #: m: with whole-arm safety the filter keeps every capsule this much (plus an obstacle's travel in one
 #: sub-step) farther out than its radius, against what a sub-step's discretisation lets through
 SKIN = 0.002
-_UNUSED_RCBF = (1.0, 1.0, 0.0)  # κ, ε, margin passed to the kernel with the filter off (it reads none)
+#: κ, ε, margin, distance barrier, λ passed to the kernel with the filter off (it reads none)
+_UNUSED_RCBF = (1.0, 1.0, 0.0, False, 0.0)
 
 
 @dataclass
@@ -558,7 +559,8 @@ class Engine:
         if clear is not None:
             clear[:], finite[:] = out.min_clear, out.finite
             out = out._replace(min_clear=clear, finite=finite)
-        rcbf = _UNUSED_RCBF if params is None else (params.kappa, params.epsilon, params.margin)
+        rcbf = _UNUSED_RCBF if params is None else (params.kappa, params.epsilon, params.margin,
+                                                    params.barrier == "distance", params.decay)
         obstacles = (kind.centers, kind.radii, kind.mask) if kind.whole is None else kind.no_obstacles
         args = (*kind.state_args, cmd, torque, params is not None, *obstacles, *rcbf, self.ke, self.physics_dt,
                 substeps, self.max_speed, out.v_star, out.tau, kind.qd, kind.p, out.min_clear, out.min_h,

@@ -33,7 +33,7 @@ from .bodies import closest_point_on_segment, inter_arm_clearance, link_clearanc
 from .cascade import reduced_jacobian
 from .dynamics import ArmParams, end_effector, mass_matrix
 from .formation import Formation, shape_positions
-from .safety import Obstacles, clearance
+from .safety import BARRIERS, Obstacles, clearance
 from .scenario import BODIES, Scenario
 from .validation import positive_int, real, whole_ratio
 
@@ -72,6 +72,9 @@ class RandomScenarioOptions:
         inter_arm: keep the arms' capsules apart (only with ``bodies="links"``).
         obstacle_speed: range of obstacle speeds, m/s; ``(0, 0)`` keeps the obstacles still.
         obstacle_path_length: range of the length of a moving obstacle's path, metres.
+        barrier: the filter's barrier in the drawn scenario, ``"squared"`` (the paper's) or ``"distance"``.
+        decay: λ ≥ 0 of the filter's tunable ε(h̃) = ε e^{λ h̃} in the drawn scenario (0: the paper's).
+            Neither changes what is drawn.
     """
 
     n_arms: int = 4
@@ -95,6 +98,8 @@ class RandomScenarioOptions:
     inter_arm: bool = False
     obstacle_speed: tuple[float, float] = (0.0, 0.0)
     obstacle_path_length: tuple[float, float] = (0.2, 0.6)
+    barrier: str = "squared"
+    decay: float = 0.0
 
     def __post_init__(self) -> None:
         n_arms = positive_int("RandomScenarioOptions.n_arms", self.n_arms, minimum=2)
@@ -152,6 +157,9 @@ class RandomScenarioOptions:
             if lo > hi:
                 raise ValueError(f"RandomScenarioOptions.{name} must have low ≤ high, got {value!r}")
             object.__setattr__(self, name, (lo, hi))
+        if not isinstance(self.barrier, str) or self.barrier not in BARRIERS:
+            raise ValueError(f"RandomScenarioOptions.barrier must be one of {BARRIERS}, got {self.barrier!r}")
+        object.__setattr__(self, "decay", real("RandomScenarioOptions.decay", self.decay, non_negative=True))
 
     @property
     def moving(self) -> bool:
@@ -279,6 +287,7 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
             link_radius=opt.link_radius, inter_arm=opt.inter_arm,
             obstacle_paths=np.array(paths).reshape(-1, 2) if opt.moving else None,
             obstacle_speeds=np.array(speeds) if opt.moving else None,
+            safety_barrier=opt.barrier, safety_decay=opt.decay,
         )
     raise RuntimeError(f"no valid random scenario in {max_tries} draws; loosen the options {opt}")
 

@@ -3,6 +3,8 @@
 * ``pan1_env/PaperPA3Square-v0`` (Section 5.1),
 * ``pan1_env/PaperMixedPA-v0`` (Section 5.2),
 * ``pan1_env/RandomFormation-v0`` (a new random team every reset),
+* ``pan1_env/RandomFormation-v1`` (the same teams; its filter, wherever it is switched on, uses the
+  distance barrier h = ‖p − o‖ − r with κ = 0.5, ε(h̃) = 5 e^{50 h̃}, margin 0: docs/ENVIRONMENTS.md),
 * ``pan1_env/WholeArmStaticFormation-v0`` (the same task with whole-arm safety: every link a capsule
   of radius 0.03 m kept out of the obstacles and the other arms),
 * ``pan1_env/WholeArmFormation-v0`` (the same with obstacles moving at 0.05–0.2 m/s),
@@ -26,6 +28,11 @@ ENV_IDS = {
     "pan1_env/PaperPA3Square-v0": {"scenario": "paper_pa3_square"},
     "pan1_env/PaperMixedPA-v0": {"scenario": "paper_pa_mixed_square"},
     "pan1_env/RandomFormation-v0": {"scenario": "random"},
+    # the filter choices travel in the drawn scenario (its safety_barrier and safety_decay), so that they
+    # apply wherever the filter is switched on: safety_filter=True, the vector env's default, the shields
+    "pan1_env/RandomFormation-v1": {"scenario": "random",
+                                    "random_options": {"barrier": "distance", "decay": 50.0, "kappa": 0.5,
+                                                       "epsilon": 5.0}},
     "pan1_env/WholeArmStaticFormation-v0": {"scenario": "random", "random_options": _WHOLE_ARM},
     "pan1_env/WholeArmFormation-v0": {"scenario": "random",
                                       "random_options": _WHOLE_ARM | {"obstacle_speed": (0.05, 0.2)}},

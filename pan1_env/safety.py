@@ -487,24 +487,39 @@ def project_with(
 
 @dataclass(frozen=True)
 class FilterParams:
-    """The RCBF-QP safety filter's parameters (docs/MODEL.md §5): κ and ε of the robust barrier
-    condition, and ``margin`` (m²) subtracted from every barrier h = ‖p − o‖² − r².
+    """The RCBF-QP safety filter's parameters (docs/MODEL.md §5, §5a): κ and ε of the robust barrier
+    condition, and ``margin`` subtracted from every barrier h (m² for the squared barrier, m for the
+    distance one).
 
     ``sensing_radius`` (m): None (the paper's filter: an end-effector row for every obstacle in reach),
     or the range within which the whole-arm filter gives a body a row (docs/SCENARIOS.md, *Whole-arm
     safety*; default there :data:`pan1_env.engine.SENSING_RADIUS`). Given for an end-effector scenario,
     the engine filters through the whole-arm rows with the end-effector as the body: far obstacles then
-    hold no arm back."""
+    hold no arm back.
+
+    ``barrier``: ``"squared"`` (the paper's h = ‖p − o‖² − r²) or ``"distance"`` (h = ‖p − o‖ − r,
+    :func:`shaped_barrier`); ``decay``: λ ≥ 0 of the tunable robustness ε(h̃) = ε e^{λ h̃}
+    (:func:`robust_epsilon`; 0 is the paper's constant ε). The engine's compiled filter takes both, for
+    the end-effector rows and the whole-arm ones (links, other arms, moving obstacles, ``sensing_radius``)."""
 
     kappa: float
     epsilon: float
     margin: float = 0.0
     sensing_radius: float | None = None
+    barrier: str = "squared"
+    decay: float = 0.0
 
     def __post_init__(self) -> None:
-        checked = _checked("FilterParams", self.kappa, self.epsilon, self.margin, self.sensing_radius)
-        for name, value in zip(("kappa", "epsilon", "margin", "sensing_radius"), checked, strict=True):
+        checked = _checked("FilterParams", self.kappa, self.epsilon, self.margin, self.sensing_radius, self.barrier,
+                           self.decay)
+        for name, value in zip(("kappa", "epsilon", "margin", "sensing_radius", "barrier", "decay"), checked,
+                               strict=True):
             object.__setattr__(self, name, value)
+
+    @property
+    def paper(self) -> bool:
+        """The paper's rows: the squared barrier with a constant ε."""
+        return self.barrier == "squared" and self.decay == 0.0
 
     @classmethod
     def of(
@@ -516,34 +531,46 @@ class FilterParams:
         tracking_bound: float | None = None,
         sensing_radius: float | None = None,
         owner: str = "FilterParams",
+        *,
+        barrier: str | None = None,
+        decay: float | None = None,
     ) -> FilterParams:
-        """The scenario's κ, ε and margin, each replaced where given. ``tracking_bound`` δ̄ instead of a
-        margin sets it to Γ(δ̄) (:func:`robust_margin`), so that an arm tracking within δ̄ stays in the
-        original set. Errors name the argument, prefixed by ``owner`` (the API that took it)."""
+        """The scenario's κ, ε, margin, barrier and λ, each replaced where given. ``tracking_bound`` δ̄
+        instead of a margin sets it to Γ(δ̄) (:func:`robust_margin`, with the filter's λ), so that an arm
+        tracking within δ̄ stays in the original set. Errors name the argument, prefixed by ``owner``
+        (the API that took it)."""
         if margin is not None and tracking_bound is not None:
             raise ValueError(f"{owner}: give margin or tracking_bound, not both")
-        kappa, epsilon, margin, sensing_radius = _checked(
+        kappa, epsilon, margin, sensing_radius, barrier, decay = _checked(
             owner,
             scenario.kappa if kappa is None else kappa,
             scenario.epsilon if epsilon is None else epsilon,
             scenario.safety_margin if margin is None else margin,
             sensing_radius,
+            scenario.safety_barrier if barrier is None else barrier,
+            scenario.safety_decay if decay is None else decay,
         )
         if tracking_bound is not None:
             delta = real(f"{owner}: tracking_bound", tracking_bound, non_negative=True)
-            margin = robust_margin(delta, kappa, epsilon)
-        return cls(kappa, epsilon, margin, sensing_radius)
+            margin = robust_margin(delta, kappa, epsilon, decay)
+        return cls(kappa, epsilon, margin, sensing_radius, barrier, decay)
 
 
 def _checked(
-    owner: str, kappa: float, epsilon: float, margin: float, sensing_radius: float | None
-) -> tuple[float, float, float, float | None]:
-    """The filter's parameters as floats, or a ValueError naming the first bad one."""
+    owner: str, kappa: float, epsilon: float, margin: float, sensing_radius: float | None, barrier: str = "squared",
+    decay: float = 0.0,
+) -> tuple[float, float, float, float | None, str, float]:
+    """The filter's parameters as floats (the barrier a name of :data:`BARRIERS`), or a ValueError
+    naming the first bad one."""
+    if not isinstance(barrier, str) or barrier not in BARRIERS:
+        raise ValueError(f"{owner}: barrier must be one of {BARRIERS}, got {barrier!r}")
     return (
         real(f"{owner}: kappa", kappa, positive=True),
         real(f"{owner}: epsilon", epsilon, positive=True),
         real(f"{owner}: margin", margin, non_negative=True),
         None if sensing_radius is None else real(f"{owner}: sensing_radius", sensing_radius, positive=True),
+        barrier,
+        real(f"{owner}: decay", decay, non_negative=True),
     )
 
 

@@ -10,7 +10,8 @@ the README ("Scenario files"); in short::
     [simulation]  physics_dt, control_dt, horizon          (seconds)
     [controller]  kp, ke                                   (K_P, K_e)
     [safety]      kappa, epsilon, margin = 0, ignore_unreachable_obstacles = true,
-                  bodies = "end_effector" | "links", link_radius = 0, inter_arm = false
+                  bodies = "end_effector" | "links", link_radius = 0, inter_arm = false,
+                  barrier = "squared" | "distance", decay = 0
     [arm_defaults] masses, lengths, com, inertias, passive_first_joint, phi   (optional)
     [[arms]]      base, q0, and any arm_defaults key to override it
     [formation]   shape = "square" | "polygon" with size,  or  edges + distances (0-based arms)
@@ -41,7 +42,7 @@ from .bodies import (
 )
 from .dynamics import ArmParams
 from .formation import Formation, FormationError
-from .safety import Obstacles, clearance
+from .safety import BARRIERS, Obstacles, clearance
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -93,6 +94,9 @@ class Scenario:
     inter_arm: bool = False
     obstacle_paths: np.ndarray | None = None
     obstacle_speeds: np.ndarray | None = None
+    #: the filter's barrier and λ of its tunable ε(h̃) (:class:`pan1_env.safety.FilterParams`)
+    safety_barrier: str = "squared"
+    safety_decay: float = 0.0
 
     def __post_init__(self) -> None:
         if self.bodies not in BODIES:
@@ -101,6 +105,10 @@ class Scenario:
             raise ValueError(f"Scenario.link_radius must be finite and non-negative, got {self.link_radius!r}")
         if self.inter_arm and self.bodies != "links":
             raise ValueError('Scenario.inter_arm keeps link capsules apart: it needs bodies="links"')
+        if self.safety_barrier not in BARRIERS:
+            raise ValueError(f"Scenario.safety_barrier must be one of {BARRIERS}, got {self.safety_barrier!r}")
+        if not (math.isfinite(self.safety_decay) and self.safety_decay >= 0):
+            raise ValueError(f"Scenario.safety_decay must be finite and non-negative, got {self.safety_decay!r}")
         n_obs = len(self.obstacles)
         if (self.obstacle_paths is None) != (self.obstacle_speeds is None):
             raise ValueError("Scenario.obstacle_paths and obstacle_speeds go together: give both or neither")
@@ -345,7 +353,7 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
     kp = _number(ctrl, "kp", src, "controller")
     ke = _number(ctrl, "ke", src, "controller")
     saf = _table(data, "safety", src, {"kappa", "epsilon", "margin", "ignore_unreachable_obstacles", "bodies",
-                                       "link_radius", "inter_arm"})
+                                       "link_radius", "inter_arm", "barrier", "decay"})
     kappa = _number(saf, "kappa", src, "safety")
     epsilon = _number(saf, "epsilon", src, "safety")
     margin = _number(saf, "margin", src, "safety", positive=False, default=0.0)
@@ -353,6 +361,11 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
     if not isinstance(ignore, bool):
         raise ScenarioError(src, "safety.ignore_unreachable_obstacles", f"expected true or false, got {ignore!r}")
     bodies, link_radius, inter_arm = _bodies(saf, src)
+    barrier = saf.get("barrier", "squared")
+    if barrier not in BARRIERS:
+        raise ScenarioError(src, "safety.barrier", f"unknown barrier {barrier!r}; allowed values are "
+                            + ", ".join(f'"{b}"' for b in BARRIERS))
+    decay = _number(saf, "decay", src, "safety", positive=False, default=0.0)
 
     defaults = _table(data, "arm_defaults", src, _ARM_PARAM_KEYS, required=False)
     arms_raw = data.get("arms")
@@ -435,6 +448,7 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
         control_dt=control_dt, horizon=horizon, safety_margin=margin,
         ignore_unreachable_obstacles=ignore, source=source, bodies=bodies, link_radius=link_radius,
         inter_arm=inter_arm, obstacle_paths=obstacle_paths, obstacle_speeds=obstacle_speeds,
+        safety_barrier=barrier, safety_decay=decay,
     )
 
 

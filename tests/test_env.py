@@ -45,7 +45,10 @@ def test_gymnasium_check_env_no_warnings(env_id: str, max_steps: int) -> None:
         warnings.simplefilter("always")
         env = gymnasium.make(env_id)
         check_env(env.unwrapped)
-    assert [str(w.message) for w in caught] == []
+    # Gymnasium's own nudge for an id with a newer version (RandomFormation-v0 now that v1 exists) is
+    # its registry's rule, not the env's: v0 stays as it was for the models trained on it
+    newer = f"The environment {env_id} is out of date"
+    assert [str(w.message) for w in caught if newer not in str(w.message)] == []
     # the env's own clock truncates (one rule: max_steps); no TimeLimit that could disagree with it
     assert env.spec.max_episode_steps is None and env.unwrapped.max_steps == max_steps
 

@@ -15,7 +15,7 @@ from pan1_env.kernels._numba_ext import _JIT, _LANES, _local, _slp_vectorised
 from pan1_env.kernels.physics import _SERIES_MAX, _SERIES_SHORT, _rotate_lanes, _spd_solve
 from pan1_env.kernels.qp import _first_projection_lanes
 from pan1_env.kernels.substep import _advance_arms
-from pan1_env.safety import clearance, project_velocity, rcbf_constraints
+from pan1_env.safety import active_set_projection, clearance, project_velocity, rcbf_constraints
 
 
 def _group(rng: np.random.Generator, n: int, passive: bool, count: int = 5):
@@ -60,7 +60,8 @@ def test_group_terms_match_reference(n: int, passive: bool) -> None:
 
 
 def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False, centers=None, radii=None,
-             mask=None, kappa=0.5, eps=5.0, margin=0.0, ke=100.0, dt=1e-3, n_sub=1, v_max=np.inf, parallel=False,
+             mask=None, kappa=0.5, eps=5.0, margin=0.0, distance=False, decay=0.0,
+             ke=100.0, dt=1e-3, n_sub=1, v_max=np.inf, parallel=False,
              sizes=None, n_chunks=2):
     A, k = v.shape
     centers = np.zeros((0, 2)) if centers is None else centers
@@ -76,8 +77,8 @@ def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False
     args = (*sizes, batch.lam, batch.lengths, batch.base, batch.phi,
             batch.passive_first_joint, q, v, prev, has_prev,
             command, torque, filter_on, np.broadcast_to(centers, (A, *centers.shape)).copy(),
-            np.broadcast_to(radii, (A, len(radii))).copy(), mask, kappa, eps, margin, ke, dt, n_sub,
-            v_max, out["v_star"], out["tau"], out["qd"], out["p"], out["clear"], out["min_h"], out["counts"],
+            np.broadcast_to(radii, (A, len(radii))).copy(), mask, kappa, eps, margin, distance, decay, ke, dt,
+            n_sub, v_max, out["v_star"], out["tau"], out["qd"], out["p"], out["clear"], out["min_h"], out["counts"],
             out["track"], out["finite"], None)
     if parallel:
         kernels.group_advance_parallel(*args, n_chunks)
@@ -348,7 +349,7 @@ def test_per_arm_obstacles_equal_one_arm_at_a_time() -> None:
     q_all, v_all = q.copy(), v.copy()
     kernels.group_advance(*kernel_sizes(q.shape[1], k), batch.lam, batch.lengths, batch.base, batch.phi, True,
                           q_all, v_all, np.zeros((A, k)), np.zeros(A, bool), command, False, True, centers, radii,
-                          np.ones((A, 2), bool), 0.5, 5.0, 0.0, 100.0, 1e-3, 3, 2.0, *args.values(), None)
+                          np.ones((A, 2), bool), 0.5, 5.0, 0.0, False, 0.0, 100.0, 1e-3, 3, 2.0, *args.values(), None)
     for i in range(A):
         one = ArmBatch(lam=batch.lam[i : i + 1], lengths=batch.lengths[i : i + 1], base=batch.base[i : i + 1],
                        phi=batch.phi[i : i + 1], passive_first_joint=True)
@@ -377,7 +378,8 @@ def test_piqp_and_active_set_records_agree_on_barriers() -> None:
 
 # plain @njit (no cache): numba's cache of a test helper would not notice a change to the kernels it inlines
 @njit(error_model="numpy", fastmath=_JIT["fastmath"])  # as the kernels: 0/0 is NaN, not an exception
-def _first_candidates(px, py, Jbar, obstacles, active, filtered, v0, kappa, epsilon, margin, v_max):
+def _first_candidates(px, py, Jbar, obstacles, active, filtered, v0, kappa, epsilon, margin, v_max, distance=False,
+                      decay=0.0):
     """_first_projection_lanes on W lanes, with the rows it used as a (W, m, k) QP batch."""
     O, k, W = obstacles.shape[1], v0.shape[0], v0.shape[1]
     m = O + 2 * k
@@ -385,9 +387,9 @@ def _first_candidates(px, py, Jbar, obstacles, active, filtered, v0, kappa, epsi
     A, b, h, norm, act = np.empty((k, W)), np.empty(W), np.empty(W), np.empty(W), np.empty(W, np.bool_)
     rows, violated, best, best_viol = np.empty((O, k + 2, W)), np.empty(W, np.bool_), np.empty(W, np.int64), np.empty(W)
     Ab, bb, cand, found = np.empty((k, W)), np.empty(W), np.empty((k, W)), np.empty(W, np.bool_)
-    _first_projection_lanes(px, py, Jbar, obstacles, active, filtered, kappa, epsilon, margin, v_max, O, k, W,
-                                    v0, arm_h, A, b, h, norm, act, rows, violated, best, best_viol, Ab, bb, cand,
-                                    found)
+    _first_projection_lanes(px, py, Jbar, obstacles, active, filtered, kappa, epsilon, margin, distance, decay, v_max,
+                            O, k, W, v0, arm_h, A, b, h, norm, act, rows, violated, best, best_viol, Ab, bb, cand,
+                            found)
     A_all, b_all = np.zeros((W, m, k)), np.zeros((W, m))
     for w in range(W):
         for j in range(O):
@@ -483,7 +485,9 @@ def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
     t, centers, radii = _binding_obstacles(rng, batch, q, v)
     mask = rng.random((A, 3)) < 0.8
     mask[3] = False  # arm 3 goes unfiltered, with a command that makes its state non-finite
-    for torque, v_max in ((False, 2.0), (True, np.inf)):
+    # the paper's rows, and the distance barrier with the tunable ε (its own loop in _rcbf_row_lanes)
+    for torque, v_max, distance, decay in ((False, 2.0, False, 0.0), (True, np.inf, False, 0.0),
+                                           (False, 2.0, True, 50.0)):
         command = rng.normal(scale=5.0 if torque else 2.5, size=v.shape)
         command[3] = 1e300
         runs = []
@@ -494,7 +498,7 @@ def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
                    np.zeros(A, bool)]
             args = [batch.lam, batch.lengths, batch.base, batch.phi, True, qk, vk, out[0], out[1], command, torque,
                     True, np.broadcast_to(centers, (A, 3, 2)).copy(), np.broadcast_to(radii, (A, 3)).copy(), mask,
-                    0.5, 5.0, 0.01, 100.0, 1e-2, 5, v_max, *out[2:], None]
+                    0.5, 5.0, 0.01, distance, decay, 100.0, 1e-2, 5, v_max, *out[2:], None]
             if kernel == "slp":
                 kernels.group_advance(*kernel_sizes(3, 2), *args)
             else:
@@ -521,8 +525,11 @@ def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> Non
     k = v.shape[1]
     t, centers, radii = _binding_obstacles(rng, batch, q, v)
     mask = rng.random((A, 3)) < 0.8
-    for torque, filter_on, v_max in ((False, True, 2.0), (True, True, 3.0), (False, False, np.inf),
-                                     (True, False, np.inf)):
+    # the last: the distance barrier with the tunable ε (the generic kernel's rows are _filter_rows_lanes')
+    for torque, filter_on, v_max, distance, decay in ((False, True, 2.0, False, 0.0), (True, True, 3.0, False, 0.0),
+                                                      (False, False, np.inf, False, 0.0),
+                                                      (True, False, np.inf, False, 0.0),
+                                                      (False, True, 2.0, True, 50.0)):
         command = rng.normal(scale=5.0 if torque else 2.5, size=v.shape)
         command[3] = 1e300
         runs = []
@@ -534,8 +541,8 @@ def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> Non
             for _ in range(2):  # the second call starts from the first's v_prev / has_prev
                 kernel(*kernel_sizes(n, k), batch.lam, batch.lengths, batch.base, batch.phi, passive, qk, vk,
                        out[0], out[1], command, torque, filter_on, np.broadcast_to(centers, (A, 3, 2)).copy(),
-                       np.broadcast_to(radii, (A, 3)).copy(), mask, 0.5, 5.0, 0.01, 100.0, 1e-2, 5, v_max, *out[2:],
-                       None)
+                       np.broadcast_to(radii, (A, 3)).copy(), mask, 0.5, 5.0, 0.01, distance, decay, 100.0, 1e-2, 5,
+                       v_max, *out[2:], None)
             runs.append([qk, vk, *out])
         finite, counts = runs[0][-1], runs[0][-3]
         assert not finite[3]
@@ -555,3 +562,53 @@ def test_generic_kernel_checks_its_sizes() -> None:
     with pytest.raises(ValueError, match="kernel_sizes"):
         kernels.group_advance_generic(*kernel_sizes(3, 3), batch.lam, batch.lengths, batch.base, batch.phi,
                                       True, q, v)
+
+
+@pytest.mark.parametrize(("barrier", "decay"), [("squared", 0.0), ("squared", 20.0), ("distance", 0.0),
+                                                ("distance", 5.0), ("distance", 50.0)])
+def test_compiled_filter_choices_match_the_numpy_reference(barrier: str, decay: float) -> None:
+    """The compiled end-effector rows with each barrier and λ (``_first_projection_lanes``, which
+    writes them) against the numpy reference ``rcbf_constraints(..., barrier=, decay=)``, and its
+    answers (first candidate where it settles a lane, the full compiled search elsewhere) against the
+    reference's ``active_set_projection`` on the reference's rows. Lanes with the end-effector on an
+    obstacle's centre (d = 0: a zero distance row, b < 0) and far from every obstacle (exp capped)
+    are included."""
+    rng = np.random.default_rng(7 + int(decay) + 100 * (barrier == "distance"))
+    O, k, W, v_max, margin = 3, 2, 600, 2.5, 0.01
+    centers, radii = rng.uniform(-0.5, 0.5, (O, 2)), rng.uniform(0.05, 0.2, O)
+    p = centers[rng.integers(0, O, W)] + rng.normal(scale=0.4, size=(W, 2))
+    p[:5] = centers[0]  # d = 0
+    p[5:10] += 40.0  # far: λ h̃ beyond the exponent's cap at λ = 50
+    Jbar = rng.normal(size=(W, 2, k))
+    v0 = rng.normal(scale=2.0, size=(W, k))
+    active = np.zeros((O + 2 * k, W), bool)
+    active[:O] = rng.random((O, W)) < 0.9
+    active[O:] = True
+    active[:O, :10] = True
+    filtered = np.ones(W, bool)
+    obstacles = np.stack([np.repeat(centers[:, :1], W, 1), np.repeat(centers[:, 1:], W, 1),
+                          np.repeat(radii[:, None], W, 1)])
+    violated, found, cand, A_all, b_all, arm_h = _first_candidates(
+        np.ascontiguousarray(p[:, 0]), np.ascontiguousarray(p[:, 1]), np.ascontiguousarray(Jbar.transpose(1, 2, 0)),
+        obstacles, active, filtered, np.ascontiguousarray(v0.T), 0.5, 5.0, margin, v_max, barrier == "distance",
+        decay)
+    A_ref, b_ref, h_ref = rcbf_constraints(p, Jbar, centers, radii, 0.5, 5.0, margin=margin, barrier=barrier,
+                                           decay=decay)
+    np.testing.assert_allclose(A_all[:, :O], A_ref, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(b_all[:, :O], b_ref, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(arm_h, np.where(active[:O].T, h_ref, np.inf).min(axis=1), rtol=1e-14)
+    if barrier == "distance":
+        assert np.all(A_all[:5, 0] == 0.0) and np.all(b_all[:5, 0] < 0.0), "d = 0: a zero row that cannot hold"
+    # the answers: the reference's projection on the reference's rows and the same box
+    A_box, b_box = A_all.copy(), b_all.copy()
+    A_box[:, :O], b_box[:, :O] = A_ref, b_ref
+    ref = active_set_projection(v0, A_box, b_box, active.T)
+    v_out, status = np.empty((W, k)), np.zeros(W, np.int64)
+    kernels.qp_project(v0, A_all, b_all, np.ascontiguousarray(active.T), v_out, status)
+    np.testing.assert_array_equal(status, ref.status)
+    np.testing.assert_allclose(v_out, ref.v, rtol=1e-9, atol=1e-9)
+    np.testing.assert_array_equal(violated, status != kernels.STATUS_NOMINAL)
+    settled = violated & found
+    assert settled.any() and (status == kernels.STATUS_SOLVED).sum() > settled.sum()
+    np.testing.assert_array_equal(cand.T[settled], v_out[settled])
+    assert (status == kernels.STATUS_NOMINAL).any()

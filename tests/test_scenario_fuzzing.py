@@ -91,7 +91,7 @@ _SCHEMA = {
                "obstacles"],
     "simulation": ["physics_dt", "control_dt", "horizon"],
     "controller": ["kp", "ke"],
-    "safety": ["kappa", "epsilon", "margin", "ignore_unreachable_obstacles"],
+    "safety": ["kappa", "epsilon", "margin", "ignore_unreachable_obstacles", "barrier", "decay"],
     "arm_defaults": _ARM_KEYS[:6],
     "arms": _ARM_KEYS,
     "formation": ["shape", "size", "edges", "distances"],

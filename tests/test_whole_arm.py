@@ -31,7 +31,8 @@ def _lanes(arm: ArmParams, q: np.ndarray) -> dict:
 
 def _rows(arm: ArmParams, q: np.ndarray, caps: np.ndarray, *, links: bool = True, rho: float = 0.0,
           time: float = 0.0, kappa: float = 1.0, epsilon: float = 10.0, margin: float = 0.0, v_max: float = np.inf,
-          sensing: float = np.inf, skin: float = 0.0, dt: float = 0.0, qd: np.ndarray | None = None):
+          sensing: float = np.inf, skin: float = 0.0, dt: float = 0.0, qd: np.ndarray | None = None,
+          distance: bool = False, decay: float = 0.0):
     """kernels.capsules.whole_arm_rows for one arm at q (one lane): (A, b, h_min) of the rows written."""
     n = arm.n_links
     k = n - 1 if arm.passive_first_joint else n
@@ -41,7 +42,8 @@ def _rows(arm: ArmParams, q: np.ndarray, caps: np.ndarray, *, links: bool = True
     qd = np.zeros((n, 1)) if qd is None else np.asarray(qd, float).reshape(n, 1)
     m, h_min = kernels().capsules.whole_arm_rows(
         0, 0, n, k, arm.passive_first_joint, links, rho, sensing, skin, dt, lane["lengths"], lane["bx"], lane["by"],
-        lane["c"], lane["s"], qd, lane["M"], caps, time, kappa, epsilon, margin, v_max, np.zeros(k), A, b, active, P,
+        lane["c"], lane["s"], qd, lane["M"], caps, time, kappa, epsilon, margin, distance, decay, v_max, np.zeros(k), A,
+        b, active, P,
         np.empty((caps.shape[1], kernels().capsules.NEAR_COLUMNS)))
     return A[:m], b[:m], h_min
 
@@ -88,6 +90,47 @@ def test_link_obstacle_rows_match_the_numpy_barrier(n: int, passive: bool) -> No
     np.testing.assert_allclose(b[:m], expected_b, rtol=1e-10, atol=1e-12)
     assert h_min == pytest.approx(h.min(), rel=1e-12)
     assert np.allclose(row, ref.grad_q.reshape(m, n) @ passive_velocity_map(arm, q))
+
+
+@pytest.mark.parametrize(("distance", "decay"), [(True, 0.0), (False, 20.0), (True, 50.0)])
+def test_whole_arm_rows_with_the_filter_choices_match_the_numpy_reference(distance: bool, decay: float) -> None:
+    """The kernel's link rows (moving disks: ∂h/∂t) and inter-arm rows (share ½) with the distance
+    barrier and/or ε(h̃) = ε e^{λ h̃}: the numpy reference's shaped_barrier + cbf_rows of the same pairs
+    (bodies.link_obstacle_barrier, bodies.inter_arm_barrier); h_min in the chosen barrier's unit."""
+    from pan1_env.safety import cbf_rows, shaped_barrier
+
+    K = kernels().capsules
+    form = "distance" if distance else "squared"
+    rng = np.random.default_rng(17 + int(decay) + 100 * distance)
+    arm = _arm(rng, 3, True)
+    q = rng.uniform(-1.5, 1.5, 3)
+    centers = arm.base + rng.uniform(-1.0, 1.0, (5, 2))
+    ends = centers + rng.uniform(-0.4, 0.4, (5, 2))
+    radii, speeds, rho = rng.uniform(0.05, 0.2, 5), rng.uniform(0.1, 0.5, 5), 0.03
+    time, kappa, epsilon, margin = 2.7, 0.8, 20.0, 0.01
+    caps = _capsules(K, centers, centers, radii, np.ones(5), ends, speeds)
+    A, b, h_min = _rows(arm, q, caps, rho=rho, time=time, kappa=kappa, epsilon=epsilon, margin=margin,
+                        distance=distance, decay=decay)
+    now = bodies.obstacle_centers(centers, ends, speeds, time)
+    ref = bodies.link_obstacle_barrier(arm, q, now, radii, rho, bodies.obstacle_velocities(centers, ends, speeds,
+                                                                                            time))
+    h, row, dh_dt = shaped_barrier(ref.h.reshape(15), (radii[None, :] + rho).repeat(3, 0).reshape(15), form,
+                                   ref.row.reshape(15, 2), ref.dh_dt.reshape(15))
+    A_ref, b_ref = cbf_rows(h, row, kappa, epsilon, margin, decay, dh_dt)
+    np.testing.assert_allclose(A, A_ref, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(b, b_ref, rtol=1e-10, atol=1e-12)
+    assert h_min == pytest.approx(h.min(), rel=1e-12)
+    # inter-arm: another arm's links as capsules of radius ρ, half the rate each
+    arm_j = _arm(rng, 4, True)
+    qj = rng.uniform(-1.5, 1.5, 4)
+    P = bodies.link_segments(arm_j, qj)
+    caps = _capsules(K, P[0], P[1], np.full(4, rho), np.full(4, 0.5))
+    A, b, _ = _rows(arm, q, caps, rho=rho, kappa=kappa, epsilon=epsilon, distance=distance, decay=decay)
+    ref = bodies.inter_arm_barrier(arm, q, arm_j, qj, rho)
+    h, row = shaped_barrier(ref.h.reshape(12), 2 * rho, form, ref.row_i.reshape(12, 2))
+    A_ref, b_ref = cbf_rows(h, row, kappa, epsilon, 0.0, decay, share=0.5)
+    np.testing.assert_allclose(A, A_ref, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(b, b_ref, rtol=1e-9, atol=1e-12)
 
 
 def test_inter_arm_rows_take_half_the_rate_budget() -> None:

@@ -25,12 +25,12 @@ the other arms' capsules, and its fallback drops the robust term, then violates 
 numbers that TorchRL's and RLlib's PettingZoo wrappers take as they are: ``shield_intervened`` (the QP
 changed the action at some sub-step), ``shield_fallback`` (the QP was infeasible and the fallback was
 used), ``shield_status`` (the worst QP status over the sub-steps: 0 nominal, 1 solved, 2 fallback),
-``shield_min_barrier`` (the smallest barrier value h = ‖p − o‖² − r² the filter saw; with whole-arm safety
-the smallest of its pairs in sensing range, against the capsules inflated by the skin; inf when there is
-none), ``shield_applied`` (the action actually applied at the last sub-step, in the action's normalised
-units; in residual mode the whole filtered velocity v*/``max_joint_speed``, reference included) and
-``qp_counts`` (sub-steps per status). The Gymnasium view gathers them over the arms
-(:meth:`~pan1_env.core.FormationCore.team_infos`).
+``shield_min_barrier`` (the smallest barrier value h = ‖p − o‖² − r² the filter saw, h = ‖p − o‖ − r with
+``barrier="distance"``; with whole-arm safety the smallest of its pairs in sensing range, against the
+capsules inflated by the skin; inf when there is none), ``shield_applied`` (the action actually applied
+at the last sub-step, in the action's normalised units; in residual mode the whole filtered velocity
+v*/``max_joint_speed``, reference included) and ``qp_counts`` (sub-steps per status). The Gymnasium
+view gathers them over the arms (:meth:`~pan1_env.core.FormationCore.team_infos`).
 
 With ``sensing_radius=s`` (m) an end-effector scenario is filtered through the whole-arm rows with the
 end-effector as the body: an obstacle gets a row only within s (plus what the gap can close in a
@@ -53,18 +53,22 @@ __all__ = ["SafetyShield", "GymSafetyShield", "shield_parameters"]
 
 
 def shield_parameters(scenario, kappa: float | None, epsilon: float | None, margin: float | None,
-                      tracking_bound: float | None, sensing_radius: float | None = None) -> FilterParams:
+                      tracking_bound: float | None, sensing_radius: float | None = None, *,
+                      barrier: str | None = None, decay: float | None = None) -> FilterParams:
     """Validated filter parameters: κ, ε (default: the scenario's), the barrier margin (explicit,
-    or Γ(δ̄) from ``tracking_bound``; default: the scenario's) and the sensing radius (default: none).
-    :meth:`FilterParams.of` owns the rules; errors name the argument after ``SafetyShield:``."""
-    return FilterParams.of(scenario, kappa, epsilon, margin, tracking_bound, sensing_radius, owner="SafetyShield")
+    or Γ(δ̄) from ``tracking_bound``; default: the scenario's), the sensing radius (default: none), the
+    barrier and λ of the tunable ε(h̃) (default: the scenario's). :meth:`FilterParams.of` owns the
+    rules; errors name the argument after ``SafetyShield:``."""
+    return FilterParams.of(scenario, kappa, epsilon, margin, tracking_bound, sensing_radius, owner="SafetyShield",
+                           barrier=barrier, decay=decay)
 
 
-def _switch_on(core, kappa, epsilon, margin, tracking_bound, sensing_radius) -> None:
+def _switch_on(core, kappa, epsilon, margin, tracking_bound, sensing_radius, barrier, decay) -> None:
     """Switch the filter on through the env's public :meth:`set_safety_filter`."""
     if core.safety_filter is not None:
         raise ValueError("this env is already shielded; wrap it once")
-    core.set_safety_filter(shield_parameters(core.scenario, kappa, epsilon, margin, tracking_bound, sensing_radius))
+    core.set_safety_filter(shield_parameters(core.scenario, kappa, epsilon, margin, tracking_bound, sensing_radius,
+                                             barrier=barrier, decay=decay))
 
 
 class SafetyShield(BaseParallelWrapper):
@@ -76,18 +80,23 @@ class SafetyShield(BaseParallelWrapper):
     Args:
         env: the parallel env.
         kappa, epsilon: RCBF parameters κ and ε (default: the scenario's).
-        margin: subtract this from every barrier (m²; default: the scenario's, 0 for the paper's).
+        margin: subtract this from every barrier (m² for the squared barrier, m for the distance one;
+            default: the scenario's, 0 for the paper's).
         tracking_bound: δ̄; sets ``margin = Γ(δ̄)`` (the tightened set that keeps h ≥ 0).
+        sensing_radius: the whole-arm filter's range (m; default: none).
+        barrier: ``"squared"`` (the paper's) or ``"distance"``; decay: λ ≥ 0 of ε(h̃) = ε e^{λ h̃}
+            (docs/MODEL.md §5a; default: the scenario's, the paper's "squared" and 0).
     """
 
     def __init__(self, env, kappa: float | None = None, epsilon: float | None = None,
                  margin: float | None = None, tracking_bound: float | None = None,
-                 sensing_radius: float | None = None) -> None:
+                 sensing_radius: float | None = None, *, barrier: str | None = None,
+                 decay: float | None = None) -> None:
         super().__init__(env)
         core = env.unwrapped
         if not hasattr(core, "set_safety_filter"):
             raise TypeError(f"SafetyShield wraps a pan1_env parallel env, got {type(core).__name__}")
-        _switch_on(core, kappa, epsilon, margin, tracking_bound, sensing_radius)
+        _switch_on(core, kappa, epsilon, margin, tracking_bound, sensing_radius, barrier, decay)
 
 
 class GymSafetyShield(gymnasium.Wrapper):
@@ -98,10 +107,11 @@ class GymSafetyShield(gymnasium.Wrapper):
 
     def __init__(self, env: gymnasium.Env, kappa: float | None = None, epsilon: float | None = None,
                  margin: float | None = None, tracking_bound: float | None = None,
-                 sensing_radius: float | None = None) -> None:
+                 sensing_radius: float | None = None, *, barrier: str | None = None,
+                 decay: float | None = None) -> None:
         super().__init__(env)
         inner = env.unwrapped
         if not hasattr(inner, "parallel"):
             hint = " (PAReachEnv has the filter built in: safety_filter=True)" if hasattr(inner, "arm_index") else ""
             raise TypeError(f"GymSafetyShield wraps a pan1_env team Gymnasium env, got {type(inner).__name__}{hint}")
-        _switch_on(inner.parallel, kappa, epsilon, margin, tracking_bound, sensing_radius)
+        _switch_on(inner.parallel, kappa, epsilon, margin, tracking_bound, sensing_radius, barrier, decay)

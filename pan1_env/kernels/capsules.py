@@ -13,6 +13,9 @@ budget (σ = 1 for a world obstacle, ½ for a capsule of another arm that filter
 
     −L_g0 h · v ≤ σ κ (h − margin) + ∂h/∂t − ‖L_g0 h‖² / ε
 
+or with the filter choices of docs/MODEL.md §5a (``distance``: h = ‖x − y‖ − (r + ρ), the row and
+∂h/∂t over 2‖x − y‖; ``decay`` λ: ε(h̃) = ε e^{λ h̃}, h̃ = h − margin), as :func:`pan1_env.safety.cbf_rows`.
+
 A capsule is a row of ``capsules (A, C, CAPSULE_COLUMNS)``: its segment's end points at time 0 (equal
 for a disk), radius, share, the unit direction, length and speed of its back-and-forth path
 (:func:`pan1_env.bodies.obstacle_centers`), whether the arm's filter considers it, and its kind
@@ -111,7 +114,7 @@ def _body(P, n, links, body):
 
 @njit(**_JIT)
 def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, skin, dt, lengths, bx, by, c, s, qd, M, caps, time,
-                   kappa, epsilon, margin, v_max, v0, A, b, active, P, near):
+                   kappa, epsilon, margin, distance, decay, v_max, v0, A, b, active, P, near):
     """The whole-arm RCBF rows of arm i (lane w of the kernel's scratch) at ``time``, then its speed
     bounds (finite ``v_max``), into ``A``, ``b``, ``active``: returns (rows written, smallest barrier h).
 
@@ -188,7 +191,6 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, skin, dt, lengths, 
             if np.sqrt(rx * rx + ry * ry) > within:
                 continue
             h = rx * rx + ry * ry - reach * reach
-            h_min = min(h_min, h)
             # ∇_q h = 2 (x − y)ᵀ J_x, J_x of the point at parameter sp on link ell (the end for a point body):
             # ∂x/∂q_a = Σ_{a ≤ α ≤ ell} w_α L_α [cos, −sin](θ_α + φ), w_α = 1 below ell and sp (or 1) at ell
             tau = sp if links else 1.0
@@ -211,11 +213,27 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, skin, dt, lengths, 
             if passive:  # L_g0 h = ∇_a h − ∇_0 h M_0a / M_00 (g0 = [−M_0a / M_00 ; I])
                 for t in range(k):
                     A[m, t] = A[m, t] + grad0 * M[0, t + 1, w] / M[0, 0, w]
+            if distance:
+                # h = d − R (pan1_env.safety.shaped_barrier): the row and ∂h/∂t of the squared barrier
+                # over 2d, d from the squared h as the reference takes it; a zero row at d = 0
+                d = np.sqrt(max(h + reach * reach, 0.0))
+                scale = 0.5 / d if d > 0.0 else 0.0
+                h = d - reach
+                for t in range(k):
+                    A[m, t] = A[m, t] * scale
+            else:
+                scale = 1.0
+            h_min = min(h_min, h)
             bound = 0.0
             for t in range(k):
                 lg2 += A[m, t] * A[m, t]
                 bound += abs(A[m, t])
-            bm = near[x, 9] * kappa * (h - margin) - 2.0 * (rx * near[x, 4] + ry * near[x, 5]) - lg2 / epsilon
+            if not distance and decay == 0.0:  # the paper's row, its operations as before the choices existed
+                bm = near[x, 9] * kappa * (h - margin) - 2.0 * (rx * near[x, 4] + ry * near[x, 5]) - lg2 / epsilon
+            else:  # ε(h̃) = ε e^{min(λ h̃, 700)} (pan1_env.safety.robust_epsilon); ε = inf: the fallback's rows
+                ht = h - margin
+                bm = near[x, 9] * kappa * ht - 2.0 * (rx * near[x, 4] + ry * near[x, 5]) * scale \
+                    - lg2 / (epsilon * np.exp(min(decay * ht, 700.0)))
             if cull and bound * v_max <= bm:
                 continue
             b[m] = bm

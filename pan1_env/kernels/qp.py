@@ -145,21 +145,52 @@ def qp_project(v0, A, b, active, v_out, status):
 
 
 @njit(**_JIT, forceinline=True)
-def _rcbf_row_lanes(j, px, py, Jbar, obstacles, kappa, epsilon, margin, k, W, A, b, h):
+def _rcbf_row_lanes(j, px, py, Jbar, obstacles, kappa, epsilon, margin, distance, decay, k, W, A, b, h):
     """The RCBF row of obstacle j for W lanes, A_j v ≤ b_j, into ``A (k, W)``, ``b (W)``:
-    A_j = −L_g0 h_j and b_j = κ (h_j − margin) − ‖L_g0 h_j‖²/ε, with h_j = ‖p − o_j‖² − r_j² (also
-    written to ``h``) and L_g0 h_j = 2 (p − o_j)ᵀ J̄ (docs/MODEL.md §4); ``obstacles (3, O, W)`` holds
-    every lane's obstacle centres (x, y) and radii."""
+    A_j = −L_g0 h_j and b_j = κ h̃_j − ‖L_g0 h_j‖²/ε(h̃_j), h̃_j = h_j − margin (also writes h_j to
+    ``h``); ``obstacles (3, O, W)`` holds every lane's obstacle centres (x, y) and radii.
+
+    The barrier (:func:`pan1_env.safety.shaped_barrier`, docs/MODEL.md §5a): the paper's squared
+    h_j = ‖p − o_j‖² − r_j² with L_g0 h_j = 2 (p − o_j)ᵀ J̄, or with ``distance`` h_j = d − r_j,
+    d = ‖p − o_j‖, whose row is the squared one over 2d (a zero row at d = 0, where the gradient is
+    undefined: the reference's choice). The robust term's ε(h̃) = ε e^{min(λ h̃, 700)}, λ = ``decay``
+    (:func:`pan1_env.safety.robust_epsilon`).
+
+    The paper's case (squared, λ = 0) keeps its own loop, the operations of the kernel before these
+    choices existed: its results stay bit for bit what they were (the golden tests) and it pays no
+    exp or square root. ``distance`` and ``decay`` are the same in every lane, so the test is taken
+    once per row, outside the lane loop."""
+    if not distance and decay == 0.0:
+        for w in range(W):
+            dx = px[w] - obstacles[0, j, w]
+            dy = py[w] - obstacles[1, j, w]
+            hw = dx * dx + dy * dy - obstacles[2, j, w] * obstacles[2, j, w]
+            lg2 = 0.0
+            for t in range(k):
+                lg = 2.0 * (dx * Jbar[0, t, w] + dy * Jbar[1, t, w])
+                A[t, w] = -lg
+                lg2 += lg * lg
+            b[w] = kappa * (hw - margin) - lg2 / epsilon
+            h[w] = hw
+        return
     for w in range(W):
         dx = px[w] - obstacles[0, j, w]
         dy = py[w] - obstacles[1, j, w]
-        hw = dx * dx + dy * dy - obstacles[2, j, w] * obstacles[2, j, w]
+        r = obstacles[2, j, w]
+        hw = dx * dx + dy * dy - r * r
+        scale = 1.0
+        if distance:
+            # as the reference: d from the squared barrier, every derivative times 1/(2d), 0 at d = 0
+            d = np.sqrt(max(hw + r * r, 0.0))
+            scale = 0.5 / d if d > 0.0 else 0.0
+            hw = d - r
         lg2 = 0.0
         for t in range(k):
-            lg = 2.0 * (dx * Jbar[0, t, w] + dy * Jbar[1, t, w])
+            lg = 2.0 * (dx * Jbar[0, t, w] + dy * Jbar[1, t, w]) * scale
             A[t, w] = -lg
             lg2 += lg * lg
-        b[w] = kappa * (hw - margin) - lg2 / epsilon
+        ht = hw - margin
+        b[w] = kappa * ht - lg2 / (epsilon * np.exp(min(decay * ht, 700.0)))
         h[w] = hw
 
 
@@ -216,8 +247,9 @@ def _check_row(A, b, norm, act, cand, cand_norm, k, W, found):
 
 
 @njit(**_JIT, forceinline=True)
-def _first_projection_lanes(px, py, Jbar, obstacles, active, filtered, kappa, epsilon, margin, v_max, O, k, W, v0,
-                            arm_h, A, b, h, norm, act, rows, violated, best, best_viol, Ab, bb, cand, found):
+def _first_projection_lanes(px, py, Jbar, obstacles, active, filtered, kappa, epsilon, margin, distance, decay, v_max,
+                            O, k, W, v0, arm_h, A, b, h, norm, act, rows, violated, best, best_viol, Ab, bb, cand,
+                            found):
     """The safety QP of W lanes as far as it goes without a search, all lanes at once (branch-free, so
     they vectorise):
 
@@ -247,7 +279,7 @@ def _first_projection_lanes(px, py, Jbar, obstacles, active, filtered, kappa, ep
         for t in range(k):
             Ab[t, w] = 0.0
     for j in range(O):
-        _rcbf_row_lanes(j, px, py, Jbar, obstacles, kappa, epsilon, margin, k, W, A, b, h)
+        _rcbf_row_lanes(j, px, py, Jbar, obstacles, kappa, epsilon, margin, distance, decay, k, W, A, b, h)
         for w in range(W):
             act[w] = active[j, w] & filtered[w]
         _consider_row(j, A, b, h, act, v0, k, W, arm_h, violated, best, best_viol, Ab, bb, found, norm)
@@ -307,15 +339,15 @@ def _first_projection_lanes(px, py, Jbar, obstacles, active, filtered, kappa, ep
 
 
 @njit(**_JIT, forceinline=True)
-def _filter_rows_lanes(px, py, Jbar, obstacles, active, filtered, kappa, epsilon, margin, O, k, W, arm_h, A, b, h,
-                       rows):
+def _filter_rows_lanes(px, py, Jbar, obstacles, active, filtered, kappa, epsilon, margin, distance, decay, O, k, W,
+                       arm_h, A, b, h, rows):
     """The generic kernel's lighter stand-in for :func:`_first_projection_lanes`: the RCBF rows into
     ``rows (O, k + 2, W)`` (A_j and b_j; the norm is not needed) and the smallest active barrier into
     ``arm_h``, no candidate. The caller hands every filtered lane to :func:`_project_one`, which
     starts with the same feasibility test as the first pass there, so the answers are the same; a
     smaller kernel compiles faster, which is the generic kernel's purpose."""
     for j in range(O):
-        _rcbf_row_lanes(j, px, py, Jbar, obstacles, kappa, epsilon, margin, k, W, A, b, h)
+        _rcbf_row_lanes(j, px, py, Jbar, obstacles, kappa, epsilon, margin, distance, decay, k, W, A, b, h)
         for w in range(W):
             act = active[j, w] & filtered[w]
             arm_h[w] = h[w] if act and h[w] < arm_h[w] else arm_h[w]

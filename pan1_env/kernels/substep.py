@@ -35,9 +35,9 @@ from .qp import (
 
 @njit(**_JIT)
 def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, base, phi, _passive, q, v, v_prev,
-                  has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt,
-                  n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out,
-                  whole):
+                  has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, distance,
+                  decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts,
+                  max_track, finite_out, whole):
     """Arms ``lo … hi−1`` of :func:`group_advance` (the loop body, with its own scratch space).
 
     With ``sizes`` None (the per-kind kernels), ``n``, ``k`` and the lane count W are compile-time
@@ -223,7 +223,8 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                             qv0[t] = vdes[t, w]
                         m_w, h_w = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, skin, dt,
                                                   ln, bx, by, c, s, qd, M, caps, start_time[arm[w]] + _s * dt, kappa,
-                                                  epsilon, margin, v_max, qv0, wA, wb, wact, wP, wnear)
+                                                  epsilon, margin, distance, decay, v_max, qv0, wA, wb, wact, wP,
+                                                  wnear)
                         arm_h[w] = min(arm_h[w], h_w)
                         status[w] = _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand,
                                                  qL, qy, wviol, wnorm)
@@ -234,7 +235,8 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                             # moving obstacle out); reported as a fallback either way
                             m_w, _ = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, skin, dt,
                                                     ln, bx, by, c, s, qd, M, caps, start_time[arm[w]] + _s * dt,
-                                                    kappa, np.inf, margin, v_max, qv0, wA, wb, wact, wP, wnear)
+                                                    kappa, np.inf, margin, distance, decay, v_max, qv0, wA, wb,
+                                                    wact, wP, wnear)
                             if _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand, qL, qy,
                                             wviol, wnorm) == STATUS_FALLBACK:
                                 least_violation(qv0, wA, wb, wact, m_w, k, 2 * k if v_max < np.inf else 0, qvs, wb0,
@@ -251,15 +253,16 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                 if lane_qp is None:
                     if sizes is not None:  # the generic kernel: every filtered lane to the full search
                         # (whose first test is the feasibility test the lane-batched stage starts with)
-                        _filter_rows_lanes(px, py, Jbar, obstacles, lane_active, filtered, kappa, epsilon, margin, O,
-                                           k, W, arm_h, row_A, row_b, row_h, obst_rows)
+                        _filter_rows_lanes(px, py, Jbar, obstacles, lane_active, filtered, kappa, epsilon, margin,
+                                           distance, decay, O, k, W, arm_h, row_A, row_b, row_h, obst_rows)
                         for w in range(W):
                             needs_qp[w] = filtered[w]
                             q_found[w] = False
                 else:
                     _first_projection_lanes(px, py, Jbar, obstacles, lane_active, filtered, kappa, epsilon, margin,
-                                            v_max, O, k, W, vdes, arm_h, row_A, row_b, row_h, row_norm, row_act,
-                                            obst_rows, needs_qp, q_best, q_best_viol, q_Ab, q_bb, q_cand, q_found)
+                                            distance, decay, v_max, O, k, W, vdes, arm_h, row_A, row_b, row_h,
+                                            row_norm, row_act, obst_rows, needs_qp, q_best, q_best_viol, q_Ab, q_bb,
+                                            q_cand, q_found)
                 for w in range(W):
                     if needs_qp[w] and q_found[w]:
                         status[w] = STATUS_SOLVED
@@ -442,6 +445,11 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     ``centers (A, O, 2)``, ``radii (A, O)`` and ``mask (A, O)`` (the obstacles each arm's filter
     sees; a team's obstacles are broadcast to every arm).
 
+    The end-effector filter's rows (:func:`pan1_env.kernels.qp._rcbf_row_lanes`) take κ ``kappa``, ε
+    ``epsilon``, the margin, the barrier (``distance`` True: h = ‖p − o‖ − r, else the paper's
+    squared one) and λ ``decay`` of the tunable ε(h̃) = ε e^{λ h̃} (0: the paper's constant ε);
+    ``min_h`` is then in that barrier's unit. The whole-arm rows (``whole``) take the same choices.
+
     Velocity mode (``torque_mode`` False): ``command`` is the desired active velocity; each
     sub-step filters it through the RCBF-QP when ``filter_on`` (against the obstacles of ``mask``)
     and tracks v* with the backstepping torque, v̇* by backward difference (``v_prev``/``has_prev``
@@ -488,20 +496,20 @@ def _check_sizes(links, actuated, passive, q, v):
 
 @njit(**_JIT)
 def group_advance(links, actuated, lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode,
-                  filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
+                  filter_on, centers, radii, mask, kappa, epsilon, margin, distance, decay, ke, dt, n_sub, v_max,
                   v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out, whole):
     _check_sizes(links, actuated, passive, q, v)
     lo = q.shape[0] * 0  # an int64, like the parallel kernel's chunk bounds
     _advance_arms(links, actuated, _LANES, None, True, lo, q.shape[0], lam, lengths, base, phi, passive, q, v, v_prev,
-                  has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt,
-                  n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out,
-                  whole)
+                  has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, distance,
+                  decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts,
+                  max_track, finite_out, whole)
 
 
 @njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
 def group_advance_parallel(links, actuated, lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command,
-                           torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, ke, dt, n_sub, v_max,
-                           v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track,
+                           torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, distance, decay, ke,
+                           dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track,
                            finite_out, whole, n_chunks):
     _check_sizes(links, actuated, passive, q, v)
     _check_chunks(n_chunks)
@@ -509,8 +517,8 @@ def group_advance_parallel(links, actuated, lam, lengths, base, phi, passive, q,
     for c in prange(n_chunks):
         _advance_arms(links, actuated, _LANES, None, True, c * A // n_chunks, (c + 1) * A // n_chunks, lam, lengths,
                       base, phi, passive, q, v, v_prev, has_prev, command, torque_mode, filter_on, centers, radii,
-                      mask, kappa, epsilon, margin, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out,
-                      min_clear, min_h, qp_counts, max_track, finite_out, whole)
+                      mask, kappa, epsilon, margin, distance, decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out,
+                      p_out, min_clear, min_h, qp_counts, max_track, finite_out, whole)
 
 
 # The generic kernel: arms of any kind up to GENERIC_MAX_LINKS links, n and k read at run time, one

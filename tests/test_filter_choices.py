@@ -1,0 +1,175 @@
+"""The filter choices (distance barrier, tunable ε(h̃) = ε e^{λ h̃}) in the compiled env, end to end:
+the parameters' validation, safety under the adversarial and random policies, and the point of the
+choices, that arms far from every obstacle keep their command where the paper's rows change it.
+The compiled rows themselves are checked against the numpy reference in tests/test_kernels.py."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pan1_env.baselines import AdversarialPolicy, ReferencePolicy
+from pan1_env.environment import parallel_env
+from pan1_env.safety import FilterParams, robust_margin
+from pan1_env.scenario import load
+from pan1_env.wrappers import SafetyShield
+
+CHOICE = {"barrier": "distance", "decay": 50.0}
+
+
+def _episode(env, policy, seed: int) -> tuple[float, float, int]:
+    """Run to the end; (total cost, smallest clearance over every sub-step, arm-steps with an intervention)."""
+    obs, _ = env.reset(seed=seed)
+    cost, clearance, interventions = 0.0, np.inf, 0
+    while env.agents:
+        obs, _, _, _, infos = env.step(policy(obs))
+        for info in infos.values():
+            cost += info["cost"]
+            clearance = min(clearance, info["min_clearance"])
+            interventions += int(info["shield_intervened"])
+    return cost, clearance, interventions
+
+
+def _random_policy(env, seed: int):
+    rng = np.random.default_rng(seed)
+    return lambda obs: {a: rng.uniform(-1, 1, env.action_space(a).shape).astype(np.float32) for a in obs}
+
+
+def test_filter_params_validate_the_choices() -> None:
+    team = load("paper_pa3_square")
+    params = FilterParams.of(team, barrier="distance", decay=50.0)
+    assert (params.barrier, params.decay, params.paper) == ("distance", 50.0, False)
+    assert FilterParams.of(team).paper, "the paper scenarios keep the paper's filter"
+    with pytest.raises(ValueError, match=r"barrier must be one of \('squared', 'distance'\), got 'cubic'"):
+        FilterParams(0.5, 5.0, barrier="cubic")
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="SafetyShield: decay"):
+            SafetyShield(parallel_env("paper_pa3_square"), decay=bad)
+    # δ̄ → Γ(δ̄) with the filter's λ (a larger λ gives a smaller margin)
+    shaped = FilterParams.of(team, tracking_bound=0.05, decay=50.0)
+    assert shaped.margin == pytest.approx(robust_margin(0.05, 0.5, 5.0, 50.0))
+    assert shaped.margin < robust_margin(0.05, 0.5, 5.0)
+
+
+@pytest.mark.parametrize("env_id", ["pan1_env/WholeArmStaticFormation-v0", "pan1_env/WholeArmFormation-v0"])
+def test_whole_arm_filter_with_the_choices_blocks_the_adversary(env_id: str) -> None:
+    """The whole-arm rows with barrier="distance", λ = 50 (every link a capsule, the other arms, moving
+    obstacles in the second id): the adversary and a random policy leave cost 0 on still obstacles;
+    with moving ones, only in steps whose QP took the fallback (which cannot always keep a moving
+    obstacle out)."""
+    base = parallel_env(env_id, max_steps=60)
+    env = SafetyShield(base, **CHOICE)
+    assert (base.safety_filter.barrier, base.safety_filter.decay) == ("distance", 50.0)
+    adversary = AdversarialPolicy(base)
+    interventions = 0
+    for seed in range(3):
+        for policy in (adversary, _random_policy(base, seed)):
+            obs, _ = env.reset(seed=seed)
+            while env.agents:
+                obs, _, _, _, infos = env.step(policy(obs))
+                for info in infos.values():
+                    interventions += int(info["shield_intervened"])
+                    if "WholeArmStatic" in env_id or not info["shield_fallback"]:
+                        assert info["cost"] == 0.0, (seed, info)
+    assert interventions > 0
+
+
+@pytest.mark.parametrize("mode", ["velocity", "torque"])
+def test_distance_barrier_with_decay_blocks_adversary_and_random(mode: str) -> None:
+    """barrier="distance", λ = 50 on random 4-arm teams: the adversary (straight at the nearest
+    obstacle) and a random policy never enter an obstacle, at any sub-step."""
+    base = parallel_env("random", action_mode=mode, max_steps=60)
+    env = SafetyShield(base, **CHOICE)
+    assert (base.safety_filter.barrier, base.safety_filter.decay) == ("distance", 50.0)
+    adversary = AdversarialPolicy(base)
+    worst, total, interventions = np.inf, 0.0, 0
+    for seed in range(8):
+        for policy in (adversary, _random_policy(base, seed)):
+            cost, clearance, n = _episode(env, policy, seed)
+            total, worst, interventions = total + cost, min(worst, clearance), interventions + n
+    assert total == 0.0 and worst >= 0.0
+    assert interventions > 0, "the filter must have acted for the test to mean anything"
+
+
+def test_far_arms_keep_their_command_where_the_paper_filter_changes_it() -> None:
+    """The first step of random teams (arms at rest), behind the paper's filter and behind the distance
+    barrier with λ = 50, from the same state:
+
+    - a zero command, which the paper's rows refuse wherever their robust term ‖L_g0 h‖²/ε exceeds κ h
+      (they push a resting arm away, however far the obstacle): the new filter passes it unchanged for
+      every arm more than 0.1 m from every obstacle (there κ h̃ = 0.05 exceeds the robust term
+      ‖J̄ᵀn‖² e^{−5}/ε for any ‖J̄ᵀn‖ up to these arms' reach, 1.35 m), and the paper's changes some;
+    - the reference law: an arm the new filter leaves alone gets its command exactly, and it frees
+      arms more than 0.2 m from every obstacle whose command the paper's filter changes."""
+    envs = {}
+    for name, kw in (("paper", {}), ("choice", CHOICE)):
+        base = parallel_env("random", max_steps=5)
+        envs[name] = (SafetyShield(base, **kw), base)
+    freed = {"zero": 0, "reference": 0}
+    for seed in range(40):
+        for command in freed:
+            infos = {}
+            for name, (env, base) in envs.items():
+                obs, _ = env.reset(seed=seed)
+                action = ReferencePolicy(base)(obs) if command == "reference" else \
+                    {a: np.zeros(base.action_space(a).shape, np.float32) for a in obs}
+                _, _, _, _, infos[name] = env.step(action)
+            for agent, info in infos["choice"].items():
+                paper_changed = infos["paper"][agent]["shield_intervened"]
+                if command == "zero" and info["min_clearance"] > 0.1:
+                    assert not info["shield_intervened"], (seed, agent)
+                    freed["zero"] += bool(paper_changed)
+                if not info["shield_intervened"]:
+                    np.testing.assert_allclose(info["shield_applied"], action[agent], atol=1e-6)
+                    freed["reference"] += bool(command == "reference" and info["min_clearance"] > 0.2
+                                               and paper_changed)
+    assert freed["zero"] >= 5 and freed["reference"] >= 5, freed
+
+
+def test_scenario_choices_reach_the_filter(tmp_path) -> None:
+    """``[safety] barrier``/``decay`` of a scenario file: the filter's defaults; bad values name the key."""
+    from importlib import resources
+
+    from pan1_env.scenario import ScenarioError
+
+    text = resources.files("pan1_env.scenarios").joinpath("paper_pa3_square.toml").read_text()
+    good = tmp_path / "choice.toml"
+    good.write_text(text.replace("[safety]", '[safety]\nbarrier = "distance"\ndecay = 20.0', 1))
+    env = parallel_env(str(good), safety_filter=True)
+    assert (env.safety_filter.barrier, env.safety_filter.decay) == ("distance", 20.0)
+    for key, line in (("safety.barrier", 'barrier = "cubic"'), ("safety.decay", "decay = -1.0")):
+        bad = tmp_path / "bad.toml"
+        bad.write_text(text.replace("[safety]", f"[safety]\n{line}", 1))
+        with pytest.raises(ScenarioError, match=key.replace(".", r"\.")) as err:
+            load(str(bad))
+        assert "bad.toml" in str(err.value)
+    assert dataclasses.replace(load("paper_pa3_square")).safety_barrier == "squared"
+
+
+def test_random_formation_v1_carries_its_filter_wherever_the_shield_is_on() -> None:
+    """RandomFormation-v1's filter (distance barrier, κ = 0.5, ε = 5, λ = 50, margin 0) is what the
+    Gymnasium shield, the parallel shield, ``safety_filter=True`` and the vector env's default give; v0
+    keeps the paper's; ``safety_filter=False`` (the parallel and Gymnasium views' default) keeps it off."""
+    import gymnasium
+
+    from pan1_env.vector import Pan1VectorEnv
+    from pan1_env.wrappers import GymSafetyShield
+
+    v1 = FilterParams(0.5, 5.0, 0.0, barrier="distance", decay=50.0)
+    gym_env = GymSafetyShield(gymnasium.make("pan1_env:pan1_env/RandomFormation-v1"))
+    assert gym_env.unwrapped.parallel.safety_filter == v1
+    assert parallel_env("pan1_env/RandomFormation-v1").safety_filter is None
+    assert parallel_env("pan1_env/RandomFormation-v1", safety_filter=True).safety_filter == v1
+    shielded = parallel_env("pan1_env/RandomFormation-v1")
+    SafetyShield(shielded)
+    assert shielded.safety_filter == v1
+    venv = Pan1VectorEnv("pan1_env/RandomFormation-v1", 2)
+    assert venv.safety_filter == v1
+    venv.close()
+    assert parallel_env("pan1_env/RandomFormation-v0", safety_filter=True).safety_filter.paper
+    # the same teams as v0: only the filter differs
+    a, b = parallel_env("pan1_env/RandomFormation-v0"), parallel_env("pan1_env/RandomFormation-v1")
+    a.reset(seed=5)
+    b.reset(seed=5)
+    np.testing.assert_array_equal(a.joint_state()[0], b.joint_state()[0])
+    assert a.scenario.obstacles.centers.tolist() == b.scenario.obstacles.centers.tolist()
