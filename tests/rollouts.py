@@ -1,5 +1,6 @@
-"""Rollout helpers shared by the tests that compare two envs step by step (pickled copies, rejected
-actions): random actions for any view, and a bit-exact record of what each step returned."""
+"""Rollout helpers shared by the tests: random actions for any view, a bit-exact record of what each step
+returned (for the tests that compare two envs step by step: pickled copies, rejected actions), and a whole
+episode's safety record (for the shield's tests)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,27 @@ def random_actions(env, rng: np.random.Generator):
     if isinstance(env, gymnasium.Env):
         return rng.uniform(-1, 1, env.action_space.shape).astype(np.float32)
     return {a: rng.uniform(-1, 1, env.action_space(a).shape).astype(np.float32) for a in env.agents}
+
+
+def random_policy(env, seed: int):
+    """A policy of seeded uniform random actions for ``env`` (any view)."""
+    rng = np.random.default_rng(seed)
+    return lambda obs: random_actions(env, rng)
+
+
+def safety_episode(env, policy, seed: int) -> dict[str, float]:
+    """Run a parallel env to its end under ``policy``: the total cost, the smallest clearance over every
+    sub-step, and the arm-steps in which the shield changed the action or fell back (0 without a shield)."""
+    obs, _ = env.reset(seed=seed)
+    out = {"cost": 0.0, "clearance": np.inf, "interventions": 0, "fallbacks": 0}
+    while env.agents:
+        obs, _, _, _, infos = env.step(policy(obs))
+        for info in infos.values():
+            out["cost"] += info["cost"]
+            out["clearance"] = min(out["clearance"], info["min_clearance"])
+            out["interventions"] += int(info.get("shield_intervened", False))
+            out["fallbacks"] += int(info.get("shield_fallback", False))
+    return out
 
 
 def bits(x: Any) -> Any:

@@ -7,6 +7,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from rollouts import random_policy, safety_episode
 
 from pan1_env.baselines import AdversarialPolicy, ReferencePolicy
 from pan1_env.environment import parallel_env
@@ -19,20 +20,8 @@ CHOICE = {"barrier": "distance", "decay": 50.0}
 
 def _episode(env, policy, seed: int) -> tuple[float, float, int]:
     """Run to the end; (total cost, smallest clearance over every sub-step, arm-steps with an intervention)."""
-    obs, _ = env.reset(seed=seed)
-    cost, clearance, interventions = 0.0, np.inf, 0
-    while env.agents:
-        obs, _, _, _, infos = env.step(policy(obs))
-        for info in infos.values():
-            cost += info["cost"]
-            clearance = min(clearance, info["min_clearance"])
-            interventions += int(info["shield_intervened"])
-    return cost, clearance, interventions
-
-
-def _random_policy(env, seed: int):
-    rng = np.random.default_rng(seed)
-    return lambda obs: {a: rng.uniform(-1, 1, env.action_space(a).shape).astype(np.float32) for a in obs}
+    run = safety_episode(env, policy, seed)
+    return run["cost"], run["clearance"], run["interventions"]
 
 
 def test_filter_params_validate_the_choices() -> None:
@@ -63,7 +52,7 @@ def test_whole_arm_filter_with_the_choices_blocks_the_adversary(env_id: str) -> 
     adversary = AdversarialPolicy(base)
     interventions = 0
     for seed in range(3):
-        for policy in (adversary, _random_policy(base, seed)):
+        for policy in (adversary, random_policy(base, seed)):
             obs, _ = env.reset(seed=seed)
             while env.agents:
                 obs, _, _, _, infos = env.step(policy(obs))
@@ -84,7 +73,7 @@ def test_distance_barrier_with_decay_blocks_adversary_and_random(mode: str) -> N
     adversary = AdversarialPolicy(base)
     worst, total, interventions = np.inf, 0.0, 0
     for seed in range(8):
-        for policy in (adversary, _random_policy(base, seed)):
+        for policy in (adversary, random_policy(base, seed)):
             cost, clearance, n = _episode(env, policy, seed)
             total, worst, interventions = total + cost, min(worst, clearance), interventions + n
     assert total == 0.0 and worst >= 0.0

@@ -3,6 +3,7 @@
 import gymnasium
 import numpy as np
 import pytest
+from rollouts import random_policy, safety_episode
 
 from pan1_env.baselines import AdversarialPolicy, ReferencePolicy
 from pan1_env.environment import parallel_env
@@ -14,20 +15,8 @@ MIXED = {"links": (2, 3, 4, 3), "passive_fraction": 0.5}
 
 def _episode(env, policy, seed: int) -> tuple[float, float, int]:
     """Run to the end; return (total cost, smallest clearance over every sub-step, fallbacks)."""
-    obs, _ = env.reset(seed=seed)
-    cost, clearance, fallbacks = 0.0, np.inf, 0
-    while env.agents:
-        obs, _, _, _, infos = env.step(policy(obs))
-        for info in infos.values():
-            cost += info["cost"]
-            clearance = min(clearance, info["min_clearance"])
-            fallbacks += int(info.get("shield_fallback", False))
-    return cost, clearance, fallbacks
-
-
-def _random_policy(env, seed: int):
-    rng = np.random.default_rng(seed)
-    return lambda obs: {a: rng.uniform(-1, 1, env.action_space(a).shape).astype(np.float32) for a in obs}
+    run = safety_episode(env, policy, seed)
+    return run["cost"], run["clearance"], run["fallbacks"]
 
 
 @pytest.mark.parametrize("mode", ["velocity", "torque"])
@@ -35,7 +24,7 @@ def _random_policy(env, seed: int):
 def test_shield_blocks_adversary_and_random_on_paper_scenarios(scenario: str, mode: str) -> None:
     base = parallel_env(scenario, action_mode=mode, max_steps=200)
     env = SafetyShield(base)
-    for policy in (AdversarialPolicy(base), _random_policy(base, 0)):
+    for policy in (AdversarialPolicy(base), random_policy(base, 0)):
         cost, clearance, _ = _episode(env, policy, seed=0)
         assert cost == 0.0
         assert clearance >= 0.0
@@ -59,7 +48,7 @@ def test_shield_on_100_random_scenarios(mode: str) -> None:
     adversary = AdversarialPolicy(base)
     worst, total, unshielded_hits = np.inf, 0.0, 0
     for seed in range(100):
-        for policy in (adversary, _random_policy(base, seed)):
+        for policy in (adversary, random_policy(base, seed)):
             cost, clearance, _ = _episode(env, policy, seed)
             total += cost
             worst = min(worst, clearance)
