@@ -15,9 +15,8 @@ For each scenario × policy × shield setting, episodes ``seed, seed+1, …`` ar
 ``time_to_edge_error_1cm_s``), ``mean_return`` (sum over steps of
 the mean agent reward), ``total_cost`` (arm-steps inside an obstacle), ``min_clearance_m`` (over every
 sub-step), ``intervention_rate`` (fraction of arm-steps where the shield changed the action; in torque mode
-this includes speed limiting) and ``fallback_steps``. Models trained with ``--param-sharing`` take
-padded per-arm observations and are not accepted as ``sb3:`` policies here (the benchmark runs
-centralised models). :func:`run_benchmark` returns the rows; :func:`markdown_table` and
+this includes speed limiting) and ``fallback_steps``. A model trained with ``--param-sharing`` acts for
+each arm on the arm's own observation. :func:`run_benchmark` returns the rows; :func:`markdown_table` and
 :func:`plot_benchmark` present them.
 """
 

@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["load_run", "learning_curves", "plot_curves", "METRICS", "COLUMNS"]
+__all__ = ["group_runs", "group_labels", "load_run", "learning_curves", "plot_curves", "METRICS", "COLUMNS"]
 
 COLUMNS = ("timesteps", "return", "length", "cost", "success")
 METRICS = ("return", "success", "cost")  # the panels, top to bottom
@@ -148,7 +148,7 @@ def _number(text: str | None) -> float:
     return {"true": 1.0, "false": 0.0}[low] if low in ("true", "false") else float(text)
 
 
-def _group_runs(runs: Sequence[dict[str, Any]]) -> list[list[dict[str, Any]]]:
+def group_runs(runs: Sequence[dict[str, Any]]) -> list[list[dict[str, Any]]]:
     """Runs with the same arguments apart from ``seed`` and ``timesteps``, in the order the groups first appear."""
     groups: dict[str, list[dict[str, Any]]] = {}
     for run in runs:
@@ -163,7 +163,7 @@ def _group_runs(runs: Sequence[dict[str, Any]]) -> list[list[dict[str, Any]]]:
     return list(groups.values())
 
 
-def _labels(groups: list[list[dict[str, Any]]]) -> list[str]:
+def group_labels(groups: list[list[dict[str, Any]]]) -> list[str]:
     """algo + shield + every other argument (not the seed) whose value differs between the groups."""
     metas = [g[0]["meta"] for g in groups]
     keys = sorted({k for m in metas for k in m} - {"algo", "shield", "seed", "timesteps"})
@@ -208,8 +208,8 @@ def learning_curves(run_dirs: Sequence[str | Path], *, x: str = "timesteps", win
     if not run_dirs:
         raise ValueError("no run directory given")
     runs = list({Path(p).resolve(): load_run(p) for p in run_dirs}.values())  # each directory once
-    groups = _group_runs(runs)
-    names = _labels(groups) if labels is None else [str(s) for s in labels]
+    groups = group_runs(runs)
+    names = group_labels(groups) if labels is None else [str(s) for s in labels]
     if len(names) != len(groups):
         raise ValueError(f"{len(names)} label(s) for {len(groups)} group(s) of runs: {names}")
     if len(set(names)) != len(names):

@@ -67,14 +67,23 @@ def evaluate(policy: Callable[[np.ndarray], np.ndarray], scenario: str = "random
 def model_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], dict[str, Any]]:
     """A model saved by ``pan1-env train`` as a policy for :func:`evaluate` (deterministic, with its
     observation statistics), and the env arguments it was trained with (``model.json``): evaluate it
-    with ``evaluate(policy, run_scenario, seeds, env_kwargs=env_kwargs)``."""
+    with ``evaluate(policy, run_scenario, seeds, env_kwargs=env_kwargs)``. A model trained with
+    ``param_sharing`` acts for each arm on the arm's own observation (the training scenario's arms)."""
     from .policies import load_model, normalise_observation
 
     model, meta = load_model(path)
     norm = meta.get("observation_normalization")
+    arms = None
+    if meta.get("param_sharing"):  # a model shared by the arms: each arm acts on its own observation
+        from .vec_env import SB3ArmVecEnv
+
+        arms = SB3ArmVecEnv(meta["scenario"], 1, **meta.get("env_kwargs", {}))
 
     def policy(obs: np.ndarray) -> np.ndarray:
-        return model.predict(normalise_observation(obs, norm), deterministic=True)[0]
+        if arms is not None:
+            obs = arms.arm_observations(obs)
+        action = model.predict(normalise_observation(obs, norm), deterministic=True)[0]
+        return action if arms is None else arms.team_actions(action)
 
     return policy, dict(meta.get("env_kwargs", {}))
 
@@ -98,6 +107,8 @@ def eval_callback(out: Path, every: int, scenario: str, shield: bool, env_kwargs
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import VecNormalize
 
+    from .vec_env import SB3ArmVecEnv
+
     class EvalCallback(BaseCallback):
         def _on_training_start(self) -> None:
             self.path = Path(out) / "eval.csv"
@@ -118,11 +129,15 @@ def eval_callback(out: Path, every: int, scenario: str, shield: bool, env_kwargs
                 tqdm.write(f"evaluating at {self.num_timesteps} steps on {len(seeds)} held-out episodes …")
             env = self.model.get_env()
             norm = env if isinstance(env, VecNormalize) else None
+            arms = env.unwrapped if isinstance(env.unwrapped, SB3ArmVecEnv) else None
 
             def policy(obs: np.ndarray) -> np.ndarray:
+                if arms is not None:  # a model shared by the arms acts on each arm's own observation
+                    obs = arms.arm_observations(obs)
                 if norm is not None:
                     obs = norm.normalize_obs(obs)
-                return self.model.predict(obs, deterministic=True)[0]
+                action = self.model.predict(obs, deterministic=True)[0]
+                return action if arms is None else arms.team_actions(action)
 
             row = {"timesteps": self.num_timesteps} | summarise(evaluate(policy, scenario, seeds, shield=shield,
                                                                          env_kwargs=env_kwargs))

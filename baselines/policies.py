@@ -16,9 +16,11 @@ A name ending in ``":"`` registers a *family*: ``make_policy("sb3:PATH", env, se
 ``"sb3:"`` factory as ``factory(env, seed, "PATH")``. Built in: ``reference``
 (:class:`~pan1_env.baselines.ReferencePolicy`, velocity mode), ``zero`` (:class:`ZeroPolicy`),
 ``random`` (:class:`RandomPolicy`, seeded), ``adversarial``
-(:class:`~pan1_env.baselines.AdversarialPolicy`) and the family ``sb3:PATH`` (a Stable-Baselines3
-PPO or SAC model trained on the centralised Gymnasium view of the same scenario, run
-deterministically). Registration is per process (a plain dict; not thread-safe).
+(:class:`~pan1_env.baselines.AdversarialPolicy`), the family ``sb3:PATH`` (a Stable-Baselines3
+PPO or SAC model trained by ``pan1-env train`` on the same scenario, run deterministically: a centralised
+model acts for the team, a ``--param-sharing`` one for each arm on its own observation), ``pretrained``
+(the shipped centralised model for the env's task) and ``marl`` (the shipped decentralised one).
+Registration is per process (a plain dict; not thread-safe).
 """
 
 from __future__ import annotations
@@ -160,6 +162,15 @@ def _pretrained(env, seed: int | None, name: str | None = None) -> Policy:
 
 register_policy("pretrained", _pretrained)  # the shipped model trained for the env's task
 register_policy("pretrained:", _pretrained, metavar="NAME")
+
+
+def _marl(env, seed: int | None) -> Policy:
+    from .shipped import model_for, pretrained
+
+    return pretrained(model_for(env, decentralised=True), env)
+
+
+register_policy("marl", _marl)  # the shipped decentralised model (shared by the arms) for the env's task
 
 BUILTIN_POLICIES = ("reference", "zero", "random", "adversarial")
 """The built-in names besides the ``sb3:PATH`` family."""

@@ -10,7 +10,8 @@ command, seed and package version that produced it, and its held-out evaluation.
     actions = policy(observations)
 
 The policy registry's ``pretrained`` name (``pan1-env benchmark --policies pretrained``) picks the
-model trained for the env's task (:func:`model_for`).
+centralised model trained for the env's task (:func:`model_for`), and ``marl`` the decentralised one (one
+network shared by the arms, each arm acting on its own observation).
 """
 
 from __future__ import annotations
@@ -97,19 +98,27 @@ def describe(meta: dict[str, Any]) -> str:
     return str(meta.get("scenario"))
 
 
-def model_for(env) -> str:
+def model_for(env, decentralised: bool = False) -> str:
     """The name of the shipped model trained for ``env``'s task (ValueError if none ships): the same
     scenario (for random teams, the same options), action mode and time steps. A model trained on
-    residual or gain actions serves a velocity-mode env (the adapter computes the reference law)."""
+    residual or gain actions serves a velocity-mode env (the adapter computes the reference law).
+    ``decentralised`` picks among the models shared by the arms, each acting on its own observation
+    (``pan1-env train --param-sharing``), else among the centralised ones."""
     task = _env_task(env)
     models = available()
-    matches = [name for name, meta in models.items() if _serves(_model_task(meta), task)]
+    matches = [name for name, meta in models.items()
+               if _serves(_model_task(meta), task) and bool(meta.get("param_sharing")) == decentralised]
     if not matches:
         label = task[0] if isinstance(task[0], str) else "random teams with these options"
-        shipped = ", ".join(f"{name} ({describe(meta)})" for name, meta in models.items()) or "none"
-        raise ValueError(f"no pretrained model for {label} in {task[1]} mode with control_dt={task[2]}, "
+        kind = _kind({"param_sharing": decentralised})
+        shipped = ", ".join(f"{name} ({describe(meta)}, {_kind(meta)})" for name, meta in models.items()) or "none"
+        raise ValueError(f"no {kind} pretrained model for {label} in {task[1]} mode with control_dt={task[2]}, "
                          f"physics_dt={task[3]}; shipped: {shipped}")
     return matches[0]
+
+
+def _kind(meta: dict[str, Any]) -> str:
+    return "decentralised" if meta.get("param_sharing") else "centralised"
 
 
 def pretrained(name: str, env):

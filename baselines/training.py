@@ -2,9 +2,10 @@
 
 :func:`train` trains PPO or SAC either on the batched vector env (one policy for the whole team,
 concatenated observations and actions: the Gymnasium view's spaces, B copies stepped in one engine
-through :class:`~pan1_env.baselines.vec_env.SB3VecEnv`) or, with ``param_sharing=True``, on the
-PettingZoo env through SuperSuit (one policy shared by every arm; observations and actions padded to
-the largest arm; SuperSuit steps its copies one by one, so this route is slower). It writes into ``out``:
+through :class:`~pan1_env.baselines.vec_env.SB3VecEnv`) or, with ``param_sharing=True``, on every arm
+of the same batched engine through :class:`~pan1_env.baselines.vec_env.SB3ArmVecEnv` (one policy shared by
+every arm, acting on the arm's own observation; observations and actions padded to the largest arm). It
+writes into ``out``:
 
 * ``checkpoints/model_<steps>_steps.zip`` and ``state_<steps>_steps.pkl`` at the first update
   boundary after every ``checkpoint_every`` steps and at the end (plus the replay buffer for SAC),
@@ -40,10 +41,10 @@ rollout, ``lagrangian.csv`` logs ``timesteps, lambda, episode_cost`` and the che
 checkpoint holds the model and optimiser, the vector env itself (pickled mid-episode), the last
 observation, the torch/numpy/python random states and the running episode costs, and the episode
 log is cut back to the checkpoint, so for PPO an interrupted run resumed with the same arguments
-ends exactly where the uninterrupted run does (a test checks it). For SAC the replay buffer is kept
-too. With ``param_sharing`` (SuperSuit's vector env does not pickle) the env restarts from a reset,
-so that resume is not exact.
-Needs the ``rl`` extra (torch, stable-baselines3, supersuit); torch runs on one thread.
+ends exactly where the uninterrupted run does (a test checks it), with ``param_sharing`` too. For SAC
+the replay buffer is kept too. With ``param_sharing`` and ``ppo-lagrangian`` each arm is penalised for its
+own cost (IPPO-Lagrangian), so ``cost_limit`` is per arm and episode.
+Needs the ``rl`` extra (torch, stable-baselines3); torch runs on one thread.
 """
 
 from __future__ import annotations
@@ -76,66 +77,12 @@ def make_training_env(scenario: str, shield: bool, seed: int, n_envs: int = DEFA
     """The SB3 ``VecEnv`` to train on (see the module docstring); copy b is seeded ``seed + b``."""
     from stable_baselines3.common.vec_env import VecMonitor
 
-    env_kwargs = dict(env_kwargs or {})
-    if param_sharing:
-        import supersuit as ss
+    from .vec_env import SB3ArmVecEnv, SB3VecEnv
 
-        from pan1_env.environment import parallel_env
-        from pan1_env.wrappers import SafetyShield
-
-        penv = parallel_env(scenario, **env_kwargs)
-        if shield:
-            penv = SafetyShield(penv)
-        penv = ss.pad_action_space_v0(ss.pad_observations_v0(penv))
-        venv = ss.pettingzoo_env_to_vec_env_v1(penv)
-        venv = ss.concat_vec_envs_v1(venv, n_envs, num_cpus=0, base_class="stable_baselines3")
-        venv = _SeededSuperSuit(venv)
-        venv.seed(seed)
-        return VecMonitor(venv)
-
-    from .vec_env import SB3VecEnv
-
-    venv = SB3VecEnv(scenario, n_envs, safety_filter=bool(shield), **env_kwargs)
+    view = SB3ArmVecEnv if param_sharing else SB3VecEnv
+    venv = view(scenario, n_envs, safety_filter=bool(shield), **dict(env_kwargs or {}))
     venv.seed(seed)
     return VecMonitor(venv)
-
-
-def _seeded_supersuit_class():
-    from stable_baselines3.common.vec_env import VecEnvWrapper
-
-    class SeededSuperSuit(VecEnvWrapper):
-        """SuperSuit's SB3 wrapper cannot be seeded with SB3 2.x (its ConcatVecEnv has no ``seed``):
-        keep the seed and pass it to the next ``reset`` of the SuperSuit vector env instead."""
-
-        def __init__(self, venv) -> None:
-            self.venv = venv  # get_attr (render_mode) is asked during the base class's __init__
-            super().__init__(venv)
-            self._next_seed = None
-
-        def seed(self, seed=None):
-            self._next_seed = seed
-            return [seed] * self.num_envs
-
-        def reset(self):
-            obs, self.venv.reset_infos = self.venv.venv.reset(seed=self._next_seed)
-            self._next_seed = None
-            return obs
-
-        def step_wait(self):
-            return self.venv.step_wait()
-
-        def get_attr(self, attr_name, indices=None):
-            # SuperSuit's vector env cannot answer get_attr; SB3 asks every wrapper's env for its
-            # render_mode and warns when it cannot be read. Training renders nothing.
-            if attr_name == "render_mode":
-                return [None for _ in range(self.num_envs if indices is None else len(self._get_indices(indices)))]
-            return super().get_attr(attr_name, indices)
-
-    return SeededSuperSuit
-
-
-def _SeededSuperSuit(venv):  # noqa: N802 - builds the wrapper class lazily (SB3 is an extra)
-    return _seeded_supersuit_class()(venv)
 
 
 def latest_checkpoint(out: Path) -> tuple[Path, int] | None:
@@ -167,11 +114,12 @@ def _callbacks(out: Path, checkpoint_every: int, algo: str, total: int, progress
 
         def _on_training_start(self) -> None:
             self.path = out / "episodes.csv"
-            new = not self.path.exists()
+            new = not self.path.exists() or self.path.stat().st_size == 0
             self.fh = self.path.open("a", newline="")
             self.writer = csv.writer(self.fh)
-            if new:
+            if new:  # flushed at once: a run killed before its first episode ends must leave the header
                 self.writer.writerow(["timesteps", "return", "length", "cost", "success"])
+                self.fh.flush()
             n = self.training_env.num_envs
             self.costs = np.zeros(n) if initial_costs is None else np.array(initial_costs, dtype=float)
             self.bar = None
@@ -286,20 +234,14 @@ def _venv_state(venv) -> dict[str, Any]:
     """The picklable state of a ``[VecNormalize(]VecMonitor(SB3VecEnv(...))``: the vector env mid-episode
     (its engine, task and generators) and the monitor's running episode statistics (SB3's wrappers do
     not pickle)."""
-    from .vec_env import SB3VecEnv
-
     venv = _monitor(venv)
     inner = venv.venv
-    if not isinstance(inner, SB3VecEnv):
-        return {}  # SuperSuit (parameter sharing): resumed with a fresh reset, not exactly
     return {"vector": inner.venv, "episode_returns": venv.episode_returns, "episode_lengths": venv.episode_lengths,
             "episode_count": venv.episode_count}
 
 
 def _restore_venv(venv, state: dict[str, Any]) -> None:
     venv = _monitor(venv)
-    if not state:
-        return
     inner = venv.venv
     inner.venv = state["vector"]
     venv.episode_returns = state["episode_returns"]
@@ -337,8 +279,6 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
         raise ValueError(f"critic_warmup must be a whole number of steps ≥ 0, got {critic_warmup!r}")
     if critic_warmup and algo == "sac":
         raise ValueError("critic_warmup is for PPO's actor and critic; SAC has no warm-up here")
-    if algo == "ppo-lagrangian" and param_sharing:
-        raise ValueError("ppo-lagrangian trains on the batched vector env, not with param_sharing")
     max_steps = _check_env_kwargs(scenario, env_kwargs)
     import torch
     from stable_baselines3 import PPO, SAC
@@ -447,7 +387,7 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
 
         callbacks = [_callbacks(out, checkpoint_every, algo, timesteps, progress, initial_costs, sidecar,
                                 team_size)]
-        if eval_every and not param_sharing:
+        if eval_every:
             from .evaluation import EVAL_SEEDS, eval_callback
 
             seeds = EVAL_SEEDS if scenario == "random" else EVAL_SEEDS[:1]  # a paper scenario starts one way

@@ -20,13 +20,15 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+import gymnasium
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
-from pan1_env.validation import forwards_keywords
+from pan1_env.core import per_arm
+from pan1_env.validation import float_array, forwards_keywords
 from pan1_env.vector import Pan1VectorEnv
 
-__all__ = ["SB3VecEnv"]
+__all__ = ["SB3VecEnv", "SB3ArmVecEnv"]
 
 
 class SB3VecEnv(VecEnv):
@@ -48,8 +50,11 @@ class SB3VecEnv(VecEnv):
             self.venv = scenario
         else:
             self.venv = Pan1VectorEnv(scenario, num_envs, **kwargs)
-        super().__init__(self.venv.num_envs, self.venv.single_observation_space, self.venv.single_action_space)
+        super().__init__(*self._spaces())
         self._actions: np.ndarray | None = None
+
+    def _spaces(self) -> tuple[int, gymnasium.Space, gymnasium.Space]:
+        return self.venv.num_envs, self.venv.single_observation_space, self.venv.single_action_space
 
     def reset(self) -> np.ndarray:
         seeds = self._seeds if any(s is not None for s in self._seeds) else None
@@ -110,3 +115,84 @@ class SB3VecEnv(VecEnv):
         if isinstance(indices, int):
             return [indices]
         return list(indices)
+
+
+class SB3ArmVecEnv(SB3VecEnv):
+    """One SB3 env per arm: the B copies × N arms of a :class:`~pan1_env.vector.Pan1VectorEnv` as B·N envs,
+    for one network shared by every arm that acts on the arm's own observation (parameter sharing,
+    decentralised execution: IPPO when trained with PPO).
+
+    Sub-env ``b·N + i`` is arm i of copy b. Its observation is the arm's local observation, zero-padded
+    at its end to the largest arm's size (bounds: the union of the arms'); its action has the largest arm's
+    size, of which the arm applies its own first k_i entries; its reward is the arm's own. The arms of a
+    copy start and end their episode together, and each sub-env's info carries the arm's ``cost`` (1 if it
+    entered an obstacle in the step), ``min_clearance`` and shield flags beside its copy's
+    ``formation_error`` and ``is_success``. ``seed(s)`` seeds copy b with ``s + b``, as the vector env does,
+    so both views meet the same teams. Arguments as :class:`SB3VecEnv`; ``num_envs`` counts copies.
+    """
+
+    def _spaces(self) -> tuple[int, gymnasium.Space, gymnasium.Space]:
+        core = self.venv.core
+        low, high = core.padded_observation_bounds()
+        self._arms = len(core.agents)
+        self._obs_sizes = [len(core.task.bounds(i)[0]) for i in range(self._arms)]
+        observation = gymnasium.spaces.Box(low.min(axis=0), high.max(axis=0), dtype=np.float32)
+        action = gymnasium.spaces.Box(-1.0, 1.0, (core.k_max,), np.float32)
+        return self.venv.num_envs * self._arms, observation, action
+
+    def reset(self) -> np.ndarray:
+        first = self._seeds[0]
+        seeds = None if first is None else [first + b for b in range(self.venv.num_envs)]
+        self.venv.reset(seed=seeds)
+        self._reset_seeds()
+        self._reset_options()
+        mats, infos = self.venv.core.start()
+        self.reset_infos = self._arm_infos(infos)
+        return self._arm_rows(mats)
+
+    def step_wait(self) -> VecEnvStepReturn:
+        if self._actions is None:
+            raise RuntimeError("step_wait() called without step_async()")
+        core, N = self.venv.core, self._arms
+        actions = float_array("actions", self._actions, (self.num_envs, core.k_max)).reshape(-1, N, core.k_max)
+        self._actions = None
+        out = core.step(actions.astype(np.float64), autoreset=True)
+        infos = self._arm_infos(out.infos)
+        if len(out.ended):
+            final = self._arm_rows(out.final_observations).reshape(-1, N, self.observation_space.shape[0])
+            for b in out.ended.tolist():
+                truncated = bool(out.truncated[b] and not out.terminated[b])
+                for i in range(N):
+                    infos[b * N + i]["terminal_observation"] = final[b, i]
+                    infos[b * N + i]["TimeLimit.truncated"] = truncated
+        dones = np.repeat(out.terminated | out.truncated, N)
+        return self._arm_rows(out.observations), out.reward.reshape(-1).astype(np.float32), dones, infos
+
+    def arm_observations(self, flat: np.ndarray) -> np.ndarray:
+        """The team views' flat observations ``(B', Σ obs_i)`` (any number of rows) as this view's rows,
+        ``(B'·N, size)``: to run a model trained here on :class:`~pan1_env.vector.Pan1VectorEnv`."""
+        flat = np.asarray(flat, dtype=np.float32)
+        out = np.zeros((len(flat), self._arms, self.observation_space.shape[0]), np.float32)
+        for i, part in enumerate(np.split(flat, np.cumsum(self._obs_sizes)[:-1], axis=1)):
+            out[:, i, : part.shape[1]] = part
+        return out.reshape(-1, out.shape[-1])
+
+    def team_actions(self, arm_actions: np.ndarray) -> np.ndarray:
+        """This view's actions ``(B'·N, k_max)`` as the team views' flat actions ``(B', Σ k_i)``."""
+        rows = np.asarray(arm_actions).reshape(-1, self._arms, self.action_space.shape[0])
+        return np.concatenate([rows[:, i, :k] for i, k in enumerate(self.venv.core.n_actuated)], axis=1)
+
+    def _arm_rows(self, mats: list[np.ndarray]) -> np.ndarray:
+        obs = self.venv.core.padded_observations(mats)
+        return obs.reshape(-1, obs.shape[-1])
+
+    def _arm_infos(self, infos: dict[str, np.ndarray]) -> list[dict[str, Any]]:
+        """One dict per arm of the scalar infos: the arm's own, and its copy's repeated for each arm."""
+        N, columns = self._arms, {}
+        for key, value in infos.items():
+            if per_arm(key) and value.ndim == 2:
+                columns[key] = np.broadcast_to(value, (len(value), N)).reshape(-1).tolist()
+            elif not per_arm(key) and value.ndim == 1:
+                columns[key] = np.repeat(value, N).tolist()
+        keys = list(columns)
+        return [dict(zip(keys, row, strict=True)) for row in zip(*columns.values(), strict=True)]

@@ -8,7 +8,7 @@ Commands:
   controllers), the Figure-8 overlays, and a Markdown table of the metrics (``summary.md``).
 * ``scenarios``: list the built-in scenarios, ``random`` and the Gymnasium ids.
 * ``warmup [--kinds 4p 2f …] [--scenario NAME …] [--threaded]``: compile the kernels ahead of time.
-* ``animate SCENARIO --policy reference|zero|random|adversarial|pretrained|sb3:PATH [--no-shield] --out FILE.gif``:
+* ``animate SCENARIO --policy reference|zero|random|adversarial|pretrained|marl|sb3:PATH [--no-shield] --out FILE.gif``:
   a GIF of one env episode.
 * ``train --algo ppo|sac|ppo-lagrangian --scenario S --shield/--no-shield --timesteps T --seed K --out DIR``:
   Stable-Baselines3 training (the ``rl`` extra).
@@ -16,6 +16,8 @@ Commands:
   the policy comparison (Markdown, JSON and a plot).
 * ``plot RUN_DIR… [--out PATH] [--x timesteps|episodes] [--window N] [--label NAME …]``: learning
   curves of training runs, mean over seeds with a 95 % bootstrap band (a PNG and a CSV).
+* ``report RUN_DIR… [--first N] [--teams N] [--json PATH]``: trained models and the paper's law on held-out
+  teams, interquartile mean over training seeds with a 95 % stratified bootstrap interval, and marl-eval JSON.
 """
 
 from __future__ import annotations
@@ -92,8 +94,9 @@ def _parser() -> argparse.ArgumentParser:
                                        "pan1_env.ENV_IDS")
     anim.add_argument("--policy", default="reference",
                       help="reference (the paper's nominal law on local observations), zero, random, adversarial, "
-                           "pretrained (the shipped model trained for the scenario's task), pretrained:NAME, "
-                           "sb3:PATH, or a name registered with pan1_env.baselines.register_policy")
+                           "pretrained (the shipped model trained for the scenario's task), marl (the shipped "
+                           "decentralised one), pretrained:NAME, sb3:PATH, or a name registered with "
+                           "pan1_env.baselines.register_policy")
     anim.add_argument("--shield", action=argparse.BooleanOptionalAction, default=True,
                       help="behind the safety shield (with the reference policy this is the paper's safe "
                            "controller)")
@@ -152,7 +155,8 @@ def _parser() -> argparse.ArgumentParser:
                             "pan1_env.ENV_IDS (pan1_env/WholeArmStaticFormation-v0)")
     bench.add_argument("--policies", default="reference,zero,random",
                        help="comma-separated: reference, zero, random, adversarial, sb3:PATH, pretrained "
-                            "(the shipped model trained for each scenario's task), pretrained:NAME, or names "
+                            "(the shipped centralised model trained for each scenario's task), marl (the shipped "
+                            "decentralised one: a network shared by the arms), pretrained:NAME, or names "
                             "registered with pan1_env.baselines.register_policy")
     bench.add_argument("--episodes", type=_positive_int, default=5,
                        help="episodes per scenario, policy and shield setting")
@@ -177,6 +181,17 @@ def _parser() -> argparse.ArgumentParser:
     plot.add_argument("--label", action="append", metavar="NAME",
                       help="a group's name, repeated once per group in the order the groups first appear "
                            "(default: algo, shield and the arguments that differ)")
+    rep = sub.add_parser("report", help="trained models against the paper's law on held-out teams: interquartile "
+                                        "mean over seeds, 95%% stratified bootstrap interval (needs the rl extra)",
+                         description="Evaluates the final model of every run written by pan1-env train on held-out "
+                                     "teams; runs that differ only in --seed form one group.")
+    rep.add_argument("runs", nargs="+", type=Path, metavar="RUN_DIR", help="directories written by pan1-env train")
+    rep.add_argument("--first", type=int, default=2_000_000,
+                     help="first reset seed of the held-out random teams (default: %(default)s)")
+    rep.add_argument("--teams", type=_positive_int, default=200, help="held-out random teams (default: %(default)s)")
+    rep.add_argument("--reps", type=_positive_int, default=2000, help="bootstrap resamples (default: %(default)s)")
+    rep.add_argument("--json", type=Path, default=None, metavar="PATH",
+                     help="also write every episode in marl-eval's raw-data JSON layout")
     return parser
 
 
@@ -444,6 +459,22 @@ def _cmd_plot(args) -> int:
     return 0
 
 
+def _cmd_report(args) -> int:
+    from tqdm import tqdm
+
+    from .baselines.report import markdown, marl_eval_json, report
+
+    try:
+        rows = report(args.runs, first=args.first, teams=args.teams, reps=args.reps, progress=tqdm.write)
+    except OSError as err:  # a missing run directory or model
+        print(f"pan1-env: error: {err}", file=sys.stderr)
+        return 2
+    print(markdown(rows))
+    if args.json is not None:
+        print(marl_eval_json(rows, args.json))
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``pan1-env`` console script."""
     from .scenario import ScenarioError
@@ -451,7 +482,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     handlers = {"reproduce": _cmd_reproduce, "paper": _cmd_paper, "scenarios": _cmd_scenarios,
                 "warmup": _cmd_warmup,
-                "animate": _cmd_animate, "train": _cmd_train, "benchmark": _cmd_benchmark, "plot": _cmd_plot}
+                "animate": _cmd_animate, "train": _cmd_train, "benchmark": _cmd_benchmark, "plot": _cmd_plot,
+                "report": _cmd_report}
     try:
         return handlers[args.command](args)
     except (ScenarioError, ValueError) as err:

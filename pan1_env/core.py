@@ -144,6 +144,24 @@ class FormationCore:
         agent, in agent order (views of ``mats``)."""
         return [mats[group][:, row] for group, row in self._observation_rows]
 
+    def padded_observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds ``(N, size)`` of :meth:`padded_observations`: each arm's own, zeros on its padding."""
+        bounds = [self.task.bounds(i) for i in range(len(self.agents))]
+        size = max(len(lo) for lo, _ in bounds)
+        low, high = np.zeros((len(bounds), size), np.float32), np.zeros((len(bounds), size), np.float32)
+        for i, (lo, hi) in enumerate(bounds):
+            low[i, : len(lo)], high[i, : len(hi)] = lo, hi
+        return low, high
+
+    def padded_observations(self, mats: list[np.ndarray]) -> np.ndarray:
+        """Every arm's observation zero-padded at its end to the largest arm's size, ``(B, N, size)`` float32:
+        the shared-network views' layout (one row per arm, in agent order)."""
+        size = max(mat.shape[-1] for mat in mats)
+        out = np.zeros((self.copies, len(self.agents), size), np.float32)
+        for (_, ids), mat in zip(self.layout.groups, mats, strict=True):
+            out[:, ids, : mat.shape[-1]] = mat
+        return out
+
     def flat_observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Bounds of the team views' flat observation: the agents' observations concatenated in agent order."""
         bounds = [self.task.bounds(i) for i in range(len(self.agents))]

@@ -62,13 +62,8 @@ class Pan1TorchRLEnv(EnvBase):
         B, N, k = core.copies, len(core.agents), core.k_max
         super().__init__(device="cpu", batch_size=torch.Size([B]))
         self.core = core
-        bounds = [core.task.bounds(i) for i in range(N)]
-        self._sizes = [len(lo) for lo, _ in bounds]
-        size = max(self._sizes)
-        low, high = np.zeros((N, size), np.float32), np.zeros((N, size), np.float32)
-        for i, (lo, hi) in enumerate(bounds):
-            low[i, : len(lo)], high[i, : len(hi)] = lo, hi
-        self._observation = np.zeros((B, N, size), np.float32)
+        low, high = core.padded_observation_bounds()
+        size = low.shape[1]
         self._mask = torch.from_numpy(np.arange(k) < np.asarray(core.n_actuated)[:, None]).expand(B, N, k)
         core.reset()
         _, infos = core.start()  # the info keys and shapes, the same after every reset and step
@@ -124,10 +119,8 @@ class Pan1TorchRLEnv(EnvBase):
         return td
 
     def _observations(self, mats: list[np.ndarray], infos: dict[str, np.ndarray]) -> TensorDictBase:
-        B, N = self._observation.shape[:2]
-        obs = self._observation.copy()
-        for (_, ids), mat in zip(self.core.layout.groups, mats, strict=True):
-            obs[:, ids, : mat.shape[-1]] = mat
+        B, N = self.core.copies, len(self.core.agents)
+        obs = self.core.padded_observations(mats)
         arm_info = {key: _tensor(np.broadcast_to(infos[key], (B, N, *infos[key].shape[2:]))) for key in self._arm_keys}
         cost = torch.from_numpy(infos["cost"].astype(np.float32)).reshape(B, N, 1)
         return TensorDict({

@@ -242,5 +242,15 @@ def test_train_ppo_lagrangian_resumes_exactly_with_its_multiplier(tmp_path) -> N
     log = rows(whole / "lagrangian.csv")
     assert log == rows(cut / "lagrangian.csv") and [int(r["timesteps"]) for r in log] == [256, 512, 768, 1024]
     assert float(log[-1]["lambda"]) == summary["lambda"]
-    with pytest.raises(ValueError, match="param_sharing"):
-        train("ppo-lagrangian", param_sharing=True, out=tmp_path / "unused")
+
+
+
+def test_ppo_lagrangian_with_parameter_sharing_prices_each_arms_own_cost(tmp_path) -> None:
+    """IPPO-Lagrangian: one network shared by the arms, each arm's reward penalised by its own cost. Unshielded
+    arms collide, so the multiplier rises from 0 above a zero cost limit."""
+    from pan1_env.baselines.training import train
+
+    summary = train("ppo-lagrangian", "paper_pa_mixed_square", shield=False, timesteps=2 * 256, seed=1, n_envs=2,
+                    param_sharing=True, out=tmp_path, progress=False, env_kwargs={"max_steps": 16},
+                    algo_kwargs={"n_steps": 32, "batch_size": 64, "n_epochs": 1}, cost_limit=0.0, lagrangian_lr=0.5)
+    assert summary["total_cost"] > 0 and summary["lambda"] > 0

@@ -95,7 +95,7 @@ def test_native_env_matches_the_vector_env_step_for_step(scenario: str) -> None:
     td = env.reset()
     obs, _ = venv.reset(seed=11)
     core = env.core
-    sizes, ks = env._sizes, core.n_actuated
+    sizes, ks = [len(core.task.bounds(i)[0]) for i in range(len(core.agents))], core.n_actuated
     rng = np.random.default_rng(0)
     for _ in range(9):  # the copies end at step 6 and start again
         per_arm = np.concatenate([td["arms", "observation"][:, i, :n].numpy() for i, n in enumerate(sizes)], axis=1)

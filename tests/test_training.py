@@ -44,12 +44,15 @@ def _policy_params(path):
     return PPO.load(path, device="cpu").policy.state_dict()
 
 
-def test_interrupted_run_resumes_to_the_same_result(tmp_path) -> None:
+@pytest.mark.parametrize("param_sharing", [False, True])
+def test_interrupted_run_resumes_to_the_same_result(tmp_path, param_sharing) -> None:
     from stable_baselines3.common.callbacks import BaseCallback
 
+    # rollouts of 256 steps: 2 copies × 128, or with parameter sharing 2 copies × 4 arms × 32
     kwargs = dict(algo="ppo", scenario="random", shield=True, timesteps=4 * 256, seed=3, checkpoint_every=256,
                   progress=False, n_envs=2, env_kwargs={"max_steps": 100, "random_options": {"links": (2, 3, 4, 3)}},
-                  algo_kwargs={"n_steps": 128, "batch_size": 64, "n_epochs": 2})
+                  algo_kwargs={"n_steps": 32 if param_sharing else 128, "batch_size": 64, "n_epochs": 2},
+                  param_sharing=param_sharing)
 
     class Interrupt(BaseCallback):
         """Kills the run in the middle of its third rollout (after the 512-step checkpoint)."""
@@ -163,8 +166,11 @@ def test_parameter_sharing_keeps_its_budget_and_logs_one_row_per_team_episode(tm
         # 2 copies × 4 arms = 8 SB3 envs; no n_steps given: the rollout is fitted to the budget (64 × 8)
         summary = train("ppo", "paper_pa3_square", shield=True, timesteps=512, seed=1, out=tmp_path,
                         param_sharing=True, n_envs=2, checkpoint_every=512, progress=False,
-                        env_kwargs={"max_steps": 32})
+                        env_kwargs={"max_steps": 32}, eval_every=256)
     assert not [w for w in caught if "render_mode" in str(w.message)]
+    # the shared model evaluated on the team env, each arm on its own observation: the shield keeps cost 0
+    evaluations = _rows(tmp_path / "eval.csv")
+    assert [int(r["timesteps"]) for r in evaluations] == [0] and float(evaluations[0]["cost"]) == 0.0
     assert summary["timesteps"] == 512 and latest_checkpoint(tmp_path)[1] == 512
     rows = _rows(tmp_path / "episodes.csv")
     # 64 team steps per copy, episodes of 32: two per copy, one row each (not one per arm)
@@ -279,8 +285,20 @@ def test_pretrained_models_are_found_by_scenario(tmp_path, monkeypatch) -> None:
     by_name = make_policy("pretrained:square", env)(obs)
     for a in env.agents:
         np.testing.assert_array_equal(by_scenario[a], by_name[a])
-    with pytest.raises(ValueError, match="no pretrained model for paper_pa_mixed_square in velocity mode"):
+    with pytest.raises(ValueError, match="no centralised pretrained model for paper_pa_mixed_square in velocity mode"):
         make_policy("pretrained", parallel_env("paper_pa_mixed_square"))
+    with pytest.raises(ValueError, match="no decentralised pretrained model for paper_pa3_square.*square .*central"):
+        make_policy("marl", env)
+    # a model shared by the arms: `marl` picks it, `pretrained` keeps picking the centralised one
+    train("ppo", "paper_pa3_square", shield=True, timesteps=128, seed=4, out=tmp_path / "arms", progress=False,
+          n_envs=1, param_sharing=True, env_kwargs={"max_steps": 32}, algo_kwargs={"n_steps": 32, "batch_size": 64})
+    shipped.package_model(tmp_path / "arms", "square_arms", evaluation={"success_1cm": 1.0})
+    assert "--param-sharing" in shipped.available()["square_arms"]["provenance"]["command"]
+    by_marl = make_policy("marl", env)(obs)
+    by_arms = make_policy("pretrained:square_arms", env)(obs)
+    for a in env.agents:
+        np.testing.assert_array_equal(by_marl[a], by_arms[a])
+        np.testing.assert_array_equal(make_policy("pretrained", env)(obs)[a], by_name[a])
     with pytest.raises(ValueError, match="no pretrained model 'nope'"):
         make_policy("pretrained:nope", env)
     with pytest.raises(ValueError, match="training run"):
@@ -341,7 +359,8 @@ def test_the_pretrained_model_is_picked_by_the_envs_task(tmp_path, monkeypatch) 
                        (whole_arm | {"physics_dt": 0.005}, "physics_dt=0.005"),
                        ({"control_dt": 0.1}, "control_dt=0.1"),
                        (whole_arm | {"action_mode": "torque"}, "in torque mode")):
-        with pytest.raises(ValueError, match=f"no pretrained model for .*{why}.*whole_arm \\(pan1_env/WholeArmStatic"):
+        with pytest.raises(ValueError,
+                           match=f"no centralised pretrained model for .*{why}.*whole_arm \\(pan1_env/WholeArmStatic"):
             shipped.model_for(parallel_env("random", **other))
 
 
@@ -381,7 +400,7 @@ def test_the_benchmark_fails_before_running_when_a_policy_cannot_be_built() -> N
 
     calls = []
     register_policy("counting_zero", lambda env, seed: calls.append(1) or ZeroPolicy(env))
-    with pytest.raises(ValueError, match="no pretrained model for random teams with these options"):
+    with pytest.raises(ValueError, match="no centralised pretrained model for random teams with these options"):
         run_benchmark(["random", "pan1_env/WholeArmFormation-v0"], ["counting_zero", "pretrained"], episodes=1,
                       max_steps=2, shield_settings=(True,), progress=lambda message: calls.append(message))
     assert all(c == 1 for c in calls)  # policies were built, no row started
@@ -483,7 +502,7 @@ def test_a_gain_model_serves_velocity_and_gain_envs_but_not_residual_ones() -> N
 
     assert shipped.model_for(parallel_env("paper_pa3_square")) == "paper_pa3_square"
     assert shipped.model_for(parallel_env("paper_pa3_square", action_mode="gain")) == "paper_pa3_square"
-    with pytest.raises(ValueError, match="no pretrained model for paper_pa3_square in residual mode"):
+    with pytest.raises(ValueError, match="no centralised pretrained model for paper_pa3_square in residual mode"):
         shipped.model_for(parallel_env("paper_pa3_square", action_mode="residual"))
     assert shipped.available()["paper_pa3_square"]["env_kwargs"]["gain_range"] > 1  # recorded, not a default
 

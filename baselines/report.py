@@ -1,0 +1,193 @@
+"""Trained policies against the paper's law over training seeds, as RL papers report them (needs the ``rl`` extra).
+
+:func:`report` evaluates the final model of every run (``pan1-env train`` output) on held-out teams, groups the
+runs that differ only in their seed, and gives per group, for each metric, the **interquartile mean over
+training seeds** (the mean of the middle half, scipy's ``trim_mean(·, 0.25)``) and a **95 % stratified
+percentile bootstrap interval** (scipy's ``bootstrap``, each task's runs resampled on their own, as in
+Agarwal et al. 2021, *Deep RL at the Edge of the Statistical Precipice*, and marl-eval). One run gives one
+score per metric, each the mean over the held-out episodes:
+
+* ``success``: the fraction of episodes whose formation error ends below 1 cm;
+* ``time_to_formation``: the mean time after which the error stayed below 1 cm, over the episodes it formed;
+* ``time_ratio``: the same mean over the episodes that both the run and the reference formed, divided by the
+  reference's over the same episodes (the issue's "on the teams both form");
+* ``return`` (the mean episode return) and ``cost`` (arm-steps inside an obstacle, summed over episodes).
+
+The reference is the zero action of the runs' own env: the paper's law behind the same shield (runs trained
+with residual or gain actions; for others there is no reference and no ratio). Random teams are evaluated on
+reset seeds ``first … first + teams − 1`` (default: docs/TRAINING.md's held-out teams 2,000,000–2,000,199, which
+no training or model choice saw), a paper scenario on its single start.
+
+:func:`marl_eval_json` writes the episodes in marl-eval's raw-data layout (``env → task → algorithm →
+run → absolute_metrics``, plus one ``step_k`` per row of the run's ``eval.csv``), for its plots and tests.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from .curves import group_labels, group_runs
+from .evaluation import TOLERANCES, evaluate, model_policy
+
+__all__ = ["report", "iqm", "iqm_interval", "markdown", "marl_eval_json", "METRICS", "HELD_OUT_FIRST"]
+
+METRICS = ("success", "time_to_formation", "time_ratio", "return", "cost")
+HELD_OUT_FIRST, HELD_OUT_TEAMS = 2_000_000, 200
+
+
+def iqm(scores: np.ndarray, axis: int = -1) -> np.ndarray:
+    """The interquartile mean: the mean of the scores left after cutting a quarter at each end."""
+    return stats.trim_mean(scores, 0.25, axis=axis)
+
+
+def iqm_interval(tasks: Sequence[np.ndarray], confidence: float = 0.95, reps: int = 2000,
+                 seed: int = 0) -> tuple[float, float, float]:
+    """The IQM of all scores and its stratified percentile bootstrap interval: each task's runs (one array per
+    task) are resampled with replacement on their own, and the IQM taken over the pooled resample. A single run
+    (or identical scores) gives a point interval."""
+    tasks = [np.asarray(t, dtype=float) for t in tasks]
+    pooled = np.concatenate(tasks)
+    point = float(iqm(pooled))
+    if not np.isfinite(pooled).all():
+        return point, float("nan"), float("nan")
+    if len(pooled) < 2 or np.ptp(pooled) == 0:
+        return point, point, point
+
+    def statistic(*samples: np.ndarray, axis: int = -1) -> np.ndarray:
+        return iqm(np.concatenate(samples, axis=axis), axis=axis)
+
+    result = stats.bootstrap(tasks, statistic, n_resamples=reps, confidence_level=confidence, method="percentile",
+                             vectorized=True, rng=np.random.default_rng(seed))
+    return point, float(result.confidence_interval.low), float(result.confidence_interval.high)
+
+
+def _held_out(meta: dict[str, Any], first: int, teams: int) -> list[int]:
+    return list(range(first, first + teams)) if meta["scenario"] == "random" else [first]
+
+
+def _scores(result: dict[str, np.ndarray], reference: dict[str, np.ndarray] | None) -> dict[str, float]:
+    formed = result["final_error"] < TOLERANCES[0]
+    times = result["time_to_formation"]
+    out = {"success": float(formed.mean()),
+           "time_to_formation": float(np.mean(times[formed])) if formed.any() else float("nan"),
+           "return": float(np.mean(result["return"])), "cost": float(np.sum(result["cost"])),
+           "time_ratio": float("nan")}
+    if reference is not None:
+        both = formed & (reference["final_error"] < TOLERANCES[0])
+        if both.any():
+            out["time_ratio"] = float(np.mean(times[both]) / np.mean(reference["time_to_formation"][both]))
+    return out
+
+
+def report(run_dirs: Sequence[str | Path], *, first: int = HELD_OUT_FIRST, teams: int = HELD_OUT_TEAMS,
+           reps: int = 2000, progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
+    """One row per group of runs (and one per task for its reference): ``label``, ``task``, ``runs`` (paths),
+    ``scores`` (metric → one score per run), ``episodes`` (run path → :func:`~pan1_env.baselines.evaluation.evaluate`'s
+    arrays), and ``<metric>`` → (IQM, low, high). ``progress`` is told what is being evaluated."""
+    runs = []
+    for path in map(Path, run_dirs):
+        if not (path / "model.zip").is_file() or not (path / "run.json").is_file():
+            raise FileNotFoundError(f"{path}: not a finished training run (pan1-env train writes run.json and "
+                                    "model.zip at its end)")
+        runs.append({"path": path, "meta": json.loads((path / "run.json").read_text())})
+    groups = group_runs(runs)
+    rows, references = [], {}
+    for label, group in zip(group_labels(groups), groups, strict=True):
+        meta = group[0]["meta"]
+        kwargs, seeds = meta.get("env_kwargs") or {}, _held_out(meta, first, teams)
+        task = json.dumps([meta["scenario"], kwargs, meta.get("shield", True)], sort_keys=True)
+        if task not in references and kwargs.get("action_mode") in ("residual", "gain"):
+            if progress:
+                progress(f"the paper's law on {len(seeds)} held-out episodes of {meta['scenario']} …")
+            size = _action_size(meta)
+            references[task] = evaluate(lambda obs, n=size: np.zeros((len(obs), n), np.float32), meta["scenario"],
+                                        seeds, shield=meta.get("shield", True), env_kwargs=kwargs)
+        reference = references.get(task)
+        episodes = {}
+        for run in group:
+            if progress:
+                progress(f"{run['path']} on {len(seeds)} held-out episodes …")
+            policy, _ = model_policy(run["path"] / "model.zip")
+            episodes[str(run["path"])] = evaluate(policy, meta["scenario"], seeds, shield=meta.get("shield", True),
+                                                  env_kwargs=kwargs)
+        rows.append(_row(label, task, meta, episodes, reference, reps))
+    for k, (task, reference) in enumerate(references.items()):
+        scenario, kwargs, shield = json.loads(task)
+        meta = {"scenario": scenario, "env_kwargs": kwargs, "shield": shield, "algo": "reference"}
+        label = "reference (the paper's law)" + (f", task {k + 1}" if len(references) > 1 else "")
+        rows.append(_row(label, task, meta, {"reference": reference}, reference, reps))
+    return rows
+
+
+def _action_size(meta: dict[str, Any]) -> int:
+    """The team's flat action size in the run's env (for the reference's zero action)."""
+    from pan1_env.vector import Pan1VectorEnv
+
+    return Pan1VectorEnv(meta["scenario"], 1, **(meta.get("env_kwargs") or {})).single_action_space.shape[0]
+
+
+def _row(label: str, task: str, meta: dict, episodes: dict, reference: dict | None, reps: int) -> dict[str, Any]:
+    scores = {m: np.array([_scores(e, reference)[m] for e in episodes.values()]) for m in METRICS}
+    row = {"label": label, "task": task, "meta": meta, "runs": list(episodes), "scores": scores, "episodes": episodes}
+    for metric in METRICS:
+        row[metric] = iqm_interval([scores[metric]], reps=reps)
+    return row
+
+
+def markdown(rows: Sequence[dict[str, Any]]) -> str:
+    """The rows as a Markdown table: IQM [95 % CI] of each metric, per group."""
+    def cell(value: tuple[float, float, float], scale: float = 1.0, fmt: str = "{:.1f}") -> str:
+        point, low, high = (scale * v for v in value)
+        if not np.isfinite(point):
+            return "–"
+        if low == high:
+            return fmt.format(point)
+        return f"{fmt.format(point)} [{fmt.format(low)}, {fmt.format(high)}]"
+
+    lines = ["| task | policy | runs | success [%] | time to formation [s] | time ÷ reference's, teams both form "
+             "| return | cost |", "|---|---|---:|---|---|---|---|---|"]
+    for row in rows:
+        scenario = row["meta"]["scenario"]
+        lines.append(f"| {scenario} | {row['label']} | {len(row['runs'])} | {cell(row['success'], 100)} "
+                     f"| {cell(row['time_to_formation'])} | {cell(row['time_ratio'], fmt='{:.2f}')} "
+                     f"| {cell(row['return'])} | {cell(row['cost'], fmt='{:g}')} |")
+    return "\n".join(lines)
+
+
+def marl_eval_json(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
+    """Write the episodes in marl-eval's raw-data layout: ``{"pan1_env": {task: {label: {"seed_<s>": {...}}}}}``,
+    each run with ``absolute_metrics`` (one value per held-out episode) and a ``step_<k>`` per evaluation of its
+    ``eval.csv`` (marl-eval's per-episode lists hold the evaluation's mean there)."""
+    data: dict[str, Any] = {}
+    for row in rows:
+        tasks = data.setdefault("pan1_env", {})
+        algorithms = tasks.setdefault(row["meta"]["scenario"], {})
+        entry = algorithms.setdefault(row["label"], {})
+        for i, (run, result) in enumerate(row["episodes"].items()):
+            formed = result["final_error"] < TOLERANCES[0]
+            record: dict[str, Any] = {}
+            evaluations = Path(run) / "eval.csv"
+            if evaluations.is_file():
+                with evaluations.open(newline="") as fh:
+                    for k, r in enumerate(csv.DictReader(fh)):
+                        record[f"step_{k}"] = {"step_count": int(r["timesteps"]),
+                                               "success": [float(r["success_1cm"])],
+                                               "return": [float(r["mean_return"])], "cost": [float(r["cost"])]}
+            record["absolute_metrics"] = {
+                "success": formed.astype(float).tolist(), "return": result["return"].tolist(),
+                "cost": result["cost"].tolist(),
+                "time_to_formation": [float(t) if np.isfinite(t) else None for t in result["time_to_formation"]]}
+            seed = json.loads((Path(run) / "run.json").read_text()).get("seed", i) if run != "reference" else 0
+            entry[f"seed_{seed}"] = record
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=1) + "\n")
+    return path
+
