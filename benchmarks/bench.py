@@ -206,6 +206,24 @@ def _filter_rows(venv, sample: int = 256) -> tuple[float, int, int]:
     return float(np.mean(counts)), int(max(counts)), possible
 
 
+def bench_v1(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
+    """RandomFormation-v1 against v0 in the shielded vector env at B copies (4 arms each), timed in
+    alternation: v1's filter (distance barrier, decaying robust term) against the paper's on the same
+    kind of teams."""
+    from pan1_env.vector import Pan1VectorEnv
+
+    steppers = {}
+    for env_id in ("pan1_env/RandomFormation-v0", "pan1_env/RandomFormation-v1"):
+        print(f"bench: vector env at B = {B}, {env_id} ...", file=sys.stderr, flush=True)
+        step = _vector_stepper(Pan1VectorEnv(env_id, B))
+        for _ in range(3):
+            step()
+        steppers[env_id] = step
+    v0, v1 = _alternating_medians(*steppers.values(), repeats, 5)
+    return [(f"RandomFormation-v1, shielded arm-steps per second at B = {B} (target ≥ 1,500,000)", 4 * B / v1, "rate"),
+            (f"  ratio of its step time to RandomFormation-v0's at B = {B}", v1 / v0, "ratio")]
+
+
 def bench_whole_arm(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
     """Whole-arm safety against end-effector safety, per arm-sub-step of the shielded vector env on the
     same random teams (B copies of 4 arms, 5 sub-steps of 10 ms per step): links only, links and
@@ -548,6 +566,7 @@ def main() -> int:
     rows += bench_one_arm_vs_acrobot(repeats, inner)
     rows += bench_vector(repeats, (1, 64, 1024) if args.quick else (1, 64, 1024, 16384))
     rows += bench_kernel(repeats)
+    rows += bench_v1(repeats)
     rows += bench_whole_arm(repeats)
     rows += bench_qp(300 if args.quick else 2000)
     rows += bench_team_scaling(repeats, inner)

@@ -1,7 +1,7 @@
 """Why the paper's law fails on random teams (what a learner has to beat).
 
     python benchmarks/failures.py [--episodes 200] [--seed 10000] [--max-steps 2000] [--out runs/failures]
-                                  [--unshielded] [--no-progress]
+                                  [--unshielded] [--no-progress] [--task pan1_env/RandomFormation-v1]
 
 Runs the shielded reference, :class:`pan1_env.baselines.ReferencePolicy` behind
 :class:`pan1_env.wrappers.SafetyShield`, on ``pan1_env.parallel_env("random")`` with the default random
@@ -275,13 +275,15 @@ def run_unshielded(env, policy, seed: int) -> tuple[float, float]:
     return float(next(iter(infos.values()))["formation_error"]), cost
 
 
-def make_env(max_steps: int | None = None, render_mode: str | None = None, shield: bool = True):
-    """The random-team env (shielded by default) and the reference policy on it."""
+def make_env(max_steps: int | None = None, render_mode: str | None = None, shield: bool = True,
+             task: str = "random"):
+    """The random-team env of ``task`` (``random`` or a random-team id; shielded by default) and the reference
+    policy on it."""
     import pan1_env
     from pan1_env.baselines import ReferencePolicy
     from pan1_env.wrappers import SafetyShield
 
-    env = pan1_env.parallel_env("random", max_steps=max_steps, render_mode=render_mode)
+    env = pan1_env.parallel_env(task, max_steps=max_steps, render_mode=render_mode)
     if shield:
         env = SafetyShield(env)
     return env, ReferencePolicy(env.unwrapped)
@@ -331,12 +333,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("runs/failures"), help="output directory")
     parser.add_argument("--unshielded", action="store_true", help="also run every seed without the shield")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--task", default="random",
+                        help="random (the default options, v0's filter) or a random-team id such as "
+                             "pan1_env/RandomFormation-v1 (its teams and filter)")
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error("--episodes must be ≥ 1")
-
-    env, policy = make_env(args.max_steps)
-    bare = make_env(args.max_steps, shield=False) if args.unshielded else None
+    try:
+        env, policy = make_env(args.max_steps, task=args.task)
+    except ValueError as err:
+        parser.error(str(err))
+    bare = make_env(args.max_steps, shield=False, task=args.task) if args.unshielded else None
     records = []
     t0 = time.perf_counter()
     for seed in tqdm(range(args.seed, args.seed + args.episodes), desc="episodes", disable=args.no_progress):
@@ -349,7 +356,7 @@ def main(argv: list[str] | None = None) -> int:
 
     args.out.mkdir(parents=True, exist_ok=True)
     command = " ".join(["python benchmarks/failures.py", *(sys.argv[1:] if argv is None else argv)])
-    report = (f"# Failures of the shielded reference on random teams\n\n`{command}`: seeds "
+    report = (f"# Failures of the shielded reference on random teams ({args.task})\n\n`{command}`: seeds "
               f"{args.seed}…{args.seed + args.episodes - 1}, {elapsed:.0f} s\n\n{table(records)}\n")
     (args.out / "failures.md").write_text(report, encoding="utf-8")
     payload = {"command": command, "seed": args.seed, "episodes": args.episodes, "max_steps": args.max_steps,

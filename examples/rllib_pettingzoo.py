@@ -4,6 +4,7 @@
     python examples/rllib_pettingzoo.py --iterations 5 --num-env-runners 2
     python examples/rllib_pettingzoo.py --scenario paper_pa_mixed_square       # a mixed team, one policy
     python examples/rllib_pettingzoo.py --scenario pan1_env/WholeArmStaticFormation-v0
+    python examples/rllib_pettingzoo.py --iterations 40 --out runs/rllib          # then --resume to continue
 
 Shows how :func:`pan1_env.environment.parallel_env` (optionally behind :class:`~pan1_env.wrappers.SafetyShield`)
 plugs into RLlib's new API stack: the env is registered with :func:`ray.tune.registry.register_env` and wrapped
@@ -21,12 +22,16 @@ episode return is the team's: the sum over the arms.
 
 The infos are flat numbers and arrays (the shield's report included), which RLlib passes through as they are. A
 small callback sums ``infos[agent]["cost"]`` over each episode and the arms and reports its mean as
-``result["env_runners"]["episode_cost_mean"]`` (0 behind the shield).
+``result["env_runners"]["episode_cost_mean"]`` (0 behind the shield). With ``--out`` every iteration appends a
+row to ``progress.csv`` (iteration, env steps, mean episode return and cost) and overwrites a checkpoint, from
+which ``--resume`` continues an interrupted run to ``--iterations``.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
+from pathlib import Path
 from typing import Any
 
 import ray
@@ -82,6 +87,17 @@ def build_config(args: argparse.Namespace) -> PPOConfig:
     )
 
 
+def _log(path: Path, row: dict[str, Any]) -> None:
+    """Append one iteration's row to ``progress.csv`` (a header first in a new file)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    new = not path.exists() or path.stat().st_size == 0
+    with path.open("a", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(row))
+        if new:
+            writer.writeheader()
+        writer.writerow(row)
+
+
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """Command-line options."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -98,7 +114,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--minibatch-size", type=int, default=128, help="SGD minibatch size")
     p.add_argument("--num-epochs", type=int, default=10, help="SGD epochs per batch")
     p.add_argument("--seed", type=int, default=0)
-    return p.parse_args(argv)
+    p.add_argument("--out", type=Path, default=None,
+                   help="write progress.csv (one row per iteration) and a checkpoint after every iteration here")
+    p.add_argument("--resume", action="store_true", help="continue from the checkpoint in --out, to --iterations")
+    args = p.parse_args(argv)
+    if args.resume and (args.out is None or not (args.out / "checkpoint").is_dir()):
+        p.error("--resume needs --out with a checkpoint in it (written by an earlier run with --out)")
+    return args
 
 
 def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
@@ -113,13 +135,22 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     results, algo = [], None
     try:
         algo = build_config(args).build_algo()
-        for i in range(args.iterations):
+        done = 0
+        if args.resume:  # the module, optimiser and counters of the last finished iteration
+            algo.restore_from_path(str((args.out / "checkpoint").resolve()))
+            done = int(algo.iteration)
+        for i in range(done, args.iterations):
             result = algo.train()
             runners = result["env_runners"]
-            print(f"iter {i + 1}: episode return mean {runners.get('episode_return_mean', float('nan')):.2f}, "
-                  f"episode cost mean {runners.get(COST_KEY, float('nan')):g}, "
-                  f"env steps sampled {runners['num_env_steps_sampled']} "
-                  f"(total {int(runners['num_env_steps_sampled_lifetime'])})")
+            row = {"iteration": i + 1, "env_steps": int(runners["num_env_steps_sampled_lifetime"]),
+                   "episode_return_mean": runners.get("episode_return_mean", float("nan")),
+                   "episode_cost_mean": runners.get(COST_KEY, float("nan"))}
+            print(f"iter {i + 1}: episode return mean {row['episode_return_mean']:.2f}, "
+                  f"episode cost mean {row['episode_cost_mean']:g}, "
+                  f"env steps sampled {runners['num_env_steps_sampled']} (total {row['env_steps']})", flush=True)
+            if args.out is not None:
+                _log(args.out / "progress.csv", row)
+                algo.save_to_path(str((args.out / "checkpoint").resolve()))
             results.append(result)
     finally:
         if algo is not None:

@@ -33,9 +33,10 @@ def example():
 
 
 @pytest.mark.slow
-def test_one_shielded_iteration_trains_the_shared_policy(example) -> None:
-    results = example.main(["--iterations", "1", "--max-steps", str(MAX_STEPS), "--train-batch-size", str(BATCH),
-                            "--minibatch-size", "50", "--num-epochs", "1"])
+def test_one_shielded_iteration_trains_the_shared_policy_and_a_second_resumes_it(example, tmp_path) -> None:
+    common = ["--max-steps", str(MAX_STEPS), "--train-batch-size", str(BATCH), "--minibatch-size", "50",
+              "--num-epochs", "1", "--out", str(tmp_path)]
+    results = example.main(["--iterations", "1", *common])
     assert len(results) == 1
     runners, learners = results[0]["env_runners"], results[0]["learners"]
 
@@ -57,6 +58,17 @@ def test_one_shielded_iteration_trains_the_shared_policy(example) -> None:
     assert runners["episode_return_mean"] < 0.0  # the formation error is never exactly zero from the start
     # behind the shield no arm ever enters an obstacle
     assert runners[example.COST_KEY] == 0.0
+
+    # --out: a row per iteration and a checkpoint, from which --resume runs only what is left
+    ray.shutdown()
+    assert len(example.main(["--iterations", "2", "--resume", *common])) == 1
+    lines = (tmp_path / "progress.csv").read_text().splitlines()
+    assert lines[0] == "iteration,env_steps,episode_return_mean,episode_cost_mean"
+    assert [line.split(",")[0] for line in lines[1:]] == ["1", "2"]
+    first, second = (int(line.split(",")[1]) for line in lines[1:])
+    assert second > first >= BATCH  # the counters continued from the checkpoint
+    with pytest.raises(SystemExit):
+        example.main(["--resume", "--out", str(tmp_path / "empty")])
 
 
 def test_padding_gives_a_mixed_team_one_pair_of_spaces_and_changes_nothing_else(example) -> None:
