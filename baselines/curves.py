@@ -148,12 +148,14 @@ def _number(text: str | None) -> float:
     return {"true": 1.0, "false": 0.0}[low] if low in ("true", "false") else float(text)
 
 
-def group_runs(runs: Sequence[dict[str, Any]]) -> list[list[dict[str, Any]]]:
-    """Runs with the same arguments apart from ``seed`` and ``timesteps``, in the order the groups first appear."""
+def group_runs(runs: Sequence[dict[str, Any]], same_budget: bool = False) -> list[list[dict[str, Any]]]:
+    """Runs with the same arguments apart from ``seed`` and ``timesteps`` (with ``same_budget``, apart from
+    ``seed`` only: final models of different budgets are different results), in the order the groups first
+    appear."""
     groups: dict[str, list[dict[str, Any]]] = {}
+    ignored = ("seed",) if same_budget else ("seed", "timesteps")  # a curve resumed further is the same setting
     for run in runs:
-        key = json.dumps({k: v for k, v in run["meta"].items() if k not in ("seed", "timesteps")}, sort_keys=True,
-                         default=str)  # a run resumed to a longer budget is the same setting
+        key = json.dumps({k: v for k, v in run["meta"].items() if k not in ignored}, sort_keys=True, default=str)
         group = groups.setdefault(key, [])
         twin = next((r for r in group if r["meta"].get("seed") == run["meta"].get("seed")), None)
         if twin is not None:
@@ -163,10 +165,10 @@ def group_runs(runs: Sequence[dict[str, Any]]) -> list[list[dict[str, Any]]]:
     return list(groups.values())
 
 
-def group_labels(groups: list[list[dict[str, Any]]]) -> list[str]:
+def group_labels(groups: list[list[dict[str, Any]]], same_budget: bool = False) -> list[str]:
     """algo + shield + every other argument (not the seed) whose value differs between the groups."""
     metas = [g[0]["meta"] for g in groups]
-    keys = sorted({k for m in metas for k in m} - {"algo", "shield", "seed", "timesteps"})
+    keys = sorted({k for m in metas for k in m} - {"algo", "shield", "seed", *(() if same_budget else ("timesteps",))})
     differ = [k for k in keys if len({json.dumps(m.get(k), sort_keys=True, default=str) for m in metas}) > 1]
     labels = []
     for m in metas:

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from pan1_env.config import SUCCESS_TOLERANCE
+from pan1_env.safety import FilterParams
 
 __all__ = ["evaluate", "summarise", "model_policy", "EVAL_SEEDS", "TOLERANCES", "eval_callback"]
 
@@ -34,10 +35,14 @@ EVAL_FIELDS = ("timesteps", "success_1cm", "success_2cm", "success_5cm", "median
 
 
 def evaluate(policy: Callable[[np.ndarray], np.ndarray], scenario: str = "random", seeds: Sequence[int] = EVAL_SEEDS,
-             *, shield: bool = True, env_kwargs: dict[str, Any] | None = None) -> dict[str, np.ndarray]:
+             *, shield: bool | FilterParams = True, env_kwargs: dict[str, Any] | None = None) -> dict[str, np.ndarray]:
     """One episode per seed, batched. Returns per-episode arrays: ``final_error`` (m, the largest edge
-    error at the end), ``return`` (sum of the mean agent reward), ``cost`` (arm-steps inside an obstacle)
-    and ``time_to_formation`` (s after which the error stayed below 1 cm; NaN if it never did)."""
+    error at the end), ``return`` (sum of the mean agent reward), ``cost`` (arm-steps inside an obstacle),
+    ``time_to_formation`` (s after which the error stayed below 1 cm; NaN if it never did),
+    ``min_clearance`` (m, the smallest over the episode's sub-steps and arms) and, behind the shield,
+    ``intervention_rate`` and ``fallback_rate`` (the fraction of steps in which the filter changed some
+    arm's command, or fell back for some arm). ``shield``: the vector env's ``safety_filter`` (``True``, ``False``
+    or a :class:`~pan1_env.safety.FilterParams`)."""
     from pan1_env.vector import Pan1VectorEnv
 
     seeds = [int(s) for s in seeds]
@@ -45,7 +50,8 @@ def evaluate(policy: Callable[[np.ndarray], np.ndarray], scenario: str = "random
     B, dt = len(seeds), venv.control_dt
     obs, _ = venv.reset(seed=seeds)
     live = np.ones(B, dtype=bool)
-    ret, cost = np.zeros(B), np.zeros(B)
+    ret, cost, clearance = np.zeros(B), np.zeros(B), np.full(B, np.inf)
+    intervened, fallback, length = np.zeros(B), np.zeros(B), np.zeros(B)
     final, last_failure = np.full(B, np.nan), np.zeros(B)
     steps = 0
     while live.any():
@@ -54,6 +60,11 @@ def evaluate(policy: Callable[[np.ndarray], np.ndarray], scenario: str = "random
         # the step's infos describe the step's end, before copies that ended were reset
         ret += np.where(live, reward, 0.0)
         cost += np.where(live, infos["cost"], 0.0)
+        clearance = np.where(live, np.minimum(clearance, infos["min_clearance"]), clearance)
+        length += live
+        if shield is not False:
+            intervened += live & infos["shield_intervened"]
+            fallback += live & infos["shield_fallback"]
         error = infos["formation_error"]
         last_failure = np.where(live & (error >= TOLERANCES[0]), steps * dt, last_failure)
         ended = live & (terminated | truncated)
@@ -61,7 +72,10 @@ def evaluate(policy: Callable[[np.ndarray], np.ndarray], scenario: str = "random
         live &= ~ended
     venv.close()
     time = np.where(final < TOLERANCES[0], last_failure, np.nan)
-    return {"final_error": final, "return": ret, "cost": cost, "time_to_formation": time}
+    out = {"final_error": final, "return": ret, "cost": cost, "time_to_formation": time, "min_clearance": clearance}
+    if shield is not False:
+        out |= {"intervention_rate": intervened / length, "fallback_rate": fallback / length}
+    return out
 
 
 def model_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], dict[str, Any]]:

@@ -2,10 +2,12 @@
 
 :func:`report` evaluates the final model of every run (``pan1-env train`` output) on held-out teams, groups the
 runs that differ only in their seed, and gives per group, for each metric, the **interquartile mean over
-training seeds** (the mean of the middle half, scipy's ``trim_mean(·, 0.25)``) and a **95 % stratified
-percentile bootstrap interval** (scipy's ``bootstrap``, each task's runs resampled on their own, as in
-Agarwal et al. 2021, *Deep RL at the Edge of the Statistical Precipice*, and marl-eval). One run gives one
-score per metric, each the mean over the held-out episodes:
+training seeds** (the mean of the middle half, scipy's ``trim_mean(·, 0.25)``, rliable's IQM; below 4 seeds
+it is the mean) and a **95 % percentile bootstrap interval** over the seeds (scipy's ``bootstrap``, as in
+Agarwal et al. 2021, *Deep RL at the Edge of the Statistical Precipice*, and marl-eval). A row is one task,
+so its bootstrap has one stratum; :func:`iqm_interval` takes one array of runs per task and resamples each
+on its own (the stratified bootstrap) for scores pooled over tasks. One run gives one score per metric, each
+over the held-out episodes:
 
 * ``success``: the fraction of episodes whose formation error ends below 1 cm;
 * ``time_to_formation``: the mean time after which the error stayed below 1 cm, over the episodes it formed;
@@ -13,10 +15,12 @@ score per metric, each the mean over the held-out episodes:
   reference's over the same episodes (the issue's "on the teams both form");
 * ``return`` (the mean episode return) and ``cost`` (arm-steps inside an obstacle, summed over episodes).
 
-The reference is the zero action of the runs' own env: the paper's law behind the same shield (runs trained
-with residual or gain actions; for others there is no reference and no ratio). Random teams are evaluated on
-reset seeds ``first … first + teams − 1`` (default: docs/TRAINING.md's held-out teams 2,000,000–2,000,199, which
-no training or model choice saw), a paper scenario on its single start.
+A run whose time is undefined (it formed no episode, or none that the reference formed too) is left out of
+that metric's IQM, and the row says how many seeds it has. The reference is the zero action of the runs' own
+env: the paper's law behind the same shield (runs trained with residual or gain actions; for others there is
+no reference and no ratio). Every run is evaluated in the env it was trained in (its ``model.json``). Random
+teams are evaluated on reset seeds ``first … first + teams − 1`` (default: docs/TRAINING.md's held-out teams
+2,000,000–2,000,199, which no training or model choice saw), a paper scenario on its single start.
 
 :func:`marl_eval_json` writes the episodes in marl-eval's raw-data layout (``env → task → algorithm →
 run → absolute_metrics``, plus one ``step_k`` per row of the run's ``eval.csv``), for its plots and tests.
@@ -50,14 +54,14 @@ def iqm(scores: np.ndarray, axis: int = -1) -> np.ndarray:
 def iqm_interval(tasks: Sequence[np.ndarray], confidence: float = 0.95, reps: int = 2000,
                  seed: int = 0) -> tuple[float, float, float]:
     """The IQM of all scores and its stratified percentile bootstrap interval: each task's runs (one array per
-    task) are resampled with replacement on their own, and the IQM taken over the pooled resample. A single run
-    (or identical scores) gives a point interval."""
+    task) are resampled with replacement on their own, and the IQM taken over the pooled resample. A task of one
+    run (or identical scores) gives a point interval; no scores or a NaN give NaN."""
     tasks = [np.asarray(t, dtype=float) for t in tasks]
     pooled = np.concatenate(tasks)
+    if len(pooled) == 0 or not np.isfinite(pooled).all():
+        return float("nan"), float("nan"), float("nan")
     point = float(iqm(pooled))
-    if not np.isfinite(pooled).all():
-        return point, float("nan"), float("nan")
-    if len(pooled) < 2 or np.ptp(pooled) == 0:
+    if min(len(t) for t in tasks) < 2 or np.ptp(pooled) == 0:  # nothing to resample in some task
         return point, point, point
 
     def statistic(*samples: np.ndarray, axis: int = -1) -> np.ndarray:
@@ -90,33 +94,33 @@ def report(run_dirs: Sequence[str | Path], *, first: int = HELD_OUT_FIRST, teams
            reps: int = 2000, progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
     """One row per group of runs (and one per task for its reference): ``label``, ``task``, ``runs`` (paths),
     ``scores`` (metric → one score per run), ``episodes`` (run path → :func:`~pan1_env.baselines.evaluation.evaluate`'s
-    arrays), and ``<metric>`` → (IQM, low, high). ``progress`` is told what is being evaluated."""
-    runs = []
-    for path in map(Path, run_dirs):
-        if not (path / "model.zip").is_file() or not (path / "run.json").is_file():
-            raise FileNotFoundError(f"{path}: not a finished training run (pan1-env train writes run.json and "
-                                    "model.zip at its end)")
-        runs.append({"path": path, "meta": json.loads((path / "run.json").read_text())})
-    groups = group_runs(runs)
+    arrays), and ``<metric>`` → (IQM, low, high) over the runs where it is defined. ``progress`` is told what is
+    being evaluated. ValueError for a run directory that is not a finished ``pan1-env train`` run."""
+    if first < 0:
+        raise ValueError(f"first must be a reset seed ≥ 0, got {first}")
+    runs = [_finished_run(Path(path)) for path in run_dirs]
+    groups = group_runs(runs, same_budget=True)
     rows, references = [], {}
-    for label, group in zip(group_labels(groups), groups, strict=True):
+    for label, group in zip(group_labels(groups, same_budget=True), groups, strict=True):
         meta = group[0]["meta"]
-        kwargs, seeds = meta.get("env_kwargs") or {}, _held_out(meta, first, teams)
-        task = json.dumps([meta["scenario"], kwargs, meta.get("shield", True)], sort_keys=True)
+        scenario, shield, seeds = meta["scenario"], meta.get("shield", True), _held_out(meta, first, teams)
+        kwargs = group[0]["env_kwargs"]  # the env the models were trained in (model.json), defaults resolved
+        task = json.dumps([scenario, kwargs, shield], sort_keys=True)
         if task not in references and kwargs.get("action_mode") in ("residual", "gain"):
             if progress:
-                progress(f"the paper's law on {len(seeds)} held-out episodes of {meta['scenario']} …")
-            size = _action_size(meta)
-            references[task] = evaluate(lambda obs, n=size: np.zeros((len(obs), n), np.float32), meta["scenario"],
-                                        seeds, shield=meta.get("shield", True), env_kwargs=kwargs)
+                progress(f"the paper's law on {len(seeds)} held-out episodes of {scenario} …")
+            size = _action_size(scenario, kwargs)
+            references[task] = evaluate(lambda obs, n=size: np.zeros((len(obs), n), np.float32), scenario, seeds,
+                                        shield=shield, env_kwargs=kwargs)
         reference = references.get(task)
         episodes = {}
         for run in group:
+            if run["env_kwargs"] != kwargs:
+                raise ValueError(f"{run['path']} and {group[0]['path']} have the same run.json but were trained in "
+                                 f"different envs (model.json): {run['env_kwargs']} against {kwargs}")
             if progress:
                 progress(f"{run['path']} on {len(seeds)} held-out episodes …")
-            policy, _ = model_policy(run["path"] / "model.zip")
-            episodes[str(run["path"])] = evaluate(policy, meta["scenario"], seeds, shield=meta.get("shield", True),
-                                                  env_kwargs=kwargs)
+            episodes[str(run["path"])] = evaluate(run["policy"], scenario, seeds, shield=shield, env_kwargs=kwargs)
         rows.append(_row(label, task, meta, episodes, reference, reps))
     for k, (task, reference) in enumerate(references.items()):
         scenario, kwargs, shield = json.loads(task)
@@ -126,55 +130,75 @@ def report(run_dirs: Sequence[str | Path], *, first: int = HELD_OUT_FIRST, teams
     return rows
 
 
-def _action_size(meta: dict[str, Any]) -> int:
+def _finished_run(path: Path) -> dict[str, Any]:
+    missing = [name for name in ("run.json", "model.zip", "model.json") if not (path / name).is_file()]
+    if missing:
+        raise ValueError(f"{path}: not a finished training run, no {' or '.join(missing)} (pan1-env train writes "
+                         "run.json at its start, model.zip and model.json at its end)")
+    try:
+        meta = json.loads((path / "run.json").read_text())
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path / 'run.json'}: not valid JSON ({err})") from None
+    if not isinstance(meta, dict) or not isinstance(meta.get("scenario"), str):
+        raise ValueError(f"{path / 'run.json'}: no scenario; not written by pan1-env train")
+    policy, env_kwargs = model_policy(path / "model.zip")
+    return {"path": path, "meta": meta, "policy": policy, "env_kwargs": env_kwargs}
+
+
+def _action_size(scenario: str, env_kwargs: dict[str, Any]) -> int:
     """The team's flat action size in the run's env (for the reference's zero action)."""
     from pan1_env.vector import Pan1VectorEnv
 
-    return Pan1VectorEnv(meta["scenario"], 1, **(meta.get("env_kwargs") or {})).single_action_space.shape[0]
+    return Pan1VectorEnv(scenario, 1, **env_kwargs).single_action_space.shape[0]
 
 
 def _row(label: str, task: str, meta: dict, episodes: dict, reference: dict | None, reps: int) -> dict[str, Any]:
-    scores = {m: np.array([_scores(e, reference)[m] for e in episodes.values()]) for m in METRICS}
+    per_run = [_scores(result, reference) for result in episodes.values()]
+    scores = {m: np.array([run[m] for run in per_run]) for m in METRICS}
     row = {"label": label, "task": task, "meta": meta, "runs": list(episodes), "scores": scores, "episodes": episodes}
     for metric in METRICS:
-        row[metric] = iqm_interval([scores[metric]], reps=reps)
+        defined = scores[metric][np.isfinite(scores[metric])]
+        row[metric] = iqm_interval([defined], reps=reps)
+        row[f"{metric}_runs"] = len(defined)
     return row
 
 
 def markdown(rows: Sequence[dict[str, Any]]) -> str:
     """The rows as a Markdown table: IQM [95 % CI] of each metric, per group."""
-    def cell(value: tuple[float, float, float], scale: float = 1.0, fmt: str = "{:.1f}") -> str:
-        point, low, high = (scale * v for v in value)
+    def cell(row: dict, metric: str, scale: float = 1.0, fmt: str = "{:.1f}") -> str:
+        point, low, high = (scale * v for v in row[metric])
         if not np.isfinite(point):
             return "–"
-        if low == high:
-            return fmt.format(point)
-        return f"{fmt.format(point)} [{fmt.format(low)}, {fmt.format(high)}]"
+        text = fmt.format(point) if low == high else f"{fmt.format(point)} [{fmt.format(low)}, {fmt.format(high)}]"
+        defined, runs = row[f"{metric}_runs"], len(row["runs"])
+        return text if defined == runs else f"{text} ({defined} of {runs} seeds)"
 
     lines = ["| task | policy | runs | success [%] | time to formation [s] | time ÷ reference's, teams both form "
              "| return | cost |", "|---|---|---:|---|---|---|---|---|"]
     for row in rows:
         scenario = row["meta"]["scenario"]
-        lines.append(f"| {scenario} | {row['label']} | {len(row['runs'])} | {cell(row['success'], 100)} "
-                     f"| {cell(row['time_to_formation'])} | {cell(row['time_ratio'], fmt='{:.2f}')} "
-                     f"| {cell(row['return'])} | {cell(row['cost'], fmt='{:g}')} |")
+        lines.append(f"| {scenario} | {row['label']} | {len(row['runs'])} | {cell(row, 'success', 100)} "
+                     f"| {cell(row, 'time_to_formation')} | {cell(row, 'time_ratio', fmt='{:.2f}')} "
+                     f"| {cell(row, 'return')} | {cell(row, 'cost', fmt='{:g}')} |")
     return "\n".join(lines)
 
 
 def marl_eval_json(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
     """Write the episodes in marl-eval's raw-data layout: ``{"pan1_env": {task: {label: {"seed_<s>": {...}}}}}``,
     each run with ``absolute_metrics`` (one value per held-out episode) and a ``step_<k>`` per evaluation of its
-    ``eval.csv`` (marl-eval's per-episode lists hold the evaluation's mean there)."""
+    ``eval.csv`` (marl-eval's per-episode lists hold the evaluation's mean there). Unshielded groups are a task of
+    their own (``<scenario> (no shield)``)."""
     data: dict[str, Any] = {}
     for row in rows:
         tasks = data.setdefault("pan1_env", {})
-        algorithms = tasks.setdefault(row["meta"]["scenario"], {})
+        shielded = row["meta"].get("shield", True)
+        algorithms = tasks.setdefault(row["meta"]["scenario"] + ("" if shielded else " (no shield)"), {})
         entry = algorithms.setdefault(row["label"], {})
         for i, (run, result) in enumerate(row["episodes"].items()):
             formed = result["final_error"] < TOLERANCES[0]
             record: dict[str, Any] = {}
             evaluations = Path(run) / "eval.csv"
-            if evaluations.is_file():
+            if run != "reference" and evaluations.is_file():
                 with evaluations.open(newline="") as fh:
                     for k, r in enumerate(csv.DictReader(fh)):
                         record[f"step_{k}"] = {"step_count": int(r["timesteps"]),
@@ -182,8 +206,7 @@ def marl_eval_json(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
                                                "return": [float(r["mean_return"])], "cost": [float(r["cost"])]}
             record["absolute_metrics"] = {
                 "success": formed.astype(float).tolist(), "return": result["return"].tolist(),
-                "cost": result["cost"].tolist(),
-                "time_to_formation": [float(t) if np.isfinite(t) else None for t in result["time_to_formation"]]}
+                "cost": result["cost"].tolist()}  # no time: undefined where an episode did not form
             seed = json.loads((Path(run) / "run.json").read_text()).get("seed", i) if run != "reference" else 0
             entry[f"seed_{seed}"] = record
     path = Path(path)

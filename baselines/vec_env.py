@@ -140,13 +140,20 @@ class SB3ArmVecEnv(SB3VecEnv):
         action = gymnasium.spaces.Box(-1.0, 1.0, (core.k_max,), np.float32)
         return self.venv.num_envs * self._arms, observation, action
 
+    def seed(self, seed: int | None = None) -> list[int | None]:
+        """Seed the next reset: copy b gets ``seed + b`` (each of its arms' sub-envs reports that seed)."""
+        if seed is None:
+            seed = int(np.random.randint(0, 2**31 - 1))  # noqa: NPY002 - SB3's own convention for no seed
+        copies = self.venv.num_envs
+        self._seeds = [seed + b for b in range(copies) for _ in range(self._arms)]
+        return list(self._seeds)
+
     def reset(self) -> np.ndarray:
-        first = self._seeds[0]
-        seeds = None if first is None else [first + b for b in range(self.venv.num_envs)]
-        self.venv.reset(seed=seeds)
+        core, first = self.venv.core, self._seeds[0]
+        core.reset(seeds=None if first is None else self._seeds[:: self._arms], options=self._options[0] or None)
         self._reset_seeds()
         self._reset_options()
-        mats, infos = self.venv.core.start()
+        mats, infos = core.start()
         self.reset_infos = self._arm_infos(infos)
         return self._arm_rows(mats)
 

@@ -4,8 +4,9 @@
                                   [--unshielded] [--no-progress] [--task pan1_env/RandomFormation-v1]
 
 Runs the shielded reference, :class:`pan1_env.baselines.ReferencePolicy` behind
-:class:`pan1_env.wrappers.SafetyShield`, on ``pan1_env.parallel_env("random")`` with the default random
-options (4 arms, default time steps, 2000 steps of 0.05 s = 100 s), one episode per reset seed
+:class:`pan1_env.wrappers.SafetyShield`, on ``pan1_env.parallel_env(task)``: by default ``"random"`` with the
+default random options (4 arms, default time steps, 2000 steps of 0.05 s = 100 s; the paper's filter), or a
+random-team id such as ``pan1_env/RandomFormation-v1`` (its teams and filter), one episode per reset seed
 ``seed … seed + episodes − 1`` (from 10 000 up by default: seeds not used elsewhere), and sorts every
 failed episode (final max edge error ≥ ``SUCCESS_TOL`` = 1 cm) into one class. Writes ``failures.md``
 (counts and percentages per class, success rates at 1, 2 and 5 cm) and ``failures.json`` (one record per
@@ -343,6 +344,8 @@ def main(argv: list[str] | None = None) -> int:
         env, policy = make_env(args.max_steps, task=args.task)
     except ValueError as err:
         parser.error(str(err))
+    if not env.unwrapped.config.random:
+        parser.error(f"--task {args.task}: not random teams (random, or an id such as pan1_env/RandomFormation-v1)")
     bare = make_env(args.max_steps, shield=False, task=args.task) if args.unshielded else None
     records = []
     t0 = time.perf_counter()
@@ -359,7 +362,8 @@ def main(argv: list[str] | None = None) -> int:
     report = (f"# Failures of the shielded reference on random teams ({args.task})\n\n`{command}`: seeds "
               f"{args.seed}…{args.seed + args.episodes - 1}, {elapsed:.0f} s\n\n{table(records)}\n")
     (args.out / "failures.md").write_text(report, encoding="utf-8")
-    payload = {"command": command, "seed": args.seed, "episodes": args.episodes, "max_steps": args.max_steps,
+    payload = {"command": command, "task": args.task, "seed": args.seed, "episodes": args.episodes,
+               "max_steps": args.max_steps,
                "thresholds": {name: globals()[name] for name in THRESHOLDS},
                "records": [{k: _finite(v) for k, v in r.items()} for r in records]}
     (args.out / "failures.json").write_text(json.dumps(payload, indent=1, allow_nan=False), encoding="utf-8")

@@ -87,6 +87,21 @@ def build_config(args: argparse.Namespace) -> PPOConfig:
     )
 
 
+def _save(algo: Any, out: Path) -> None:
+    """Replace ``out/checkpoint`` by the algorithm's state, the old one kept until the new one is whole."""
+    import shutil
+
+    out.mkdir(parents=True, exist_ok=True)
+    fresh, old = out / "checkpoint.new", out / "checkpoint.old"
+    shutil.rmtree(fresh, ignore_errors=True)
+    algo.save_to_path(str(fresh.resolve()))
+    if (out / "checkpoint").exists():
+        shutil.rmtree(old, ignore_errors=True)
+        (out / "checkpoint").rename(old)
+    fresh.rename(out / "checkpoint")
+    shutil.rmtree(old, ignore_errors=True)
+
+
 def _log(path: Path, row: dict[str, Any]) -> None:
     """Append one iteration's row to ``progress.csv`` (a header first in a new file)."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -120,6 +135,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if args.resume and (args.out is None or not (args.out / "checkpoint").is_dir()):
         p.error("--resume needs --out with a checkpoint in it (written by an earlier run with --out)")
+    if not args.resume and args.out is not None and (args.out / "progress.csv").exists():
+        p.error(f"{args.out} holds a run already: add --resume to continue it, or choose another --out")
     return args
 
 
@@ -148,9 +165,9 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
             print(f"iter {i + 1}: episode return mean {row['episode_return_mean']:.2f}, "
                   f"episode cost mean {row['episode_cost_mean']:g}, "
                   f"env steps sampled {runners['num_env_steps_sampled']} (total {row['env_steps']})", flush=True)
-            if args.out is not None:
+            if args.out is not None:  # the checkpoint first: a run killed in between redoes no iteration
+                _save(algo, args.out)
                 _log(args.out / "progress.csv", row)
-                algo.save_to_path(str((args.out / "checkpoint").resolve()))
             results.append(result)
     finally:
         if algo is not None:

@@ -1,0 +1,179 @@
+"""The conservatism study: how the safety filter's design trades safety against what the paper's law can form.
+
+    python benchmarks/filters.py [--teams 200] [--first 2000000] [--out runs/filters] [--tasks end_effector,whole_arm]
+
+For each task (``end_effector``: RandomFormation's teams, each end-effector kept out of the obstacles;
+``whole_arm``: WholeArmStaticFormation's teams, every link a capsule kept out of the obstacles and off the
+other arms) and each filter setting of :data:`SETTINGS`, it runs on the same held-out random teams (reset
+seeds ``first … first + teams − 1``; the defaults are docs/TRAINING.md's held-out teams, on which no filter
+setting was tuned) two policies behind the filter, all teams of a setting batched in one vector env:
+
+* ``reference``: the paper's law (the zero action in residual mode), which measures what the filter lets a
+  good controller form;
+* ``random``: uniform random velocity actions held for 1 s each (persistent, so that arms travel and
+  meet the obstacles), which measures how close the filter lets a careless policy come.
+
+Per row: success at 1 / 2 / 5 cm, mean time to formation (formed teams), intervention and fallback rates
+(the fraction of steps in which the filter changed, or fell back for, some arm's command), the smallest
+clearance over every sub-step (m; ≥ 0 is safe) and the cost (arm-steps inside an obstacle). Writes
+``filters.md`` (the table), ``filters.json`` and ``filters.png``: the reference's success against the
+smallest clearance any policy reached, one point per setting and task, the Pareto front (no other setting
+both forms more and keeps farther) marked. The failure classes of one setting come from
+``benchmarks/failures.py --task``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pan1_env.baselines.evaluation import TOLERANCES, evaluate
+from pan1_env.registration import env_arguments
+from pan1_env.safety import FilterParams
+
+TASKS = {"end_effector": "pan1_env/RandomFormation-v0", "whole_arm": "pan1_env/WholeArmStaticFormation-v0"}
+# κ and ε are the random teams' (0.5, 5); the paper's filter first, RandomFormation-v1's last
+SETTINGS = {
+    "paper (squared, constant ε)": {},
+    "paper + 0.1 m sensing radius": {"sensing_radius": 0.1},
+    "distance barrier": {"barrier": "distance"},
+    "distance, ε decaying λ = 20": {"barrier": "distance", "decay": 20.0},
+    "distance, ε decaying λ = 50 (v1)": {"barrier": "distance", "decay": 50.0},
+}
+HOLD_STEPS = 20  # the random policy's action is held this many control steps (1 s)
+
+
+def _filter(scenario_kwargs: dict, setting: dict) -> FilterParams:
+    """The setting on the task's teams: their κ and ε; the whole-arm task keeps its own sensing radius
+    (:data:`pan1_env.engine.SENSING_RADIUS`) when the setting names none."""
+    options = scenario_kwargs.get("random_options", {})
+    return FilterParams(kappa=options.get("kappa", 0.5), epsilon=options.get("epsilon", 5.0), margin=0.0,
+                        sensing_radius=setting.get("sensing_radius"), barrier=setting.get("barrier", "squared"),
+                        decay=setting.get("decay", 0.0))
+
+
+def _persistent_random(size: int, teams: int, seed: int):
+    rng = np.random.default_rng(seed)
+    state = {"t": 0, "action": rng.uniform(-1, 1, (teams, size)).astype(np.float32)}
+
+    def policy(obs: np.ndarray) -> np.ndarray:
+        if state["t"] % HOLD_STEPS == 0:
+            state["action"] = rng.uniform(-1, 1, (len(obs), size)).astype(np.float32)
+        state["t"] += 1
+        return state["action"]
+
+    return policy
+
+
+def run(tasks: list[str], teams: int, first: int) -> list[dict]:
+    from pan1_env.vector import Pan1VectorEnv
+
+    seeds = range(first, first + teams)
+    rows = []
+    for task in tasks:
+        scenario, kwargs = env_arguments(TASKS[task])
+        size = Pan1VectorEnv(scenario, 1, **kwargs).single_action_space.shape[0]
+        for name, setting in SETTINGS.items():
+            if task == "whole_arm" and "sensing_radius" in setting:
+                continue  # the whole-arm filter has its sensing radius already
+            params = _filter(kwargs, setting)
+            def law(obs: np.ndarray, n: int = size) -> np.ndarray:  # the zero residual: the paper's law
+                return np.zeros((len(obs), n), np.float32)
+
+            policies = {"reference": ({"action_mode": "residual"}, law),
+                        "random": ({}, _persistent_random(size, teams, first))}
+            for policy_name, (mode, policy) in policies.items():
+                print(f"filters: {task}, {name}, {policy_name} on {teams} teams …", file=sys.stderr, flush=True)
+                t0 = time.perf_counter()
+                result = evaluate(policy, scenario, seeds, shield=params, env_kwargs={**kwargs, **mode})
+                rows.append(_row(task, name, policy_name, result, time.perf_counter() - t0))
+    return rows
+
+
+def _row(task: str, setting: str, policy: str, result: dict, seconds: float) -> dict:
+    formed = result["final_error"] < TOLERANCES[0]
+    return {"task": task, "setting": setting, "policy": policy,
+            **{f"success_{round(100 * tol)}cm": float(np.mean(result["final_error"] < tol)) for tol in TOLERANCES},
+            "time_to_formation_s": float(np.mean(result["time_to_formation"][formed])) if formed.any() else None,
+            "intervention_rate": float(np.mean(result["intervention_rate"])),
+            "fallback_rate": float(np.mean(result["fallback_rate"])),
+            "min_clearance_m": float(np.min(result["min_clearance"])), "cost": float(np.sum(result["cost"])),
+            "seconds": seconds}
+
+
+def table(rows: list[dict]) -> str:
+    lines = ["| task | filter setting | policy | success 1 / 2 / 5 cm [%] | time to formation [s] | interventions "
+             "| fallbacks | min clearance [mm] | cost |", "|---|---|---|---|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        rates = " / ".join(f"{100 * r[f'success_{k}cm']:.1f}" for k in (1, 2, 5))
+        t = "–" if r["time_to_formation_s"] is None or r["policy"] != "reference" else f"{r['time_to_formation_s']:.1f}"
+        lines.append(f"| {r['task']} | {r['setting']} | {r['policy']} | {rates if r['policy'] == 'reference' else '–'} "
+                     f"| {t} | {100 * r['intervention_rate']:.1f} % | {100 * r['fallback_rate']:.2f} % "
+                     f"| {1000 * r['min_clearance_m']:+.1f} | {r['cost']:g} |")
+    return "\n".join(lines)
+
+
+def pareto(points: list[tuple[float, float]]) -> list[bool]:
+    """Which (success, clearance) points no other point beats in both (≥ in both, > in one)."""
+    return [not any(a >= x and b >= y and (a > x or b > y) for a, b in points) for x, y in points]
+
+
+def figure(rows: list[dict], path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len({r["task"] for r in rows}), figsize=(11, 4.5), squeeze=False)
+    for ax, task in zip(axes[0], dict.fromkeys(r["task"] for r in rows), strict=True):
+        mine = [r for r in rows if r["task"] == task]
+        settings = list(dict.fromkeys(r["setting"] for r in mine))
+        points = [(next(r["success_1cm"] for r in mine if r["setting"] == s and r["policy"] == "reference"),
+                   min(r["min_clearance_m"] for r in mine if r["setting"] == s)) for s in settings]
+        front = pareto(points)
+        for (success, clearance), name, best in zip(points, settings, front, strict=True):
+            ax.scatter(1000 * clearance, 100 * success, marker="*" if best else "o", s=120 if best else 40,
+                       color="tab:red" if best else "tab:gray")
+            ax.annotate(name, (1000 * clearance, 100 * success), fontsize=7, xytext=(4, 4), textcoords="offset points")
+        ax.set_xlabel("smallest clearance, any policy, any sub-step [mm]")
+        ax.set_ylabel("paper's law: success at 1 cm [%]")
+        ax.set_title(f"{task} (stars: Pareto front)")
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--teams", type=int, default=200, help="held-out random teams per setting (default 200)")
+    parser.add_argument("--first", type=int, default=2_000_000, help="first reset seed (default 2000000)")
+    parser.add_argument("--tasks", default="end_effector,whole_arm", help="comma-separated: end_effector, whole_arm")
+    parser.add_argument("--out", type=Path, default=Path("runs/filters"), help="output directory")
+    args = parser.parse_args(argv)
+    tasks = [t for t in args.tasks.split(",") if t]
+    unknown = [t for t in tasks if t not in TASKS]
+    if unknown or not tasks:
+        parser.error(f"--tasks: unknown {', '.join(unknown) or '(none given)'}; choose from {', '.join(TASKS)}")
+    if args.teams < 1:
+        parser.error("--teams must be ≥ 1")
+    rows = run(tasks, args.teams, args.first)
+    args.out.mkdir(parents=True, exist_ok=True)
+    command = " ".join(["python benchmarks/filters.py", *(sys.argv[1:] if argv is None else argv)])
+    text = (f"# Filter settings on held-out random teams\n\n`{command}`: seeds {args.first}…"
+            f"{args.first + args.teams - 1}\n\n{table(rows)}\n")
+    (args.out / "filters.md").write_text(text, encoding="utf-8")
+    (args.out / "filters.json").write_text(json.dumps({"command": command, "rows": rows}, indent=1), encoding="utf-8")
+    figure(rows, args.out / "filters.png")
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
