@@ -13,8 +13,8 @@ in :class:`~ray.rllib.env.wrappers.pettingzoo_env.ParallelPettingZooEnv`; every 
 (a built-in name, a ``.toml`` path, ``random``) or registered id (``pan1-env scenarios`` lists them). Arms of a
 team may differ in links and actuated joints: :class:`~pan1_env.wrappers.PadToLargestArm` zero-pads every
 observation to the largest arm's and gives every arm the largest action, of which an arm uses its own first
-entries (what SuperSuit's ``pad_observations_v0`` and ``pad_action_space_v0`` do for ``pan1-env train --param-sharing``;
-SuperSuit is not in the ``ray`` extra), so one network fits them all.
+entries (the layout of SuperSuit's ``pad_observations_v0`` and ``pad_action_space_v0``, and of
+``pan1-env train --param-sharing``; SuperSuit is not in the ``ray`` extra), so one network fits them all.
 ``--num-env-runners 0`` samples in the driver process; more runners sample in parallel Ray actors, on this
 machine or, with ``--address auto`` (or ``ray://HOST:10001``), on a running Ray cluster: every node needs
 ``pan1_env`` installed and its kernels compiled (docs/TRAINING.md, *More than one machine*). The printed

@@ -125,7 +125,8 @@ def _parser() -> argparse.ArgumentParser:
     tr.add_argument("--n-envs", type=_positive_int, default=DEFAULT_N_ENVS,
                     help="copies of the env, stepped together in the batched engine (default: %(default)s)")
     tr.add_argument("--param-sharing", action="store_true",
-                    help="one policy shared by every arm (PettingZoo env through SuperSuit, padded)")
+                    help="one network shared by every arm, each arm acting on its own (padded) observation: IPPO "
+                         "with ppo, IPPO-Lagrangian with ppo-lagrangian")
     tr.add_argument("--checkpoint-every", type=_positive_int, default=10_000, help="steps between checkpoints")
     tr.add_argument("--max-steps", type=_positive_int, default=None,
                     help="env steps per episode (default: the env's max_steps)")
