@@ -135,7 +135,6 @@ class SB3ArmVecEnv(SB3VecEnv):
         core = self.venv.core
         low, high = core.padded_observation_bounds()
         self._arms = len(core.agents)
-        self._obs_sizes = [len(core.task.bounds(i)[0]) for i in range(self._arms)]
         observation = gymnasium.spaces.Box(low.min(axis=0), high.max(axis=0), dtype=np.float32)
         action = gymnasium.spaces.Box(-1.0, 1.0, (core.k_max,), np.float32)
         return self.venv.num_envs * self._arms, observation, action
@@ -178,16 +177,11 @@ class SB3ArmVecEnv(SB3VecEnv):
     def arm_observations(self, flat: np.ndarray) -> np.ndarray:
         """The team views' flat observations ``(B', Σ obs_i)`` (any number of rows) as this view's rows,
         ``(B'·N, size)``: to run a model trained here on :class:`~pan1_env.vector.Pan1VectorEnv`."""
-        flat = np.asarray(flat, dtype=np.float32)
-        out = np.zeros((len(flat), self._arms, self.observation_space.shape[0]), np.float32)
-        for i, part in enumerate(np.split(flat, np.cumsum(self._obs_sizes)[:-1], axis=1)):
-            out[:, i, : part.shape[1]] = part
-        return out.reshape(-1, out.shape[-1])
+        return self.venv.core.padded_from_flat(flat).reshape(-1, self.observation_space.shape[0])
 
     def team_actions(self, arm_actions: np.ndarray) -> np.ndarray:
         """This view's actions ``(B'·N, k_max)`` as the team views' flat actions ``(B', Σ k_i)``."""
-        rows = np.asarray(arm_actions).reshape(-1, self._arms, self.action_space.shape[0])
-        return np.concatenate([rows[:, i, :k] for i, k in enumerate(self.venv.core.n_actuated)], axis=1)
+        return self.venv.core.flat_actions(arm_actions)
 
     def _arm_rows(self, mats: list[np.ndarray]) -> np.ndarray:
         obs = self.venv.core.padded_observations(mats)

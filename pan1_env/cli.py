@@ -466,7 +466,8 @@ def _cmd_report(args) -> int:
     from .baselines.report import markdown, marl_eval_json, report
 
     try:
-        rows = report(args.runs, first=args.first, teams=args.teams, reps=args.reps, progress=tqdm.write)
+        rows = report(args.runs, first=args.first, teams=args.teams, reps=args.reps,
+                      progress=lambda message: tqdm.write(message, file=sys.stderr))
     except OSError as err:  # a missing run directory or model
         print(f"pan1-env: error: {err}", file=sys.stderr)
         return 2

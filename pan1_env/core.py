@@ -162,6 +162,21 @@ class FormationCore:
             out[:, ids, : mat.shape[-1]] = mat
         return out
 
+    def padded_from_flat(self, flat: np.ndarray) -> np.ndarray:
+        """The team views' flat observations ``(B', Σ size)`` (any number of rows) in :meth:`padded_observations`'
+        layout, ``(B', N, size)``: to run a network shared by the arms on a team view."""
+        flat = np.asarray(flat, dtype=np.float32)
+        sizes = [len(self.task.bounds(i)[0]) for i in range(len(self.agents))]
+        out = np.zeros((len(flat), len(sizes), max(sizes)), np.float32)
+        for i, part in enumerate(np.split(flat, np.cumsum(sizes)[:-1], axis=1)):
+            out[:, i, : part.shape[1]] = part
+        return out
+
+    def flat_actions(self, padded: np.ndarray) -> np.ndarray:
+        """Padded actions ``(B', N, k_max)`` (any number of rows; each arm's first k_i entries count) as the team
+        views' flat actions ``(B', Σ k_i)``: the inverse of :meth:`padded_actions`."""
+        return np.asarray(padded).reshape(-1, len(self.agents) * self.k_max)[:, self._columns]
+
     def flat_observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Bounds of the team views' flat observation: the agents' observations concatenated in agent order."""
         bounds = [self.task.bounds(i) for i in range(len(self.agents))]

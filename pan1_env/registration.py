@@ -7,6 +7,7 @@
   distance barrier h = ‖p − o‖ − r with κ = 0.5, ε(h̃) = 5 e^{50 h̃}, margin 0: docs/ENVIRONMENTS.md),
 * ``pan1_env/WholeArmStaticFormation-v0`` (the same task with whole-arm safety: every link a capsule
   of radius 0.03 m kept out of the obstacles and the other arms),
+* ``pan1_env/WholeArmStaticFormation-v1`` (the same teams behind RandomFormation-v1's filter choices),
 * ``pan1_env/WholeArmFormation-v0`` (the same with obstacles moving at 0.05–0.2 m/s),
 
 as :class:`~pan1_env.centralized.CentralizedEnv` (one agent controlling every arm), and the one-arm task
@@ -34,6 +35,9 @@ ENV_IDS = {
                                     "random_options": {"barrier": "distance", "decay": 50.0, "kappa": 0.5,
                                                        "epsilon": 5.0}},
     "pan1_env/WholeArmStaticFormation-v0": {"scenario": "random", "random_options": _WHOLE_ARM},
+    "pan1_env/WholeArmStaticFormation-v1": {"scenario": "random",
+                                            "random_options": _WHOLE_ARM | {"barrier": "distance", "decay": 50.0,
+                                                                            "kappa": 0.5, "epsilon": 5.0}},
     "pan1_env/WholeArmFormation-v0": {"scenario": "random",
                                       "random_options": _WHOLE_ARM | {"obstacle_speed": (0.05, 0.2)}},
 }

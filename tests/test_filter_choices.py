@@ -135,8 +135,9 @@ def test_scenario_choices_reach_the_filter(tmp_path) -> None:
     assert dataclasses.replace(load("paper_pa3_square")).safety_barrier == "squared"
 
 
-def test_random_formation_v1_carries_its_filter_wherever_the_shield_is_on() -> None:
-    """RandomFormation-v1's filter (distance barrier, κ = 0.5, ε = 5, λ = 50, margin 0) is what the
+@pytest.mark.parametrize("task", ["RandomFormation", "WholeArmStaticFormation"])
+def test_the_v1_ids_carry_their_filter_wherever_the_shield_is_on(task) -> None:
+    """A v1 id's filter (v0's, with the distance barrier, κ = 0.5, ε = 5, λ = 50, margin 0) is what the
     Gymnasium shield, the parallel shield, ``safety_filter=True`` and the vector env's default give; v0
     keeps the paper's; ``safety_filter=False`` (the parallel and Gymnasium views' default) keeps it off."""
     import gymnasium
@@ -144,20 +145,22 @@ def test_random_formation_v1_carries_its_filter_wherever_the_shield_is_on() -> N
     from pan1_env.vector import Pan1VectorEnv
     from pan1_env.wrappers import GymSafetyShield
 
-    v1 = FilterParams(0.5, 5.0, 0.0, barrier="distance", decay=50.0)
-    gym_env = GymSafetyShield(gymnasium.make("pan1_env:pan1_env/RandomFormation-v1"))
+    old, new = f"pan1_env/{task}-v0", f"pan1_env/{task}-v1"
+    v0 = parallel_env(old, safety_filter=True).safety_filter
+    assert v0.paper and (v0.kappa, v0.epsilon, v0.margin) == (0.5, 5.0, 0.0)
+    v1 = dataclasses.replace(v0, barrier="distance", decay=50.0)
+    gym_env = GymSafetyShield(gymnasium.make(f"pan1_env:{new}"))
     assert gym_env.unwrapped.parallel.safety_filter == v1
-    assert parallel_env("pan1_env/RandomFormation-v1").safety_filter is None
-    assert parallel_env("pan1_env/RandomFormation-v1", safety_filter=True).safety_filter == v1
-    shielded = parallel_env("pan1_env/RandomFormation-v1")
+    assert parallel_env(new).safety_filter is None
+    assert parallel_env(new, safety_filter=True).safety_filter == v1
+    shielded = parallel_env(new)
     SafetyShield(shielded)
     assert shielded.safety_filter == v1
-    venv = Pan1VectorEnv("pan1_env/RandomFormation-v1", 2)
+    venv = Pan1VectorEnv(new, 2)
     assert venv.safety_filter == v1
     venv.close()
-    assert parallel_env("pan1_env/RandomFormation-v0", safety_filter=True).safety_filter.paper
     # the same teams as v0: only the filter differs
-    a, b = parallel_env("pan1_env/RandomFormation-v0"), parallel_env("pan1_env/RandomFormation-v1")
+    a, b = parallel_env(old), parallel_env(new)
     a.reset(seed=5)
     b.reset(seed=5)
     np.testing.assert_array_equal(a.joint_state()[0], b.joint_state()[0])
