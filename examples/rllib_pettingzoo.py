@@ -77,7 +77,8 @@ def build_config(args: argparse.Namespace) -> PPOConfig:
         PPOConfig()
         .environment(ENV_NAME, env_config={"scenario": args.scenario, "max_steps": args.max_steps,
                                            "shield": args.shield})
-        .env_runners(num_env_runners=args.num_env_runners)
+        # a loaded machine or a slow node can take minutes for a batch: wait rather than train on nothing
+        .env_runners(num_env_runners=args.num_env_runners, sample_timeout_s=args.sample_timeout)
         .training(train_batch_size_per_learner=args.train_batch_size, minibatch_size=args.minibatch_size,
                   num_epochs=args.num_epochs)
         .multi_agent(policies={SHARED_POLICY}, policy_mapping_fn=lambda agent_id, episode, **kwargs: SHARED_POLICY)
@@ -129,6 +130,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--minibatch-size", type=int, default=128, help="SGD minibatch size")
     p.add_argument("--num-epochs", type=int, default=10, help="SGD epochs per batch")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--sample-timeout", type=float, default=600.0,
+                   help="seconds to wait for the env runners' samples in an iteration (default 600)")
     p.add_argument("--out", type=Path, default=None,
                    help="write progress.csv (one row per iteration) and a checkpoint after every iteration here")
     p.add_argument("--resume", action="store_true", help="continue from the checkpoint in --out, to --iterations")
@@ -158,13 +161,13 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
             done = int(algo.iteration)
         for i in range(done, args.iterations):
             result = algo.train()
-            runners = result["env_runners"]
-            row = {"iteration": i + 1, "env_steps": int(runners["num_env_steps_sampled_lifetime"]),
+            runners = result.get("env_runners", {})  # empty when no runner returned samples in time
+            row = {"iteration": i + 1, "env_steps": int(runners.get("num_env_steps_sampled_lifetime", 0)),
                    "episode_return_mean": runners.get("episode_return_mean", float("nan")),
                    "episode_cost_mean": runners.get(COST_KEY, float("nan"))}
             print(f"iter {i + 1}: episode return mean {row['episode_return_mean']:.2f}, "
                   f"episode cost mean {row['episode_cost_mean']:g}, "
-                  f"env steps sampled {runners['num_env_steps_sampled']} (total {row['env_steps']})", flush=True)
+                  f"env steps sampled {runners.get('num_env_steps_sampled', 0)} (total {row['env_steps']})", flush=True)
             if args.out is not None:  # the checkpoint first: a run killed in between redoes no iteration
                 _save(algo, args.out)
                 _log(args.out / "progress.csv", row)

@@ -422,7 +422,11 @@ def test_the_benchmark_fails_before_running_when_a_policy_cannot_be_built() -> N
 SHIPPED_TASKS = {"random_formation": "pan1_env/RandomFormation-v0",
                  "whole_arm_formation": "pan1_env/WholeArmStaticFormation-v0",
                  "paper_pa3_square": "pan1_env/PaperPA3Square-v0",
-                 "paper_pa_mixed_square": "pan1_env/PaperMixedPA-v0"}
+                 "paper_pa_mixed_square": "pan1_env/PaperMixedPA-v0",
+                 # decentralised: one network shared by the arms (--param-sharing), picked by `marl`
+                 "random_formation_v1_ippo": "pan1_env/RandomFormation-v1",
+                 "paper_pa3_square_ippo": "pan1_env/PaperPA3Square-v0",
+                 "paper_pa_mixed_square_ippo": "pan1_env/PaperMixedPA-v0"}
 
 
 def test_every_shipped_model_has_its_task_listed() -> None:
@@ -443,8 +447,11 @@ def test_each_shipped_model_is_picked_for_its_task_and_runs_there(name) -> None:
 
     scenario, kwargs = env_arguments(SHIPPED_TASKS[name], {"max_steps": 4})
     env = SafetyShield(parallel_env(scenario, **kwargs))  # velocity mode: the residual models' adapter
-    assert shipped.model_for(env) == name and shipped.describe(shipped.available()[name]) == SHIPPED_TASKS[name]
-    policy = make_policy("pretrained", env)
+    decentralised = bool(shipped.available()[name]["param_sharing"])
+    assert decentralised == name.endswith("_ippo")
+    assert shipped.model_for(env, decentralised) == name
+    assert shipped.describe(shipped.available()[name]) == SHIPPED_TASKS[name]
+    policy = make_policy("marl" if decentralised else "pretrained", env)
     obs, _ = env.reset(seed=0)
     for _ in range(4):
         actions = policy(obs)
