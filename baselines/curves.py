@@ -39,7 +39,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["group_runs", "group_labels", "load_run", "learning_curves", "plot_curves", "METRICS", "COLUMNS"]
+__all__ = ["group_runs", "group_labels", "run_arguments", "load_run", "learning_curves", "plot_curves", "METRICS",
+           "COLUMNS"]
 
 COLUMNS = ("timesteps", "return", "length", "cost", "success")
 METRICS = ("return", "success", "cost")  # the panels, top to bottom
@@ -63,12 +64,7 @@ def load_run(path: str | Path) -> dict[str, Any]:
     if missing:
         raise FileNotFoundError(f"{path}: not a training run directory, missing {' and '.join(missing)} "
                                 "(pan1-env train writes both)")
-    try:
-        meta = json.loads((path / "run.json").read_text())
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{path / 'run.json'}: not valid JSON ({err})") from None
-    if not isinstance(meta, dict):
-        raise ValueError(f"{path / 'run.json'}: expected a JSON object of the training arguments")
+    meta = run_arguments(path)
     csv_path = path / "episodes.csv"
     with csv_path.open(newline="") as fh:
         reader = csv.DictReader(fh)
@@ -146,6 +142,17 @@ def _number(text: str | None) -> float:
         raise ValueError("row has fewer fields than the header")
     low = text.strip().lower()
     return {"true": 1.0, "false": 0.0}[low] if low in ("true", "false") else float(text)
+
+
+def run_arguments(path: Path) -> dict[str, Any]:
+    """A run's ``run.json``: the training arguments (ValueError naming the file if it is not their object)."""
+    try:
+        meta = json.loads((path / "run.json").read_text())
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path / 'run.json'}: not valid JSON ({err})") from None
+    if not isinstance(meta, dict) or not isinstance(meta.get("scenario"), str):
+        raise ValueError(f"{path / 'run.json'}: expected a JSON object of the training arguments, with a scenario")
+    return meta
 
 
 def group_runs(runs: Sequence[dict[str, Any]], same_budget: bool = False) -> list[list[dict[str, Any]]]:

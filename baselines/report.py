@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from .curves import group_labels, group_runs
+from .curves import group_labels, group_runs, run_arguments
 from .evaluation import TOLERANCES, evaluate, model_policy
 
 __all__ = ["report", "iqm", "iqm_interval", "markdown", "marl_eval_json", "METRICS", "HELD_OUT_FIRST"]
@@ -135,12 +135,7 @@ def _finished_run(path: Path) -> dict[str, Any]:
     if missing:
         raise ValueError(f"{path}: not a finished training run, no {' or '.join(missing)} (pan1-env train writes "
                          "run.json at its start, model.zip and model.json at its end)")
-    try:
-        meta = json.loads((path / "run.json").read_text())
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{path / 'run.json'}: not valid JSON ({err})") from None
-    if not isinstance(meta, dict) or not isinstance(meta.get("scenario"), str):
-        raise ValueError(f"{path / 'run.json'}: no scenario; not written by pan1-env train")
+    meta = run_arguments(path)
     policy, env_kwargs = model_policy(path / "model.zip")
     return {"path": path, "meta": meta, "policy": policy, "env_kwargs": env_kwargs}
 
