@@ -93,13 +93,22 @@ def model_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], 
 
         arms = SB3ArmVecEnv(meta["scenario"], 1, **meta.get("env_kwargs", {}))
 
+    policy = _team_policy(lambda obs: model.predict(obs, deterministic=True)[0], arms,
+                          lambda obs: normalise_observation(obs, norm))
+    return policy, dict(meta.get("env_kwargs", {}))
+
+
+def _team_policy(predict: Callable[[np.ndarray], np.ndarray], arms, normalise: Callable[[np.ndarray], np.ndarray]):
+    """A model's ``predict`` as a policy on the team views' flat observations: normalised first, and for a model
+    shared by the arms (``arms``: its :class:`~pan1_env.baselines.vec_env.SB3ArmVecEnv`) cut into each arm's
+    observation, its per-arm actions joined into the team's."""
     def policy(obs: np.ndarray) -> np.ndarray:
         if arms is not None:
             obs = arms.arm_observations(obs)
-        action = model.predict(normalise_observation(obs, norm), deterministic=True)[0]
+        action = predict(normalise(obs))
         return action if arms is None else arms.team_actions(action)
 
-    return policy, dict(meta.get("env_kwargs", {}))
+    return policy
 
 
 def summarise(result: dict[str, np.ndarray]) -> dict[str, float]:
@@ -144,15 +153,8 @@ def eval_callback(out: Path, every: int, scenario: str, shield: bool, env_kwargs
             env = self.model.get_env()
             norm = env if isinstance(env, VecNormalize) else None
             arms = env.unwrapped if isinstance(env.unwrapped, SB3ArmVecEnv) else None
-
-            def policy(obs: np.ndarray) -> np.ndarray:
-                if arms is not None:  # a model shared by the arms acts on each arm's own observation
-                    obs = arms.arm_observations(obs)
-                if norm is not None:
-                    obs = norm.normalize_obs(obs)
-                action = self.model.predict(obs, deterministic=True)[0]
-                return action if arms is None else arms.team_actions(action)
-
+            policy = _team_policy(lambda obs: self.model.predict(obs, deterministic=True)[0], arms,
+                                  (lambda obs: obs) if norm is None else norm.normalize_obs)
             row = {"timesteps": self.num_timesteps} | summarise(evaluate(policy, scenario, seeds, shield=shield,
                                                                          env_kwargs=env_kwargs))
             new = not self.path.exists()

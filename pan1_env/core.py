@@ -105,6 +105,7 @@ class FormationCore:
         groups = [ids for _, ids in self.layout.groups] if self.layout is not None else [np.arange(1)]
         order = sorted((i, g, r) for g, ids in enumerate(groups) for r, i in enumerate(ids.tolist()))
         self._observation_rows = [(g, r) for _, g, r in order]
+        self._observation_sizes = [len(self.task.bounds(i)[0]) for i in range(team.n_arms)]  # agent order
 
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
@@ -166,7 +167,7 @@ class FormationCore:
         """The team views' flat observations ``(B', Σ size)`` (any number of rows) in :meth:`padded_observations`'
         layout, ``(B', N, size)``: to run a network shared by the arms on a team view."""
         flat = np.asarray(flat, dtype=np.float32)
-        sizes = [len(self.task.bounds(i)[0]) for i in range(len(self.agents))]
+        sizes = self._observation_sizes
         out = np.zeros((len(flat), len(sizes), max(sizes)), np.float32)
         for i, part in enumerate(np.split(flat, np.cumsum(sizes)[:-1], axis=1)):
             out[:, i, : part.shape[1]] = part
