@@ -78,3 +78,11 @@ def test_the_table_counts_every_class() -> None:
     assert f"| {failures.CLASS_TITLES['shield_far']} | 1 | 20.0 % | 1 |" in text
     assert f"| {failures.CLASS_TITLES['deadlock_obstacle']} | 1 | 20.0 % | 0 |" in text
     assert "| shielded reference | 0.0 % | 0.0 % | 20.0 % |" in text
+
+
+def test_a_task_that_is_not_random_teams_exits_2_with_one_line(tmp_path, capsys) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        failures.main(["--task", "paper_pa3_square", "--episodes", "1", "--out", str(tmp_path / "out")])
+    assert exit_info.value.code == 2
+    assert "--task paper_pa3_square: not random teams" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

@@ -49,3 +49,18 @@ def test_report_ranks_a_gain_model_against_the_law_and_writes_marl_eval_json(tmp
     assert "| random |" in capsys.readouterr().out
     assert main(["report", str(tmp_path / "nothing")]) == 2
     assert "not a finished training run" in capsys.readouterr().err
+
+
+def test_bad_report_input_exits_2_with_one_line_and_writes_nothing(tmp_path, capsys) -> None:
+    run = tmp_path / "run"
+    run.mkdir()
+    for name in ("model.zip", "model.json"):
+        (run / name).write_text("")
+    (run / "run.json").write_text('{"algo": "ppo"}')  # no scenario: not written by pan1-env train
+    json_out = tmp_path / "out.json"
+    for argv, text in ((["report", str(run), "--json", str(json_out)], "run.json: expected a JSON object"),
+                       (["report", str(run), "--first", "-1"], "first must be a reset seed ≥ 0")):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert text in err and len(err.strip().splitlines()) == 1, err
+    assert not json_out.exists()
