@@ -1,6 +1,6 @@
 """The BenchMARL task: BenchMARL's own Experiment runs MAPPO on it for a few thousand frames, behind the
 shield, and logs the cost and the shield's work (skipped without BenchMARL; `make test` runs it in a venv of its
-own, .venv-benchmarl, where a missing BenchMARL is a failure)."""
+own, .venv-pinned, where a missing BenchMARL is a failure)."""
 
 import importlib.util
 import os
