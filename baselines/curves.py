@@ -108,33 +108,16 @@ def _evaluations(path: Path) -> list[list[float]]:
 def _what_to_run(path: Path, meta: dict[str, Any]) -> str:
     """What to run to get a run with no finished episode to its first episodes: the ``pan1-env train``
     command that resumes it to the step at which every copy has finished one."""
-    import shlex
-
-    from .training import DEFAULT_N_ENVS, first_episode_end
+    from .training import DEFAULT_N_ENVS, first_episode_end, training_command
 
     try:
         end = first_episode_end(meta["scenario"], meta.get("env_kwargs") or {}, int(meta.get("n_envs", DEFAULT_N_ENVS)),
                                 bool(meta.get("param_sharing")))
+        command = training_command(meta, path, timesteps=max(end, int(meta.get("timesteps", 0))), resume=True)
     except (KeyError, TypeError, ValueError):  # a hand-written or foreign run.json: no command to give
         return ("train it longer: pan1-env train --resume --out DIR --timesteps N with the run's own options, "
                 "or with a smaller --max-steps")
-    words = ["pan1-env", "train", "--algo", str(meta.get("algo", "ppo")), "--scenario", str(meta["scenario"]),
-             "--shield" if meta.get("shield", True) else "--no-shield", "--seed", str(meta.get("seed", 0))]
-    if int(meta.get("n_envs", DEFAULT_N_ENVS)) != DEFAULT_N_ENVS:
-        words += ["--n-envs", str(meta["n_envs"])]
-    if meta.get("param_sharing"):
-        words.append("--param-sharing")
-    if meta.get("normalize") is False:
-        words.append("--no-normalize")
-    for option, key in (("--env-kwargs", "env_kwargs"), ("--algo-kwargs", "algo_kwargs")):
-        if meta.get(key):
-            words += [option, json.dumps(meta[key])]
-    for option, key in (("--critic-warmup", "critic_warmup"), ("--cost-limit", "cost_limit"),
-                        ("--lagrangian-lr", "lagrangian_lr")):
-        if key in meta:
-            words += [option, str(meta[key])]
-    words += ["--out", str(path), "--resume", "--timesteps", str(max(end, int(meta.get("timesteps", 0))))]
-    return f"the first episodes end after {end:,} steps; continue the run with: {shlex.join(words)}"
+    return f"the first episodes end after {end:,} steps; continue the run with: {command}"
 
 
 def _number(text: str | None) -> float:

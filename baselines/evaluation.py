@@ -25,7 +25,7 @@ import numpy as np
 from pan1_env.config import SUCCESS_TOLERANCE
 from pan1_env.safety import FilterParams
 
-__all__ = ["evaluate", "summarise", "model_policy", "EVAL_SEEDS", "TOLERANCES", "eval_callback"]
+__all__ = ["evaluate", "summarise", "model_policy", "law_policy", "EVAL_SEEDS", "TOLERANCES", "eval_callback"]
 
 EVAL_SEEDS = range(1_000_000, 1_000_064)  # held out: training copies draw from the streams of seeds 0 … B−1
 # m: success at 1 cm is the task's; 2 and 5 cm show how close the rest came
@@ -98,6 +98,18 @@ def model_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], 
     return policy, dict(meta.get("env_kwargs", {}))
 
 
+def law_policy(scenario: str, env_kwargs: dict[str, Any]) -> Callable[[np.ndarray], np.ndarray]:
+    """The paper's law as a policy for :func:`evaluate` in an env whose actions correct or re-weight it
+    (``action_mode`` ``"residual"`` or ``"gain"``): the zero action of the team's size, which leaves it as it is."""
+    from pan1_env.vector import Pan1VectorEnv
+
+    if env_kwargs.get("action_mode") not in ("residual", "gain"):
+        raise ValueError(f"the zero action is the paper's law only with action_mode 'residual' or 'gain', "
+                         f"not {env_kwargs.get('action_mode', 'velocity')!r}")
+    size = Pan1VectorEnv(scenario, 1, **env_kwargs).single_action_space.shape[0]
+    return lambda obs: np.zeros((len(obs), size), np.float32)
+
+
 def _team_policy(predict: Callable[[np.ndarray], np.ndarray], arms, normalise: Callable[[np.ndarray], np.ndarray]):
     """A model's ``predict`` as a policy on the team views' flat observations: normalised first, and for a model
     shared by the arms (``arms``: its :class:`~pan1_env.baselines.vec_env.SB3ArmVecEnv`) cut into each arm's
@@ -105,6 +117,8 @@ def _team_policy(predict: Callable[[np.ndarray], np.ndarray], arms, normalise: C
     def policy(obs: np.ndarray) -> np.ndarray:
         if arms is not None:
             obs = arms.arm_observations(obs)
+            if arms.critic_state:  # MAPPO in training: zeros for the critic's state entries, which the actor ignores
+                obs = np.pad(obs, ((0, 0), (0, arms.observation_space.shape[0] - arms.local_size)))
         action = predict(normalise(obs))
         return action if arms is None else arms.team_actions(action)
 

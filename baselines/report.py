@@ -38,7 +38,7 @@ import numpy as np
 from scipy import stats
 
 from .curves import group_labels, group_runs, run_arguments
-from .evaluation import TOLERANCES, evaluate, model_policy
+from .evaluation import TOLERANCES, evaluate, law_policy, model_policy
 
 __all__ = ["report", "iqm", "iqm_interval", "markdown", "marl_eval_json", "METRICS", "HELD_OUT_FIRST"]
 
@@ -109,9 +109,7 @@ def report(run_dirs: Sequence[str | Path], *, first: int = HELD_OUT_FIRST, teams
         if task not in references and kwargs.get("action_mode") in ("residual", "gain"):
             if progress:
                 progress(f"the paper's law on {len(seeds)} held-out episodes of {scenario} …")
-            size = _action_size(scenario, kwargs)
-            references[task] = evaluate(lambda obs, n=size: np.zeros((len(obs), n), np.float32), scenario, seeds,
-                                        shield=shield, env_kwargs=kwargs)
+            references[task] = evaluate(law_policy(scenario, kwargs), scenario, seeds, shield=shield, env_kwargs=kwargs)
         reference = references.get(task)
         episodes = {}
         for run in group:
@@ -138,13 +136,6 @@ def _finished_run(path: Path) -> dict[str, Any]:
     meta = run_arguments(path)
     policy, env_kwargs = model_policy(path / "model.zip")
     return {"path": path, "meta": meta, "policy": policy, "env_kwargs": env_kwargs}
-
-
-def _action_size(scenario: str, env_kwargs: dict[str, Any]) -> int:
-    """The team's flat action size in the run's env (for the reference's zero action)."""
-    from pan1_env.vector import Pan1VectorEnv
-
-    return Pan1VectorEnv(scenario, 1, **env_kwargs).single_action_space.shape[0]
 
 
 def _row(label: str, task: str, meta: dict, episodes: dict, reference: dict | None, reps: int) -> dict[str, Any]:

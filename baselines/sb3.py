@@ -22,7 +22,8 @@ RL_EXTRA_HINT = ("install the rl extra: pip install torch --index-url https://do
 
 def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
     """A PPO or SAC model saved by Stable-Baselines3 (on the CPU, one torch thread) and the
-    ``model.json`` beside it (empty if there is none): env arguments and observation statistics."""
+    ``model.json`` beside it (empty if there is none): env arguments and observation statistics. A MAPPO
+    model comes as its actor (:class:`~pan1_env.baselines.mappo.ActorOnly`), on the arm's own observation."""
     try:
         import torch
         from stable_baselines3 import PPO, SAC
@@ -43,6 +44,10 @@ def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
     else:
         raise ValueError(f"{path} is not a PPO or SAC model saved by Stable-Baselines3")
     meta = json.loads(path.with_suffix(".json").read_text()) if path.with_suffix(".json").exists() else {}
+    if hasattr(model.policy, "actor_inputs"):  # MAPPO: only the actor acts, on the arm's own observation
+        from .mappo import ActorOnly
+
+        model = ActorOnly(model)
     return model, meta
 
 

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["pretrained", "available", "model_for", "package_model", "training_command", "PRETRAINED_DIR"]
+__all__ = ["pretrained", "available", "model_for", "package_model", "PRETRAINED_DIR"]
 
 PRETRAINED_DIR = Path(__file__).resolve().parent / "pretrained"
 
@@ -165,24 +165,6 @@ def pretrained(name: str, env):
     return flat_policy
 
 
-def training_command(run: dict[str, Any], out: str = "runs/train") -> str:
-    """The ``pan1-env train`` command that reproduces a run from its ``run.json`` into ``out``
-    (evaluation and checkpoint settings, which do not change the model, left out)."""
-    parts = ["pan1-env train", f"--algo {run['algo']}", f"--scenario {run['scenario']}",
-             "--shield" if run["shield"] else "--no-shield", f"--timesteps {run['timesteps']}",
-             f"--seed {run['seed']}", f"--n-envs {run['n_envs']}"]
-    if run.get("param_sharing"):
-        parts.append("--param-sharing")
-    if not run.get("normalize", True):
-        parts.append("--no-normalize")
-    if run.get("critic_warmup"):
-        parts.append(f"--critic-warmup {run['critic_warmup']}")
-    for flag, key in (("--env-kwargs", "env_kwargs"), ("--algo-kwargs", "algo_kwargs")):
-        if run.get(key):
-            parts.append(f"{flag} '{json.dumps(run[key], sort_keys=True)}'")
-    return " ".join([*parts, f"--out {out}"])
-
-
 def package_model(run_dir: str | Path, name: str, steps: int | None = None, dest: str | Path | None = None,
                   evaluation: dict[str, Any] | None = None) -> Path:
     """Copy a training run's final model (or its checkpoint at ``steps``) into the shipped models as
@@ -190,6 +172,8 @@ def package_model(run_dir: str | Path, name: str, steps: int | None = None, dest
     it, the steps, the package version and, when given, its held-out ``evaluation``. Returns the zip."""
     import shutil
     from importlib.metadata import PackageNotFoundError, version
+
+    from .training import training_command
 
     run_dir = Path(run_dir)
     model = run_dir / "model.zip" if steps is None else run_dir / "checkpoints" / f"model_{steps}_steps.zip"

@@ -60,7 +60,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["train", "make_training_env", "ALGOS", "latest_checkpoint", "first_episode_end"]
+__all__ = ["train", "make_training_env", "ALGOS", "latest_checkpoint", "first_episode_end", "training_command"]
 
 ALGOS = ("ppo", "sac", "ppo-lagrangian")  # ppo-lagrangian: PPO with a Lagrange multiplier on the cost
 DEFAULT_N_ENVS = 128  # copies in the batched engine
@@ -73,14 +73,17 @@ PPO_DEFAULTS = {"n_steps": 64, "batch_size": 2048, "n_epochs": 5}
 
 
 def make_training_env(scenario: str, shield: bool, seed: int, n_envs: int = DEFAULT_N_ENVS,
-                      param_sharing: bool = False, env_kwargs: dict[str, Any] | None = None):
+                      param_sharing: bool = False, env_kwargs: dict[str, Any] | None = None,
+                      centralised_critic: bool = False):
     """The SB3 ``VecEnv`` to train on (see the module docstring); copy b is seeded ``seed + b``."""
     from stable_baselines3.common.vec_env import VecMonitor
 
     from .vec_env import SB3ArmVecEnv, SB3VecEnv
 
-    view = SB3ArmVecEnv if param_sharing else SB3VecEnv
-    venv = view(scenario, n_envs, safety_filter=bool(shield), **dict(env_kwargs or {}))
+    kwargs = {"safety_filter": bool(shield), **dict(env_kwargs or {})}
+    if centralised_critic:
+        kwargs["critic_state"] = True
+    venv = (SB3ArmVecEnv if param_sharing else SB3VecEnv)(scenario, n_envs, **kwargs)
     venv.seed(seed)
     return VecMonitor(venv)
 
@@ -262,7 +265,8 @@ def _truncate_log(path: Path, steps: int) -> None:
 
 def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool = True, timesteps: int = 100_000,
           seed: int = 0, out: str | Path = "runs/train", resume: bool = False, n_envs: int = DEFAULT_N_ENVS,
-          param_sharing: bool = False, checkpoint_every: int = 10_000, progress: bool = True,
+          param_sharing: bool = False, centralised_critic: bool = False, checkpoint_every: int = 10_000,
+          progress: bool = True,
           env_kwargs: dict[str, Any] | None = None, algo_kwargs: dict[str, Any] | None = None,
           normalize: bool = True, eval_every: int | None = None, critic_warmup: int = 0,
           extra_callbacks: list | None = None, cost_limit: float = 1.0, lagrangian_lr: float = 0.01) -> dict[str, Any]:
@@ -277,6 +281,8 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
             raise ValueError(f"{name} must be a positive integer, got {value!r}")
     if isinstance(critic_warmup, bool) or not isinstance(critic_warmup, int) or critic_warmup < 0:
         raise ValueError(f"critic_warmup must be a whole number of steps ≥ 0, got {critic_warmup!r}")
+    if centralised_critic and (algo == "sac" or not param_sharing):
+        raise ValueError("centralised_critic (MAPPO) is for PPO with param_sharing: the critic of a shared actor")
     if critic_warmup and algo == "sac":
         raise ValueError("critic_warmup is for PPO's actor and critic; SAC has no warm-up here")
     max_steps = _check_env_kwargs(scenario, env_kwargs)
@@ -291,7 +297,7 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
     out = Path(out)
 
     def build_env():
-        venv = make_training_env(scenario, shield, seed, n_envs, param_sharing, env_kwargs)
+        venv = make_training_env(scenario, shield, seed, n_envs, param_sharing, env_kwargs, centralised_critic)
         if algo == "ppo-lagrangian":
             from .lagrangian import CostPenalisedVecEnv
 
@@ -336,7 +342,12 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
         defaults = {} if algo == "sac" else _ppo_defaults(timesteps, venv.num_envs, algo_kwargs or {})
         kwargs = {"seed": seed, "verbose": 0, "device": "cpu", **defaults, **(algo_kwargs or {})}
         try:
-            model = cls("MlpPolicy", venv, **kwargs)
+            if centralised_critic:  # MAPPO: the actor reads the arm's own entries, the critic the global state too
+                from .mappo import LocalActorPolicy
+
+                local = {"actor_inputs": venv.unwrapped.local_size}
+                kwargs["policy_kwargs"] = {**kwargs.get("policy_kwargs", {}), **local}
+            model = cls(LocalActorPolicy if centralised_critic else "MlpPolicy", venv, **kwargs)
         except (TypeError, ValueError, AssertionError) as err:  # a bad value in algo_kwargs, before anything is written
             venv.close()
             raise ValueError(f"algo_kwargs: {cls.__name__} refused them: {err}") from None
@@ -362,6 +373,8 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
             "algo_kwargs": algo_kwargs or {}, "normalize": normalize}
     if critic_warmup:
         meta["critic_warmup"] = critic_warmup
+    if centralised_critic:
+        meta["centralised_critic"] = True
     if algo == "ppo-lagrangian":
         meta |= {"cost_limit": cost_limit, "lagrangian_lr": lagrangian_lr}
 
@@ -374,9 +387,12 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
     def sidecar(path: Path, normalizer) -> None:
         info = {"scenario": scenario, "env_kwargs": model_env_kwargs, "param_sharing": param_sharing,
                 "algo": algo, "shield": shield}
-        if normalizer is not None:
+        if centralised_critic:
+            info["centralised_critic"] = True
+        if normalizer is not None:  # of the actor's input: a MAPPO model acts on the arm's own entries alone
+            inputs = venv.unwrapped.local_size if centralised_critic else len(normalizer.obs_rms.mean)
             info["observation_normalization"] = {
-                "mean": normalizer.obs_rms.mean.tolist(), "var": normalizer.obs_rms.var.tolist(),
+                "mean": normalizer.obs_rms.mean[:inputs].tolist(), "var": normalizer.obs_rms.var[:inputs].tolist(),
                 "clip": float(normalizer.clip_obs), "epsilon": float(normalizer.epsilon)}
         atomic_write(path, lambda fh: fh.write(json.dumps(info) + "\n"), mode="w")
 
@@ -435,6 +451,32 @@ def _critic_warmup(steps: int):
                 p.requires_grad_(trainable)
 
     return CriticWarmup()
+
+
+def training_command(run: dict[str, Any], out: str | Path = "runs/train", *, timesteps: int | None = None,
+                     resume: bool = False) -> str:
+    """The ``pan1-env train`` command that reproduces a run from its ``run.json`` into ``out``, or with ``resume``
+    continues it there to ``timesteps`` (default: the run's). Evaluation and checkpoint settings, which do not
+    change the model, are left out. Raises KeyError if ``run`` has no scenario (or no budget)."""
+    import shlex
+
+    words = ["pan1-env", "train", "--algo", str(run.get("algo", "ppo")), "--scenario", str(run["scenario"]),
+             "--shield" if run.get("shield", True) else "--no-shield", "--seed", str(run.get("seed", 0)),
+             "--n-envs", str(run.get("n_envs", DEFAULT_N_ENVS))]
+    for flag, key in (("--param-sharing", "param_sharing"), ("--centralised-critic", "centralised_critic")):
+        if run.get(key):
+            words.append(flag)
+    if run.get("normalize") is False:
+        words.append("--no-normalize")
+    for option, key in (("--env-kwargs", "env_kwargs"), ("--algo-kwargs", "algo_kwargs")):
+        if run.get(key):
+            words += [option, json.dumps(run[key], sort_keys=True)]
+    for option, key in (("--critic-warmup", "critic_warmup"), ("--cost-limit", "cost_limit"),
+                        ("--lagrangian-lr", "lagrangian_lr")):
+        if key in run:
+            words += [option, str(run[key])]
+    words += ["--timesteps", str(timesteps or run["timesteps"]), "--out", str(out)]
+    return shlex.join([*words, *(["--resume"] if resume else [])])
 
 
 def first_episode_end(scenario: str, env_kwargs: dict[str, Any], n_envs: int, param_sharing: bool) -> int:

@@ -25,6 +25,7 @@ import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
 from pan1_env.core import per_arm
+from pan1_env.observation import OBS_BOUND
 from pan1_env.validation import float_array, forwards_keywords
 from pan1_env.vector import Pan1VectorEnv
 
@@ -129,13 +130,27 @@ class SB3ArmVecEnv(SB3VecEnv):
     entered an obstacle in the step), ``min_clearance`` and shield flags beside its copy's
     ``formation_error`` and ``is_success``. ``seed(s)`` seeds copy b with ``s + b``, as the vector env does,
     so both views meet the same teams. Arguments as :class:`SB3VecEnv`; ``num_envs`` counts copies.
+
+    With ``critic_state=True`` each row also carries its copy's global state
+    (:meth:`~pan1_env.core.FormationCore.state`) after the arm's own ``local_size`` entries, for a centralised
+    critic (MAPPO: :class:`~pan1_env.baselines.mappo.LocalActorPolicy` acts on the first ``local_size``
+    entries alone, so execution stays decentralised).
     """
+
+    def __init__(self, scenario: Any = "paper_pa3_square", num_envs: int = 1, critic_state: bool = False,
+                 **kwargs: Any) -> None:
+        self.critic_state = bool(critic_state)
+        super().__init__(scenario, num_envs, **kwargs)
 
     def _spaces(self) -> tuple[int, gymnasium.Space, gymnasium.Space]:
         core = self.venv.core
         low, high = core.padded_observation_bounds()
-        self._arms = len(core.agents)
-        observation = gymnasium.spaces.Box(low.min(axis=0), high.max(axis=0), dtype=np.float32)
+        self._arms, self.local_size = len(core.agents), low.shape[1]
+        low, high = low.min(axis=0), high.max(axis=0)
+        if self.critic_state:
+            bound = np.full(core.state_size, OBS_BOUND, np.float32)
+            low, high = np.concatenate([low, -bound]), np.concatenate([high, bound])
+        observation = gymnasium.spaces.Box(low, high, dtype=np.float32)
         action = gymnasium.spaces.Box(-1.0, 1.0, (core.k_max,), np.float32)
         return self.venv.num_envs * self._arms, observation, action
 
@@ -165,7 +180,8 @@ class SB3ArmVecEnv(SB3VecEnv):
         out = core.step(actions.astype(np.float64), autoreset=True)
         infos = self._arm_infos(out.infos)
         if len(out.ended):
-            final = self._arm_rows(out.final_observations).reshape(-1, N, self.observation_space.shape[0])
+            final = self._arm_rows(out.final_observations, out.final_state)
+            final = final.reshape(-1, N, self.observation_space.shape[0])
             for b in out.ended.tolist():
                 truncated = bool(out.truncated[b] and not out.terminated[b])
                 for i in range(N):
@@ -175,16 +191,22 @@ class SB3ArmVecEnv(SB3VecEnv):
         return self._arm_rows(out.observations), out.reward.reshape(-1).astype(np.float32), dones, infos
 
     def arm_observations(self, flat: np.ndarray) -> np.ndarray:
-        """The team views' flat observations ``(B', Σ obs_i)`` (any number of rows) as this view's rows,
-        ``(B'·N, size)``: to run a model trained here on :class:`~pan1_env.vector.Pan1VectorEnv`."""
-        return self.venv.core.padded_from_flat(flat).reshape(-1, self.observation_space.shape[0])
+        """The team views' flat observations ``(B', Σ obs_i)`` (any number of rows) as each arm's own padded
+        observation, ``(B'·N, local_size)``: to run a model trained here on :class:`~pan1_env.vector.Pan1VectorEnv`."""
+        return self.venv.core.padded_from_flat(flat).reshape(-1, self.local_size)
 
     def team_actions(self, arm_actions: np.ndarray) -> np.ndarray:
         """This view's actions ``(B'·N, k_max)`` as the team views' flat actions ``(B', Σ k_i)``."""
         return self.venv.core.flat_actions(arm_actions)
 
-    def _arm_rows(self, mats: list[np.ndarray]) -> np.ndarray:
-        obs = self.venv.core.padded_observations(mats)
+    def _arm_rows(self, mats: list[np.ndarray], state: np.ndarray | None = None) -> np.ndarray:
+        """Each arm's padded observation, one row per sub-env, followed with ``critic_state`` by its copy's global
+        state (``state``, or the core's now)."""
+        core = self.venv.core
+        obs = core.padded_observations(mats)
+        if self.critic_state:
+            state = core.state() if state is None else state
+            obs = np.concatenate([obs, np.broadcast_to(state[:, None], (*obs.shape[:2], state.shape[1]))], axis=-1)
         return obs.reshape(-1, obs.shape[-1])
 
     def _arm_infos(self, infos: dict[str, np.ndarray]) -> list[dict[str, Any]]:

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pan1_env.baselines.evaluation import TOLERANCES, evaluate
+from pan1_env.baselines.evaluation import TOLERANCES, evaluate, law_policy
 from pan1_env.registration import env_arguments
 from pan1_env.safety import FilterParams
 
@@ -78,13 +78,11 @@ def run(tasks: list[str], teams: int, first: int) -> list[dict]:
     for task in tasks:
         scenario, kwargs = env_arguments(TASKS[task])
         size = Pan1VectorEnv(scenario, 1, **kwargs).single_action_space.shape[0]
+        law = law_policy(scenario, {**kwargs, "action_mode": "residual"})
         for name, setting in SETTINGS.items():
             if task == "whole_arm" and "sensing_radius" in setting:
                 continue  # the whole-arm filter has its sensing radius already
             params = _filter(kwargs, setting)
-            def law(obs: np.ndarray, n: int = size) -> np.ndarray:  # the zero residual: the paper's law
-                return np.zeros((len(obs), n), np.float32)
-
             policies = {"reference": ({"action_mode": "residual"}, law),
                         "random": ({}, _persistent_random(size, teams, first))}
             for policy_name, (mode, policy) in policies.items():

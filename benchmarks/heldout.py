@@ -19,7 +19,7 @@ import argparse
 
 import numpy as np
 
-from pan1_env.baselines.evaluation import TOLERANCES, evaluate, model_policy, summarise
+from pan1_env.baselines.evaluation import TOLERANCES, evaluate, law_policy, model_policy, summarise
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -35,13 +35,8 @@ def main(argv: list[str] | None = None) -> None:
     if env_kwargs.get("action_mode") not in ("residual", "gain"):
         parser.error(f"{args.models[0]} was not trained with --action-mode residual or gain: no reference to "
                      f"compare with")
-    first = next(iter(policies.values()))[0]
-
-    def reference(obs: np.ndarray) -> np.ndarray:  # the zero action: the paper's law behind the shield
-        return np.zeros_like(first(obs))
-
     results = {}
-    for name, (policy, kwargs) in {"reference": (reference, env_kwargs), **policies}.items():
+    for name, (policy, kwargs) in {"reference": (law_policy("random", env_kwargs), env_kwargs), **policies}.items():
         if kwargs != env_kwargs:
             parser.error(f"{name} was trained on other env arguments than {args.models[0]}: {kwargs}")
         print(f"{name}: {args.teams} teams …", flush=True)  # about a minute per policy on 2 cores

@@ -127,6 +127,9 @@ def _parser() -> argparse.ArgumentParser:
     tr.add_argument("--param-sharing", action="store_true",
                     help="one network shared by every arm, each arm acting on its own (padded) observation: IPPO "
                          "with ppo, IPPO-Lagrangian with ppo-lagrangian")
+    tr.add_argument("--centralised-critic", action="store_true",
+                    help="with --param-sharing and ppo: a critic that also reads the team's global state while "
+                         "each arm acts on its own observation (MAPPO; MAPPO-Lagrangian with ppo-lagrangian)")
     tr.add_argument("--checkpoint-every", type=_positive_int, default=10_000, help="steps between checkpoints")
     tr.add_argument("--max-steps", type=_positive_int, default=None,
                     help="env steps per episode (default: the env's max_steps)")
@@ -418,6 +421,7 @@ def _cmd_train(args) -> int:
         env_kwargs["action_mode"] = args.action_mode
     summary = train(args.algo, args.scenario, shield=args.shield, timesteps=args.timesteps, seed=args.seed,
                     out=args.out, resume=args.resume, n_envs=args.n_envs, param_sharing=args.param_sharing,
+                    centralised_critic=args.centralised_critic,
                     checkpoint_every=args.checkpoint_every, progress=not args.no_progress,
                     env_kwargs=env_kwargs, normalize=args.normalize, algo_kwargs=args.algo_kwargs,
                     eval_every=args.eval_every, critic_warmup=args.critic_warmup, cost_limit=args.cost_limit,

@@ -51,8 +51,8 @@ TASKS = {FormationConfig: FormationTask, ReachConfig: ReachTask}
 class CoreStep:
     """A step of every copy: observations (one ``(B, A, size)`` float32 array per layout group), ``reward
     (B, N)``, ``terminated``, ``truncated`` ``(B,)``, the infos, and with autoreset the copies that ended
-    (``ended``, indices) with their last observations and infos (``final_observations``, ``final_infos``);
-    the observations are then the new episodes' first."""
+    (``ended``, indices) with their last observations, infos and global state (``final_observations``,
+    ``final_infos``, ``final_state``); the observations are then the new episodes' first."""
 
     observations: list[np.ndarray]
     reward: np.ndarray
@@ -62,6 +62,7 @@ class CoreStep:
     ended: np.ndarray
     final_observations: list[np.ndarray] | None = None
     final_infos: dict[str, np.ndarray] | None = None
+    final_state: np.ndarray | None = None
 
 
 class FormationCore:
@@ -273,6 +274,7 @@ class FormationCore:
         if autoreset and len(result.ended):
             result.final_observations = mats  # observe() builds new arrays: the next call does not touch these
             result.final_infos = infos
+            result.final_state = self.state()  # a centralised critic's value of the last step (truncation)
             self.reset(result.ended)
             self.record = rec
             result.observations = self.observe()

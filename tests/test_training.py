@@ -44,15 +44,16 @@ def _policy_params(path):
     return PPO.load(path, device="cpu").policy.state_dict()
 
 
-@pytest.mark.parametrize("param_sharing", [False, True])
-def test_interrupted_run_resumes_to_the_same_result(tmp_path, param_sharing) -> None:
+@pytest.mark.parametrize(("param_sharing", "centralised_critic"), [(False, False), (True, False), (True, True)],
+                         ids=["centralised", "ippo", "mappo"])
+def test_interrupted_run_resumes_to_the_same_result(tmp_path, param_sharing, centralised_critic) -> None:
     from stable_baselines3.common.callbacks import BaseCallback
 
     # rollouts of 256 steps: 2 copies × 128, or with parameter sharing 2 copies × 4 arms × 32
     kwargs = dict(algo="ppo", scenario="random", shield=True, timesteps=4 * 256, seed=3, checkpoint_every=256,
                   progress=False, n_envs=2, env_kwargs={"max_steps": 100, "random_options": {"links": (2, 3, 4, 3)}},
                   algo_kwargs={"n_steps": 32 if param_sharing else 128, "batch_size": 64, "n_epochs": 2},
-                  param_sharing=param_sharing)
+                  param_sharing=param_sharing, centralised_critic=centralised_critic)
 
     class Interrupt(BaseCallback):
         """Kills the run in the middle of its third rollout (after the 512-step checkpoint)."""
@@ -218,8 +219,8 @@ def test_a_run_shorter_than_an_episode_says_so_and_plot_says_what_to_run(tmp_pat
     assert main(["plot", str(out), "--out", str(tmp_path / "c.png")]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "no finished episode" in err
-    assert f"pan1-env train --algo ppo --scenario paper_pa_mixed_square --shield --seed 0 --n-envs 4 --out {out} " \
-           "--resume --timesteps 8000" in err
+    assert "pan1-env train --algo ppo --scenario paper_pa_mixed_square --shield --seed 0 --n-envs 4 " \
+           f"--timesteps 8000 --out {out} --resume" in err
     assert not (tmp_path / "c.png").exists()
 
 
