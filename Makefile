@@ -47,5 +47,6 @@ test: $(VENV)/.dev $(PINVENV)/.pinned
 lint: $(VENV)/.dev
 	$(PY) -m ruff check .
 
+# .venv-ray and .venv-benchmarl: the separate venvs of older checkouts
 clean:
-	rm -rf $(VENV) $(PINVENV) runs .pytest_cache .ruff_cache
+	rm -rf $(VENV) $(PINVENV) .venv-ray .venv-benchmarl runs .pytest_cache .ruff_cache

@@ -117,8 +117,10 @@ def _team_policy(predict: Callable[[np.ndarray], np.ndarray], arms, normalise: C
     def policy(obs: np.ndarray) -> np.ndarray:
         if arms is not None:
             obs = arms.arm_observations(obs)
-            if arms.critic_state:  # MAPPO in training: zeros for the critic's state entries, which the actor ignores
-                obs = np.pad(obs, ((0, 0), (0, arms.observation_space.shape[0] - arms.local_size)))
+            if arms.critic_state:  # MAPPO in training: the model's full row, which its actor reads the start of
+                from .mappo import with_critic_entries
+
+                obs = with_critic_entries(obs, arms.observation_space.shape[0] - arms.local_size)
         action = predict(normalise(obs))
         return action if arms is None else arms.team_actions(action)
 

@@ -20,7 +20,14 @@ import torch
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import MlpExtractor
 
-__all__ = ["LocalActorPolicy", "ActorOnly"]
+__all__ = ["LocalActorPolicy", "ActorOnly", "with_critic_entries"]
+
+
+def with_critic_entries(obs: np.ndarray, width: int) -> np.ndarray:
+    """Arm rows ``(…, actor_inputs)`` with ``width`` zeros after them in place of the global state: the input
+    of a MAPPO model when only its actor acts, which does not read them."""
+    obs = np.asarray(obs, np.float32)
+    return np.concatenate([obs, np.zeros((*obs.shape[:-1], width), np.float32)], axis=-1)
 
 
 class _LocalActorCentralCritic(torch.nn.Module):
@@ -78,6 +85,5 @@ class ActorOnly:
         self.critic_inputs = space.shape[0] - self.actor_inputs
 
     def predict(self, observation: np.ndarray, deterministic: bool = True, **kwargs: Any):
-        obs = np.asarray(observation, np.float32)
-        pad = np.zeros((*obs.shape[:-1], self.critic_inputs), np.float32)
-        return self.model.predict(np.concatenate([obs, pad], axis=-1), deterministic=deterministic, **kwargs)
+        return self.model.predict(with_critic_entries(observation, self.critic_inputs), deterministic=deterministic,
+                                  **kwargs)

@@ -66,8 +66,9 @@ def sb3_policy(path: Path, env) -> Callable[[Mapping[str, np.ndarray]], dict[str
     A centralised model (trained on the concatenated observations and actions) acts for the team; a
     per-arm model (``pan1-env train --param-sharing``: one network shared by the arms) acts for each arm on
     its own observation, padded with zeros at the end to the largest arm's size and normalised with the
-    per-arm statistics of ``model.json``, and the arm takes the first k entries of its action (SuperSuit's
-    ``pad_observations_v0`` and ``pad_action_space_v0``, as in training). ``model.json`` beside the model
+    per-arm statistics of ``model.json``, and the arm takes the first k entries of its action (the padding of
+    :class:`~pan1_env.baselines.vec_env.SB3ArmVecEnv`, on which it was trained; a MAPPO model acts through its
+    actor alone). ``model.json`` beside the model
     (written by :func:`~pan1_env.baselines.training.train`) gives its observation normalisation
     (``observation_normalization``: ``mean``, ``var`` of the model's input vector, ``epsilon``, ``clip``)
     and action mode; a model trained on residual (or gain) actions runs on a velocity-mode env by adding

@@ -282,7 +282,9 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
     if isinstance(critic_warmup, bool) or not isinstance(critic_warmup, int) or critic_warmup < 0:
         raise ValueError(f"critic_warmup must be a whole number of steps ≥ 0, got {critic_warmup!r}")
     if centralised_critic and (algo == "sac" or not param_sharing):
-        raise ValueError("centralised_critic (MAPPO) is for PPO with param_sharing: the critic of a shared actor")
+        raise ValueError(f"centralised_critic (--centralised-critic, MAPPO) is the critic of an actor the arms share: "
+                         f"it needs param_sharing (--param-sharing) and ppo or ppo-lagrangian; got algo={algo!r}, "
+                         f"param_sharing={param_sharing}")
     if critic_warmup and algo == "sac":
         raise ValueError("critic_warmup is for PPO's actor and critic; SAC has no warm-up here")
     max_steps = _check_env_kwargs(scenario, env_kwargs)
@@ -312,6 +314,7 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
     if resume and previous is None:
         raise ValueError(f"nothing to resume in {out}: no checkpoints/model_*_steps.zip")
     if previous is not None:
+        _check_resumed_view(out, algo, param_sharing, centralised_critic)
         path, done_steps = previous
         with path.with_name(f"state_{done_steps}_steps.pkl").open("rb") as fh:
             state = pickle.load(fh)
@@ -426,6 +429,21 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
             "episodes": str(out / "episodes.csv")} | _episode_summary(out / "episodes.csv")
 
 
+def _check_resumed_view(out: Path, algo: str, param_sharing: bool, centralised_critic: bool) -> None:
+    """A run resumes with the algorithm and the view of the env it was trained on: its run.json's."""
+    try:
+        run = json.loads((out / "run.json").read_text())
+    except (OSError, ValueError):
+        return  # no readable run.json: SB3's own checks on the saved model remain
+    given = {"algo": algo, "param_sharing": param_sharing, "centralised_critic": centralised_critic}
+    flags = {"algo": "--algo", "param_sharing": "--param-sharing", "centralised_critic": "--centralised-critic"}
+    for key, value in given.items():
+        trained = run.get(key, "ppo" if key == "algo" else False)
+        if trained != value:
+            raise ValueError(f"{out} was trained with {key}={trained!r} ({flags[key]}); resume it with the same, "
+                             f"not {value!r}")
+
+
 def _critic_warmup(steps: int):
     """Train only PPO's critic for the first ``steps`` steps: the actor (its network, action head and
     log σ) is frozen. A residual policy starts at a good controller while the value estimates are
@@ -475,7 +493,7 @@ def training_command(run: dict[str, Any], out: str | Path = "runs/train", *, tim
                         ("--lagrangian-lr", "lagrangian_lr")):
         if key in run:
             words += [option, str(run[key])]
-    words += ["--timesteps", str(timesteps or run["timesteps"]), "--out", str(out)]
+    words += ["--timesteps", str(run["timesteps"] if timesteps is None else timesteps), "--out", str(out)]
     return shlex.join([*words, *(["--resume"] if resume else [])])
 
 

@@ -137,7 +137,8 @@ class SB3ArmVecEnv(SB3VecEnv):
     entries alone, so execution stays decentralised).
     """
 
-    def __init__(self, scenario: Any = "paper_pa3_square", num_envs: int = 1, critic_state: bool = False,
+    @forwards_keywords("pan1_env.vector:Pan1VectorEnv", exclude=("render_mode", "qp_solver"))
+    def __init__(self, scenario: Any = "paper_pa3_square", num_envs: int = 1, *, critic_state: bool = False,
                  **kwargs: Any) -> None:
         self.critic_state = bool(critic_state)
         super().__init__(scenario, num_envs, **kwargs)

@@ -32,11 +32,12 @@ def main(argv: list[str] | None = None) -> None:
     seeds = range(args.first, args.first + args.teams)
     policies = {path: model_policy(path) for path in args.models}
     env_kwargs = next(iter(policies.values()))[1]
-    if env_kwargs.get("action_mode") not in ("residual", "gain"):
-        parser.error(f"{args.models[0]} was not trained with --action-mode residual or gain: no reference to "
-                     f"compare with")
+    try:
+        reference = law_policy("random", env_kwargs)
+    except ValueError as err:
+        parser.error(f"{args.models[0]} has no reference to compare with: {err}")
     results = {}
-    for name, (policy, kwargs) in {"reference": (law_policy("random", env_kwargs), env_kwargs), **policies}.items():
+    for name, (policy, kwargs) in {"reference": (reference, env_kwargs), **policies}.items():
         if kwargs != env_kwargs:
             parser.error(f"{name} was trained on other env arguments than {args.models[0]}: {kwargs}")
         print(f"{name}: {args.teams} teams …", flush=True)  # about a minute per policy on 2 cores

@@ -4,6 +4,7 @@ the policy whose actor cannot see that state, and a trained model acting per age
 from __future__ import annotations
 
 import json
+import pickle
 
 import numpy as np
 import pytest
@@ -88,7 +89,8 @@ def test_a_trained_mappo_model_acts_per_agent_on_the_parallel_env_as_on_the_team
     out = tmp_path / "mappo"
     assert main(["train", "--scenario", "random", "--param-sharing", "--centralised-critic", "--timesteps", "512",
                  "--n-envs", "2", "--max-steps", "32", "--action-mode", "gain", "--eval-every", "256",
-                 "--env-kwargs", json.dumps(MIXED), "--out", str(out), "--no-progress"]) == 0
+                 "--checkpoint-every", "512", "--env-kwargs", json.dumps(MIXED), "--out", str(out),
+                 "--no-progress"]) == 0
     meta = json.loads((out / "model.json").read_text())
     run = json.loads((out / "run.json").read_text())
     assert meta["centralised_critic"] and run["centralised_critic"]
@@ -101,6 +103,18 @@ def test_a_trained_mappo_model_acts_per_agent_on_the_parallel_env_as_on_the_team
     flat, _ = Pan1VectorEnv("random", 1, **env_kwargs).reset(seed=3)
     by_agent = sb3_policy(out / "model.zip", penv)(obs)
     np.testing.assert_allclose(flat_policy(flat)[0], np.concatenate([by_agent[a] for a in penv.agents]), atol=1e-6)
+    # what the trained network does on its training rows (own observation, then the real global state, both
+    # standardised with the run's full VecNormalize statistics) is what each agent does at execution
+    with (out / "checkpoints" / "state_512_steps.pkl").open("rb") as fh:
+        stats = pickle.load(fh)["normalize"]["obs_rms"]
+    view = SB3ArmVecEnv("random", 1, critic_state=True, **env_kwargs)
+    view.seed(3)
+    rows = np.clip((view.reset() - stats.mean) / np.sqrt(stats.var + 1e-8), -10.0, 10.0).astype(np.float32)
+    trained = PPO.load(out / "model.zip", device="cpu")
+    assert isinstance(trained.policy, LocalActorPolicy)
+    actions = trained.predict(rows, deterministic=True)[0]
+    for i, agent in enumerate(penv.agents):
+        np.testing.assert_allclose(by_agent[agent], actions[i, : by_agent[agent].size], atol=1e-6)
 
 
 def _rows(path):
@@ -119,3 +133,19 @@ def test_a_centralised_critic_without_parameter_sharing_or_with_sac_exits_2_with
     err = capsys.readouterr().err
     assert err.startswith("pan1-env: error: ") and err.count("\n") == 1 and "centralised_critic" in err
     assert not out.exists()
+
+
+def test_mappo_lagrangian_trains_and_a_mappo_run_resumes_only_as_mappo(tmp_path, capsys) -> None:
+    """ppo-lagrangian with the centralised critic (MAPPO-Lagrangian, unshielded) trains and logs its
+    multiplier; resuming a MAPPO run without --centralised-critic exits 2 with one line naming the flag."""
+    from pan1_env.baselines.sb3 import load_model
+
+    out = tmp_path / "lag"
+    common = ["--scenario", "paper_pa3_square", "--param-sharing", "--timesteps", "256", "--n-envs", "2",
+              "--max-steps", "16", "--checkpoint-every", "128", "--out", str(out), "--no-progress"]
+    assert main(["train", "--algo", "ppo-lagrangian", "--no-shield", "--centralised-critic", *common]) == 0
+    assert isinstance(load_model(out / "model.zip")[0], ActorOnly) and (out / "lagrangian.csv").is_file()
+    capsys.readouterr()
+    assert main(["train", "--algo", "ppo-lagrangian", "--no-shield", *common, "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--centralised-critic" in err and "resume it with the same" in err

@@ -73,6 +73,16 @@ def test_interrupted_run_resumes_to_the_same_result(tmp_path, param_sharing, cen
     assert summary["resumed_from"] == 512
     a, b = _policy_params(whole / "model.zip"), _policy_params(cut / "model.zip")
     assert a.keys() == b.keys()
+    if centralised_critic:  # resumed as MAPPO: its policy, its flag, the actor's normalisation
+        from stable_baselines3 import PPO
+
+        from pan1_env.baselines.mappo import LocalActorPolicy
+
+        assert isinstance(PPO.load(cut / "model.zip", device="cpu").policy, LocalActorPolicy)
+        meta = json.loads((cut / "model.json").read_text())
+        assert meta["centralised_critic"] and json.loads((cut / "run.json").read_text())["centralised_critic"]
+        actor_inputs = PPO.load(cut / "model.zip", device="cpu").policy.actor_inputs
+        assert len(meta["observation_normalization"]["mean"]) == actor_inputs
     for key in a:
         assert np.array_equal(a[key].numpy(), b[key].numpy()), key
     assert _rows(whole / "episodes.csv") == _rows(cut / "episodes.csv")
@@ -580,7 +590,8 @@ def test_heldout_compares_gain_models_with_the_law_and_refuses_what_it_cannot_co
     assert "| reference |" in table and f"| {tmp_path / 'gain' / 'model.zip'} |" in table
     with pytest.raises(SystemExit):
         heldout.main([str(tmp_path / "velocity" / "model.zip"), "--teams", "2"])
-    assert "was not trained with --action-mode residual or gain" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "has no reference to compare with" in err and "action_mode 'residual' or 'gain'" in err
     with pytest.raises(SystemExit):
         heldout.main([str(tmp_path / "gain" / "model.zip"), str(tmp_path / "gain_other" / "model.zip"), "--teams", "2"])
     assert "was trained on other env arguments" in capsys.readouterr().err
