@@ -4,8 +4,9 @@
 
 For each task (``end_effector``: RandomFormation's teams, each end-effector kept out of the obstacles;
 ``whole_arm``: WholeArmStaticFormation's teams, every link a capsule kept out of the obstacles and off the
-other arms) and each filter setting of :data:`SETTINGS`, it runs on the same held-out random teams (reset
-seeds ``first … first + teams − 1``; the defaults are docs/TRAINING.md's held-out teams, on which no filter
+other arms; ``whole_arm_moving``: WholeArmFormation's, the same with the obstacles moving) and each filter
+setting of :data:`SETTINGS`, it runs on the same held-out random teams (reset seeds
+``first … first + teams − 1``; the defaults are docs/TRAINING.md's held-out teams, on which no filter
 setting was tuned) two policies behind the filter, all teams of a setting batched in one vector env:
 
 * ``reference``: the paper's law (the zero action in residual mode), which measures what the filter lets a
@@ -36,7 +37,8 @@ from pan1_env.baselines.evaluation import TOLERANCES, evaluate, law_policy
 from pan1_env.registration import env_arguments
 from pan1_env.safety import FilterParams
 
-TASKS = {"end_effector": "pan1_env/RandomFormation-v0", "whole_arm": "pan1_env/WholeArmStaticFormation-v0"}
+TASKS = {"end_effector": "pan1_env/RandomFormation-v0", "whole_arm": "pan1_env/WholeArmStaticFormation-v0",
+         "whole_arm_moving": "pan1_env/WholeArmFormation-v0"}
 # κ and ε are the random teams' (0.5, 5); the paper's filter first, RandomFormation-v1's last
 SETTINGS = {
     "paper (squared, constant ε)": {},
@@ -80,7 +82,7 @@ def run(tasks: list[str], teams: int, first: int) -> list[dict]:
         size = Pan1VectorEnv(scenario, 1, **kwargs).single_action_space.shape[0]
         law = law_policy(scenario, {**kwargs, "action_mode": "residual"})
         for name, setting in SETTINGS.items():
-            if task == "whole_arm" and "sensing_radius" in setting:
+            if task.startswith("whole_arm") and "sensing_radius" in setting:
                 continue  # the whole-arm filter has its sensing radius already
             params = _filter(kwargs, setting)
             policies = {"reference": ({"action_mode": "residual"}, law),
@@ -127,7 +129,8 @@ def figure(rows: list[dict], path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len({r["task"] for r in rows}), figsize=(11, 4.5), squeeze=False)
+    tasks = len({r["task"] for r in rows})
+    fig, axes = plt.subplots(1, tasks, figsize=(5.5 * tasks, 4.5), squeeze=False)
     for ax, task in zip(axes[0], dict.fromkeys(r["task"] for r in rows), strict=True):
         mine = [r for r in rows if r["task"] == task]
         settings = list(dict.fromkeys(r["setting"] for r in mine))
@@ -152,7 +155,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--teams", type=int, default=200, help="held-out random teams per setting (default 200)")
     parser.add_argument("--first", type=int, default=2_000_000, help="first reset seed (default 2000000)")
-    parser.add_argument("--tasks", default="end_effector,whole_arm", help="comma-separated: end_effector, whole_arm")
+    parser.add_argument("--tasks", default="end_effector,whole_arm",
+                        help="comma-separated: end_effector, whole_arm, whole_arm_moving (default: the first two)")
     parser.add_argument("--out", type=Path, default=Path("runs/filters"), help="output directory")
     args = parser.parse_args(argv)
     tasks = [t for t in args.tasks.split(",") if t]

@@ -19,10 +19,11 @@ __all__ = ["kernels", "kernel_sizes", "plain", "WholeArm"]
 
 #: the sub-step kernel's ``whole`` argument for whole-arm safety (:mod:`pan1_env.kernels.capsules`), in its
 #: order: ``caps (A, C, CAPSULE_COLUMNS)``, ``start_time (A,)``, ``link_radius``, ``link_bodies``, ``sensing``,
-#: ``skin``, ``joints (A, L + 1, 2)`` (out), ``n_world`` (the world obstacles among the capsules),
-#: ``angles (A, 2, n)`` (in with ``carried``, out), ``carried``, ``finish``
-WholeArm = namedtuple("WholeArm", "caps start_time link_radius link_bodies sensing skin joints n_world angles carried "
-                                  "finish")
+#: ``gate`` (the smooth activation's width past ``sensing``; 0: a hard range), ``skin``, ``joints (A, L + 1, 2)``
+#: (out), ``n_world`` (the world obstacles among the capsules), ``angles (A, 2, n)`` (in with ``carried``, out),
+#: ``carried``, ``finish``
+WholeArm = namedtuple("WholeArm", "caps start_time link_radius link_bodies sensing gate skin joints n_world angles "
+                                  "carried finish")
 
 _KERNELS: ModuleType | None = None
 

@@ -240,7 +240,10 @@ class Engine:
     def set_safety_filter(self, safety_filter: bool | FilterParams) -> None:
         """Switch the filter off (``False``) or on (``True``: the scenario's parameters, or a
         :class:`FilterParams`); it acts from the next sub-step."""
-        self.filter = filter_parameters(safety_filter, self.teams[0])
+        params = filter_parameters(safety_filter, self.teams[0])
+        if params is not None and params.gate > 0.0:
+            self._check_gate(params)
+        self.filter = params
         sensing = None if self.filter is None else self.filter.sensing_radius
         if sensing is not None and not self.whole_arm:  # the end-effector as the body of the whole-arm rows
             self.whole_arm = True
@@ -303,13 +306,27 @@ class Engine:
             first += rows
         self._team_joints, self._team_caps, self._team_start_time = joints, caps, start_time
 
+    def _check_gate(self, params: FilterParams) -> None:
+        """A smooth gate acts on the whole-arm rows' sensing range, relaxes rows towards the speed box, and is
+        a gate only if it is wider than what a body covers in a sub-step (docs/MODEL.md §5, *Activation*)."""
+        if not self.whole_arm and params.sensing_radius is None:
+            raise ValueError("FilterParams.gate widens a sensing range: it needs whole-arm bodies or a sensing_radius")
+        if not np.isfinite(self.max_speed):
+            raise ValueError("FilterParams.gate relaxes rows towards the speed box: it needs a finite max_speed")
+        reach = max(float(kind.lengths.sum(axis=-1).max()) for kind in self.kinds)
+        travel = self.max_speed * reach * self.physics_dt  # an arm turning at the speed bound, its far end
+        if params.gate < travel:
+            raise ValueError(f"FilterParams.gate must be 0 (a hard range) or at least one sub-step's travel, "
+                             f"{travel:.4g} m (max_speed {self.max_speed:g} rad/s × reach {reach:.3g} m × physics_dt "
+                             f"{self.physics_dt:g} s), got {params.gate:g}")
+
     def whole_arm_args(self, kind: _Kind) -> WholeArm:
         """The kernel's ``whole`` argument for a kind (:func:`pan1_env.kernels.substep.group_advance`)."""
         sensing = None if self.filter is None else self.filter.sensing_radius
         return WholeArm(caps=kind.caps, start_time=kind.start_time, link_radius=self.link_radius,
                         link_bodies=self.link_bodies, sensing=SENSING_RADIUS if sensing is None else sensing,
-                        skin=SKIN, joints=kind.joints, n_world=self.radii.shape[1], angles=kind.angles, carried=False,
-                        finish=True)
+                        gate=0.0 if self.filter is None else self.filter.gate, skin=SKIN, joints=kind.joints,
+                        n_world=self.radii.shape[1], angles=kind.angles, carried=False, finish=True)
 
     def _load_capsules(self, b: int, scenario: Scenario, mask: np.ndarray) -> None:
         """Copy b's capsules: its obstacles (start, path, radius, share 1) and the other arms' link slots

@@ -134,7 +134,8 @@ def whole_arm_rows(engine: Engine, kind, r: int, v0: np.ndarray, epsilon: float)
 
     m_max = (n if whole.link_bodies else 1) * caps.shape[1] + 2 * k
     A, b, active = np.zeros((m_max, k)), np.zeros(m_max), np.zeros(m_max, dtype=bool)
-    m, h = K.whole_arm_rows(r, 0, n, k, kind.passive, whole.link_bodies, whole.link_radius, whole.sensing, whole.skin,
+    m, h = K.whole_arm_rows(r, 0, n, k, kind.passive, whole.link_bodies, whole.link_radius, whole.sensing, whole.gate,
+                            whole.skin,
                             engine.physics_dt, lane(kind.lengths[r]), kind.base[r, :1].copy(),
                             kind.base[r, 1:].copy(), lane(np.cos(angles)), lane(np.sin(angles)), lane(kind.qd[r]),
                             lane(mass_matrix(arm, q)), caps, whole.start_time[r], f.kappa, epsilon, f.margin,

@@ -74,7 +74,8 @@ class RandomScenarioOptions:
         obstacle_path_length: range of the length of a moving obstacle's path, metres.
         barrier: the filter's barrier in the drawn scenario, ``"squared"`` (the paper's) or ``"distance"``.
         decay: λ ≥ 0 of the filter's tunable ε(h̃) = ε e^{λ h̃} in the drawn scenario (0: the paper's).
-            Neither changes what is drawn.
+        gate: width (m) of the filter's smooth activation past its sensing range in the drawn scenario
+            (0: a hard range; :class:`pan1_env.safety.FilterParams`). None of these three changes what is drawn.
     """
 
     n_arms: int = 4
@@ -100,6 +101,7 @@ class RandomScenarioOptions:
     obstacle_path_length: tuple[float, float] = (0.2, 0.6)
     barrier: str = "squared"
     decay: float = 0.0
+    gate: float = 0.0
 
     def __post_init__(self) -> None:
         n_arms = positive_int("RandomScenarioOptions.n_arms", self.n_arms, minimum=2)
@@ -160,6 +162,7 @@ class RandomScenarioOptions:
         if not isinstance(self.barrier, str) or self.barrier not in BARRIERS:
             raise ValueError(f"RandomScenarioOptions.barrier must be one of {BARRIERS}, got {self.barrier!r}")
         object.__setattr__(self, "decay", real("RandomScenarioOptions.decay", self.decay, non_negative=True))
+        object.__setattr__(self, "gate", real("RandomScenarioOptions.gate", self.gate, non_negative=True))
 
     @property
     def moving(self) -> bool:
@@ -287,7 +290,7 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
             link_radius=opt.link_radius, inter_arm=opt.inter_arm,
             obstacle_paths=np.array(paths).reshape(-1, 2) if opt.moving else None,
             obstacle_speeds=np.array(speeds) if opt.moving else None,
-            safety_barrier=opt.barrier, safety_decay=opt.decay,
+            safety_barrier=opt.barrier, safety_decay=opt.decay, safety_gate=opt.gate,
         )
     raise RuntimeError(f"no valid random scenario in {max_tries} draws; loosen the options {opt}")
 

@@ -9,6 +9,7 @@
   of radius 0.03 m kept out of the obstacles and the other arms),
 * ``pan1_env/WholeArmStaticFormation-v1`` (the same teams behind RandomFormation-v1's filter choices),
 * ``pan1_env/WholeArmFormation-v0`` (the same with obstacles moving at 0.05–0.2 m/s),
+* ``pan1_env/WholeArmFormation-v1`` (the moving obstacles behind RandomFormation-v1's filter choices),
 
 as :class:`~pan1_env.centralized.CentralizedEnv` (one agent controlling every arm), and the one-arm task
 ``pan1_env/PAReach-v0`` (:class:`~pan1_env.reach.PAReachEnv`). The envs truncate their episodes
@@ -25,21 +26,20 @@ import gymnasium
 __all__ = ["register_envs", "env_arguments", "ENV_IDS", "REACH_ENV_ID", "DEFAULT_REACH_STEPS"]
 
 _WHOLE_ARM = {"bodies": "links", "link_radius": 0.03, "inter_arm": True}
+_V1_FILTER = {"barrier": "distance", "decay": 50.0, "kappa": 0.5, "epsilon": 5.0}  # docs/ENVIRONMENTS.md says why
 ENV_IDS = {
     "pan1_env/PaperPA3Square-v0": {"scenario": "paper_pa3_square"},
     "pan1_env/PaperMixedPA-v0": {"scenario": "paper_pa_mixed_square"},
     "pan1_env/RandomFormation-v0": {"scenario": "random"},
     # the filter choices travel in the drawn scenario (its safety_barrier and safety_decay), so that they
     # apply wherever the filter is switched on: safety_filter=True, the vector env's default, the shields
-    "pan1_env/RandomFormation-v1": {"scenario": "random",
-                                    "random_options": {"barrier": "distance", "decay": 50.0, "kappa": 0.5,
-                                                       "epsilon": 5.0}},
+    "pan1_env/RandomFormation-v1": {"scenario": "random", "random_options": dict(_V1_FILTER)},
     "pan1_env/WholeArmStaticFormation-v0": {"scenario": "random", "random_options": _WHOLE_ARM},
-    "pan1_env/WholeArmStaticFormation-v1": {"scenario": "random",
-                                            "random_options": _WHOLE_ARM | {"barrier": "distance", "decay": 50.0,
-                                                                            "kappa": 0.5, "epsilon": 5.0}},
+    "pan1_env/WholeArmStaticFormation-v1": {"scenario": "random", "random_options": _WHOLE_ARM | _V1_FILTER},
     "pan1_env/WholeArmFormation-v0": {"scenario": "random",
                                       "random_options": _WHOLE_ARM | {"obstacle_speed": (0.05, 0.2)}},
+    "pan1_env/WholeArmFormation-v1": {"scenario": "random",
+                                      "random_options": _WHOLE_ARM | _V1_FILTER | {"obstacle_speed": (0.05, 0.2)}},
 }
 REACH_ENV_ID = "pan1_env/PAReach-v0"
 DEFAULT_REACH_STEPS = 200  # PAReach-v0: 10 s at the default control_dt of 0.05 s

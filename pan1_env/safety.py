@@ -500,7 +500,14 @@ class FilterParams:
     ``barrier``: ``"squared"`` (the paper's h = ‖p − o‖² − r²) or ``"distance"`` (h = ‖p − o‖ − r,
     :func:`shaped_barrier`); ``decay``: λ ≥ 0 of the tunable robustness ε(h̃) = ε e^{λ h̃}
     (:func:`robust_epsilon`; 0 is the paper's constant ε). The engine's compiled filter takes both, for
-    the end-effector rows and the whole-arm ones (links, other arms, moving obstacles, ``sensing_radius``)."""
+    the end-effector rows and the whole-arm ones (links, other arms, moving obstacles, ``sensing_radius``).
+
+    ``gate`` (m): the width of the smooth activation past the sensing range (:func:`activation_gate`,
+    docs/MODEL.md §5, *Activation*): 0 (the default) is a hard range, a row there or not; > 0 relaxes a
+    pair's row continuously from whole at the range's edge to none ``gate`` farther out, so that the
+    filtered command does not jump when a pair comes into range. It needs the whole-arm rows (whole-arm
+    bodies, or a ``sensing_radius``), a finite speed bound, and at least one sub-step's travel (the
+    engine checks all three)."""
 
     kappa: float
     epsilon: float
@@ -508,11 +515,12 @@ class FilterParams:
     sensing_radius: float | None = None
     barrier: str = "squared"
     decay: float = 0.0
+    gate: float = 0.0
 
     def __post_init__(self) -> None:
         checked = _checked("FilterParams", self.kappa, self.epsilon, self.margin, self.sensing_radius, self.barrier,
-                           self.decay)
-        for name, value in zip(("kappa", "epsilon", "margin", "sensing_radius", "barrier", "decay"), checked,
+                           self.decay, self.gate)
+        for name, value in zip(("kappa", "epsilon", "margin", "sensing_radius", "barrier", "decay", "gate"), checked,
                                strict=True):
             object.__setattr__(self, name, value)
 
@@ -534,14 +542,15 @@ class FilterParams:
         *,
         barrier: str | None = None,
         decay: float | None = None,
+        gate: float | None = None,
     ) -> FilterParams:
-        """The scenario's κ, ε, margin, barrier and λ, each replaced where given. ``tracking_bound`` δ̄
+        """The scenario's κ, ε, margin, barrier, λ and gate, each replaced where given. ``tracking_bound`` δ̄
         instead of a margin sets it to Γ(δ̄) (:func:`robust_margin`, with the filter's λ), so that an arm
         tracking within δ̄ stays in the original set. Errors name the argument, prefixed by ``owner``
         (the API that took it)."""
         if margin is not None and tracking_bound is not None:
             raise ValueError(f"{owner}: give margin or tracking_bound, not both")
-        kappa, epsilon, margin, sensing_radius, barrier, decay = _checked(
+        kappa, epsilon, margin, sensing_radius, barrier, decay, gate = _checked(
             owner,
             scenario.kappa if kappa is None else kappa,
             scenario.epsilon if epsilon is None else epsilon,
@@ -549,17 +558,18 @@ class FilterParams:
             sensing_radius,
             scenario.safety_barrier if barrier is None else barrier,
             scenario.safety_decay if decay is None else decay,
+            scenario.safety_gate if gate is None else gate,
         )
         if tracking_bound is not None:
             delta = real(f"{owner}: tracking_bound", tracking_bound, non_negative=True)
             margin = robust_margin(delta, kappa, epsilon, decay)
-        return cls(kappa, epsilon, margin, sensing_radius, barrier, decay)
+        return cls(kappa, epsilon, margin, sensing_radius, barrier, decay, gate)
 
 
 def _checked(
     owner: str, kappa: float, epsilon: float, margin: float, sensing_radius: float | None, barrier: str = "squared",
-    decay: float = 0.0,
-) -> tuple[float, float, float, float | None, str, float]:
+    decay: float = 0.0, gate: float = 0.0,
+) -> tuple[float, float, float, float | None, str, float, float]:
     """The filter's parameters as floats (the barrier a name of :data:`BARRIERS`), or a ValueError
     naming the first bad one."""
     if not isinstance(barrier, str) or barrier not in BARRIERS:
@@ -571,6 +581,7 @@ def _checked(
         None if sensing_radius is None else real(f"{owner}: sensing_radius", sensing_radius, positive=True),
         barrier,
         real(f"{owner}: decay", decay, non_negative=True),
+        real(f"{owner}: gate", gate, non_negative=True),
     )
 
 

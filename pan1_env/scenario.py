@@ -11,7 +11,7 @@ the README ("Scenario files"); in short::
     [controller]  kp, ke                                   (K_P, K_e)
     [safety]      kappa, epsilon, margin = 0, ignore_unreachable_obstacles = true,
                   bodies = "end_effector" | "links", link_radius = 0, inter_arm = false,
-                  barrier = "squared" | "distance", decay = 0
+                  barrier = "squared" | "distance", decay = 0, gate = 0 (m; a smooth activation past the sensing range)
     [arm_defaults] masses, lengths, com, inertias, passive_first_joint, phi   (optional)
     [[arms]]      base, q0, and any arm_defaults key to override it
     [formation]   shape = "square" | "polygon" with size,  or  edges + distances (0-based arms)
@@ -94,9 +94,10 @@ class Scenario:
     inter_arm: bool = False
     obstacle_paths: np.ndarray | None = None
     obstacle_speeds: np.ndarray | None = None
-    #: the filter's barrier and λ of its tunable ε(h̃) (:class:`pan1_env.safety.FilterParams`)
+    #: the filter's barrier, λ of its tunable ε(h̃) and activation gate (:class:`pan1_env.safety.FilterParams`)
     safety_barrier: str = "squared"
     safety_decay: float = 0.0
+    safety_gate: float = 0.0
 
     def __post_init__(self) -> None:
         if self.bodies not in BODIES:
@@ -109,6 +110,8 @@ class Scenario:
             raise ValueError(f"Scenario.safety_barrier must be one of {BARRIERS}, got {self.safety_barrier!r}")
         if not (math.isfinite(self.safety_decay) and self.safety_decay >= 0):
             raise ValueError(f"Scenario.safety_decay must be finite and non-negative, got {self.safety_decay!r}")
+        if not (math.isfinite(self.safety_gate) and self.safety_gate >= 0):
+            raise ValueError(f"Scenario.safety_gate must be finite and non-negative, got {self.safety_gate!r}")
         n_obs = len(self.obstacles)
         if (self.obstacle_paths is None) != (self.obstacle_speeds is None):
             raise ValueError("Scenario.obstacle_paths and obstacle_speeds go together: give both or neither")
@@ -353,7 +356,7 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
     kp = _number(ctrl, "kp", src, "controller")
     ke = _number(ctrl, "ke", src, "controller")
     saf = _table(data, "safety", src, {"kappa", "epsilon", "margin", "ignore_unreachable_obstacles", "bodies",
-                                       "link_radius", "inter_arm", "barrier", "decay"})
+                                       "link_radius", "inter_arm", "barrier", "decay", "gate"})
     kappa = _number(saf, "kappa", src, "safety")
     epsilon = _number(saf, "epsilon", src, "safety")
     margin = _number(saf, "margin", src, "safety", positive=False, default=0.0)
@@ -366,6 +369,7 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
         raise ScenarioError(src, "safety.barrier", f"unknown barrier {barrier!r}; allowed values are "
                             + ", ".join(f'"{b}"' for b in BARRIERS))
     decay = _number(saf, "decay", src, "safety", positive=False, default=0.0)
+    gate = _number(saf, "gate", src, "safety", positive=False, default=0.0)
 
     defaults = _table(data, "arm_defaults", src, _ARM_PARAM_KEYS, required=False)
     arms_raw = data.get("arms")
@@ -448,7 +452,7 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
         control_dt=control_dt, horizon=horizon, safety_margin=margin,
         ignore_unreachable_obstacles=ignore, source=source, bodies=bodies, link_radius=link_radius,
         inter_arm=inter_arm, obstacle_paths=obstacle_paths, obstacle_speeds=obstacle_speeds,
-        safety_barrier=barrier, safety_decay=decay,
+        safety_barrier=barrier, safety_decay=decay, safety_gate=gate,
     )
 
 

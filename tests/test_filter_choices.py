@@ -40,15 +40,16 @@ def test_filter_params_validate_the_choices() -> None:
     assert shaped.margin < robust_margin(0.05, 0.5, 5.0)
 
 
+@pytest.mark.parametrize("gate", [0.0, 0.05], ids=["hard_range", "smooth_gate"])
 @pytest.mark.parametrize("env_id", ["pan1_env/WholeArmStaticFormation-v0", "pan1_env/WholeArmFormation-v0"])
-def test_whole_arm_filter_with_the_choices_blocks_the_adversary(env_id: str) -> None:
+def test_whole_arm_filter_with_the_choices_blocks_the_adversary(env_id: str, gate: float) -> None:
     """The whole-arm rows with barrier="distance", λ = 50 (every link a capsule, the other arms, moving
-    obstacles in the second id): the adversary and a random policy leave cost 0 on still obstacles;
-    with moving ones, only in steps whose QP took the fallback (which cannot always keep a moving
-    obstacle out)."""
+    obstacles in the second id), behind the sensing range's hard edge or a 5 cm smooth gate: the adversary
+    and a random policy leave cost 0 on still obstacles; with moving ones, only in steps whose QP took the
+    fallback (which cannot always keep a moving obstacle out)."""
     base = parallel_env(env_id, max_steps=60)
-    env = SafetyShield(base, **CHOICE)
-    assert (base.safety_filter.barrier, base.safety_filter.decay) == ("distance", 50.0)
+    env = SafetyShield(base, **CHOICE, gate=gate)
+    assert (base.safety_filter.barrier, base.safety_filter.decay, base.safety_filter.gate) == ("distance", 50.0, gate)
     adversary = AdversarialPolicy(base)
     interventions = 0
     for seed in range(3):
@@ -116,17 +117,18 @@ def test_far_arms_keep_their_command_where_the_paper_filter_changes_it() -> None
 
 
 def test_scenario_choices_reach_the_filter(tmp_path) -> None:
-    """``[safety] barrier``/``decay`` of a scenario file: the filter's defaults; bad values name the key."""
+    """``[safety] barrier``/``decay``/``gate`` of a scenario file: the filter's defaults; bad values name the key."""
     from importlib import resources
 
     from pan1_env.scenario import ScenarioError
 
     text = resources.files("pan1_env.scenarios").joinpath("paper_pa3_square.toml").read_text()
     good = tmp_path / "choice.toml"
-    good.write_text(text.replace("[safety]", '[safety]\nbarrier = "distance"\ndecay = 20.0', 1))
-    env = parallel_env(str(good), safety_filter=True)
-    assert (env.safety_filter.barrier, env.safety_filter.decay) == ("distance", 20.0)
-    for key, line in (("safety.barrier", 'barrier = "cubic"'), ("safety.decay", "decay = -1.0")):
+    good.write_text(text.replace("[safety]", '[safety]\nbarrier = "distance"\ndecay = 20.0\ngate = 0.04', 1))
+    env = parallel_env(str(good), safety_filter=FilterParams.of(load(str(good)), sensing_radius=0.1))
+    assert (env.safety_filter.barrier, env.safety_filter.decay, env.safety_filter.gate) == ("distance", 20.0, 0.04)
+    for key, line in (("safety.barrier", 'barrier = "cubic"'), ("safety.decay", "decay = -1.0"),
+                      ("safety.gate", "gate = -0.1"), ("safety.gate", 'gate = "wide"')):
         bad = tmp_path / "bad.toml"
         bad.write_text(text.replace("[safety]", f"[safety]\n{line}", 1))
         with pytest.raises(ScenarioError, match=key.replace(".", r"\.")) as err:
@@ -135,7 +137,7 @@ def test_scenario_choices_reach_the_filter(tmp_path) -> None:
     assert dataclasses.replace(load("paper_pa3_square")).safety_barrier == "squared"
 
 
-@pytest.mark.parametrize("task", ["RandomFormation", "WholeArmStaticFormation"])
+@pytest.mark.parametrize("task", ["RandomFormation", "WholeArmStaticFormation", "WholeArmFormation"])
 def test_the_v1_ids_carry_their_filter_wherever_the_shield_is_on(task) -> None:
     """A v1 id's filter (v0's, with the distance barrier, κ = 0.5, ε = 5, λ = 50, margin 0) is what the
     Gymnasium shield, the parallel shield, ``safety_filter=True`` and the vector env's default give; v0
@@ -165,3 +167,29 @@ def test_the_v1_ids_carry_their_filter_wherever_the_shield_is_on(task) -> None:
     b.reset(seed=5)
     np.testing.assert_array_equal(a.joint_state()[0], b.joint_state()[0])
     assert a.scenario.obstacles.centers.tolist() == b.scenario.obstacles.centers.tolist()
+
+
+def test_the_smooth_gate_is_refused_where_it_cannot_act() -> None:
+    """A negative or non-finite gate is refused by name wherever it is given; a positive one needs the
+    whole-arm rows (whole-arm bodies or a sensing radius), a finite speed bound, and at least one
+    sub-step's travel, which the engine computes from the team."""
+    from pan1_env.engine import Engine
+    from pan1_env.random_scenario import RandomScenarioOptions
+
+    team = load("paper_pa3_square")
+    for bad in (-0.01, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="FilterParams: gate must be"):
+            FilterParams(0.5, 5.0, gate=bad)
+        with pytest.raises(ValueError, match="SafetyShield: gate must be"):
+            SafetyShield(parallel_env("pan1_env/WholeArmStaticFormation-v0"), gate=bad)
+        with pytest.raises(ValueError, match="RandomScenarioOptions.gate must be"):
+            RandomScenarioOptions(gate=bad)
+    with pytest.raises(ValueError, match="needs whole-arm bodies or a sensing_radius"):
+        SafetyShield(parallel_env("paper_pa3_square"), gate=0.05)
+    with pytest.raises(ValueError, match="needs a finite max_speed"):
+        Engine(team, safety_filter=FilterParams(0.5, 5.0, sensing_radius=0.1, gate=0.05))
+    with pytest.raises(ValueError, match=r"at least one sub-step's travel, 0\.01\d* m .*got 0\.001"):
+        Engine(team, safety_filter=FilterParams(0.5, 5.0, sensing_radius=0.1, gate=0.001), max_speed=5.0,
+               physics_dt=0.002)
+    engine = Engine(team, safety_filter=FilterParams(0.5, 5.0, sensing_radius=0.1, gate=0.05), max_speed=2.0)
+    assert engine.whole_arm_args(engine.kinds[0]).gate == 0.05

@@ -77,20 +77,20 @@ def test_soak_one_million_shielded_arm_steps(capsys) -> None:
     assert total["rss_growth_after_warmup_mb"] < 100.0
 
 
-WHOLE_ARM = {"bodies": "links", "link_radius": 0.03, "inter_arm": True, "obstacle_speed": (0.05, 0.2)}
-
-
-def test_soak_whole_arm_moving_obstacles(capsys) -> None:
+@pytest.mark.parametrize("env_id", ["pan1_env/WholeArmFormation-v0", "pan1_env/WholeArmFormation-v1"])
+def test_soak_whole_arm_moving_obstacles(capsys, env_id) -> None:
     """10⁶ shielded arm-steps on random whole-arm teams (link capsules, arms kept apart, obstacles moving
-    at 0.05–0.2 m/s), control_dt = physics_dt = 0.01 s: half the copies take uniform random actions,
+    at 0.05–0.2 m/s), behind the paper's filter (v0) and v1's (distance barrier, decaying ε),
+    control_dt = physics_dt = 0.01 s: half the copies take uniform random actions,
     half bang-bang ones held for 40 steps; every copy draws a new team when its 250-step episode ends.
     A penetration (a capsule entering an obstacle or another arm's capsule: the step's cost) may begin
     only in a step whose shield report says fallback, and in at most 2 % of the episodes."""
     from pan1_env.vector import Pan1VectorEnv
 
     B, steps = 128, 2000
-    venv = Pan1VectorEnv("random", B, random_options=WHOLE_ARM, control_dt=0.01, physics_dt=0.01, max_steps=250)
+    venv = Pan1VectorEnv(env_id, B, control_dt=0.01, physics_dt=0.01, max_steps=250)
     venv.reset(seed=7_000_000)
+    assert venv.engine.speeds.min() >= 0.05  # every obstacle moves
     rng = np.random.default_rng(0)
     bang = np.arange(B) >= B // 2
     held = rng.choice([-1.0, 1.0], size=venv.action_space.shape)
@@ -126,7 +126,7 @@ def test_soak_whole_arm_moving_obstacles(capsys) -> None:
     stats["peak_rss_mb"] = _peak_rss_mb()
     stats["rss_growth_after_warmup_mb"] = stats["peak_rss_mb"] - rss_after_warmup
     with capsys.disabled():
-        print("\nwhole-arm soak:", json.dumps(stats))
+        print(f"\nwhole-arm soak, {env_id}:", json.dumps(stats))
     assert stats["arm_steps"] >= ARM_STEPS and stats["episodes"] >= 100
     assert stats["begun_outside_fallback"] == 0
     assert stats["episodes_with_penetration"] <= 0.02 * stats["episodes"]

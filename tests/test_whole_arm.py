@@ -32,7 +32,7 @@ def _lanes(arm: ArmParams, q: np.ndarray) -> dict:
 def _rows(arm: ArmParams, q: np.ndarray, caps: np.ndarray, *, links: bool = True, rho: float = 0.0,
           time: float = 0.0, kappa: float = 1.0, epsilon: float = 10.0, margin: float = 0.0, v_max: float = np.inf,
           sensing: float = np.inf, skin: float = 0.0, dt: float = 0.0, qd: np.ndarray | None = None,
-          distance: bool = False, decay: float = 0.0):
+          distance: bool = False, decay: float = 0.0, gate: float = 0.0):
     """kernels.capsules.whole_arm_rows for one arm at q (one lane): (A, b, h_min) of the rows written."""
     n = arm.n_links
     k = n - 1 if arm.passive_first_joint else n
@@ -41,10 +41,9 @@ def _rows(arm: ArmParams, q: np.ndarray, caps: np.ndarray, *, links: bool = True
     lane = _lanes(arm, q)
     qd = np.zeros((n, 1)) if qd is None else np.asarray(qd, float).reshape(n, 1)
     m, h_min = kernels().capsules.whole_arm_rows(
-        0, 0, n, k, arm.passive_first_joint, links, rho, sensing, skin, dt, lane["lengths"], lane["bx"], lane["by"],
-        lane["c"], lane["s"], qd, lane["M"], caps, time, kappa, epsilon, margin, distance, decay, v_max, np.zeros(k), A,
-        b, active, P,
-        np.empty((caps.shape[1], kernels().capsules.NEAR_COLUMNS)))
+        0, 0, n, k, arm.passive_first_joint, links, rho, sensing, gate, skin, dt, lane["lengths"], lane["bx"],
+        lane["by"], lane["c"], lane["s"], qd, lane["M"], caps, time, kappa, epsilon, margin, distance, decay, v_max,
+        np.zeros(k), A, b, active, P, np.empty((caps.shape[1], kernels().capsules.NEAR_COLUMNS)))
     return A[:m], b[:m], h_min
 
 
@@ -131,6 +130,47 @@ def test_whole_arm_rows_with_the_filter_choices_match_the_numpy_reference(distan
     A_ref, b_ref = cbf_rows(h, row, kappa, epsilon, 0.0, decay, share=0.5)
     np.testing.assert_allclose(A, A_ref, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(b, b_ref, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("distance", [False, True])
+def test_gated_rows_match_the_numpy_activation_gate(distance: bool) -> None:
+    """With a smooth gate (width 0.08 m past a 0.1 m sensing range, arm at rest, still obstacles) every link
+    row within range + gate is the numpy reference's cbf_rows(..., gate=activation_gate(c, 0.1, 0.08),
+    speed=v_max): whole up to 0.1 m of clearance, relaxed towards the speed box beyond, none past 0.18 m;
+    the kernel leaves out exactly the rows that cannot bind in the box."""
+    from pan1_env.safety import activation_gate, cbf_rows, shaped_barrier
+
+    K = kernels().capsules
+    rng = np.random.default_rng(5 + distance)
+    arm = _arm(rng, 3, True)
+    q = rng.uniform(-1.5, 1.5, 3)
+    sensing, gate, v_max, rho, kappa, epsilon = 0.1, 0.08, 1.5, 0.03, 0.5, 5.0
+    form, decay = ("distance", 50.0) if distance else ("squared", 0.0)
+    start, end = bodies.link_segments(arm, q)
+    # 12 disks beside the links, their clearance to the link beside them spread over [0, 0.25] m: the
+    # range, the gate and beyond
+    link, along = rng.integers(0, 3, 12), rng.uniform(0.3, 0.7, (12, 1))
+    tangent = (end - start)[link] / np.linalg.norm((end - start)[link], axis=1, keepdims=True)
+    normal = tangent @ np.array([[0.0, 1.0], [-1.0, 0.0]]) * rng.choice([-1.0, 1.0], (12, 1))
+    radii = rng.uniform(0.04, 0.1, 12)
+    centers = start[link] + along * (end - start)[link] + normal * (radii + rho + np.linspace(0.0, 0.25, 12))[:, None]
+    caps = _capsules(K, centers, centers, radii, np.ones(12))
+    A, b, _ = _rows(arm, q, caps, rho=rho, kappa=kappa, epsilon=epsilon, v_max=v_max, sensing=sensing, gate=gate,
+                    dt=0.01, distance=distance, decay=decay)
+    A, b = A[:-4], b[:-4]  # the speed box's rows last
+    ref = bodies.link_obstacle_barrier(arm, q, centers, radii, rho, np.zeros((12, 2)))
+    R = (radii[None, :] + rho).repeat(3, 0).reshape(36)
+    clear = np.sqrt(ref.h.reshape(36) + R ** 2) - R
+    h, row = shaped_barrier(ref.h.reshape(36), R, form, ref.row.reshape(36, 2))
+    sigma = activation_gate(clear, sensing, gate)
+    A_ref, b_ref = cbf_rows(h, row, kappa, epsilon, 0.0, decay, gate=sigma, speed=v_max)
+    keep = (clear <= sensing + gate) & ~(sigma * v_max * np.abs(row).sum(axis=1) <= b_ref)
+    middle = (sigma > 0) & (sigma < 1)
+    assert 0 < keep.sum() < 36 and middle.sum() >= 3  # the gate's middle is exercised
+    if not distance:  # behind the paper's robust term relaxed rows still bind
+        assert (middle & keep).any()
+    np.testing.assert_allclose(A, A_ref[keep], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(b, b_ref[keep], rtol=1e-9, atol=1e-12)
 
 
 def test_inter_arm_rows_take_half_the_rate_budget() -> None:
@@ -595,14 +635,15 @@ def test_piqp_solves_the_whole_arm_rows_as_the_kernel_does(inter_arm: bool, max_
         assert counts[2] > 5, counts
 
 
-def test_piqp_with_a_sensing_radius_matches_the_kernel() -> None:
+@pytest.mark.parametrize("gate", [0.0, 0.05])
+def test_piqp_with_a_sensing_radius_matches_the_kernel(gate: float) -> None:
     """The paper's scenario behind a filter with a sensing radius (end-effector rows through the
-    whole-arm path): PIQP and the kernel agree."""
+    whole-arm path), its edge hard or a smooth gate: PIQP and the kernel agree."""
     from pan1_env.engine import FilterParams
     from pan1_env.scenario import load
 
     team = load("paper_pa3_square")
-    counts = _piqp_against_kernel(team, 20, 1.0, FilterParams(team.kappa, team.epsilon, sensing_radius=0.1))
+    counts = _piqp_against_kernel(team, 20, 1.0, FilterParams(team.kappa, team.epsilon, sensing_radius=0.1, gate=gate))
     assert counts[1] > 0, counts
 
 

@@ -54,21 +54,22 @@ __all__ = ["SafetyShield", "GymSafetyShield", "shield_parameters"]
 
 def shield_parameters(scenario, kappa: float | None, epsilon: float | None, margin: float | None,
                       tracking_bound: float | None, sensing_radius: float | None = None, *,
-                      barrier: str | None = None, decay: float | None = None) -> FilterParams:
+                      barrier: str | None = None, decay: float | None = None,
+                      gate: float | None = None) -> FilterParams:
     """Validated filter parameters: κ, ε (default: the scenario's), the barrier margin (explicit,
     or Γ(δ̄) from ``tracking_bound``; default: the scenario's), the sensing radius (default: none), the
-    barrier and λ of the tunable ε(h̃) (default: the scenario's). :meth:`FilterParams.of` owns the
+    barrier, λ of the tunable ε(h̃) and the activation gate (default: the scenario's). :meth:`FilterParams.of` owns the
     rules; errors name the argument after ``SafetyShield:``."""
     return FilterParams.of(scenario, kappa, epsilon, margin, tracking_bound, sensing_radius, owner="SafetyShield",
-                           barrier=barrier, decay=decay)
+                           barrier=barrier, decay=decay, gate=gate)
 
 
-def _switch_on(core, kappa, epsilon, margin, tracking_bound, sensing_radius, barrier, decay) -> None:
+def _switch_on(core, kappa, epsilon, margin, tracking_bound, sensing_radius, barrier, decay, gate) -> None:
     """Switch the filter on through the env's public :meth:`set_safety_filter`."""
     if core.safety_filter is not None:
         raise ValueError("this env is already shielded; wrap it once")
     core.set_safety_filter(shield_parameters(core.scenario, kappa, epsilon, margin, tracking_bound, sensing_radius,
-                                             barrier=barrier, decay=decay))
+                                             barrier=barrier, decay=decay, gate=gate))
 
 
 class SafetyShield(BaseParallelWrapper):
@@ -86,17 +87,19 @@ class SafetyShield(BaseParallelWrapper):
         sensing_radius: the whole-arm filter's range (m; default: none).
         barrier: ``"squared"`` (the paper's) or ``"distance"``; decay: λ ≥ 0 of ε(h̃) = ε e^{λ h̃}
             (docs/MODEL.md §5a; default: the scenario's, the paper's "squared" and 0).
+        gate: width (m) of the smooth activation past the sensing range (0: a hard range; default: the
+            scenario's); needs whole-arm bodies or ``sensing_radius``, and the env's speed bound.
     """
 
     def __init__(self, env, kappa: float | None = None, epsilon: float | None = None,
                  margin: float | None = None, tracking_bound: float | None = None,
                  sensing_radius: float | None = None, *, barrier: str | None = None,
-                 decay: float | None = None) -> None:
+                 decay: float | None = None, gate: float | None = None) -> None:
         super().__init__(env)
         core = env.unwrapped
         if not hasattr(core, "set_safety_filter"):
             raise TypeError(f"SafetyShield wraps a pan1_env parallel env, got {type(core).__name__}")
-        _switch_on(core, kappa, epsilon, margin, tracking_bound, sensing_radius, barrier, decay)
+        _switch_on(core, kappa, epsilon, margin, tracking_bound, sensing_radius, barrier, decay, gate)
 
 
 class GymSafetyShield(gymnasium.Wrapper):
@@ -108,10 +111,10 @@ class GymSafetyShield(gymnasium.Wrapper):
     def __init__(self, env: gymnasium.Env, kappa: float | None = None, epsilon: float | None = None,
                  margin: float | None = None, tracking_bound: float | None = None,
                  sensing_radius: float | None = None, *, barrier: str | None = None,
-                 decay: float | None = None) -> None:
+                 decay: float | None = None, gate: float | None = None) -> None:
         super().__init__(env)
         inner = env.unwrapped
         if not hasattr(inner, "parallel"):
             hint = " (PAReachEnv has the filter built in: safety_filter=True)" if hasattr(inner, "arm_index") else ""
             raise TypeError(f"GymSafetyShield wraps a pan1_env team Gymnasium env, got {type(inner).__name__}{hint}")
-        _switch_on(inner.parallel, kappa, epsilon, margin, tracking_bound, sensing_radius, barrier, decay)
+        _switch_on(inner.parallel, kappa, epsilon, margin, tracking_bound, sensing_radius, barrier, decay, gate)

@@ -113,8 +113,8 @@ def _body(P, n, links, body):
 
 
 @njit(**_JIT)
-def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, skin, dt, lengths, bx, by, c, s, qd, M, caps, time,
-                   kappa, epsilon, margin, distance, decay, v_max, v0, A, b, active, P, near):
+def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, lengths, bx, by, c, s, qd, M, caps,
+                   time, kappa, epsilon, margin, distance, decay, v_max, v0, A, b, active, P, near):
     """The whole-arm RCBF rows of arm i (lane w of the kernel's scratch) at ``time``, then its speed
     bounds (finite ``v_max``), into ``A``, ``b``, ``active``: returns (rows written, smallest barrier h).
 
@@ -127,6 +127,12 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, skin, dt, lengths, 
     the speed box (Σ_t |A_t| v_max ≤ b) is left out too: the box rows are in the same QP, so that does
     not change its optimum. The smallest barrier (of the skin-inflated capsules) is taken over the pairs
     within sensing range.
+
+    ``gate`` > 0 (m) widens that range into a smooth activation (:func:`pan1_env.safety.activation_gate`): a
+    pair whose clearance c is past the range ``on`` (``sensing`` plus the sub-step's closing, as above) by
+    less than ``gate`` gets the row relaxed to −σ L_g0 h · v ≤ σ b + (1 − σ) S, σ the C¹ cubic of
+    (c − on)/gate and S = v_max Σ|L_g0 h| (:func:`pan1_env.safety.cbf_rows`); it needs a finite ``v_max``.
+    0 is the hard range.
 
     The rows keep each capsule ``skin`` plus the obstacle's travel in one sub-step farther out than its
     radius: the condition holds at the sub-step's start, and within the sub-step an obstacle may turn
@@ -169,7 +175,7 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, skin, dt, lengths, 
             continue
         a2x, a2y, d2x, d2y, vx, vy = _capsule_now(caps, i, j, time)
         reach = caps[i, j, CAP_RADIUS] + (rho if links else 0.0) + skin + caps[i, j, CAP_SPEED] * dt
-        within = reach + sensing + 2.0 * (reach_speed + caps[i, j, CAP_SPEED]) * dt
+        within = reach + sensing + 2.0 * (reach_speed + caps[i, j, CAP_SPEED]) * dt + gate
         if min(a2x, a2x + d2x) - within > hix or max(a2x, a2x + d2x) + within < lox or \
                 min(a2y, a2y + d2y) - within > hiy or max(a2y, a2y + d2y) + within < loy:
             continue
@@ -234,7 +240,15 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, skin, dt, lengths, 
                 ht = h - margin
                 bm = near[x, 9] * kappa * ht - 2.0 * (rx * near[x, 4] + ry * near[x, 5]) * scale \
                     - lg2 / (epsilon * np.exp(min(decay * ht, 700.0)))
-            if cull and bound * v_max <= bm:
+            sigma = 1.0
+            if gate > 0.0:  # the smooth activation past the range: σ = 1 − (3 u² − 2 u³), u = (c − on)/gate
+                u = min(max((np.sqrt(rx * rx + ry * ry) - (within - gate)) / gate, 0.0), 1.0)
+                sigma = 1.0 - u * u * (3.0 - 2.0 * u)
+                if sigma < 1.0:
+                    bm = sigma * bm + (1.0 - sigma) * v_max * bound
+                    for t in range(k):
+                        A[m, t] = sigma * A[m, t]
+            if cull and sigma * bound * v_max <= bm:
                 continue
             b[m] = bm
             active[m] = True

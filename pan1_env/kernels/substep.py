@@ -67,7 +67,7 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     its outputs are those of the failing sub-step), as its own loop would; the other lanes go on.
 
     ``whole`` None (numba prunes the branches that read it) keeps the end-effector filter above; a
-    tuple ``(capsules, start_time, link_radius, links, sensing, skin, joints, n_world, angles, carried,
+    tuple ``(capsules, start_time, link_radius, links, sensing, gate, skin, joints, n_world, angles, carried,
     finish)`` switches to whole-arm safety (:mod:`.capsules`): each filtered lane's rows are its bodies
     against its capsules at the sub-step's time, solved by the full search, and the clearance after a
     sub-step is its bodies' to the world obstacles, the first ``n_world`` capsules (the engine passes
@@ -130,7 +130,7 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     # RK4: trial state, stage derivative, weighted sums
     qt, vt, dv, sq, sv = _local(nw, f8), _local(kw, f8), _local(kw, f8), _local(nw, f8), _local(kw, f8)
     if whole is not None:  # whole-arm scratch: one lane's rows (bodies × capsules, speed bounds) and joints
-        caps, start_time, rho, link_bodies, sensing, skin, joints_out, n_world, angles, carried, finish = whole
+        caps, start_time, rho, link_bodies, sensing, gate, skin, joints_out, n_world, angles, carried, finish = whole
         jw = (links + (0,), lanes)  # joints: n + 1 per lane
         joints_x, joints_y = _local(jw, f8), _local(jw, f8)
         ox, oy, orad = _local(lw, f8), _local(lw, f8), _local(lw, f8)
@@ -221,7 +221,7 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                     if use_filter[w] and live[w] and real[w]:
                         for t in range(k):
                             qv0[t] = vdes[t, w]
-                        m_w, h_w = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, skin, dt,
+                        m_w, h_w = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, gate, skin, dt,
                                                   ln, bx, by, c, s, qd, M, caps, start_time[arm[w]] + _s * dt, kappa,
                                                   epsilon, margin, distance, decay, v_max, qv0, wA, wb, wact, wP,
                                                   wnear)
@@ -233,7 +233,7 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                             # condition, which a moving obstacle or a crowd of capsules can leave feasible),
                             # then takes the velocity that violates the rows least (braking does not keep a
                             # moving obstacle out); reported as a fallback either way
-                            m_w, _ = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, skin, dt,
+                            m_w, _ = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, gate, skin, dt,
                                                     ln, bx, by, c, s, qd, M, caps, start_time[arm[w]] + _s * dt,
                                                     kappa, np.inf, margin, distance, decay, v_max, qv0, wA, wb,
                                                     wact, wP, wnear)
@@ -464,7 +464,7 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     exact optimum). A problem the box makes infeasible takes the braking fallback.
 
     ``whole``: None for the end-effector filter above (the paper's); a tuple ``(capsules (A, C,
-    CAPSULE_COLUMNS), start_time (A,), link_radius, links, sensing, skin, joints (A, L + 1, 2), n_world,
+    CAPSULE_COLUMNS), start_time (A,), link_radius, links, sensing, gate, skin, joints (A, L + 1, 2), n_world,
     angles (A, 2, n), carried, finish)`` for whole-arm safety
     (:mod:`pan1_env.kernels.capsules`): the obstacle arrays are then empty, each filtered arm's rows
     are its bodies against its capsules at the sub-step's time (``start_time`` + elapsed sub-steps),
