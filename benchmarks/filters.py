@@ -1,6 +1,7 @@
 """The conservatism study: how the safety filter's design trades safety against what the paper's law can form.
 
     python benchmarks/filters.py [--teams 200] [--first 2000000] [--out runs/filters] [--tasks end_effector,whole_arm]
+                                 [--settings paper,radius,...]
 
 For each task (``end_effector``: RandomFormation's teams, each end-effector kept out of the obstacles;
 ``whole_arm``: WholeArmStaticFormation's teams, every link a capsule kept out of the obstacles and off the
@@ -39,13 +40,16 @@ from pan1_env.safety import FilterParams
 
 TASKS = {"end_effector": "pan1_env/RandomFormation-v0", "whole_arm": "pan1_env/WholeArmStaticFormation-v0",
          "whole_arm_moving": "pan1_env/WholeArmFormation-v0"}
-# κ and ε are the random teams' (0.5, 5); the paper's filter first, RandomFormation-v1's last
+# κ and ε are the random teams' (0.5, 5); the paper's filter first, then RandomFormation-v1's, then the smooth
+# gate (5 cm past the sensing range) on the hard-range settings. Key: (label, FilterParams fields).
 SETTINGS = {
-    "paper (squared, constant ε)": {},
-    "paper + 0.1 m sensing radius": {"sensing_radius": 0.1},
-    "distance barrier": {"barrier": "distance"},
-    "distance, ε decaying λ = 20": {"barrier": "distance", "decay": 20.0},
-    "distance, ε decaying λ = 50 (v1)": {"barrier": "distance", "decay": 50.0},
+    "paper": ("paper (squared, constant ε)", {}),
+    "radius": ("paper + 0.1 m sensing radius", {"sensing_radius": 0.1}),
+    "distance": ("distance barrier", {"barrier": "distance"}),
+    "decay20": ("distance, ε decaying λ = 20", {"barrier": "distance", "decay": 20.0}),
+    "v1": ("distance, ε decaying λ = 50 (v1)", {"barrier": "distance", "decay": 50.0}),
+    "radius_gate": ("paper + 0.1 m sensing radius, 5 cm gate", {"sensing_radius": 0.1, "gate": 0.05}),
+    "v1_gate": ("v1 + 5 cm gate past the whole-arm range", {"barrier": "distance", "decay": 50.0, "gate": 0.05}),
 }
 HOLD_STEPS = 20  # the random policy's action is held this many control steps (1 s)
 
@@ -56,7 +60,7 @@ def _filter(scenario_kwargs: dict, setting: dict) -> FilterParams:
     options = scenario_kwargs.get("random_options", {})
     return FilterParams(kappa=options.get("kappa", 0.5), epsilon=options.get("epsilon", 5.0), margin=0.0,
                         sensing_radius=setting.get("sensing_radius"), barrier=setting.get("barrier", "squared"),
-                        decay=setting.get("decay", 0.0))
+                        decay=setting.get("decay", 0.0), gate=setting.get("gate", 0.0))
 
 
 def _persistent_random(size: int, teams: int, seed: int):
@@ -72,7 +76,7 @@ def _persistent_random(size: int, teams: int, seed: int):
     return policy
 
 
-def run(tasks: list[str], teams: int, first: int) -> list[dict]:
+def run(tasks: list[str], teams: int, first: int, settings: list[str] | None = None) -> list[dict]:
     from pan1_env.vector import Pan1VectorEnv
 
     seeds = range(first, first + teams)
@@ -81,9 +85,12 @@ def run(tasks: list[str], teams: int, first: int) -> list[dict]:
         scenario, kwargs = env_arguments(TASKS[task])
         size = Pan1VectorEnv(scenario, 1, **kwargs).single_action_space.shape[0]
         law = law_policy(scenario, {**kwargs, "action_mode": "residual"})
-        for name, setting in SETTINGS.items():
+        for key in settings or list(SETTINGS):
+            name, setting = SETTINGS[key]
             if task.startswith("whole_arm") and "sensing_radius" in setting:
                 continue  # the whole-arm filter has its sensing radius already
+            if task == "end_effector" and "gate" in setting and "sensing_radius" not in setting:
+                continue  # a gate widens a sensing range, which the end-effector filter has only when given one
             params = _filter(kwargs, setting)
             policies = {"reference": ({"action_mode": "residual"}, law),
                         "random": ({}, _persistent_random(size, teams, first))}
@@ -157,15 +164,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--first", type=int, default=2_000_000, help="first reset seed (default 2000000)")
     parser.add_argument("--tasks", default="end_effector,whole_arm",
                         help="comma-separated: end_effector, whole_arm, whole_arm_moving (default: the first two)")
+    parser.add_argument("--settings", default=",".join(SETTINGS),
+                        help=f"comma-separated filter settings (default: all): {', '.join(SETTINGS)}")
     parser.add_argument("--out", type=Path, default=Path("runs/filters"), help="output directory")
     args = parser.parse_args(argv)
+    settings = [k for k in args.settings.split(",") if k]
+    unknown_settings = [k for k in settings if k not in SETTINGS]
+    if unknown_settings or not settings:
+        parser.error(f"--settings: unknown {', '.join(unknown_settings) or '(none given)'}; "
+                     f"choose from {', '.join(SETTINGS)}")
     tasks = [t for t in args.tasks.split(",") if t]
     unknown = [t for t in tasks if t not in TASKS]
     if unknown or not tasks:
         parser.error(f"--tasks: unknown {', '.join(unknown) or '(none given)'}; choose from {', '.join(TASKS)}")
     if args.teams < 1:
         parser.error("--teams must be ≥ 1")
-    rows = run(tasks, args.teams, args.first)
+    rows = run(tasks, args.teams, args.first, settings)
     args.out.mkdir(parents=True, exist_ok=True)
     command = " ".join(["python benchmarks/filters.py", *(sys.argv[1:] if argv is None else argv)])
     text = (f"# Filter settings on held-out random teams\n\n`{command}`: seeds {args.first}…"
