@@ -226,6 +226,27 @@ def bench_v1(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
             (f"  ratio of its step time to RandomFormation-v0's at B = {B}", v1 / v0, "ratio")]
 
 
+def bench_gate(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
+    """The smooth activation gate's cost: WholeArmStaticFormation-v1 with a 5 cm gate past its sensing range
+    against the same id's hard range, per arm-sub-step of the shielded vector env at B copies (5 sub-steps of
+    10 ms per step), timed in alternation on the same teams."""
+    from pan1_env.vector import Pan1VectorEnv
+
+    steppers = {}
+    for gate in (0.0, 0.05):
+        print(f"bench: vector env at B = {B}, WholeArmStaticFormation-v1, gate {gate} m ...", file=sys.stderr,
+              flush=True)
+        venv = Pan1VectorEnv("pan1_env/WholeArmStaticFormation-v1", B, physics_dt=0.01, random_options={"gate": gate})
+        step = _vector_stepper(venv)
+        for _ in range(3):
+            step()
+        steppers[gate] = step
+    hard, gated = _alternating_medians(*steppers.values(), repeats, 5)
+    sub_steps = B * venv.engine.n_arms * venv.substeps
+    return [(f"whole-arm v1 with a 5 cm smooth gate, per arm-sub-step (B = {B})", gated / sub_steps, ""),
+            ("  ratio to the hard sensing range (target ≤ 1.2)", gated / hard, "ratio")]
+
+
 def bench_whole_arm(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
     """Whole-arm safety against end-effector safety, per arm-sub-step of the shielded vector env on the
     same random teams (B copies of 4 arms, 5 sub-steps of 10 ms per step): links only, links and
@@ -554,30 +575,50 @@ def bench_marl(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
              t_torchrl / t_vector, "ratio")]
 
 
+#: the groups of rows, in the order they run (``--only`` picks some)
+GROUPS = ("import", "cold_start", "mpe", "acrobot", "vector", "kernel", "v1", "gate", "whole_arm", "qp",
+          "team_scaling", "marl", "reproduce", "training")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer repeats and a 10 s reproduce horizon")
     parser.add_argument("--out", type=Path, default=None, help="also write the table to this file")
+    parser.add_argument("--only", default=None, metavar="NAMES",
+                        help="comma-separated groups to run (default: all): " + ", ".join(GROUPS))
     args = parser.parse_args()
+    only = None if args.only is None else [name for name in args.only.split(",") if name]
+    if only is not None and (not only or set(only) - set(GROUPS)):
+        parser.error(f"--only: unknown {', '.join(sorted(set(only) - set(GROUPS))) or '(none given)'}; "
+                     f"choose from {', '.join(GROUPS)}")
     # the speed rows time each kind's own kernel (compiled here if need be), not the generic stand-in
     os.environ.setdefault("PAN1_ENV_KERNELS", "specialised")
     repeats, inner = (3, 50) if args.quick else (7, 200)
-    rows = bench_import()
-    rows += bench_cold_start(("4p",) if args.quick else ("2f", "4p", "5p"))
-    rows += bench_env_vs_mpe(repeats, inner)
-    rows += bench_one_arm_vs_acrobot(repeats, inner)
-    rows += bench_vector(repeats, (1, 64, 1024) if args.quick else (1, 64, 1024, 16384))
-    rows += bench_kernel(repeats)
-    rows += bench_v1(repeats)
-    rows += bench_whole_arm(repeats)
-    rows += bench_qp(300 if args.quick else 2000)
-    rows += bench_team_scaling(repeats, inner)
-    rows += bench_marl(repeats)
-    rows += bench_reproduce(10.0 if args.quick else 100.0)
-    try:
-        rows += bench_training(16_384 if args.quick else 65_536)
-    except ImportError:
-        rows.append(("PPO training rows", float("nan"), "needs the rl extra (torch, stable-baselines3)"))
+    runs = {
+        "import": bench_import,
+        "cold_start": lambda: bench_cold_start(("4p",) if args.quick else ("2f", "4p", "5p")),
+        "mpe": lambda: bench_env_vs_mpe(repeats, inner),
+        "acrobot": lambda: bench_one_arm_vs_acrobot(repeats, inner),
+        "vector": lambda: bench_vector(repeats, (1, 64, 1024) if args.quick else (1, 64, 1024, 16384)),
+        "kernel": lambda: bench_kernel(repeats),
+        "v1": lambda: bench_v1(repeats),
+        "gate": lambda: bench_gate(repeats),
+        "whole_arm": lambda: bench_whole_arm(repeats),
+        "qp": lambda: bench_qp(300 if args.quick else 2000),
+        "team_scaling": lambda: bench_team_scaling(repeats, inner),
+        "marl": lambda: bench_marl(repeats),
+        "reproduce": lambda: bench_reproduce(10.0 if args.quick else 100.0),
+        "training": lambda: bench_training(16_384 if args.quick else 65_536),
+    }
+    assert list(runs) == list(GROUPS)
+    rows = []
+    for name, run in runs.items():
+        if only is not None and name not in only:
+            continue
+        try:
+            rows += run()
+        except ImportError as err:  # the training rows need the rl extra; the marl rows TorchRL and VMAS
+            rows.append((f"{name} rows", float("nan"), f"needs an extra that is not installed: {err}"))
     table = _format(rows)
     print(table)
     if args.out is not None:
