@@ -59,3 +59,20 @@ def replay(env, actions: list) -> list:
         obs, reward, term, trunc, info = env.step(act)
         out.append((bits(obs), bits(reward), bits(term), bits(trunc), _cost(info), bits(info)))
     return out
+
+
+def model_acts_alike_on_both_views(path, scenario: str, seed: int = 3) -> dict[str, np.ndarray]:
+    """A trained model's first actions on the team vector env (``model_policy``, flat rows) and on the parallel
+    env (``sb3_policy``, per agent) after the same seeded reset agree; returns the per-agent ones."""
+    from pan1_env.baselines.evaluation import model_policy
+    from pan1_env.baselines.sb3 import sb3_policy
+    from pan1_env.environment import parallel_env
+    from pan1_env.vector import Pan1VectorEnv
+
+    flat_policy, env_kwargs = model_policy(path)
+    penv = parallel_env(scenario, **env_kwargs)
+    obs, _ = penv.reset(seed=seed)
+    flat, _ = Pan1VectorEnv(scenario, 1, **env_kwargs).reset(seed=seed)
+    by_agent = sb3_policy(path, penv)(obs)
+    np.testing.assert_allclose(flat_policy(flat)[0], np.concatenate([by_agent[a] for a in penv.agents]), atol=1e-6)
+    return by_agent

@@ -82,9 +82,7 @@ def test_actor_inputs_larger_than_the_observation_are_refused() -> None:
 
 
 def test_a_trained_mappo_model_acts_per_agent_on_the_parallel_env_as_on_the_team_vector_env(tmp_path) -> None:
-    from pan1_env.baselines.evaluation import model_policy
-    from pan1_env.baselines.sb3 import sb3_policy
-    from pan1_env.vector import Pan1VectorEnv
+    from rollouts import model_acts_alike_on_both_views
 
     out = tmp_path / "mappo"
     assert main(["train", "--scenario", "random", "--param-sharing", "--centralised-critic", "--timesteps", "512",
@@ -97,23 +95,18 @@ def test_a_trained_mappo_model_acts_per_agent_on_the_parallel_env_as_on_the_team
     local = SB3ArmVecEnv("random", 1, **MIXED).observation_space.shape[0]
     assert len(meta["observation_normalization"]["mean"]) == local  # the actor's input, not the critic's
     assert all(float(row["cost"]) == 0.0 for row in _rows(out / "eval.csv"))  # evaluated during training, shielded
-    flat_policy, env_kwargs = model_policy(out / "model.zip")
-    penv = parallel_env("random", **env_kwargs)
-    obs, _ = penv.reset(seed=3)
-    flat, _ = Pan1VectorEnv("random", 1, **env_kwargs).reset(seed=3)
-    by_agent = sb3_policy(out / "model.zip", penv)(obs)
-    np.testing.assert_allclose(flat_policy(flat)[0], np.concatenate([by_agent[a] for a in penv.agents]), atol=1e-6)
+    by_agent = model_acts_alike_on_both_views(out / "model.zip", "random")
     # what the trained network does on its training rows (own observation, then the real global state, both
     # standardised with the run's full VecNormalize statistics) is what each agent does at execution
     with (out / "checkpoints" / "state_512_steps.pkl").open("rb") as fh:
         stats = pickle.load(fh)["normalize"]["obs_rms"]
-    view = SB3ArmVecEnv("random", 1, critic_state=True, **env_kwargs)
+    view = SB3ArmVecEnv("random", 1, critic_state=True, **meta["env_kwargs"])
     view.seed(3)
     rows = np.clip((view.reset() - stats.mean) / np.sqrt(stats.var + 1e-8), -10.0, 10.0).astype(np.float32)
     trained = PPO.load(out / "model.zip", device="cpu")
     assert isinstance(trained.policy, LocalActorPolicy)
     actions = trained.predict(rows, deterministic=True)[0]
-    for i, agent in enumerate(penv.agents):
+    for i, agent in enumerate(by_agent):  # in agent order
         np.testing.assert_allclose(by_agent[agent], actions[i, : by_agent[agent].size], atol=1e-6)
 
 

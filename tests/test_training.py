@@ -183,17 +183,9 @@ def test_parameter_sharing_keeps_its_budget_and_logs_one_row_per_team_episode(tm
     evaluations = _rows(tmp_path / "eval.csv")
     assert [int(r["timesteps"]) for r in evaluations] == [0] and float(evaluations[0]["cost"]) == 0.0
     # the model on the team vector env (flat rows cut into arms) acts as on the parallel env (per agent)
-    from pan1_env.baselines.evaluation import model_policy
-    from pan1_env.baselines.sb3 import sb3_policy
-    from pan1_env.environment import parallel_env
-    from pan1_env.vector import Pan1VectorEnv
+    from rollouts import model_acts_alike_on_both_views
 
-    flat_policy, env_kwargs = model_policy(tmp_path / "model.zip")
-    penv = parallel_env("paper_pa3_square", **env_kwargs)
-    obs, _ = penv.reset(seed=3)
-    flat, _ = Pan1VectorEnv("paper_pa3_square", 1, **env_kwargs).reset(seed=3)
-    by_agent = sb3_policy(tmp_path / "model.zip", penv)(obs)
-    np.testing.assert_allclose(flat_policy(flat)[0], np.concatenate([by_agent[a] for a in penv.agents]), atol=1e-6)
+    model_acts_alike_on_both_views(tmp_path / "model.zip", "paper_pa3_square")
     assert summary["timesteps"] == 512 and latest_checkpoint(tmp_path)[1] == 512
     rows = _rows(tmp_path / "episodes.csv")
     # 64 team steps per copy, episodes of 32: two per copy, one row each (not one per arm)
