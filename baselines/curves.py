@@ -108,7 +108,8 @@ def _evaluations(path: Path) -> list[list[float]]:
 def _what_to_run(path: Path, meta: dict[str, Any]) -> str:
     """What to run to get a run with no finished episode to its first episodes: the ``pan1-env train``
     command that resumes it to the step at which every copy has finished one."""
-    from .training import DEFAULT_N_ENVS, first_episode_end, training_command
+    from .commands import training_command
+    from .training import DEFAULT_N_ENVS, first_episode_end
 
     try:
         end = first_episode_end(meta["scenario"], meta.get("env_kwargs") or {}, int(meta.get("n_envs", DEFAULT_N_ENVS)),

@@ -173,7 +173,7 @@ def package_model(run_dir: str | Path, name: str, steps: int | None = None, dest
     import shutil
     from importlib.metadata import PackageNotFoundError, version
 
-    from .training import training_command
+    from .commands import training_command
 
     run_dir = Path(run_dir)
     model = run_dir / "model.zip" if steps is None else run_dir / "checkpoints" / f"model_{steps}_steps.zip"

@@ -60,7 +60,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["train", "make_training_env", "ALGOS", "latest_checkpoint", "first_episode_end", "training_command"]
+__all__ = ["train", "make_training_env", "ALGOS", "latest_checkpoint", "first_episode_end"]
 
 ALGOS = ("ppo", "sac", "ppo-lagrangian")  # ppo-lagrangian: PPO with a Lagrange multiplier on the cost
 DEFAULT_N_ENVS = 128  # copies in the batched engine
@@ -469,32 +469,6 @@ def _critic_warmup(steps: int):
                 p.requires_grad_(trainable)
 
     return CriticWarmup()
-
-
-def training_command(run: dict[str, Any], out: str | Path = "runs/train", *, timesteps: int | None = None,
-                     resume: bool = False) -> str:
-    """The ``pan1-env train`` command that reproduces a run from its ``run.json`` into ``out``, or with ``resume``
-    continues it there to ``timesteps`` (default: the run's). Evaluation and checkpoint settings, which do not
-    change the model, are left out. Raises KeyError if ``run`` has no scenario (or no budget)."""
-    import shlex
-
-    words = ["pan1-env", "train", "--algo", str(run.get("algo", "ppo")), "--scenario", str(run["scenario"]),
-             "--shield" if run.get("shield", True) else "--no-shield", "--seed", str(run.get("seed", 0)),
-             "--n-envs", str(run.get("n_envs", DEFAULT_N_ENVS))]
-    for flag, key in (("--param-sharing", "param_sharing"), ("--centralised-critic", "centralised_critic")):
-        if run.get(key):
-            words.append(flag)
-    if run.get("normalize") is False:
-        words.append("--no-normalize")
-    for option, key in (("--env-kwargs", "env_kwargs"), ("--algo-kwargs", "algo_kwargs")):
-        if run.get(key):
-            words += [option, json.dumps(run[key], sort_keys=True)]
-    for option, key in (("--critic-warmup", "critic_warmup"), ("--cost-limit", "cost_limit"),
-                        ("--lagrangian-lr", "lagrangian_lr")):
-        if key in run:
-            words += [option, str(run[key])]
-    words += ["--timesteps", str(run["timesteps"] if timesteps is None else timesteps), "--out", str(out)]
-    return shlex.join([*words, *(["--resume"] if resume else [])])
 
 
 def first_episode_end(scenario: str, env_kwargs: dict[str, Any], n_envs: int, param_sharing: bool) -> int:

@@ -1,18 +1,10 @@
-"""Stable-Baselines3 ``VecEnv`` adapter for :class:`~pan1_env.vector.Pan1VectorEnv` (needs the ``rl`` extra).
-
-SB3 algorithms step a ``VecEnv``; :class:`SB3VecEnv` presents the batched Gymnasium vector env as
-one, so B copies advance in one compiled call instead of B Python envs::
-
-    from stable_baselines3 import PPO
-    from pan1_env.baselines.vec_env import SB3VecEnv
-    venv = SB3VecEnv("paper_pa3_square", num_envs=64)   # shielded by default
-    PPO("MlpPolicy", venv).learn(100_000)
-
-It follows SB3's conventions: ``reset()`` returns observations only (per-copy infos in
-``reset_infos``), ``seed(s)`` seeds the next reset (copy b gets ``s + b``), an ended copy is reset
-in the same step with its last observation in ``infos[b]["terminal_observation"]`` and
-``infos[b]["TimeLimit.truncated"]`` set on truncation, and each per-copy info carries ``cost``,
-``min_clearance``, ``formation_error``, ``is_success`` (and the shield flags).
+"""Stable-Baselines3 ``VecEnv`` views of :class:`~pan1_env.vector.Pan1VectorEnv` (the ``rl`` extra): B copies
+advance in one compiled call, ``PPO("MlpPolicy", SB3VecEnv("paper_pa3_square", num_envs=64)).learn(100_000)``
+(shielded by default); :class:`SB3ArmVecEnv` makes each arm an env of its own. SB3's conventions hold:
+``reset()`` returns observations only (infos in ``reset_infos``), ``seed(s)`` seeds the next reset (copy b
+gets ``s + b``), an ended copy is reset in the same step with its last observation in
+``infos[b]["terminal_observation"]`` and ``TimeLimit.truncated`` set on truncation, and each info carries
+``cost``, ``min_clearance``, ``formation_error``, ``is_success`` (and the shield flags).
 """
 
 from __future__ import annotations
@@ -33,15 +25,9 @@ __all__ = ["SB3VecEnv", "SB3ArmVecEnv"]
 
 
 class SB3VecEnv(VecEnv):
-    """SB3's ``VecEnv`` interface over a :class:`~pan1_env.vector.Pan1VectorEnv`.
-
-    Args:
-        scenario: as :class:`~pan1_env.vector.Pan1VectorEnv`, or an existing ``Pan1VectorEnv`` (then
-            ``num_envs`` and ``kwargs`` must be left out).
-        num_envs: number of copies.
-        kwargs: passed to :class:`~pan1_env.vector.Pan1VectorEnv` (``safety_filter``, ``max_steps``, …;
-            ``inspect.signature``/``help()`` list them).
-    """
+    """SB3's ``VecEnv`` interface over a :class:`~pan1_env.vector.Pan1VectorEnv` of ``num_envs`` copies built
+    from ``scenario`` and ``kwargs`` (``safety_filter``, ``max_steps``, …: ``help()`` lists them), or over an
+    existing ``Pan1VectorEnv`` given as ``scenario`` (then leave out ``num_envs`` and ``kwargs``)."""
 
     @forwards_keywords("pan1_env.vector:Pan1VectorEnv", exclude=("render_mode", "qp_solver"))
     def __init__(self, scenario: Any = "paper_pa3_square", num_envs: int = 1, **kwargs: Any) -> None:
@@ -119,22 +105,15 @@ class SB3VecEnv(VecEnv):
 
 
 class SB3ArmVecEnv(SB3VecEnv):
-    """One SB3 env per arm: the B copies × N arms of a :class:`~pan1_env.vector.Pan1VectorEnv` as B·N envs,
-    for one network shared by every arm that acts on the arm's own observation (parameter sharing,
-    decentralised execution: IPPO when trained with PPO).
-
-    Sub-env ``b·N + i`` is arm i of copy b. Its observation is the arm's local observation, zero-padded
-    at its end to the largest arm's size (bounds: the union of the arms'); its action has the largest arm's
-    size, of which the arm applies its own first k_i entries; its reward is the arm's own. The arms of a
-    copy start and end their episode together, and each sub-env's info carries the arm's ``cost`` (1 if it
-    entered an obstacle in the step), ``min_clearance`` and shield flags beside its copy's
-    ``formation_error`` and ``is_success``. ``seed(s)`` seeds copy b with ``s + b``, as the vector env does,
-    so both views meet the same teams. Arguments as :class:`SB3VecEnv`; ``num_envs`` counts copies.
-
-    With ``critic_state=True`` each row also carries its copy's global state
-    (:meth:`~pan1_env.core.FormationCore.state`) after the arm's own ``local_size`` entries, for a centralised
-    critic (MAPPO: :class:`~pan1_env.baselines.mappo.LocalActorPolicy` acts on the first ``local_size``
-    entries alone, so execution stays decentralised).
+    """The B copies × N arms of a :class:`~pan1_env.vector.Pan1VectorEnv` as B·N SB3 envs, for one network
+    shared by the arms, each acting on its own observation (IPPO when trained with PPO). Sub-env ``b·N + i``
+    is arm i of copy b: its observation is the arm's, zero-padded to the largest arm's (``local_size``), its
+    action the largest arm's size (the arm applies its first k_i entries), its reward and info (``cost``,
+    ``min_clearance``, shield flags) its own beside its copy's ``formation_error`` and ``is_success``. A
+    copy's arms start and end together; ``seed(s)`` seeds copy b with ``s + b``, as the vector env does.
+    ``critic_state=True`` appends the copy's global state (:meth:`~pan1_env.core.FormationCore.state`) to
+    each row, for MAPPO's critic (:class:`~pan1_env.baselines.mappo.LocalActorPolicy`'s actor reads only
+    the first ``local_size`` entries). Other arguments as :class:`SB3VecEnv`; ``num_envs`` counts copies.
     """
 
     @forwards_keywords("pan1_env.vector:Pan1VectorEnv", exclude=("render_mode", "qp_solver"))
@@ -181,8 +160,7 @@ class SB3ArmVecEnv(SB3VecEnv):
         out = core.step(actions.astype(np.float64), autoreset=True)
         infos = self._arm_infos(out.infos)
         if len(out.ended):
-            final = self._arm_rows(out.final_observations, out.final_state)
-            final = final.reshape(-1, N, self.observation_space.shape[0])
+            final = self._arm_rows(out.final_observations, out.final_state).reshape(core.copies, N, -1)
             for b in out.ended.tolist():
                 truncated = bool(out.truncated[b] and not out.terminated[b])
                 for i in range(N):
@@ -201,13 +179,13 @@ class SB3ArmVecEnv(SB3VecEnv):
         return self.venv.core.flat_actions(arm_actions)
 
     def _arm_rows(self, mats: list[np.ndarray], state: np.ndarray | None = None) -> np.ndarray:
-        """Each arm's padded observation, one row per sub-env, followed with ``critic_state`` by its copy's global
-        state (``state``, or the core's now)."""
+        """One row per sub-env; with ``critic_state`` its copy's global state (``state``, or the core's now)."""
         core = self.venv.core
         obs = core.padded_observations(mats)
         if self.critic_state:
             state = core.state() if state is None else state
-            obs = np.concatenate([obs, np.broadcast_to(state[:, None], (*obs.shape[:2], state.shape[1]))], axis=-1)
+            state = np.broadcast_to(state[:, None], (*obs.shape[:2], state.shape[1]))
+            obs = np.concatenate([obs, state], axis=-1)
         return obs.reshape(-1, obs.shape[-1])
 
     def _arm_infos(self, infos: dict[str, np.ndarray]) -> list[dict[str, Any]]:
