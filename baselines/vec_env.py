@@ -157,7 +157,7 @@ class SB3ArmVecEnv(SB3VecEnv):
         core, N = self.venv.core, self._arms
         actions = float_array("actions", self._actions, (self.num_envs, core.k_max)).reshape(-1, N, core.k_max)
         self._actions = None
-        out = core.step(actions.astype(np.float64), autoreset=True)
+        out = core.step(actions.astype(np.float64), autoreset=True, final_state=self.critic_state)
         infos = self._arm_infos(out.infos)
         if len(out.ended):
             final = self._arm_rows(out.final_observations, out.final_state).reshape(core.copies, N, -1)
