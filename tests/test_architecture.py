@@ -33,6 +33,26 @@ def test_no_module_is_longer_than_a_few_screens(package: str) -> None:
     assert not long, f"modules over {MAX_LINES} lines: {long}"
 
 
+MAX_COMPILED_LINES = 150
+
+
+def _compiled_functions(path: Path) -> Iterator[tuple[str, int]]:
+    """``(name, lines)`` of each function of ``path`` compiled by numba (decorated ``njit``/``jit``)."""
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.FunctionDef):
+            for deco in node.decorator_list:
+                target = deco.func if isinstance(deco, ast.Call) else deco
+                if getattr(target, "id", getattr(target, "attr", None)) in {"njit", "jit"}:
+                    yield node.name, node.end_lineno - node.lineno + 1
+
+
+def test_no_compiled_function_is_longer_than_a_screen_or_two() -> None:
+    compiled = [(str(p.relative_to(ROOT)), name, n) for p in _modules("pan1_env") for name, n in _compiled_functions(p)]
+    assert len(compiled) > 20 and any(name == "_advance_arms" for _, name, _ in compiled)  # the scan sees them
+    long = [entry for entry in compiled if entry[2] > MAX_COMPILED_LINES]
+    assert not long, f"compiled functions over {MAX_COMPILED_LINES} lines: {long}"
+
+
 #: the views of the env core: each only reshapes what the core returns
 VIEWS = ("pan1_env/environment.py", "pan1_env/centralized.py", "pan1_env/vector.py", "pan1_env/reach.py",
          "pan1_env/marl.py", "baselines/vec_env.py", "wrappers/padding.py")

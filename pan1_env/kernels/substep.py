@@ -1,35 +1,61 @@
 """The sub-step kernel: every arm of a group advanced through the physics sub-steps of a control step
-(filter, backstepping tracker, RK4), W arms at once; serial and multi-threaded entry points."""
+(filter, backstepping tracker, RK4), W arms at once; serial and multi-threaded entry points.
+
+:func:`_advance_arms` advances the arms ``lo … hi−1`` of :func:`group_advance`; the steps in
+:mod:`.steps` do the work, each on all lanes.
+
+With ``sizes`` None (the per-kind kernels), ``n``, ``k`` and the lane count W are compile-time
+constants (the lengths of the tuples ``links``, ``actuated`` and ``lanes``): with the loops over
+links, joints and lanes of known length, LLVM unrolls them and packs the lanes into vector
+registers. With ``sizes = (n, k)`` and ``lane_qp`` None (the generic kernel) n and k are read at
+run time and the tuples only size the scratch arrays, and the QP skips its lane-batched first
+candidate (:func:`_filter_rows_lanes` instead of :func:`_first_projection_lanes`); the
+operations on each value and their order are the same, so are the results, bit for bit (no
+fast-math flag lets LLVM round differently: ``_JIT``).
+
+The arms go W at a time (the last group padded with copies of the last arm, never written
+back). Each group's parameters and state are copied into stack arrays (:func:`_local`) with the
+lanes as their last axis, advanced through the sub-steps there and written back: the hot loop
+makes no array view and, but for the obstacles and the filter's rows, touches no heap scratch.
+Dynamics, tracker, RK4 and the safety filter's rows run on all lanes at once, and so does the QP
+as far as one active row settles it (:func:`_first_projection_lanes`, many filtered sub-steps);
+the lanes it does not settle get the full active-set search one by one (:func:`_project_one`).
+
+The link angles' sines and cosines are computed from q (``_lane_angles``) once per arm at the
+start of a call (and again after a non-finite state), or with whole-arm ``carried`` read from
+``angles``, where the previous call left them; RK4 stages and the state a sub-step reaches get
+theirs by rotating those at the sub-step's start (``_rotate_lanes``, within an ulp). Those at the
+state reached serve its clearance and the next sub-step's filter, tracker and first RK4 stage.
+
+An arm whose state goes non-finite stops there (its lane is frozen at the last finite state and
+its outputs are those of the failing sub-step), as its own loop would; the other lanes go on.
+
+``whole`` None (numba prunes the branches that read it) keeps the end-effector filter; a tuple
+switches to whole-arm safety (:func:`group_advance`). Its ``joints`` and ``angles`` receive every arm's
+joints and link angles' cosines and sines at the final state: the engine refreshes the other arms'
+capsules from the joints between its calls within a control step (one per sub-step with other arms),
+and each call after the first starts from the angles the previous one reached (``carried``), as one
+call's sub-steps do; each step's first call starts from q, so a step is a function of the state.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit, prange
 
-from ._numba_ext import _JIT, _LANES, _check_chunks, _local, _quick_when, _slp_vectorised
-from .capsules import (
-    CAP_ACTIVE,
-    NEAR_COLUMNS,
-    _joints,
-    least_violation,
-    whole_arm_clearance_lanes,
-    whole_arm_rows,
-)
-from .physics import (
-    _acceleration_lanes,
-    _jacobian_lanes,
-    _lane_angles,
-    _mass_lanes,
-    _position_lanes,
-    _rotate_lanes,
-)
-from .qp import (
-    STATUS_FALLBACK,
-    STATUS_NOMINAL,
-    STATUS_SOLVED,
-    _filter_rows_lanes,
-    _first_projection_lanes,
-    _project_one,
+from ._numba_ext import _JIT, _LANES, _borrowed, _check_chunks, _keep_alive, _local, _quick_when, _slp_vectorised
+from .capsules import NEAR_COLUMNS, whole_arm_clearance_lanes
+from .physics import _position_lanes
+from .steps import (
+    _desired_velocity,
+    _filter_end_effector,
+    _filter_whole_arm,
+    _load_arms,
+    _load_filter,
+    _rk4,
+    _store_outputs,
+    _store_state,
+    _track,
 )
 
 
@@ -38,49 +64,8 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                   has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, distance,
                   decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts,
                   max_track, finite_out, whole):
-    """Arms ``lo … hi−1`` of :func:`group_advance` (the loop body, with its own scratch space).
-
-    With ``sizes`` None (the per-kind kernels), ``n``, ``k`` and the lane count W are compile-time
-    constants (the lengths of the tuples ``links``, ``actuated`` and ``lanes``): with the loops over
-    links, joints and lanes of known length, LLVM unrolls them and packs the lanes into vector
-    registers. With ``sizes = (n, k)`` and ``lane_qp`` None (the generic kernel) n and k are read at
-    run time and the tuples only size the scratch arrays, and the QP skips its lane-batched first
-    candidate (:func:`_filter_rows_lanes` instead of :func:`_first_projection_lanes`); the
-    operations on each value and their order are the same, so are the results, bit for bit (no
-    fast-math flag lets LLVM round differently: ``_JIT``).
-
-    The arms go W at a time (the last group padded with copies of the last arm, never written
-    back). Each group's parameters and state are copied into stack arrays (:func:`_local`) with the
-    lanes as their last axis, advanced through the sub-steps there and written back: the hot loop
-    makes no array view and, but for the obstacles and the filter's rows, touches no heap scratch.
-    Dynamics, tracker, RK4 and the safety filter's rows run on all lanes at once, and so does the QP
-    as far as one active row settles it (:func:`_first_projection_lanes`, many filtered sub-steps);
-    the lanes it does not settle get the full active-set search one by one (:func:`_project_one`).
-
-    The link angles' sines and cosines are computed from q (``_lane_angles``) once per arm at the
-    start of a call (and again after a non-finite state), or with whole-arm ``carried`` read from
-    ``angles``, where the previous call left them; RK4 stages and the state a sub-step reaches get
-    theirs by rotating those at the sub-step's start (``_rotate_lanes``, within an ulp). Those at the
-    state reached serve its clearance and the next sub-step's filter, tracker and first RK4 stage.
-
-    An arm whose state goes non-finite stops there (its lane is frozen at the last finite state and
-    its outputs are those of the failing sub-step), as its own loop would; the other lanes go on.
-
-    ``whole`` None (numba prunes the branches that read it) keeps the end-effector filter above; a
-    tuple ``(capsules, start_time, link_radius, links, sensing, gate, skin, joints, n_world, angles, carried,
-    finish)`` switches to whole-arm safety (:mod:`.capsules`): each filtered lane's rows are its bodies
-    against its capsules at the sub-step's time, solved by the full search, and the clearance after a
-    sub-step is its bodies' to the world obstacles, the first ``n_world`` capsules (the engine passes
-    no end-effector obstacles then). ``joints (A, L + 1, 2)`` receives every arm's base, joints and
-    end-effector at the final state (the end-effector repeated up to L), from which the engine
-    refreshes the other arms' capsules between calls, and ``angles (A, 2, n)`` the cosines and sines
-    of its link angles there. ``carried`` True starts every arm from ``angles`` instead of computing
-    them from q: the engine's calls after the first within a control step (one per sub-step with
-    other arms) then go on from the angles the previous call reached, as one call's sub-steps do,
-    while each step's first call starts from q, so a step is a function of the state. ``finish``
-    False leaves ``qd_out`` and ``p_out`` unwritten (and their mass matrix uncomputed): the engine's
-    calls within a control step need neither, only its last call does."""
-    finish = True  # the joint velocities and end-effectors at the end (whole-arm calls may leave them out)
+    """Arms ``lo … hi−1`` of :func:`group_advance` (the loop body, with its own scratch space): see the
+    module's docstring for the lanes, the per-kind and generic signatures and the whole-arm calls."""
     if sizes is None:  # the per-kind kernel (numba prunes the other branch by the argument's type)
         n = len(links)
         k = len(actuated)
@@ -92,7 +77,6 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     O = radii.shape[1]
     m = O + 2 * k
     inv_dt = 1.0 / dt  # divisions by dt as products (_JIT leaves arcp off, so LLVM keeps divisions)
-    tau_off = tau_out.shape[1] - k  # 0 for (A, k) torques; n − k for full (A, n) rows (passive entries untouched)
     # Scratch space in this function's stack frame (shapes from the size tuples, so fixed at compile
     # time), the lanes last. Only what depends on the number of obstacles lives on the heap.
     f8, b1 = np.float64, np.bool_
@@ -129,6 +113,12 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
         _local(kx, f8)
     # RK4: trial state, stage derivative, weighted sums
     qt, vt, dv, sq, sv = _local(nw, f8), _local(kw, f8), _local(kw, f8), _local(nw, f8), _local(kw, f8)
+    dyn, chol, stages = (M, R, Sn, Mc, Hc, qd, thd, H), (rhs, Lc, yc, ok), (qt, vt, dv, sq, sv)
+    # the groups' heap arrays unreferenced (_borrowed), kept alive to the end (_keep_alive below)
+    ee = _borrowed((J, Jbar, filtered, row_A, row_b, row_h, row_norm, row_act, obst_rows, needs_qp, q_best,
+                    q_best_viol, q_Ab, q_bb, q_cand, q_found))
+    search = _borrowed((Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy))
+    fparams = (kappa, epsilon, margin, distance, decay, v_max)
     if whole is not None:  # whole-arm scratch: one lane's rows (bodies × capsules, speed bounds) and joints
         caps, start_time, rho, link_bodies, sensing, gate, skin, joints_out, n_world, angles, carried, finish = whole
         jw = (links + (0,), lanes)  # joints: n + 1 per lane
@@ -139,296 +129,53 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
         wrows, wviol, wnorm, wP = np.empty(m_whole, dtype=np.int64), np.empty(m_whole), np.empty(m_whole), \
             np.empty((n + 1, 2))
         wb0, wn0, wnear = np.empty(m_whole), np.empty(m_whole), np.empty((caps.shape[1], NEAR_COLUMNS))
+        owned = (wA, wb, wact, wP, wnear, wrows, wviol, wnorm, wb0, wn0, joints_x, joints_y, ox, oy, orad)
+        scratch = _borrowed(owned)
+        bodies = (rho, link_bodies, sensing, gate, skin)
+    else:  # one assignment each, so that numba prunes the inlined steps' branches on them
+        owned = None
+        scratch = None
     if v_max < np.inf:
         for t in range(k):  # the full search's speed bounds ±v_t ≤ v_max, the same in every lane
-            Arows[O + 2 * t, t] = 1.0
-            Arows[O + 2 * t + 1, t] = -1.0
-            brows[O + 2 * t] = v_max
-            brows[O + 2 * t + 1] = v_max
-            active[O + 2 * t] = True
-            active[O + 2 * t + 1] = True
+            for row, sign in ((O + 2 * t, 1.0), (O + 2 * t + 1, -1.0)):
+                Arows[row, t] = sign
+                brows[row] = v_max
+                active[row] = True
     for first in range(lo, hi, W):
-        for w in range(W):
-            i = min(first + w, hi - 1)
-            arm[w] = i
-            real[w] = first + w < hi
-            for x in range(3):
-                counts[x, w] = 0
-            for a in range(n):
-                qi[a, w] = q[i, a]
-                ln[a, w] = lengths[i, a]
-                for b in range(n):
-                    lm[a, b, w] = lam[i, a, b]
-            for t in range(k):
-                vi[t, w] = v[i, t]
-                vp[t, w] = v_prev[i, t]
-                vs_last[t, w] = np.nan
-                tau_last[t, w] = np.nan
-            bx[w], by[w], ph[w] = base[i, 0], base[i, 1], phi[i]
-            if real[w]:
-                finite_out[i] = True
-            uf = filter_on and torque_mode and v_max < np.inf
-            for j in range(O):
-                obstacles[0, j, w] = centers[i, j, 0]
-                obstacles[1, j, w] = centers[i, j, 1]
-                obstacles[2, j, w] = radii[i, j]
-                lane_active[j, w] = mask[i, j]
-                if filter_on and mask[i, j]:
-                    uf = True
-            if whole is not None and filter_on and not uf:
-                for j in range(caps.shape[1]):  # the first active capsule decides (and spares the others' reads)
-                    if caps[i, j, CAP_ACTIVE] != 0.0:
-                        uf = True
-                        break
-            use_filter[w] = uf
-            prev_ok[w] = has_prev[i]
-            live[w] = True
-            arm_clear[w] = min_clear[i]
-            arm_h[w] = min_h[i]
-            arm_track[w] = max_track[i]
-            if whole is not None and carried:  # those the previous call of the control step ended with
-                for a in range(n):
-                    c[a, w] = angles[i, 0, a]
-                    s[a, w] = angles[i, 1, a]
-            else:
-                _lane_angles(qi, ph, n, w, c, s)
-        any_filter = False
-        for w in range(W):
-            any_filter = any_filter | use_filter[w]
-        for _s in range(n_sub):
-            _mass_lanes(lm, c, s, vi, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H)
-            # the velocity to filter: the command, or the one-step result of the commanded torque
-            if torque_mode:
-                for t in range(k):
-                    for w in range(W):
-                        tau[t, w] = command[arm[w], t]
-                if any_filter:
-                    _acceleration_lanes(Mc, Hc, tau, k, W, acc, rhs, Lc, yc, ok)  # NaN where not SPD: 0 below
-                    for t in range(k):
-                        for w in range(W):
-                            vdes[t, w] = vi[t, w] + dt * (acc[t, w] if ok[w] else 0.0)
-            else:
-                for t in range(k):
-                    for w in range(W):
-                        vdes[t, w] = command[arm[w], t]
-            for t in range(k):
-                for w in range(W):
-                    vs[t, w] = vdes[t, w]
-            for w in range(W):
-                status[w] = STATUS_NOMINAL
+        _load_arms(first, hi, n, k, W, lam, lengths, base, phi, q, v, v_prev, whole, arm, real, counts, lm, ln, qi, vi,
+                   vp, bx, by, ph, vs_last, tau_last, c, s)
+        any_filter = _load_filter(W, O, filter_on, torque_mode, v_max, centers, radii, mask, has_prev, min_clear, min_h,
+                                  max_track, finite_out, whole, arm, real, obstacles, lane_active, use_filter, prev_ok,
+                                  live, arm_clear, arm_h, arm_track)
+        for sub in range(n_sub):
+            _desired_velocity(n, k, W, passive, any_filter, torque_mode, dt, command, arm, lm, vi, c, s, dyn, chol, tau,
+                              acc, vdes, vs, status)
             if any_filter and whole is not None:
-                for w in range(W):
-                    if use_filter[w] and live[w] and real[w]:
-                        for t in range(k):
-                            qv0[t] = vdes[t, w]
-                        m_w, h_w = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, gate, skin, dt,
-                                                  ln, bx, by, c, s, qd, M, caps, start_time[arm[w]] + _s * dt, kappa,
-                                                  epsilon, margin, distance, decay, v_max, qv0, wA, wb, wact, wP,
-                                                  wnear)
-                        arm_h[w] = min(arm_h[w], h_w)
-                        status[w] = _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand,
-                                                 qL, qy, wviol, wnorm)
-                        if status[w] == STATUS_FALLBACK:
-                            # infeasible: the fallback first drops the robust term (ε → ∞: the plain CBF
-                            # condition, which a moving obstacle or a crowd of capsules can leave feasible),
-                            # then takes the velocity that violates the rows least (braking does not keep a
-                            # moving obstacle out); reported as a fallback either way
-                            m_w, _ = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, gate, skin, dt,
-                                                    ln, bx, by, c, s, qd, M, caps, start_time[arm[w]] + _s * dt,
-                                                    kappa, np.inf, margin, distance, decay, v_max, qv0, wA, wb,
-                                                    wact, wP, wnear)
-                            if _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand, qL, qy,
-                                            wviol, wnorm) == STATUS_FALLBACK:
-                                least_violation(qv0, wA, wb, wact, m_w, k, 2 * k if v_max < np.inf else 0, qvs, wb0,
-                                                wn0, wrows, qidx, qG, qr, qlam, qcand, qL, qy, wviol, wnorm)
-                        for t in range(k):
-                            vs[t, w] = qvs[t]
+                _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodies, scratch, arm, real, ln,
+                                  bx, by, c, s, dyn, use_filter, live, vdes, vs, status, arm_h, search)
             elif any_filter:
-                _position_lanes(ln, bx, by, c, s, n, W, px, py)
-                _jacobian_lanes(ln, c, s, M, passive, n, k, W, J, Jbar)
-                for w in range(W):
-                    filtered[w] = use_filter[w] & live[w] & real[w]  # a padded lane's result is never used
-                # numba prunes a branch only on an argument that is None: lane_qp is None in the generic
-                # kernel, sizes in the per-kind ones, so each compiles one of the two QP stages
-                if lane_qp is None:
-                    if sizes is not None:  # the generic kernel: every filtered lane to the full search
-                        # (whose first test is the feasibility test the lane-batched stage starts with)
-                        _filter_rows_lanes(px, py, Jbar, obstacles, lane_active, filtered, kappa, epsilon, margin,
-                                           distance, decay, O, k, W, arm_h, row_A, row_b, row_h, obst_rows)
-                        for w in range(W):
-                            needs_qp[w] = filtered[w]
-                            q_found[w] = False
-                else:
-                    _first_projection_lanes(px, py, Jbar, obstacles, lane_active, filtered, kappa, epsilon, margin,
-                                            distance, decay, v_max, O, k, W, vdes, arm_h, row_A, row_b, row_h,
-                                            row_norm, row_act, obst_rows, needs_qp, q_best, q_best_viol, q_Ab, q_bb,
-                                            q_cand, q_found)
-                for w in range(W):
-                    if needs_qp[w] and q_found[w]:
-                        status[w] = STATUS_SOLVED
-                        for t in range(k):
-                            vs[t, w] = q_cand[t, w]
-                    elif needs_qp[w]:  # the full active-set search, on this lane's RCBF rows (speed rows set above)
-                        for j in range(O):
-                            for t in range(k):
-                                Arows[j, t] = obst_rows[j, t, w]
-                            brows[j] = obst_rows[j, k, w]
-                            active[j] = lane_active[j, w]
-                        for t in range(k):
-                            qv0[t] = vdes[t, w]
-                        status[w] = _project_one(qv0, Arows, brows, active, m, k, qvs, qrows, qidx, qG, qr, qlam,
-                                                 qcand, qL, qy, qviol, qnorm)
-                        for t in range(k):
-                            vs[t, w] = qvs[t]
-            for x in range(3):
-                for w in range(W):
-                    counts[x, w] += 1 if live[w] and status[w] == x else 0
-            if not torque_mode:
-                # backstepping tracker of v* (Eq. 64), v̇* by backward difference
-                for w in range(W):
-                    err = 0.0
-                    for t in range(k):
-                        e = vi[t, w] - vs[t, w]
-                        err += e * e
-                    err = np.sqrt(err)
-                    arm_track[w] = err if live[w] and err > arm_track[w] else arm_track[w]
-                for t in range(k):
-                    for w in range(W):
-                        vdot = (vs[t, w] - vp[t, w]) * inv_dt if prev_ok[w] else 0.0
-                        acc[t, w] = vdot - ke * (vi[t, w] - vs[t, w])
-                for r in range(k):
-                    for w in range(W):
-                        tr = Hc[r, w]
-                        for t in range(k):
-                            tr += Mc[r, t, w] * acc[t, w]
-                        tau[r, w] = tr
-                for t in range(k):
-                    for w in range(W):
-                        vp[t, w] = vs[t, w] if live[w] else vp[t, w]
-                for w in range(W):
-                    prev_ok[w] = prev_ok[w] | live[w]
-            else:
-                for w in range(W):
-                    if status[w] != STATUS_NOMINAL:
-                        # the torque's velocity was unsafe: reach the projected velocity in one step
-                        for r in range(k):
-                            tr = Hc[r, w]
-                            for t in range(k):
-                                tr += Mc[r, t, w] * (vs[t, w] - vi[t, w]) * inv_dt
-                            tau[r, w] = tr
-                    elif not use_filter[w]:
-                        for t in range(k):
-                            vs[t, w] = np.nan
-            for t in range(k):
-                for w in range(W):
-                    vs_last[t, w] = vs[t, w] if live[w] else vs_last[t, w]
-                    tau_last[t, w] = tau[t, w] if live[w] else tau_last[t, w]
-            # RK4 with τ held; the first stage uses the terms at the current state, and every stage's
-            # link angles come from the current ones (c0, s0) by a small rotation
-            for a in range(n):
-                for w in range(W):
-                    c0[a, w] = c[a, w]
-                    s0[a, w] = s[a, w]
-            _acceleration_lanes(Mc, Hc, tau, k, W, dv, rhs, Lc, yc, ok)
-            for a in range(n):
-                for w in range(W):
-                    sq[a, w] = qd[a, w]
-            for t in range(k):
-                for w in range(W):
-                    sv[t, w] = dv[t, w]
-            for stage in range(3):
-                hs = 0.5 * dt if stage < 2 else dt
-                g = 2.0 if stage < 2 else 1.0
-                for t in range(k):
-                    for w in range(W):
-                        vt[t, w] = vi[t, w] + hs * dv[t, w]
-                # the stage's state q + hs q̇: its link angles θ + hs θ̇ (θ̇ = thd of the previous stage)
-                _rotate_lanes(c0, s0, thd, hs, n, W, c, s)
-                _mass_lanes(lm, c, s, vt, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H)
-                _acceleration_lanes(Mc, Hc, tau, k, W, dv, rhs, Lc, yc, ok)
-                for a in range(n):
-                    for w in range(W):
-                        sq[a, w] += g * qd[a, w]
-                for t in range(k):
-                    for w in range(W):
-                        sv[t, w] += g * dv[t, w]
-            for w in range(W):
-                finite = True
-                acc_th = 0.0
-                for a in range(n):
-                    qt[a, w] = qi[a, w] + dt / 6.0 * sq[a, w]
-                    acc_th += sq[a, w]
-                    thd[a, w] = acc_th  # Σ of the weighted stage speeds: the step moves link angle a by dt/6 · thd
-                    finite = finite & np.isfinite(qt[a, w])
-                for t in range(k):
-                    vt[t, w] = vi[t, w] + dt / 6.0 * sv[t, w]
-                    finite = finite & np.isfinite(vt[t, w])
-                if live[w] and not finite:
-                    live[w] = False
-                    if real[w]:
-                        finite_out[arm[w]] = False
-            _rotate_lanes(c0, s0, thd, dt / 6.0, n, W, c, s)
-            n_live = 0
-            for w in range(W):
-                if live[w]:
-                    n_live += 1
-                    for a in range(n):
-                        qi[a, w] = qt[a, w]
-                    for t in range(k):
-                        vi[t, w] = vt[t, w]
-                else:  # frozen at its last finite state (whose angles the sub-step started from)
-                    for a in range(n):
-                        c[a, w] = c0[a, w]
-                        s[a, w] = s0[a, w]
-            if n_live == 0:
+                _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, ln, bx, by, c, s, dyn, px,
+                                     py, obstacles, lane_active, use_filter, live, vdes, vs, status, arm_h, ee, search)
+            _track(k, W, torque_mode, ke, inv_dt, vi, vp, Mc, Hc, use_filter, live, prev_ok, status, counts,
+                   arm_track, vs, acc, tau, vs_last, tau_last)
+            if _rk4(n, k, W, passive, dt, finite_out, arm, real, live, lm, qi, vi, tau, c, s, c0, s0, dyn, chol,
+                    stages) == 0:
                 break
             # clearance after the sub-step (a stopped lane keeps its value)
             _position_lanes(ln, bx, by, c, s, n, W, px, py)
             for j in range(O):
                 for w in range(W):
-                    dx = px[w] - obstacles[0, j, w]
-                    dy = py[w] - obstacles[1, j, w]
+                    dx, dy = px[w] - obstacles[0, j, w], py[w] - obstacles[1, j, w]
                     cl = np.sqrt(dx * dx + dy * dy) - obstacles[2, j, w]
                     arm_clear[w] = cl if live[w] and cl < arm_clear[w] else arm_clear[w]
-            if whole is not None:
+            if whole is not None:  # the bodies' clearance to the world's obstacles
                 whole_arm_clearance_lanes(arm, live, n, W, link_bodies, rho, ln, bx, by, c, s, caps, n_world,
-                                          start_time, (_s + 1) * dt, joints_x, joints_y, ox, oy, orad, arm_clear)
-        # joint velocities and end-effector at the (last finite) state; a stopped arm's angles from q
-        for w in range(W):
-            if not live[w]:
-                _lane_angles(qi, ph, n, w, c, s)
-        if finish:
-            _mass_lanes(lm, c, s, vi, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H)
-            _position_lanes(ln, bx, by, c, s, n, W, px, py)
-        for w in range(W):
-            if real[w]:
-                i = arm[w]
-                has_prev[i] = prev_ok[w]
-                for x in range(3):
-                    qp_counts[i, x] += counts[x, w]
-                min_clear[i] = arm_clear[w]
-                min_h[i] = arm_h[w]
-                max_track[i] = arm_track[w]
-                for t in range(k):
-                    v_star_out[i, t] = vs_last[t, w]
-                    tau_out[i, tau_off + t] = tau_last[t, w]
-                    v[i, t] = vi[t, w]
-                    v_prev[i, t] = vp[t, w]
-                for a in range(n):
-                    q[i, a] = qi[a, w]
-                if finish:
-                    for a in range(n):
-                        qd_out[i, a] = qd[a, w]
-                    p_out[i, 0] = px[w]
-                    p_out[i, 1] = py[w]
-                if whole is not None:
-                    for a in range(n):
-                        angles[i, 0, a] = c[a, w]
-                        angles[i, 1, a] = s[a, w]
-                    _joints(ln, bx, by, c, s, n, w, wP)
-                    for a in range(joints_out.shape[1]):
-                        joints_out[i, a, 0] = wP[min(a, n), 0]
-                        joints_out[i, a, 1] = wP[min(a, n), 1]
+                                          start_time, (sub + 1) * dt, joints_x, joints_y, ox, oy, orad, arm_clear)
+        _store_outputs(k, W, arm, real, has_prev, prev_ok, qp_counts, counts, min_clear, arm_clear, min_h, arm_h,
+                       max_track, arm_track, v_star_out, vs_last, tau_out, tau_last, v, vi, v_prev, vp)
+        _store_state(n, k, W, passive, whole, scratch, q, qd_out, p_out, arm, real, live, ph, lm, ln, bx, by, qi,
+                     vi, c, s, dyn, px, py)
+    _keep_alive((obstacles, lane_active, obst_rows, Arows, brows, active, qrows, qviol, qnorm, owned))
 
 
 _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a held command (in place).
