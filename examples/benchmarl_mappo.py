@@ -3,7 +3,7 @@ shield) on a pan1-env task.
 
     pip install torch==2.13.0 torchvision==0.28.0 --index-url https://download.pytorch.org/whl/cpu
     pip install -e ".[benchmarl]"
-    python examples/benchmarl_mappo.py --task random --frames 200000 --seed 0 --out runs/mappo_random
+    python examples/benchmarl_mappo.py --task pan1_env/RandomFormation-v1 --frames 200000 --seed 0 --out runs/mappo_v1
     python examples/benchmarl_mappo.py --task paper_pa3_square --algorithm ippo --frames 6000
 
 ``--task`` is any scenario or registered id (:data:`pan1_env.benchmarl_task.TASKS` lists the standard ones) or a
@@ -49,7 +49,8 @@ def build(args: argparse.Namespace) -> Experiment:
 
 def main(argv: list[str] | None = None) -> Experiment:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--task", default="random", help="a scenario, a registered id or a task YAML file")
+    parser.add_argument("--task", default="pan1_env/RandomFormation-v1",
+                        help="a scenario, a registered id or a task YAML file (default: v1's random teams)")
     parser.add_argument("--algorithm", choices=sorted(ALGORITHMS), default="mappo")
     parser.add_argument("--frames", type=int, default=200_000, help="agent-team frames in all (BenchMARL's count)")
     parser.add_argument("--batch", type=int, default=6000, help="frames collected per update")

@@ -4,7 +4,7 @@
 in one batched call, so BenchMARL needs no ``SerialEnv`` around it). Its ``name`` is any scenario or registered
 id (``"paper_pa3_square"``, ``"random"``, ``"pan1_env/WholeArmStaticFormation-v0"``), its ``config`` the env's
 keywords (:class:`~pan1_env.config.FormationConfig`; ``safety_filter`` defaults to True here: the shield is
-on while the policies learn). :data:`TASKS` gives the three standard tasks with their defaults, and
+on while the policies learn). :data:`TASKS` gives the standard tasks with their defaults, and
 ``pan1_env/benchmarl_tasks/*.yaml`` the same as YAML files, for ``Pan1Task.from_yaml(path)``.
 
 What BenchMARL sees: one group ``arms``; the models' input is each arm's own observation (the policy acts on
@@ -28,12 +28,15 @@ from .marl import GROUP, torchrl_env
 
 __all__ = ["Pan1Task", "TASKS", "YAML_DIR"]
 
-#: the standard tasks: the paper's two squares and the random and whole-arm teams, shielded
+#: the standard tasks, shielded: the paper's two squares, and the random and whole-arm teams behind the paper's
+#: filter (v0) and behind the v1 filter, which holds no arm still far from the obstacles (docs/ENVIRONMENTS.md)
 TASKS = {
     "paper_pa3_square": {"safety_filter": True},
     "paper_pa_mixed_square": {"safety_filter": True},
     "random": {"safety_filter": True},
     "pan1_env/WholeArmStaticFormation-v0": {"safety_filter": True},
+    "pan1_env/RandomFormation-v1": {"safety_filter": True},
+    "pan1_env/WholeArmStaticFormation-v1": {"safety_filter": True},
 }
 YAML_DIR = Path(__file__).with_name("benchmarl_tasks")
 

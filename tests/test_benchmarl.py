@@ -28,6 +28,8 @@ def test_the_task_builds_envs_benchmarl_can_use(name: str) -> None:
     assert task.group_map(env) == {"arms": [f"arm_{i}" for i in range(4)]}
     assert list(task.observation_spec(env).keys(True, True)) == [("arms", "observation")]
     assert task.max_steps(env) == 20 and env.core.engine.filter is not None  # shielded by default
+    if name.endswith("-v1"):  # behind the v1 filter, not the paper's
+        assert (env.core.engine.filter.barrier, env.core.engine.filter.decay) == ("distance", 50.0)
     with pytest.raises(ValueError, match="continuous"):
         task.get_env_fun(num_envs=1, continuous_actions=False, seed=0, device="cpu")
 
