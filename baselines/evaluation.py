@@ -42,11 +42,15 @@ def evaluate(policy: Callable[[np.ndarray], np.ndarray], scenario: str = "random
     ``min_clearance`` (m, the smallest over the episode's sub-steps and arms) and, behind the shield,
     ``intervention_rate`` and ``fallback_rate`` (the fraction of steps in which the filter changed some
     arm's command, or fell back for some arm). ``shield``: the vector env's ``safety_filter`` (``True``, ``False``
-    or a :class:`~pan1_env.safety.FilterParams`)."""
+    or a :class:`~pan1_env.safety.FilterParams`). A policy with an ``attach(venv)`` method (one that reads the
+    copies' teams, such as :class:`~pan1_env.baselines.adversarial.VectorAdversary`) is first attached to the
+    vector env built here."""
     from pan1_env.vector import Pan1VectorEnv
 
     seeds = [int(s) for s in seeds]
     venv = Pan1VectorEnv(scenario, len(seeds), safety_filter=shield, **(env_kwargs or {}))
+    if hasattr(policy, "attach"):
+        policy.attach(venv)
     B, dt = len(seeds), venv.control_dt
     obs, _ = venv.reset(seed=seeds)
     live = np.ones(B, dtype=bool)

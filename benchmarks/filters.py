@@ -1,7 +1,8 @@
 """The conservatism study: how the safety filter's design trades safety against what the paper's law can form.
 
     python benchmarks/filters.py [--teams 200] [--first 2000000] [--out runs/filters] [--tasks end_effector,whole_arm]
-                                 [--settings paper,radius,...]
+                                 [--settings paper,radius,...] [--policies reference,random,adversarial]
+                                 [--no-classes] [--max-steps N]
 
 For each task (``end_effector``: RandomFormation's teams, each end-effector kept out of the obstacles;
 ``whole_arm``: WholeArmStaticFormation's teams, every link a capsule kept out of the obstacles and off the
@@ -13,15 +14,21 @@ setting was tuned) two policies behind the filter, all teams of a setting batche
 * ``reference``: the paper's law (the zero action in residual mode), which measures what the filter lets a
   good controller form;
 * ``random``: uniform random velocity actions held for 1 s each (persistent, so that arms travel and
-  meet the obstacles), which measures how close the filter lets a careless policy come.
+  meet the obstacles), which measures how close the filter lets a careless policy come;
+* ``adversarial``: every arm driven at full action straight at its nearest obstacle
+  (:class:`pan1_env.baselines.VectorAdversary`), which measures what the filter lets through when a policy
+  tries to collide.
 
 Per row: success at 1 / 2 / 5 cm, mean time to formation (formed teams), intervention and fallback rates
 (the fraction of steps in which the filter changed, or fell back for, some arm's command), the smallest
-clearance over every sub-step (m; ≥ 0 is safe) and the cost (arm-steps inside an obstacle). Writes
-``filters.md`` (the table), ``filters.json`` and ``filters.png``: the reference's success against the
-smallest clearance any policy reached, one point per setting and task, the Pareto front (no other setting
-both forms more and keeps farther) marked. The failure classes of one setting come from
-``benchmarks/failures.py --task``.
+clearance over every sub-step (m; ≥ 0 is safe) and the cost (arm-steps inside an obstacle). For the
+reference, each team it fails is run again, alone, through ``benchmarks/failures.py``'s classifier (the
+law in velocity mode, :class:`pan1_env.baselines.ReferencePolicy`, on the parallel env behind the same
+filter), and the row counts the failure classes, the freeze (``shield_far``: an arm held by the filter far
+from any obstacle) first; ``--no-classes`` skips this, the slow part. Writes ``filters.md`` (the tables),
+``filters.json`` and ``filters.png``: the reference's success against the smallest clearance any policy
+reached, one point per setting and task, the Pareto front (no other setting both forms more and keeps
+farther) marked.
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pan1_env.baselines import ReferencePolicy, VectorAdversary
 from pan1_env.baselines.evaluation import TOLERANCES, evaluate, law_policy
 from pan1_env.registration import env_arguments
 from pan1_env.safety import FilterParams
@@ -76,13 +84,37 @@ def _persistent_random(size: int, teams: int, seed: int):
     return policy
 
 
-def run(tasks: list[str], teams: int, first: int, settings: list[str] | None = None) -> list[dict]:
+def failure_classes(task: str, params: FilterParams, seeds: list[int], max_steps: int | None = None,
+                    progress: bool = True) -> dict[str, int]:
+    """How many of ``seeds`` (teams the reference failed) fall in each class of ``benchmarks/failures.py``
+    (``formed`` for a team the law forms when run again in velocity mode)."""
+    from tqdm import tqdm
+
+    import pan1_env
+
+    if str(Path(__file__).resolve().parent) not in sys.path:  # failures.py is a script beside this one
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import failures
+
+    env = pan1_env.parallel_env(TASKS[task], safety_filter=params, max_steps=max_steps)
+    policy = ReferencePolicy(env)
+    counts = dict.fromkeys((*failures.CLASSES, "formed"), 0)
+    for seed in tqdm(seeds, desc="failure classes", disable=not progress or not seeds, leave=False):
+        counts[failures.run_episode(env, policy, seed)["class"] or "formed"] += 1
+    env.close()
+    return counts
+
+
+def run(tasks: list[str], teams: int, first: int, settings: list[str] | None = None, classes: bool = True,
+        policies: tuple[str, ...] = ("reference", "random", "adversarial"), max_steps: int | None = None) -> list[dict]:
     from pan1_env.vector import Pan1VectorEnv
 
     seeds = range(first, first + teams)
     rows = []
     for task in tasks:
         scenario, kwargs = env_arguments(TASKS[task])
+        if max_steps is not None:
+            kwargs["max_steps"] = max_steps
         size = Pan1VectorEnv(scenario, 1, **kwargs).single_action_space.shape[0]
         law = law_policy(scenario, {**kwargs, "action_mode": "residual"})
         for key in settings or list(SETTINGS):
@@ -92,13 +124,19 @@ def run(tasks: list[str], teams: int, first: int, settings: list[str] | None = N
             if task == "end_effector" and "gate" in setting and "sensing_radius" not in setting:
                 continue  # a gate widens a sensing range, which the end-effector filter has only when given one
             params = _filter(kwargs, setting)
-            policies = {"reference": ({"action_mode": "residual"}, law),
-                        "random": ({}, _persistent_random(size, teams, first))}
-            for policy_name, (mode, policy) in policies.items():
+            chosen = {"reference": ({"action_mode": "residual"}, law),
+                      "random": ({}, _persistent_random(size, teams, first)), "adversarial": ({}, VectorAdversary())}
+            for policy_name in policies:
+                mode, policy = chosen[policy_name]
                 print(f"filters: {task}, {name}, {policy_name} on {teams} teams …", file=sys.stderr, flush=True)
                 t0 = time.perf_counter()
                 result = evaluate(policy, scenario, seeds, shield=params, env_kwargs={**kwargs, **mode})
-                rows.append(_row(task, name, policy_name, result, time.perf_counter() - t0))
+                row = _row(task, name, policy_name, result, time.perf_counter() - t0)
+                if classes and policy_name == "reference":
+                    failed = [seed for seed, error in zip(seeds, result["final_error"], strict=True)
+                              if error >= TOLERANCES[0]]
+                    row["failure_classes"] = failure_classes(task, params, failed, max_steps)
+                rows.append(row)
     return rows
 
 
@@ -122,6 +160,25 @@ def table(rows: list[dict]) -> str:
         lines.append(f"| {r['task']} | {r['setting']} | {r['policy']} | {rates if r['policy'] == 'reference' else '–'} "
                      f"| {t} | {100 * r['intervention_rate']:.1f} % | {100 * r['fallback_rate']:.2f} % "
                      f"| {1000 * r['min_clearance_m']:+.1f} | {r['cost']:g} |")
+    return "\n".join(lines)
+
+
+CLASS_COLUMNS = {"shield_far": "freeze (held far from obstacles)", "deadlock_obstacle": "deadlock at an obstacle",
+                 "singular_arm": "singular arm", "local_minimum": "local minimum", "not_converged": "not converged",
+                 "formed": "formed on the re-run"}
+
+
+def class_table(rows: list[dict]) -> str:
+    """The reference's failed teams per setting, by class (rows that were classified)."""
+    mine = [r for r in rows if "failure_classes" in r]
+    if not mine:
+        return ""
+    lines = ["| task | filter setting | failed teams | " + " | ".join(CLASS_COLUMNS.values()) + " |",
+             "|---|---|---:|" + "---:|" * len(CLASS_COLUMNS)]
+    for r in mine:
+        counts = r["failure_classes"]
+        lines.append(f"| {r['task']} | {r['setting']} | {sum(counts.values())} | "
+                     + " | ".join(str(counts[key]) for key in CLASS_COLUMNS) + " |")
     return "\n".join(lines)
 
 
@@ -166,8 +223,21 @@ def main(argv: list[str] | None = None) -> int:
                         help="comma-separated: end_effector, whole_arm, whole_arm_moving (default: the first two)")
     parser.add_argument("--settings", default=",".join(SETTINGS),
                         help=f"comma-separated filter settings (default: all): {', '.join(SETTINGS)}")
+    parser.add_argument("--policies", default="reference,random,adversarial",
+                        help="comma-separated: reference, random, adversarial (default: all three)")
+    parser.add_argument("--no-classes", action="store_true",
+                        help="skip the failure classes of the reference's failed teams (each is run again alone)")
+    parser.add_argument("--max-steps", type=int, default=None,
+                        help="control steps per episode (default: the tasks' own, 2000 = 100 s)")
     parser.add_argument("--out", type=Path, default=Path("runs/filters"), help="output directory")
     args = parser.parse_args(argv)
+    if args.max_steps is not None and args.max_steps < 1:
+        parser.error("--max-steps must be ≥ 1")
+    policies = tuple(p for p in args.policies.split(",") if p)
+    unknown_policies = [p for p in policies if p not in ("reference", "random", "adversarial")]
+    if unknown_policies or not policies:
+        parser.error(f"--policies: unknown {', '.join(unknown_policies) or '(none given)'}; "
+                     "choose from reference, random, adversarial")
     settings = [k for k in args.settings.split(",") if k]
     unknown_settings = [k for k in settings if k not in SETTINGS]
     if unknown_settings or not settings:
@@ -179,14 +249,19 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--tasks: unknown {', '.join(unknown) or '(none given)'}; choose from {', '.join(TASKS)}")
     if args.teams < 1:
         parser.error("--teams must be ≥ 1")
-    rows = run(tasks, args.teams, args.first, settings)
+    rows = run(tasks, args.teams, args.first, settings, classes=not args.no_classes, policies=policies,
+               max_steps=args.max_steps)
     args.out.mkdir(parents=True, exist_ok=True)
     command = " ".join(["python benchmarks/filters.py", *(sys.argv[1:] if argv is None else argv)])
     text = (f"# Filter settings on held-out random teams\n\n`{command}`: seeds {args.first}…"
             f"{args.first + args.teams - 1}\n\n{table(rows)}\n")
+    if class_table(rows):
+        text += ("\nThe reference's failed teams by class (benchmarks/failures.py, each team run again alone):\n\n"
+                 f"{class_table(rows)}\n")
     (args.out / "filters.md").write_text(text, encoding="utf-8")
     (args.out / "filters.json").write_text(json.dumps({"command": command, "rows": rows}, indent=1), encoding="utf-8")
-    figure(rows, args.out / "filters.png")
+    if "reference" in policies:  # the figure's success axis is the reference's
+        figure(rows, args.out / "filters.png")
     print(text)
     return 0
 

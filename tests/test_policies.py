@@ -182,3 +182,57 @@ def test_decode_observation_takes_the_layout() -> None:
     obs, _ = env.reset(seed=0)
     with pytest.raises(TypeError, match="observation_layout"):
         decode_observation(obs["arm_3"], 2, env.observation_layout.slots)
+
+
+class _OneCopy:
+    """What AdversarialPolicy reads of a parallel env, for copy ``b`` of a vector env."""
+
+    def __init__(self, venv, b: int) -> None:
+        self.scenario = venv.core.engine.teams[b]
+        self.possible_agents = [f"arm_{i}" for i in range(len(self.scenario.arms))]
+        self.observation_layout = venv.observation_layout
+
+
+def _per_agent_adversary(venv, obs: np.ndarray) -> np.ndarray:
+    layout, rows = venv.observation_layout, []
+    for b in range(len(obs)):
+        copy, start, row = _OneCopy(venv, b), 0, []
+        for agent, arm in zip(copy.possible_agents, copy.scenario.arms, strict=True):
+            size = layout.size(arm.n_links)
+            row.append(AdversarialPolicy(copy).act(agent, obs[b, start:start + size]))
+            start += size
+        rows.append(np.concatenate(row))
+    return np.array(rows)
+
+
+@pytest.mark.parametrize("task", ["pan1_env/RandomFormation-v1", "pan1_env/WholeArmFormation-v1"])
+def test_vector_adversary_acts_as_the_per_agent_adversary_on_every_copy(task: str) -> None:
+    from pan1_env.baselines import VectorAdversary
+    from pan1_env.registration import env_arguments
+    from pan1_env.vector import Pan1VectorEnv
+
+    scenario, kwargs = env_arguments(task)
+    venv = Pan1VectorEnv(scenario, 3, **kwargs)
+    adversary = VectorAdversary().attach(venv)
+    for seeds in ([11, 12, 13], [21, 22, 23]):  # new teams at the second reset: the batched arms follow
+        obs, _ = venv.reset(seed=seeds)
+        for _ in range(3):
+            actions = adversary(obs)
+            np.testing.assert_allclose(actions, _per_agent_adversary(venv, obs), rtol=1e-6, atol=1e-7)
+            assert np.any(actions != 0)
+            obs, *_ = venv.step(actions)
+
+
+def test_vector_adversary_needs_an_env_and_is_blocked_by_the_shield() -> None:
+    from pan1_env.baselines import VectorAdversary
+    from pan1_env.baselines.evaluation import evaluate
+    from pan1_env.registration import env_arguments
+
+    with pytest.raises(RuntimeError, match="attach"):
+        VectorAdversary()(np.zeros((1, 10), np.float32))
+    scenario, kwargs = env_arguments("pan1_env/RandomFormation-v1")
+    seeds, kwargs = range(7, 15), {**kwargs, "max_steps": 200}
+    shielded = evaluate(VectorAdversary(), scenario, seeds, shield=True, env_kwargs=kwargs)
+    assert shielded["cost"].sum() == 0 and shielded["intervention_rate"].max() > 0
+    bare = evaluate(VectorAdversary(), scenario, seeds, shield=False, env_kwargs=kwargs)
+    assert bare["cost"].sum() > 0  # the same adversary without the filter enters obstacles
