@@ -66,20 +66,19 @@ class VectorAdversary:
 
     def __init__(self) -> None:
         self.venv = None
-        self._teams: tuple[int, ...] = ()
+        self._teams: list = []
         self._arms: list[ArmBatch] = []
 
     def attach(self, venv) -> VectorAdversary:
         self.venv = venv
-        self._teams = ()
+        self._teams = []
         return self
 
     def _arm_batches(self) -> list[ArmBatch]:
-        teams = self.venv.unwrapped.core.engine.teams
-        key = tuple(map(id, teams))
-        if key != self._teams:  # a copy was reset with a new team
+        teams = self.venv.unwrapped.teams
+        if len(teams) != len(self._teams) or any(a is not b for a, b in zip(teams, self._teams, strict=True)):
             self._arms = [ArmBatch.stack([team.arms[i] for team in teams]) for i in range(len(teams[0].arms))]
-            self._teams = key
+            self._teams = teams  # held, so a new team can never be taken for the one it replaced
         return self._arms
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
@@ -91,8 +90,11 @@ class VectorAdversary:
         for arms in self._arm_batches():
             n = arms.n_links
             seg = {name: slice(start + part.start, start + part.stop) for name, part in layout.segments(n).items()}
+            start += layout.size(n)
+            if layout.n_obstacle_obs == 0:  # no obstacle in sight: zeros, as AdversarialPolicy
+                actions.append(np.zeros((len(obs), arms.n_actuated)))
+                continue
             q = np.arctan2(obs[:, seg["sin_q"]], obs[:, seg["cos_q"]])
             nearest = obs[:, seg["obstacles"]].reshape(len(obs), -1, OBSTACLE_FEATURES)[:, 0]
             actions.append(_toward(reduced_jacobian(arms, q), nearest[:, 1:3], nearest[:, 0] >= 0.5))
-            start += layout.size(n)
         return np.concatenate(actions, axis=1).astype(np.float32)

@@ -42,10 +42,13 @@ YAML_DIR = Path(__file__).with_name("benchmarl_tasks")
 
 
 class Pan1Task(TaskClass):
-    """A pan1-env scenario as a BenchMARL task (see the module docstring)."""
+    """A pan1-env scenario as a BenchMARL task (see the module docstring). ``scenario`` is the scenario or
+    registered id the env is built from; ``name``, which BenchMARL puts in its run folder's name, is the same
+    without slashes (``pan1_env_RandomFormation-v1``)."""
 
     def __init__(self, name: str = "random", config: dict[str, Any] | None = None) -> None:
-        super().__init__(name, {"safety_filter": True, **(config or {})})
+        self.scenario = name
+        super().__init__(name.replace("/", "_"), {"safety_filter": True, **(config or {})})
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> Pan1Task:
@@ -58,7 +61,7 @@ class Pan1Task(TaskClass):
     def get_env_fun(self, num_envs: int, continuous_actions: bool, seed: int | None, device: Any):
         if not continuous_actions:
             raise ValueError("pan1-env tasks have continuous actions only")
-        name, config = self.name, copy.deepcopy(self.config)
+        name, config = self.scenario, copy.deepcopy(self.config)
 
         def make() -> EnvBase:
             env = torchrl_env(name, num_envs=num_envs, **config)

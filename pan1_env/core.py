@@ -435,6 +435,11 @@ class CoreView:
         return self.core.engine.teams[0]
 
     @property
+    def teams(self) -> list:
+        """Every copy's team, in copy order (for random scenarios, the team of its current episode)."""
+        return list(self.core.engine.teams)
+
+    @property
     def n_links(self) -> list[int]:
         return self.core.n_links
 

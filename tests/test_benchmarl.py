@@ -23,6 +23,7 @@ EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "benchmarl_mappo.py
 @pytest.mark.parametrize("name", sorted(TASKS))
 def test_the_task_builds_envs_benchmarl_can_use(name: str) -> None:
     task = Pan1Task(name, {"max_steps": 20})
+    assert task.scenario == name and "/" not in task.name  # BenchMARL makes its run folder's name of it
     env = task.get_env_fun(num_envs=3, continuous_actions=True, seed=0, device="cpu")()
     check_env_specs(env, seed=0)
     assert task.group_map(env) == {"arms": [f"arm_{i}" for i in range(4)]}
@@ -35,7 +36,7 @@ def test_the_task_builds_envs_benchmarl_can_use(name: str) -> None:
 
 
 def test_the_yaml_files_name_the_standard_tasks() -> None:
-    names = {Pan1Task.from_yaml(path).name for path in YAML_DIR.glob("*.yaml")}
+    names = {Pan1Task.from_yaml(path).scenario for path in YAML_DIR.glob("*.yaml")}
     assert names == set(TASKS)
 
 
@@ -44,7 +45,7 @@ def test_mappo_runs_a_few_thousand_frames_and_logs_the_cost(tmp_path: Path) -> N
     spec = importlib.util.spec_from_file_location("benchmarl_mappo", EXAMPLE)
     example = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(example)
-    experiment = example.main(["--task", str(YAML_DIR / "random.yaml"), "--frames", "3000", "--batch", "1000",
+    experiment = example.main(["--task", str(YAML_DIR / "random_v1.yaml"), "--frames", "3000", "--batch", "1000",
                                "--copies", "10", "--epochs", "1", "--out", str(tmp_path)])
     assert experiment.total_frames >= 3000 and experiment.n_iters_performed == 3
     scalars = next(tmp_path.rglob("scalars"))

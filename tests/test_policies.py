@@ -188,7 +188,7 @@ class _OneCopy:
     """What AdversarialPolicy reads of a parallel env, for copy ``b`` of a vector env."""
 
     def __init__(self, venv, b: int) -> None:
-        self.scenario = venv.core.engine.teams[b]
+        self.scenario = venv.teams[b]
         self.possible_agents = [f"arm_{i}" for i in range(len(self.scenario.arms))]
         self.observation_layout = venv.observation_layout
 
@@ -236,3 +236,16 @@ def test_vector_adversary_needs_an_env_and_is_blocked_by_the_shield() -> None:
     assert shielded["cost"].sum() == 0 and shielded["intervention_rate"].max() > 0
     bare = evaluate(VectorAdversary(), scenario, seeds, shield=False, env_kwargs=kwargs)
     assert bare["cost"].sum() > 0  # the same adversary without the filter enters obstacles
+
+
+def test_vector_adversary_without_obstacles_in_sight_sends_zeros() -> None:
+    from pan1_env.baselines import VectorAdversary
+    from pan1_env.registration import env_arguments
+    from pan1_env.vector import Pan1VectorEnv
+
+    scenario, kwargs = env_arguments("pan1_env/RandomFormation-v1")
+    venv = Pan1VectorEnv(scenario, 2, **{**kwargs, "n_obstacle_obs": 0})
+    obs, _ = venv.reset(seed=[1, 2])
+    actions = VectorAdversary().attach(venv)(obs)
+    assert actions.shape == (2, venv.single_action_space.shape[0]) and not actions.any()
+

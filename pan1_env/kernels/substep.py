@@ -132,7 +132,7 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
         owned = (wA, wb, wact, wP, wnear, wrows, wviol, wnorm, wb0, wn0, joints_x, joints_y, ox, oy, orad)
         scratch = _borrowed(owned)
         bodies = (rho, link_bodies, sensing, gate, skin)
-    else:  # one assignment each, so that numba prunes the inlined steps' branches on them
+    else:  # no whole-arm scratch: the steps read it only where the kernel's own `whole` is not None
         owned = None
         scratch = None
     if v_max < np.inf:
