@@ -38,10 +38,7 @@ class AdversarialPolicy:
         obstacles = d["obstacles"]
         if obstacles.size == 0 or obstacles[0, 0] < 0.5:
             return np.zeros(arm.n_actuated, np.float32)
-        toward = obstacles[0, 1:3]
-        a = reduced_jacobian(arm, d["q"]).T @ toward
-        peak = np.max(np.abs(a))
-        return (a / peak if peak > 0 else a).astype(np.float32)
+        return _toward(reduced_jacobian(arm, d["q"]), obstacles[0, 1:3], np.bool_(True)).astype(np.float32)
 
     def __call__(self, observations: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         return {agent: self.act(agent, obs) for agent, obs in observations.items()}

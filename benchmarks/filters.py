@@ -59,6 +59,7 @@ SETTINGS = {
     "radius_gate": ("paper + 0.1 m sensing radius, 5 cm gate", {"sensing_radius": 0.1, "gate": 0.05}),
     "v1_gate": ("v1 + 5 cm gate past the whole-arm range", {"barrier": "distance", "decay": 50.0, "gate": 0.05}),
 }
+POLICIES = ("reference", "random", "adversarial")
 HOLD_STEPS = 20  # the random policy's action is held this many control steps (1 s)
 
 
@@ -106,7 +107,7 @@ def failure_classes(task: str, params: FilterParams, seeds: list[int], max_steps
 
 
 def run(tasks: list[str], teams: int, first: int, settings: list[str] | None = None, classes: bool = True,
-        policies: tuple[str, ...] = ("reference", "random", "adversarial"), max_steps: int | None = None) -> list[dict]:
+        policies: tuple[str, ...] = POLICIES, max_steps: int | None = None) -> list[dict]:
     from pan1_env.vector import Pan1VectorEnv
 
     seeds = range(first, first + teams)
@@ -223,8 +224,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="comma-separated: end_effector, whole_arm, whole_arm_moving (default: the first two)")
     parser.add_argument("--settings", default=",".join(SETTINGS),
                         help=f"comma-separated filter settings (default: all): {', '.join(SETTINGS)}")
-    parser.add_argument("--policies", default="reference,random,adversarial",
-                        help="comma-separated: reference, random, adversarial (default: all three)")
+    parser.add_argument("--policies", default=",".join(POLICIES),
+                        help=f"comma-separated: {', '.join(POLICIES)} (default: all three)")
     parser.add_argument("--no-classes", action="store_true",
                         help="skip the failure classes of the reference's failed teams (each is run again alone)")
     parser.add_argument("--max-steps", type=int, default=None,
@@ -234,10 +235,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.max_steps is not None and args.max_steps < 1:
         parser.error("--max-steps must be ≥ 1")
     policies = tuple(p for p in args.policies.split(",") if p)
-    unknown_policies = [p for p in policies if p not in ("reference", "random", "adversarial")]
+    unknown_policies = [p for p in policies if p not in POLICIES]
     if unknown_policies or not policies:
         parser.error(f"--policies: unknown {', '.join(unknown_policies) or '(none given)'}; "
-                     "choose from reference, random, adversarial")
+                     f"choose from {', '.join(POLICIES)}")
     settings = [k for k in args.settings.split(",") if k]
     unknown_settings = [k for k in settings if k not in SETTINGS]
     if unknown_settings or not settings:
@@ -255,9 +256,10 @@ def main(argv: list[str] | None = None) -> int:
     command = " ".join(["python benchmarks/filters.py", *(sys.argv[1:] if argv is None else argv)])
     text = (f"# Filter settings on held-out random teams\n\n`{command}`: seeds {args.first}…"
             f"{args.first + args.teams - 1}\n\n{table(rows)}\n")
-    if class_table(rows):
+    classes = class_table(rows)
+    if classes:
         text += ("\nThe reference's failed teams by class (benchmarks/failures.py, each team run again alone):\n\n"
-                 f"{class_table(rows)}\n")
+                 f"{classes}\n")
     (args.out / "filters.md").write_text(text, encoding="utf-8")
     (args.out / "filters.json").write_text(json.dumps({"command": command, "rows": rows}, indent=1), encoding="utf-8")
     if "reference" in policies:  # the figure's success axis is the reference's
