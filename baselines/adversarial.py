@@ -83,6 +83,9 @@ class VectorAdversary:
             raise RuntimeError("VectorAdversary: attach(venv) first (evaluate() does it for the env it builds)")
         layout = self.venv.unwrapped.observation_layout
         obs = np.asarray(obs, dtype=float)
+        expected = (self.venv.num_envs, *self.venv.single_observation_space.shape)
+        if obs.shape != expected:
+            raise ValueError(f"VectorAdversary: observations of shape {obs.shape}; the attached env gives {expected}")
         actions, start = [], 0
         for arms in self._arm_batches():
             n = arms.n_links

@@ -246,6 +246,9 @@ def test_vector_adversary_without_obstacles_in_sight_sends_zeros() -> None:
     scenario, kwargs = env_arguments("pan1_env/RandomFormation-v1")
     venv = Pan1VectorEnv(scenario, 2, **{**kwargs, "n_obstacle_obs": 0})
     obs, _ = venv.reset(seed=[1, 2])
-    actions = VectorAdversary().attach(venv)(obs)
+    adversary = VectorAdversary().attach(venv)
+    actions = adversary(obs)
     assert actions.shape == (2, venv.single_action_space.shape[0]) and not actions.any()
+    with pytest.raises(ValueError, match=r"observations of shape \(1, "):
+        adversary(obs[:1])
 
