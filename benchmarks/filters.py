@@ -85,24 +85,39 @@ def _persistent_random(size: int, teams: int, seed: int):
     return policy
 
 
-def failure_classes(task: str, params: FilterParams, seeds: list[int], max_steps: int | None = None,
-                    progress: bool = True) -> dict[str, int]:
-    """How many of ``seeds`` (teams the reference failed) fall in each class of ``benchmarks/failures.py``
-    (``formed`` for a team the law forms when run again in velocity mode)."""
+def _failures():
+    """benchmarks/failures.py, a script beside this one."""
+    if str(Path(__file__).resolve().parent) not in sys.path:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import failures
+
+    return failures
+
+
+def failure_records(task: str, params: FilterParams, seeds: list[int], max_steps: int | None = None,
+                    progress: bool = True, policy_for=ReferencePolicy) -> list[dict]:
+    """Each of ``seeds`` run alone on the parallel env behind ``params`` by ``policy_for(env)`` (a velocity-mode
+    policy; default the paper's law): ``benchmarks/failures.py``'s summary of every episode, its class included."""
     from tqdm import tqdm
 
     import pan1_env
 
-    if str(Path(__file__).resolve().parent) not in sys.path:  # failures.py is a script beside this one
-        sys.path.insert(0, str(Path(__file__).resolve().parent))
-    import failures
-
+    failures = _failures()
     env = pan1_env.parallel_env(TASKS[task], safety_filter=params, max_steps=max_steps)
-    policy = ReferencePolicy(env)
-    counts = dict.fromkeys((*failures.CLASSES, "formed"), 0)
-    for seed in tqdm(seeds, desc="failure classes", disable=not progress or not seeds, leave=False):
-        counts[failures.run_episode(env, policy, seed)["class"] or "formed"] += 1
+    policy = policy_for(env)
+    records = [failures.run_episode(env, policy, seed)
+               for seed in tqdm(seeds, desc="teams alone", disable=not progress or not seeds, leave=False)]
     env.close()
+    return records
+
+
+def failure_classes(task: str, params: FilterParams, seeds: list[int], max_steps: int | None = None,
+                    progress: bool = True) -> dict[str, int]:
+    """How many of ``seeds`` (teams the reference failed) fall in each class of ``benchmarks/failures.py``
+    (``formed`` for a team the law forms when run again in velocity mode)."""
+    counts = dict.fromkeys((*_failures().CLASSES, "formed"), 0)
+    for record in failure_records(task, params, seeds, max_steps, progress):
+        counts[record["class"] or "formed"] += 1
     return counts
 
 

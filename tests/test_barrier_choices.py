@@ -21,6 +21,7 @@ from pan1_env.safety import (
     activation_gate,
     active_set_projection,
     cbf_rows,
+    project_velocity,
     rcbf_constraints,
     robust_epsilon,
     robust_margin,
@@ -366,3 +367,20 @@ def test_robust_epsilon_is_the_paper_epsilon_at_the_edge() -> None:
     np.testing.assert_allclose(robust_epsilon(h, 5.0, 20.0)[:3], 5.0 * np.exp(20.0 * h[:3]))
     assert np.isfinite(robust_epsilon(h, 5.0, 20.0)).all()
     assert np.all(robust_epsilon(h, 5.0) == 5.0)
+
+
+@pytest.mark.parametrize("lever, standoff", [(0.5, 0.0265), (1.0, 0.0441), (2.0, 0.0643)])
+def test_a_point_pushed_straight_at_an_obstacle_stops_where_the_rows_bound_vanishes(lever: float,
+                                                                                   standoff: float) -> None:
+    """docs/MODEL.md §5a, *Where a blocked arm stops*: behind v1's rows (distance barrier, κ = 0.5, ε = 5,
+    λ = 50) a point whose command points straight at an obstacle comes to rest where κh̃ = ‖L_g0 h‖²/ε(h̃),
+    the clearances the docs give for levers of 0.5, 1 and 2 m/rad; the point moves by the filtered
+    velocity, ṗ = J̄ v*, with a constant J̄ = lever · I."""
+    centre, radius, dt = np.zeros((1, 2)), np.array([0.1]), 0.005
+    p, Jbar = np.array([0.35, 0.0]), lever * np.eye(2)
+    for _ in range(4000):
+        A, b, _ = rcbf_constraints(p[None], Jbar[None], centre, radius, 0.5, 5.0, barrier="distance", decay=50.0)
+        v0 = -Jbar.T @ p / np.linalg.norm(p)  # the point's command: straight at the centre
+        v = project_velocity(v0[None], A, b).v[0]
+        p = p + dt * (Jbar @ v)
+    assert np.linalg.norm(p) - radius[0] == pytest.approx(standoff, abs=5e-4)
