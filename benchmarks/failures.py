@@ -37,8 +37,9 @@ Per-episode summary (what :func:`classify` reads; "window" = the last ``WINDOW_S
   action at the 0.05 s control step, which goes nowhere.)
 
 Not used by the classifier, recorded as diagnostics: ``robust_ratio[i]`` = max over the obstacles in arm
-i's filter of ‖L_g h‖² / (ε κ h) at the end (≥ 1: the RCBF row forbids *any* approach to that obstacle,
-however far, see docs/PAPER_REPRODUCTION.md "Obstacles an arm can never reach"), the end-effector speeds,
+i's reach of ‖L_g h‖² / (ε(h̃) κ h̃) at the end, in the filter's own barrier and robust term (≥ 1: the RCBF
+row forbids any approach to that obstacle from there; behind the paper's filter however far, see
+docs/PAPER_REPRODUCTION.md "Obstacles an arm can never reach"), the end-effector speeds,
 the nominal actions, ``cos_grad_to_obstacle`` (cosine between −ê_i and the direction to the nearest
 obstacle: > 0 when V pulls the arm towards it), success at 1/2/5 cm, the cost.
 
@@ -178,6 +179,16 @@ def _finite(x):
     return x
 
 
+def robust_ratio(lg2: float, h_tilde: float, kappa: float, epsilon: float, decay: float = 0.0) -> float:
+    """‖L_g0 h‖² / (ε(h̃) κ h̃) of one row (docs/MODEL.md §5a): ≥ 1 where the row forbids any approach, so an
+    arm pushed straight at the obstacle rests where it is 1; infinite at or inside the tightened boundary."""
+    from pan1_env.safety import robust_epsilon
+
+    if h_tilde <= 0.0:
+        return math.inf
+    return lg2 / (float(robust_epsilon(np.asarray(h_tilde), epsilon, decay)) * kappa * h_tilde)
+
+
 def run_episode(env, policy, seed: int) -> dict:
     """One shielded reference episode from ``reset(seed=seed)``; returns its summary (and class)."""
     from pan1_env.cascade import reduced_jacobian
@@ -219,8 +230,9 @@ def run_episode(env, policy, seed: int) -> dict:
     qs, qds, P = team_state(env, scenario)
     grad = _grad(scenario, P)
     params = core.safety_filter
-    kappa, epsilon, margin = ((params.kappa, params.epsilon, params.margin) if params is not None
-                              else (scenario.kappa, scenario.epsilon, scenario.safety_margin))
+    kappa, epsilon, margin, barrier, decay = (
+        (params.kappa, params.epsilon, params.margin, params.barrier, params.decay) if params is not None
+        else (scenario.kappa, scenario.epsilon, scenario.safety_margin, "squared", 0.0))
     mask = scenario.obstacle_mask()
     obstacles = scenario.obstacles
     sigma, ee_speed, cos_into, robust = [], [], [], []
@@ -233,8 +245,9 @@ def run_episode(env, policy, seed: int) -> dict:
         u, g = to_obs[k], -grad[i]
         denom = np.linalg.norm(u) * np.linalg.norm(g)
         cos_into.append(float(u @ g / denom) if denom > 0 else 0.0)
-        A, _, h = rcbf_constraints(P[i], Jbar, obstacles.centers, obstacles.radii, kappa, epsilon, mask[i], margin)
-        ratios = [float(np.sum(A[j] ** 2) / (epsilon * kappa * (h[j] - margin))) if h[j] > margin else math.inf
+        A, _, h = rcbf_constraints(P[i], Jbar, obstacles.centers, obstacles.radii, kappa, epsilon, mask[i], margin,
+                                   barrier=barrier, decay=decay)
+        ratios = [robust_ratio(float(np.sum(A[j] ** 2)), float(h[j] - margin), kappa, epsilon, decay)
                   for j in np.flatnonzero(mask[i])]
         robust.append(max(ratios, default=0.0))
     err = float(errors[-1])

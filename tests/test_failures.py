@@ -86,3 +86,16 @@ def test_a_task_that_is_not_random_teams_exits_2_with_one_line(tmp_path, capsys)
     assert exit_info.value.code == 2
     assert "--task paper_pa3_square: not random teams" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("lever, standoff", [(0.5, 0.0265), (1.0, 0.0441), (2.0, 0.0643)])
+def test_the_robust_ratio_is_one_where_a_pushed_arm_rests_behind_v1(lever: float, standoff: float) -> None:
+    """The standoffs that tests/test_barrier_choices.py measures in closed loop behind v1's rows (κ = 0.5, ε = 5,
+    λ = 50, distance barrier, so ‖L_g0 h‖ is the lever): the diagnostic is 1 there, above it nearer, below farther."""
+    def ratio(clearance: float) -> float:
+        return failures.robust_ratio(lever**2, clearance, 0.5, 5.0, 50.0)
+
+    assert ratio(standoff) == pytest.approx(1.0, abs=0.02)
+    assert ratio(standoff - 0.005) > 1.0 > ratio(standoff + 0.005)
+    assert failures.robust_ratio(0.3, 0.02, 0.5, 5.0) == pytest.approx(0.3 / (5.0 * 0.5 * 0.02))  # the paper's
+    assert failures.robust_ratio(0.3, 0.0, 0.5, 5.0, 50.0) == float("inf")
