@@ -37,9 +37,10 @@ Per-episode summary (what :func:`classify` reads; "window" = the last ``WINDOW_S
   action at the 0.05 s control step, which goes nowhere.)
 
 Not used by the classifier, recorded as diagnostics: ``robust_ratio[i]`` = max over the obstacles in arm
-i's reach of ‖L_g h‖² / (ε(h̃) κ h̃) at the end, in the filter's own barrier and robust term (≥ 1: the RCBF
-row forbids any approach to that obstacle from there; behind the paper's filter however far, see
-docs/PAPER_REPRODUCTION.md "Obstacles an arm can never reach"), the end-effector speeds,
+i's reach of ‖L_g h‖² / (ε(h̃) κ h̃) of its end-effector's row at the end, in the filter's own barrier and
+robust term (≥ 1: the RCBF row forbids any approach to that obstacle from there; behind the paper's filter
+however far, see docs/PAPER_REPRODUCTION.md "Obstacles an arm can never reach"; links' rows, a sensing
+range and a gate are not looked at), the end-effector speeds,
 the nominal actions, ``cos_grad_to_obstacle`` (cosine between −ê_i and the direction to the nearest
 obstacle: > 0 when V pulls the arm towards it), success at 1/2/5 cm, the cost.
 
