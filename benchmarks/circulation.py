@@ -2,8 +2,7 @@
 
     python benchmarks/circulation.py [--task whole_arm] [--teams 200] [--first 2000000] [--senses ccw,cw]
                                      [--gains 1] [--flip-after 0,15] [--delay 0] [--activation 0.1]
-                                     [--max-steps N]
-                                     [--out runs/circulation.json]
+                                     [--max-steps N] [--out runs/circulation.json]
 
 Behind ``WholeArmStaticFormation-v1``'s filter most of the law's failed teams are deadlocks at an obstacle
 (``benchmarks/failures.py``): the law drives a link straight into an obstacle and the QP cancels the
@@ -20,19 +19,18 @@ point's Jacobian through g0 (actuated velocities to ẋ):
 
 so the law's speed into an obstacle (what the QP cancels) becomes as fast a turn round it (equal norms
 of joint velocity). The term reads the team's true state and every obstacle, not an agent's local
-observation, and it acts on obstacles only, not on the other arms. v is scaled
-down as the law's action is if an entry passes the speed bound. The sense is fixed, or (``--flip-after
+observation, and it acts on obstacles only, not on the other arms. v is scaled down as the law's action
+is if an entry passes the speed bound. The sense is fixed, or (``--flip-after
 S``) each arm's sense turns round once it has pushed round an obstacle for S seconds on end; ``--delay D``
 holds the term back until an arm has been blocked for D seconds on end. Both are a memory per arm, which
 the filter, a function of one instant, has not.
 
 The law and the circulating law (both in velocity mode, each team alone on the parallel env, classified by
-``benchmarks/failures.py``) run on the same held-out teams,
-behind the task's v1 filter (``benchmarks/filters.py``'s ``v1`` setting). Per gain, flip time and first
-sense: teams formed at 1 cm, the law's failures it forms, the law's successes it loses, the failure
-classes, the cost and the smallest clearance; and, per gain and flip time, the teams formed by either
-sense (what a term that picked its sense well could at best reach). Writes ``--out`` (JSON) and prints
-a Markdown table.
+``benchmarks/failures.py``) run on the same held-out teams, behind the task's v1 filter
+(``benchmarks/filters.py``'s ``v1`` setting). Per gain, flip time and first sense: teams formed at 1 cm,
+the law's failures it forms, the law's successes it loses, the failure classes, the cost and the smallest
+clearance; and, per gain and flip time, the teams formed by either sense (what a term that picked its
+sense well could at best reach). Writes ``--out`` (JSON) and prints a Markdown table.
 """
 
 from __future__ import annotations
@@ -41,6 +39,7 @@ import argparse
 import itertools
 import json
 import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -54,6 +53,7 @@ from pan1_env.bodies import link_obstacle_barrier, link_point_jacobian  # noqa: 
 from pan1_env.cascade import passive_velocity_map  # noqa: E402
 from pan1_env.dynamics import end_effector  # noqa: E402
 from pan1_env.registration import env_arguments  # noqa: E402
+from pan1_env.safety import clearance  # noqa: E402
 
 SENSES = {"ccw": 1.0, "cw": -1.0}
 PAUSE_S = 2.0  # a pause in an arm's term this long ends its spell of contact
@@ -62,14 +62,13 @@ PAUSE_S = 2.0  # a pause in an arm's term this long ends its spell of contact
 def circulation(arm, q, v0, centers, radii, link_radius, links, gain, sense, activation):
     """The term added to one arm's velocity command ``v0 (k,)`` (rad/s) at joint angles ``q``."""
     if links:
-        bar = link_obstacle_barrier(arm, q, centers, radii, link_radius)
-        clearance = np.sqrt(np.maximum(bar.h + (radii + link_radius) ** 2, 0.0)) - radii - link_radius
+        bar = link_obstacle_barrier(arm, q, centers, radii, link_radius)  # the closest point of each link
+        gap = np.linalg.norm(bar.point - centers, axis=-1) - radii - link_radius
         pairs = [(link, o, bar.point[link, o], bar.t[link, o]) for link, o in
-                 zip(*np.nonzero(clearance < activation), strict=True)]
+                 zip(*np.nonzero(gap < activation), strict=True)]
     else:
         p = end_effector(arm, q)
-        close = np.linalg.norm(p - centers, axis=1) - radii < activation
-        pairs = [(arm.n_links - 1, o, p, 1.0) for o in np.flatnonzero(close)]
+        pairs = [(arm.n_links - 1, o, p, 1.0) for o in np.flatnonzero(clearance(p, centers, radii) < activation)]
     g0 = passive_velocity_map(arm, q)
     term = np.zeros_like(v0)
     for link, o, x, t in pairs:
@@ -150,10 +149,7 @@ def run(task: str, seeds: list[int], senses: list[str], gains: list[float], flip
         records = filters.failure_records(task, params, seeds, max_steps, policy_for=lambda env, g=gain, s=sense,
                                           f=flip: CirculatingPolicy(env, g, s, activation, f, delay))
         formed = {r["seed"] for r in records if r["success_1cm"]}
-        classes: dict[str, int] = {}
-        for r in records:
-            if not r["success_1cm"]:
-                classes[r["class"]] = classes.get(r["class"], 0) + 1
+        classes = dict(Counter(r["class"] for r in records if not r["success_1cm"]))
         runs.append({"gain": gain, "flip_after_s": flip, "sense": sense, "formed": sorted(formed),
                      "gained": sorted(formed - law_formed), "lost": sorted(law_formed - formed), "classes": classes,
                      "cost": float(sum(r["cost"] for r in records)),
@@ -162,24 +158,28 @@ def run(task: str, seeds: list[int], senses: list[str], gains: list[float], flip
             "law_formed": sorted(law_formed), "runs": runs}
 
 
+def _flip_text(flip_after: float) -> str:
+    return f"{flip_after:g} s" if flip_after > 0 else "never"
+
+
 def table(result: dict) -> str:
     n, law = result["seeds"][1] - result["seeds"][0] + 1, len(result["law_formed"])
     lines = [f"The law alone: {law} of {n} teams formed at 1 cm ({100 * law / n:.1f} %). The term acts within "
-             f"{100 * result['activation_m']:g} cm of an obstacle, after {result.get('delay_s', 0.0):g} s blocked.", "",
+             f"{100 * result['activation_m']:g} cm of an obstacle, after {result['delay_s']:g} s blocked.", "",
              "| gain | flip after | first sense | formed | of the law's failures | of its successes lost "
              "| failure classes | cost | min clearance [mm] |", "|---:|---:|---|---:|---:|---:|---|---:|---:|"]
     either: dict[tuple, set] = {}
     for r in result["runs"]:
         either.setdefault((r["gain"], r["flip_after_s"]), set()).update(r["formed"])
         classes = ", ".join(f"{filters.CLASS_COLUMNS.get(k, k)} {v}" for k, v in sorted(r["classes"].items()))
-        flip = f"{r['flip_after_s']:g} s" if r["flip_after_s"] > 0 else "never"
         formed = len(r["formed"])
-        lines.append(f"| {r['gain']:g} | {flip} | {r['sense']} | {formed} ({100 * formed / n:.1f} %) "
+        lines.append(f"| {r['gain']:g} | {_flip_text(r['flip_after_s'])} | {r['sense']} "
+                     f"| {formed} ({100 * formed / n:.1f} %) "
                      f"| {len(r['gained'])} of {n - law} | {len(r['lost'])} of {law} | {classes} | {r['cost']:g} "
                      f"| {1000 * r['min_clearance_m']:+.1f} |")
     for (gain, flip), formed in either.items():
-        flip_text = f"{flip:g} s" if flip > 0 else "never"
-        lines.append(f"| {gain:g} | {flip_text} | either | {len(formed)} ({100 * len(formed) / n:.1f} %) | | | | | |")
+        lines.append(f"| {gain:g} | {_flip_text(flip)} | either | {len(formed)} ({100 * len(formed) / n:.1f} %) "
+                     "| | | | | |")
     return "\n".join(lines)
 
 
