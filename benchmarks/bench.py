@@ -312,16 +312,17 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
     command = np.random.default_rng(0).uniform(-1.0, 1.0, (A, k))
 
     def advance(torque: bool, threads: int = 1, distance: bool = False, decay: float = 0.0):
-        state = {name: getattr(kind, name).copy() for name in ("q", "v", "v_prev", "has_prev")}
+        names = ("q", "v", "momentum", "v_prev", "has_prev")
+        state = {name: getattr(kind, name).copy() for name in names}
 
         def run():
-            q, v, v_prev, has_prev = (state[name].copy() for name in ("q", "v", "v_prev", "has_prev"))
-            args = (*kind.sizes, kind.lam, kind.lengths, kind.base, kind.phi, kind.passive, q, v, v_prev, has_prev,
-                    command * (0.3 if torque else t.max_joint_speed), torque, not torque, kind.centers, kind.radii,
-                    kind.mask, kappa, epsilon, margin, distance, decay, ke, t.physics_dt, t.substeps,
-                    np.inf if torque else t.max_joint_speed, np.empty((A, k)), np.empty((A, k)), np.empty((A, n)),
-                    np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64),
-                    np.zeros(A), np.ones(A, bool), None)
+            q, v, momentum, v_prev, has_prev = (state[name].copy() for name in names)
+            args = (*kind.sizes, kind.lam, kind.lengths, kind.base, kind.phi, kind.damping, kind.passive, q, v,
+                    momentum, v_prev, has_prev, command * (0.3 if torque else t.max_joint_speed), torque, not torque,
+                    kind.centers, kind.radii, kind.mask, kappa, epsilon, margin, distance, decay, ke, t.physics_dt,
+                    t.substeps, np.inf if torque else t.max_joint_speed, np.empty((A, k)), np.empty((A, k)),
+                    np.empty((A, n)), np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf),
+                    np.zeros((A, 3), np.int64), np.zeros(A), np.ones(A, bool), None)
             if threads > 1:
                 kernels.group_advance_parallel(*args, 4 * threads)
             else:

@@ -26,13 +26,13 @@ import numpy as np
 
 from .bodies import capsule_clearance, obstacle_velocities
 from .compiled import WholeArm, kernel_sizes, kernels, plain
-from .dynamics import ArmBatch
+from .dynamics import ArmBatch, mass_matrix
 from .piqp_filter import PiqpFilter
 from .safety import QP_SOLVERS, FilterParams, clearance, filter_parameters
 from .scenario import Scenario
 from .validation import real
 
-__all__ = ["Engine", "KernelQP", "FilterParams", "StepRecord", "filter_parameters", "PARALLEL_THRESHOLD",
+__all__ = ["Engine", "KernelQP", "FilterParams", "KindTerms", "StepRecord", "filter_parameters", "PARALLEL_THRESHOLD",
            "SENSING_RADIUS", "SKIN"]
 
 PARALLEL_THRESHOLD = 256  # arms of one kind from which the kernel runs on numba's thread pool
@@ -72,6 +72,8 @@ class StepRecord:
 
 
 #: a kind's outputs from the kernel (views of a step's record, or gathered rows of it), in the kernel's order
+#: :meth:`Engine.kind_terms`: a kind's end-effectors, reduced Jacobians, passive momenta and end-effector drifts
+KindTerms = namedtuple("KindTerms", "p Jbar momentum drift")
 _Outputs = namedtuple("_Outputs", "v_star tau min_clear min_h qp_counts max_track finite")
 #: the record's field each of them goes to
 _RECORD_FIELDS = dict(zip(_Outputs._fields, ("v_star", "tau", "min_clearance", "min_barrier", "qp_counts",
@@ -99,16 +101,17 @@ class _Kind:
         self.sizes = kernel_sizes(self.n, self.k)
         rows, O = copies * self.A, len(scenario.obstacles)
         self.lam, self.lengths = np.empty((rows, self.n, self.n)), np.empty((rows, self.n))
-        self.base, self.phi = np.empty((rows, 2)), np.empty(rows)
+        self.base, self.phi, self.damping = np.empty((rows, 2)), np.empty(rows), np.empty(rows)
         self.centers, self.radii = np.empty((rows, O, 2)), np.empty((rows, O))
         self.mask, self.q0 = np.empty((rows, O), dtype=bool), np.empty((rows, self.n))
         # the state, updated in place (views of it stay valid for the engine's life)
         self.q, self.v, self.qd, self.p = (np.zeros((rows, self.n)), np.zeros((rows, self.k)),
                                            np.zeros((rows, self.n)), np.zeros((rows, 2)))
+        self.momentum = np.zeros(rows)  # a PAn−1 arm's passive momentum p₁ (docs/MODEL.md §7)
         self.v_prev, self.has_prev = np.zeros((rows, self.k)), np.zeros(rows, dtype=bool)
         # the kernel's leading arguments: sizes, parameters and state (arrays updated in place, never replaced)
-        self.state_args = (*self.sizes, self.lam, self.lengths, self.base, self.phi, self.passive, self.q, self.v,
-                           self.v_prev, self.has_prev)
+        self.state_args = (*self.sizes, self.lam, self.lengths, self.base, self.phi, self.damping, self.passive,
+                           self.q, self.v, self.momentum, self.v_prev, self.has_prev)
         # the serial kernel: None until the first step decides (Engine._specialised), False while the
         # generic kernel stands in for the kind's own, True from then on
         self.specialised: bool | None = None
@@ -129,6 +132,7 @@ class _Kind:
         sl = slice(b * self.A, (b + 1) * self.A)
         batch = ArmBatch.stack([scenario.arms[i] for i in self.ids])
         self.lam[sl], self.lengths[sl], self.base[sl], self.phi[sl] = batch.lam, batch.lengths, batch.base, batch.phi
+        self.damping[sl] = batch.passive_damping
         self.centers[sl] = scenario.obstacles.centers[None]
         self.radii[sl] = scenario.obstacles.radii[None]
         self.mask[sl] = mask[self.ids]
@@ -148,16 +152,6 @@ class KernelQP:
     @staticmethod
     def advance(engine: Engine, command: np.ndarray, substeps: int, torque: bool, rec: StepRecord) -> None:
         engine.advance_compiled(command, substeps, torque, rec)
-
-
-def _undamped(scenario: Scenario) -> None:
-    """Refuse a damped passive joint: the numpy reference models it (pan1_env.cascade), the kernels not yet, and
-    an engine that dropped it would simulate another arm without a word."""
-    damped = [i for i, arm in enumerate(scenario.arms) if arm.passive_damping]
-    if damped:
-        raise ValueError(f"arm {damped[0]}: passive_damping={scenario.arms[damped[0]].passive_damping} is modelled by "
-                         "the numpy reference (pan1_env.cascade) only; the engine simulates undamped joints "
-                         "(passive_damping=0)")
 
 
 class Engine:
@@ -187,7 +181,6 @@ class Engine:
         #: the solver of the filter's QPs, which a step goes through
         self.qp: KernelQP | PiqpFilter = PiqpFilter() if qp_solver == "piqp" else KernelQP()
         self.qp.check(int(copies))
-        _undamped(scenario)
         self.physics_dt = real("physics_dt", scenario.physics_dt if physics_dt is None else physics_dt, positive=True)
         self.copies, self.qp_solver, self.threads = int(copies), qp_solver, threads
         self.max_speed = float(max_speed)
@@ -260,7 +253,6 @@ class Engine:
         if [a.n_links for a in scenario.arms] != self.n_links or [a.n_actuated for a in scenario.arms] != \
                 self.n_actuated:
             raise ValueError("the scenario's team structure does not match the engine's")
-        _undamped(scenario)
         if scenario.ke != self.ke or len(scenario.obstacles) != self.radii.shape[1]:
             raise ValueError("a loaded team must keep the tracker gain K_e and the number of obstacles")
         if (scenario.bodies == "links", scenario.inter_arm, scenario.link_radius) != \
@@ -374,6 +366,7 @@ class Engine:
             rows = kind.rows(copies)
             kind.q[rows] = kind.q0[rows] if q0 is None else [q0[i] for i in kind.ids]
             kind.v[rows] = kind.v_prev[rows] = kind.qd[rows] = 0.0
+            kind.momentum[rows] = 0.0
             kind.has_prev[rows] = False
             kernels().group_end_effectors(kind.lengths, kind.base, kind.phi, kind.q, kind.p)
 
@@ -398,6 +391,38 @@ class Engine:
             q[:, kind.cols, : kind.n] = kind.q.reshape(B, kind.A, kind.n)
             qd[:, kind.cols, : kind.n] = kind.qd.reshape(B, kind.A, kind.n)
         return q, qd
+
+    def passive_momentum(self) -> np.ndarray:
+        """p₁ = Σ_α M_1α q̇_α of every PAn−1 arm ``(B, N)``: the state its passive speed follows from, in float64
+        (constant without damping, docs/MODEL.md §7); NaN for a fully actuated arm."""
+        out = np.full((self.copies, self.n_arms), np.nan)
+        for kind in self.kinds:
+            if kind.passive:
+                out[:, kind.cols] = kind.momentum.reshape(self.copies, kind.A)
+        return out
+
+    def set_state(self, copy: int, q: list[np.ndarray], qd: list[np.ndarray]) -> None:
+        """Put copy ``copy``'s arms at joint angles ``q[i]`` moving at ``qd[i]`` (n_i values each), for example
+        where an arm was when its actuator failed. A PAn−1 arm keeps v = q̇_a and its passive momentum
+        p₁ = Σ_α M_1α q̇_α, from which its passive speed follows (docs/MODEL.md §7). The tracker starts afresh,
+        as after a reset; the copy's clock and obstacles stay where they are."""
+        if isinstance(copy, bool) or not isinstance(copy, (int, np.integer)) or not 0 <= copy < self.copies:
+            raise ValueError(f"copy must be an integer in [0, {self.copies}), got {copy!r}")
+        if len(q) != self.n_arms or len(qd) != self.n_arms:
+            raise ValueError(f"set_state needs q and qd for every arm ({self.n_arms})")
+        for i, (qi, qdi) in enumerate(zip(q, qd, strict=True)):
+            for name, x in (("q", qi), ("qd", qdi)):
+                x = np.asarray(x, dtype=float)
+                if x.shape != (self.n_links[i],) or not np.all(np.isfinite(x)):
+                    raise ValueError(f"{name}[{i}] must be {self.n_links[i]} finite values, got {x.tolist()}")
+        arms = self.teams[copy].arms
+        for kind in self.kinds:
+            for r, i in zip(kind.rows(np.array([copy])), kind.ids, strict=True):
+                qi, qdi = np.asarray(q[i], dtype=float), np.asarray(qd[i], dtype=float)
+                kind.q[r], kind.qd[r], kind.v[r] = qi, qdi, qdi[kind.n - kind.k:]
+                kind.momentum[r] = mass_matrix(arms[i], qi)[0] @ qdi if kind.passive else 0.0
+                kind.v_prev[r], kind.has_prev[r] = 0.0, False
+            kernels().group_end_effectors(kind.lengths, kind.base, kind.phi, kind.q, kind.p)
 
     def obstacle_velocities(self) -> np.ndarray:
         """Every copy's obstacle velocities now, ``(B, O, 2)`` (zeros for still obstacles)."""
@@ -438,14 +463,15 @@ class Engine:
         kernels().capsules.inter_arm_clearance(self.joint_positions() if P is None else P, self.link_radius, clear)
         return clear
 
-    def kind_terms(self, kind: _Kind) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """End-effectors ``(B·A, 2)``, reduced Jacobians J̄ ``(B·A, 2, k)`` and passive momenta of a kind."""
+    def kind_terms(self, kind: _Kind) -> KindTerms:
+        """A kind's end-effectors ``(B·A, 2)``, reduced Jacobians J̄ ``(B·A, 2, k)``, passive momenta (from q̇)
+        and end-effector drifts ``(B·A, 2)``."""
         rows = len(kind.q)
         p, Jbar, Mc = np.empty((rows, 2)), np.empty((rows, 2, kind.k)), np.empty((rows, kind.k, kind.k))
-        Hc, momentum = np.empty((rows, kind.k)), np.empty(rows)
-        kernels().group_terms(kind.lam, kind.lengths, kind.base, kind.phi, kind.passive, kind.q, kind.v, p, Jbar,
-                              Mc, Hc, momentum)
-        return p, Jbar, momentum
+        Hc, momentum, drift = np.empty((rows, kind.k)), np.empty(rows), np.empty((rows, 2))
+        kernels().group_terms(kind.lam, kind.lengths, kind.base, kind.phi, kind.damping, kind.passive, kind.q, kind.v,
+                              kind.momentum, p, Jbar, Mc, Hc, momentum, drift)
+        return KindTerms(p, Jbar, momentum, drift)
 
     # --------------------------------------------------------------- stepping
     def step(self, command: np.ndarray, substeps: int, *, torque: bool = False) -> StepRecord:

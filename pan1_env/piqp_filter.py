@@ -69,9 +69,10 @@ class PiqpFilter:
     def _end_effector_substep(self, engine: Engine, kind, command: np.ndarray, rec: StepRecord) -> None:
         """One velocity-mode sub-step of a kind whose end-effector RCBF-QP PIQP solves."""
         A, k, f = kind.A, kind.k, engine.filter
-        p, Jbar, _ = engine.kind_terms(kind)
-        rows, b, h = rcbf_constraints(p, Jbar, kind.centers[0], kind.radii[0], f.kappa, f.epsilon,
-                                      active=kind.mask, margin=f.margin, barrier=f.barrier, decay=f.decay)
+        terms = engine.kind_terms(kind)
+        rows, b, h = rcbf_constraints(terms.p, terms.Jbar, kind.centers[0], kind.radii[0], f.kappa, f.epsilon,
+                                      active=kind.mask, margin=f.margin, barrier=f.barrier, decay=f.decay,
+                                      drift=terms.drift)
         if np.isfinite(engine.max_speed):
             box = np.concatenate([np.eye(k), -np.eye(k)])
             rows = np.concatenate([rows, np.broadcast_to(box, (A, 2 * k, k))], axis=1)
@@ -138,7 +139,8 @@ def whole_arm_rows(engine: Engine, kind, r: int, v0: np.ndarray, epsilon: float)
                             whole.skin,
                             engine.physics_dt, lane(kind.lengths[r]), kind.base[r, :1].copy(),
                             kind.base[r, 1:].copy(), lane(np.cos(angles)), lane(np.sin(angles)), lane(kind.qd[r]),
-                            lane(mass_matrix(arm, q)), caps, whole.start_time[r], f.kappa, epsilon, f.margin,
+                            lane(mass_matrix(arm, q)), float(kind.momentum[r]) if kind.passive else 0.0, caps,
+                            whole.start_time[r], f.kappa, epsilon, f.margin,
                             f.barrier == "distance", f.decay, engine.max_speed, v0.copy(), A, b, active,
                             np.empty((n + 1, 2)), np.empty((caps.shape[1], K.NEAR_COLUMNS)))
     return A[:m], b[:m], h

@@ -76,6 +76,10 @@ class RandomScenarioOptions:
         decay: λ ≥ 0 of the filter's tunable ε(h̃) = ε e^{λ h̃} in the drawn scenario (0: the paper's).
         gate: width (m) of the filter's smooth activation past its sensing range in the drawn scenario
             (0: a hard range; :class:`pan1_env.safety.FilterParams`). None of these three changes what is drawn.
+        passive_damping: viscous damping b ≥ 0 (N·m·s/rad) of every arm's first joint while it is passive
+            (:class:`pan1_env.dynamics.ArmParams`; 0: the paper's frictionless joint). It changes no draw: the
+            start is the frictionless arm's, from which the target is reached with p₁ = 0 (with damping p₁
+            leaves 0 as the arm moves, docs/MODEL.md §7).
     """
 
     n_arms: int = 4
@@ -102,6 +106,7 @@ class RandomScenarioOptions:
     barrier: str = "squared"
     decay: float = 0.0
     gate: float = 0.0
+    passive_damping: float = 0.0
 
     def __post_init__(self) -> None:
         n_arms = positive_int("RandomScenarioOptions.n_arms", self.n_arms, minimum=2)
@@ -163,6 +168,8 @@ class RandomScenarioOptions:
             raise ValueError(f"RandomScenarioOptions.barrier must be one of {BARRIERS}, got {self.barrier!r}")
         object.__setattr__(self, "decay", real("RandomScenarioOptions.decay", self.decay, non_negative=True))
         object.__setattr__(self, "gate", real("RandomScenarioOptions.gate", self.gate, non_negative=True))
+        object.__setattr__(self, "passive_damping",
+                           real("RandomScenarioOptions.passive_damping", self.passive_damping, non_negative=True))
 
     @property
     def moving(self) -> bool:
@@ -235,7 +242,7 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
             reach_vec = end_effector(proto, q_t) - proto.base
             base = targets[i] - reach_vec
             arm = ArmParams(proto.masses, proto.lengths, proto.com, proto.inertias, base=base,
-                            passive_first_joint=passive)
+                            passive_first_joint=passive, passive_damping=opt.passive_damping)
             qa_start = q_t[1:] + rng.uniform(-1.0, 1.0, n - 1) if passive else \
                 q_t + rng.uniform(-1.0, 1.0, n)
             arms.append(arm)

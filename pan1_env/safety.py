@@ -281,6 +281,7 @@ def rcbf_constraints(
     decay: float = 0.0,
     gate: tuple[float, float] | None = None,
     speed: float | None = None,
+    drift: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The QP rows ``A v ≤ b`` of Eq. 61 and the barrier values used.
 
@@ -296,19 +297,23 @@ def rcbf_constraints(
         decay: λ of the tunable ε(h̃) = ε e^{λ h̃} (0: the paper's constant ε).
         gate: ``(on, width)`` of :func:`activation_gate` on the clearance ‖p − o‖ − r (None: every
             obstacle; width 0: a hard range); needs ``speed``, the joint speed bound, see :func:`cbf_rows`.
+        drift: the end-effectors' drift ``(..., 2)``, the velocity no command changes: J₁ p₁ / M_11 for a
+            PAn−1 arm with passive momentum p₁ (:func:`pan1_env.cascade.end_effector_drift`, docs/MODEL.md
+            §7). Its rate ∇h · d joins every b as a known ∂h/∂t. None: no drift (the paper's arm at rest).
 
     Returns:
         ``A (..., O, k)``, ``b (..., O)``, ``h (..., O)`` (h before tightening, in the chosen form).
     """
     h_sq = barrier_values = _squared_barrier(p, centers, radii)
     Lg = barrier_lie_derivative(p, Jbar, centers)
+    rate = 0.0 if drift is None else barrier_lie_derivative(p, np.asarray(drift)[..., None], centers)[..., 0]
     if barrier == "squared" and decay == 0.0 and gate is None:  # the paper's rows, written out
         A = -Lg
-        b = kappa * (h_sq - margin) - np.sum(Lg * Lg, axis=-1) / epsilon
+        b = kappa * (h_sq - margin) - np.sum(Lg * Lg, axis=-1) / epsilon + rate
     else:
-        barrier_values, Lg = shaped_barrier(h_sq, radii, barrier, Lg)
+        barrier_values, Lg, rate = shaped_barrier(h_sq, radii, barrier, Lg, rate)
         sigma = None if gate is None else activation_gate(clearance(p, centers, radii), *gate)
-        A, b = cbf_rows(barrier_values, Lg, kappa, epsilon, margin, decay, gate=sigma, speed=speed)
+        A, b = cbf_rows(barrier_values, Lg, kappa, epsilon, margin, decay, dh_dt=rate, gate=sigma, speed=speed)
     if active is not None:
         A = np.where(active[..., None], A, 0.0)
         b = np.where(active, b, np.inf)

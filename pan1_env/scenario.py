@@ -12,7 +12,8 @@ the README ("Scenario files"); in short::
     [safety]      kappa, epsilon, margin = 0, ignore_unreachable_obstacles = true,
                   bodies = "end_effector" | "links", link_radius = 0, inter_arm = false,
                   barrier = "squared" | "distance", decay = 0, gate = 0 (m; a smooth activation past the sensing range)
-    [arm_defaults] masses, lengths, com, inertias, passive_first_joint, phi   (optional)
+    [arm_defaults] masses, lengths, com, inertias, passive_first_joint, phi,
+                  passive_damping = 0 (N·m·s/rad at a passive first joint)   (optional)
     [[arms]]      base, q0, and any arm_defaults key to override it
     [formation]   shape = "square" | "polygon" with size,  or  edges + distances (0-based arms)
     [[obstacles]] center, radius, and for a moving obstacle path_end = [x, y] and speed (m/s)
@@ -176,7 +177,7 @@ class Scenario:
 
 _TOP_KEYS = {"name", "description", "simulation", "controller", "safety", "arm_defaults", "arms",
              "formation", "obstacles"}
-_ARM_PARAM_KEYS = {"masses", "lengths", "com", "inertias", "passive_first_joint", "phi"}
+_ARM_PARAM_KEYS = {"masses", "lengths", "com", "inertias", "passive_first_joint", "phi", "passive_damping"}
 _ARM_KEYS = _ARM_PARAM_KEYS | {"base", "q0"}
 
 _ANGLE = re.compile(
@@ -320,7 +321,10 @@ def _arm(entry: Any, defaults: Mapping[str, Any], src: str, index: int) -> tuple
     if not isinstance(q0_raw, list) or len(q0_raw) != n:
         raise ScenarioError(src, f"{prefix}.q0", f"expected a list of {n} angles, got {q0_raw!r}")
     q0 = np.array([_angle(x, src, f"{prefix}.q0[{k}]") for k, x in enumerate(q0_raw)])
-    arm = ArmParams(base=base, phi=phi, passive_first_joint=passive, **vectors)
+    damping = merged.get("passive_damping", 0.0)
+    if isinstance(damping, bool) or not isinstance(damping, (int, float)) or not math.isfinite(damping) or damping < 0:
+        raise ScenarioError(src, where("passive_damping"), f"expected a finite number ≥ 0 (N·m·s/rad), got {damping!r}")
+    arm = ArmParams(base=base, phi=phi, passive_first_joint=passive, passive_damping=float(damping), **vectors)
     q0.setflags(write=False)
     return arm, q0
 

@@ -83,7 +83,7 @@ class Simulation:
         """Σ_α M_1α q̇_α for every arm, ``(N,)`` (NaN for fully actuated arms)."""
         out = np.full(self.n_arms, np.nan)
         for kind in self.engine.kinds:
-            out[kind.ids] = self.engine.kind_terms(kind)[2]
+            out[kind.ids] = self.engine.kind_terms(kind).momentum
         return out
 
     def nominal_velocity(self) -> np.ndarray:
@@ -93,7 +93,7 @@ class Simulation:
         e_hat = formation_gradient(formation.incidence, z, edge_errors(z, formation.distances))
         out = np.zeros((self.n_arms, self.k_max))
         for kind in self.engine.kinds:
-            _, Jbar, _ = self.engine.kind_terms(kind)
+            Jbar = self.engine.kind_terms(kind).Jbar
             out[kind.ids, : kind.k] = nominal_velocity(Jbar, e_hat[kind.ids], self.scenario.kp)
         return out
 

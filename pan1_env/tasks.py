@@ -128,7 +128,7 @@ class FormationTask:
         e_hat = formation_gradient(self.incidence, z, edge_errors(z, self.distances))  # (B, N, 2)
         out = np.zeros((engine.copies, engine.n_arms, engine.k_max))
         for kind in engine.kinds:
-            _, Jbar, _ = engine.kind_terms(kind)
+            Jbar = engine.kind_terms(kind).Jbar
             e = e_hat[:, kind.ids].reshape(-1, 2)
             v0 = nominal_velocity(Jbar, e, np.repeat(self.kp, kind.A)[:, None])
             if gain is not None:

@@ -139,12 +139,20 @@ def test_piqp_filter_agrees_with_the_compiled_qp() -> None:
     np.testing.assert_allclose(engines["piqp"].joint_state()[0], engines["active_set"].joint_state()[0], atol=1e-6)
 
 
-def test_a_damped_passive_joint_is_refused_not_dropped() -> None:
-    """The kernels do not model passive_damping yet: an engine must refuse it rather than simulate another arm."""
+def test_a_loaded_team_brings_its_damping() -> None:
+    """load_team takes a team's passive_damping into the copy it loads (it is simulated, not dropped): the
+    damped copy's passive momentum changes, the undamped copy's stays what it was."""
     team = scenario.load("paper_pa3_square")
-    damped = dataclasses.replace(team, arms=(dataclasses.replace(team.arms[0], passive_damping=0.3), *team.arms[1:]))
-    with pytest.raises(ValueError, match="arm 0: passive_damping=0.3"):
-        Engine(damped)
-    engine = Engine(team)
-    with pytest.raises(ValueError, match="passive_damping"):
-        engine.load_team(0, damped)
+    damped = dataclasses.replace(team, arms=tuple(dataclasses.replace(a, passive_damping=2.0) for a in team.arms))
+    engine = Engine(team, 2, physics_dt=1e-3)
+    engine.load_team(1, damped)
+    engine.reset()
+    q = [np.array(q0) for q0 in team.q0]
+    qd = [np.array([1.0, 0.0, 0.0, 0.0])] * 4
+    for b in (0, 1):
+        engine.set_state(b, q, qd)
+    start = engine.passive_momentum().copy()
+    for _ in range(200):
+        engine.step(np.zeros((2, 4, 3)), 1, torque=True)
+    np.testing.assert_array_equal(engine.passive_momentum()[0], start[0])
+    assert np.all(np.abs(engine.passive_momentum()[1] - start[1]) > 0.01)

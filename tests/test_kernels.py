@@ -33,13 +33,19 @@ def _group(rng: np.random.Generator, n: int, passive: bool, count: int = 5):
     return batch, q, v
 
 
-def _terms(batch, q, v):
+def _terms(batch, q, v, momentum=None, damping=None):
     A, k = v.shape
     out = dict(p=np.empty((A, 2)), Jbar=np.empty((A, 2, k)), Mc=np.empty((A, k, k)),
-               Hc=np.empty((A, k)), mom=np.empty(A))
-    kernels.group_terms(batch.lam, batch.lengths, batch.base, batch.phi, batch.passive_first_joint,
-                        q, v, out["p"], out["Jbar"], out["Mc"], out["Hc"], out["mom"])
+               Hc=np.empty((A, k)), mom=np.empty(A), drift=np.empty((A, 2)))
+    kernels.group_terms(batch.lam, batch.lengths, batch.base, batch.phi, _per_arm(damping, A),
+                        batch.passive_first_joint, q, v, _per_arm(momentum, A), out["p"], out["Jbar"], out["Mc"],
+                        out["Hc"], out["mom"], out["drift"])
     return out
+
+
+def _per_arm(values, A):
+    """A kernel's per-arm array of passive momenta or dampings (zeros: the paper's arm)."""
+    return np.zeros(A) if values is None else np.broadcast_to(np.asarray(values, dtype=float), (A,)).copy()
 
 
 @pytest.mark.parametrize("n", [2, 3, 4, 5])
@@ -62,7 +68,7 @@ def test_group_terms_match_reference(n: int, passive: bool) -> None:
 def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False, centers=None, radii=None,
              mask=None, kappa=0.5, eps=5.0, margin=0.0, distance=False, decay=0.0,
              ke=100.0, dt=1e-3, n_sub=1, v_max=np.inf, parallel=False,
-             sizes=None, n_chunks=2):
+             sizes=None, n_chunks=2, momentum=None, damping=None):
     A, k = v.shape
     centers = np.zeros((0, 2)) if centers is None else centers
     radii = np.zeros(0) if radii is None else radii
@@ -74,8 +80,9 @@ def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False
                clear=np.full(A, np.inf), min_h=np.full(A, np.inf), counts=np.zeros((A, 3), np.int64),
                track=np.zeros(A), finite=np.zeros(A, bool))
     sizes = kernel_sizes(q.shape[1], k) if sizes is None else sizes
-    args = (*sizes, batch.lam, batch.lengths, batch.base, batch.phi,
-            batch.passive_first_joint, q, v, prev, has_prev,
+    momentum = _per_arm(momentum, A)
+    args = (*sizes, batch.lam, batch.lengths, batch.base, batch.phi, _per_arm(damping, A),
+            batch.passive_first_joint, q, v, momentum, prev, has_prev,
             command, torque, filter_on, np.broadcast_to(centers, (A, *centers.shape)).copy(),
             np.broadcast_to(radii, (A, len(radii))).copy(), mask, kappa, eps, margin, distance, decay, ke, dt,
             n_sub, v_max, out["v_star"], out["tau"], out["qd"], out["p"], out["clear"], out["min_h"], out["counts"],
@@ -84,6 +91,7 @@ def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False
         kernels.group_advance_parallel(*args, n_chunks)
     else:
         kernels.group_advance(*args)
+    out["momentum"] = momentum
     return bool(out["finite"].all()), q, v, prev, out
 
 
@@ -347,9 +355,10 @@ def test_per_arm_obstacles_equal_one_arm_at_a_time() -> None:
                 clear=np.full(A, np.inf), min_h=np.full(A, np.inf), counts=np.zeros((A, 3), np.int64),
                 track=np.zeros(A), finite=np.zeros(A, bool))
     q_all, v_all = q.copy(), v.copy()
-    kernels.group_advance(*kernel_sizes(q.shape[1], k), batch.lam, batch.lengths, batch.base, batch.phi, True,
-                          q_all, v_all, np.zeros((A, k)), np.zeros(A, bool), command, False, True, centers, radii,
-                          np.ones((A, 2), bool), 0.5, 5.0, 0.0, False, 0.0, 100.0, 1e-3, 3, 2.0, *args.values(), None)
+    kernels.group_advance(*kernel_sizes(q.shape[1], k), batch.lam, batch.lengths, batch.base, batch.phi, np.zeros(A),
+                          True, q_all, v_all, np.zeros(A), np.zeros((A, k)), np.zeros(A, bool), command, False, True,
+                          centers, radii, np.ones((A, 2), bool), 0.5, 5.0, 0.0, False, 0.0, 100.0, 1e-3, 3, 2.0,
+                          *args.values(), None)
     for i in range(A):
         one = ArmBatch(lam=batch.lam[i : i + 1], lengths=batch.lengths[i : i + 1], base=batch.base[i : i + 1],
                        phi=batch.phi[i : i + 1], passive_first_joint=True)
@@ -387,9 +396,9 @@ def _first_candidates(px, py, Jbar, obstacles, active, filtered, v0, kappa, epsi
     A, b, h, norm, act = np.empty((k, W)), np.empty(W), np.empty(W), np.empty(W), np.empty(W, np.bool_)
     rows, violated, best, best_viol = np.empty((O, k + 2, W)), np.empty(W, np.bool_), np.empty(W, np.int64), np.empty(W)
     Ab, bb, cand, found = np.empty((k, W)), np.empty(W), np.empty((k, W)), np.empty(W, np.bool_)
-    _first_projection_lanes(px, py, Jbar, obstacles, active, filtered, kappa, epsilon, margin, distance, decay, v_max,
-                            O, k, W, v0, arm_h, A, b, h, norm, act, rows, violated, best, best_viol, Ab, bb, cand,
-                            found)
+    _first_projection_lanes(px, py, Jbar, np.zeros((2, W)), obstacles, active, filtered, kappa, epsilon, margin,
+                            distance, decay, v_max, O, k, W, v0, arm_h, A, b, h, norm, act, rows, violated, best,
+                            best_viol, Ab, bb, cand, found)
     A_all, b_all = np.zeros((W, m, k)), np.zeros((W, m))
     for w in range(W):
         for j in range(O):
@@ -496,7 +505,8 @@ def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
             out = [np.zeros((A, 2)), np.zeros(A, bool), np.empty((A, 2)), np.empty((A, 2)), np.empty((A, 3)),
                    np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64), np.zeros(A),
                    np.zeros(A, bool)]
-            args = [batch.lam, batch.lengths, batch.base, batch.phi, True, qk, vk, out[0], out[1], command, torque,
+            args = [batch.lam, batch.lengths, batch.base, batch.phi, np.zeros(A), True, qk, vk, np.zeros(A), out[0],
+                    out[1], command, torque,
                     True, np.broadcast_to(centers, (A, 3, 2)).copy(), np.broadcast_to(radii, (A, 3)).copy(), mask,
                     0.5, 5.0, 0.01, distance, decay, 100.0, 1e-2, 5, v_max, *out[2:], None]
             if kernel == "slp":
@@ -539,10 +549,10 @@ def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> Non
                    np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64), np.zeros(A),
                    np.zeros(A, bool)]
             for _ in range(2):  # the second call starts from the first's v_prev / has_prev
-                kernel(*kernel_sizes(n, k), batch.lam, batch.lengths, batch.base, batch.phi, passive, qk, vk,
-                       out[0], out[1], command, torque, filter_on, np.broadcast_to(centers, (A, 3, 2)).copy(),
-                       np.broadcast_to(radii, (A, 3)).copy(), mask, 0.5, 5.0, 0.01, distance, decay, 100.0, 1e-2, 5,
-                       v_max, *out[2:], None)
+                kernel(*kernel_sizes(n, k), batch.lam, batch.lengths, batch.base, batch.phi, np.zeros(A), passive, qk,
+                       vk, np.zeros(A), out[0], out[1], command, torque, filter_on,
+                       np.broadcast_to(centers, (A, 3, 2)).copy(), np.broadcast_to(radii, (A, 3)).copy(), mask, 0.5,
+                       5.0, 0.01, distance, decay, 100.0, 1e-2, 5, v_max, *out[2:], None)
             runs.append([qk, vk, *out])
         finite, counts = runs[0][-1], runs[0][-3]
         assert not finite[3]
@@ -555,13 +565,16 @@ def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> Non
 def test_generic_kernel_checks_its_sizes() -> None:
     rng = np.random.default_rng(0)
     batch, q, v = _group(rng, 9, True, count=1)
-    args = (batch.lam, batch.lengths, batch.base, batch.phi, True, q, v)
+    args = (batch.lam, batch.lengths, batch.base, batch.phi, np.zeros(1), True, q, v, np.zeros(1))
     with pytest.raises(ValueError, match="n ≤ 8"):
         kernels.group_advance_generic(*kernel_sizes(9, 8), *args)
     batch, q, v = _group(rng, 3, True, count=1)
     with pytest.raises(ValueError, match="kernel_sizes"):
         kernels.group_advance_generic(*kernel_sizes(3, 3), batch.lam, batch.lengths, batch.base, batch.phi,
-                                      True, q, v)
+                                      np.zeros(1), True, q, v, np.zeros(1))
+    with pytest.raises(ValueError, match="momentum and damping"):
+        kernels.group_advance_generic(*kernel_sizes(3, 2), batch.lam, batch.lengths, batch.base, batch.phi,
+                                      np.zeros(2), True, q, v, np.zeros(1))
 
 
 @pytest.mark.parametrize(("barrier", "decay"), [("squared", 0.0), ("squared", 20.0), ("distance", 0.0),

@@ -156,12 +156,27 @@ def test_inter_arm_keeps_crowded_random_arms_apart() -> None:
     ({"obstacle_speed": (-0.1, 0.1)}, "RandomScenarioOptions.obstacle_speed[0] must be non-negative"),
     ({"obstacle_speed": 0.1}, "RandomScenarioOptions.obstacle_speed must be a range (low, high)"),
     ({"obstacle_path_length": (0.0, 0.5)}, "RandomScenarioOptions.obstacle_path_length[0] must be positive"),
+    ({"passive_damping": -0.5}, "RandomScenarioOptions.passive_damping must be non-negative"),
 ], ids=["bodies_misspelt", "negative_link_radius", "link_radius_without_links", "inter_arm_without_links",
-        "inter_arm_not_bool", "speed_range_reversed", "negative_speed", "speed_not_a_range", "zero_path_length"])
+        "inter_arm_not_bool", "speed_range_reversed", "negative_speed", "speed_not_a_range", "zero_path_length",
+        "negative_damping"])
 def test_random_options_bad_input(options: dict, message: str) -> None:
     with pytest.raises(ValueError) as err:
         RandomScenarioOptions(**options)
     assert str(err.value).startswith(message), str(err.value)
+
+
+def test_passive_damping_changes_no_draw() -> None:
+    """A damped team is the undamped one's, seed for seed, with b on every arm."""
+    plain = random_scenario(np.random.default_rng(4), RandomScenarioOptions())
+    damped = random_scenario(np.random.default_rng(4), RandomScenarioOptions(passive_damping=0.7))
+    assert [a.passive_damping for a in damped.arms] == [0.7] * 4
+    for arm, arm_plain in zip(damped.arms, plain.arms, strict=True):
+        for name in ("masses", "lengths", "com", "inertias", "base"):
+            np.testing.assert_array_equal(getattr(arm, name), getattr(arm_plain, name))
+        assert (arm.phi, arm.passive_first_joint) == (arm_plain.phi, arm_plain.passive_first_joint)
+    for q, q_plain in zip(damped.q0, plain.q0, strict=True):
+        np.testing.assert_array_equal(q, q_plain)
 
 
 def test_random_scenario_options_attributes_are_one_list() -> None:

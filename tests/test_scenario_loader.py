@@ -171,12 +171,20 @@ def test_valid_file_loads_by_path(tmp_path: Path) -> None:
         assert (sc.kp, sc.ke, sc.kappa, sc.epsilon, sc.horizon) == (1.5, 50.0, 0.5, 5.0, 2.0)
         assert sc.safety_margin == 0.0 and sc.ignore_unreachable_obstacles is True
         assert [a.passive_first_joint for a in sc.arms] == [True, False, True]  # default: passive
+        assert [a.passive_damping for a in sc.arms] == [0.0, 0.0, 0.0]  # default: the paper's frictionless joint
         np.testing.assert_allclose(sc.q0[0], [PI / 4, -PI / 6], rtol=1e-15)
         np.testing.assert_allclose(sc.q0[1], [0.0, 0.5], rtol=1e-15)
         np.testing.assert_allclose(sc.q0[2], [-3 * PI / 4, PI / 3], rtol=1e-15)
         assert len(sc.formation.edges) == 3  # a triangle: 2N − 3 = 3
         np.testing.assert_allclose(sc.formation.distances, 0.5)
         assert sc.source == str(path)
+
+
+def test_passive_damping_is_read_per_arm(tmp_path: Path) -> None:
+    text = _replace("masses = [0.2, 0.2]", "masses = [0.2, 0.2]\npassive_damping = 0.3")
+    text = text.replace("base = [2.0, 0.0]\n", "base = [2.0, 0.0]\npassive_damping = 1\n")
+    sc = scenario.load(_write(tmp_path, text))
+    assert [a.passive_damping for a in sc.arms] == [0.3, 1.0, 0.3]
 
 
 def test_name_defaults_to_file_stem_and_overrides_apply(tmp_path: Path) -> None:
@@ -252,6 +260,10 @@ BROKEN = [
     ("base_three", _replace("base = [0.0, 0.0]", "base = [0.0, 0.0, 0.0]"), "arms[0].base"),
     ("passive_int", _replace("passive_first_joint = false", "passive_first_joint = 0"),
      "arms[1].passive_first_joint"),
+    ("damping_negative", _replace("passive_first_joint = false\n",
+                                  "passive_first_joint = false\npassive_damping = -0.1\n"), "arms[1].passive_damping"),
+    ("damping_string", _replace("masses = [0.2, 0.2]", 'masses = [0.2, 0.2]\npassive_damping = "low"'),
+     "arm_defaults.passive_damping"),
     ("simulation_not_table", _replace("[simulation]\nphysics_dt = 0.001\ncontrol_dt = 0.005\nhorizon = 2.0\n",
                                       "simulation = 3\n"), "simulation"),
     ("radius_string", _replace("radius = 0.1", 'radius = "big"'), "obstacles[0].radius"),

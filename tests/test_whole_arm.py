@@ -32,8 +32,9 @@ def _lanes(arm: ArmParams, q: np.ndarray) -> dict:
 def _rows(arm: ArmParams, q: np.ndarray, caps: np.ndarray, *, links: bool = True, rho: float = 0.0,
           time: float = 0.0, kappa: float = 1.0, epsilon: float = 10.0, margin: float = 0.0, v_max: float = np.inf,
           sensing: float = np.inf, skin: float = 0.0, dt: float = 0.0, qd: np.ndarray | None = None,
-          distance: bool = False, decay: float = 0.0, gate: float = 0.0):
-    """kernels.capsules.whole_arm_rows for one arm at q (one lane): (A, b, h_min) of the rows written."""
+          distance: bool = False, decay: float = 0.0, gate: float = 0.0, p1: float = 0.0):
+    """kernels.capsules.whole_arm_rows for one arm at q (one lane; ``p1`` its passive momentum): (A, b, h_min)
+    of the rows written."""
     n = arm.n_links
     k = n - 1 if arm.passive_first_joint else n
     m_max = (n if links else 1) * caps.shape[1] + 2 * k
@@ -42,7 +43,7 @@ def _rows(arm: ArmParams, q: np.ndarray, caps: np.ndarray, *, links: bool = True
     qd = np.zeros((n, 1)) if qd is None else np.asarray(qd, float).reshape(n, 1)
     m, h_min = kernels().capsules.whole_arm_rows(
         0, 0, n, k, arm.passive_first_joint, links, rho, sensing, gate, skin, dt, lane["lengths"], lane["bx"],
-        lane["by"], lane["c"], lane["s"], qd, lane["M"], caps, time, kappa, epsilon, margin, distance, decay, v_max,
+        lane["by"], lane["c"], lane["s"], qd, lane["M"], p1, caps, time, kappa, epsilon, margin, distance, decay, v_max,
         np.zeros(k), A, b, active, P, np.empty((caps.shape[1], kernels().capsules.NEAR_COLUMNS)))
     return A[:m], b[:m], h_min
 
@@ -65,7 +66,8 @@ def _capsules(K, segments_a, segments_b, radii, shares, paths=None, speeds=None)
 @pytest.mark.parametrize("n, passive", [(3, True), (4, True), (3, False)])
 def test_link_obstacle_rows_match_the_numpy_barrier(n: int, passive: bool) -> None:
     """Every (link, moving disk) row of the kernel is −L_g0 h ≤ κ(h − margin) + ∂h/∂t − ‖L_g0 h‖²/ε with
-    h, L_g0 h and ∂h/∂t of bodies.link_obstacle_barrier, at the obstacles' positions at that time."""
+    h, L_g0 h and ∂h/∂t of bodies.link_obstacle_barrier, at the obstacles' positions at that time; a PAn−1
+    arm with passive momentum p₁ adds the drift's rate (∂h/∂q₁) p₁ / M_11 to b (docs/MODEL.md §7)."""
     K = kernels().capsules
     rng = np.random.default_rng(n + 10 * passive)
     arm = _arm(rng, n, passive)
@@ -76,7 +78,8 @@ def test_link_obstacle_rows_match_the_numpy_barrier(n: int, passive: bool) -> No
     radii, speeds, rho = rng.uniform(0.05, 0.2, 5), rng.uniform(0.1, 0.5, 5), 0.03
     time, kappa, epsilon, margin = 2.7, 0.8, 20.0, 0.01
     caps = _capsules(K, centers, centers, radii, np.ones(5), ends, speeds)
-    A, b, h_min = _rows(arm, q, caps, rho=rho, time=time, kappa=kappa, epsilon=epsilon, margin=margin)
+    p1 = 0.37 if passive else 0.0
+    A, b, h_min = _rows(arm, q, caps, rho=rho, time=time, kappa=kappa, epsilon=epsilon, margin=margin, p1=p1)
     m = len(b)
     now = bodies.obstacle_centers(centers, ends, speeds, time)
     ref = bodies.link_obstacle_barrier(arm, q, now, radii, rho, bodies.obstacle_velocities(centers, ends, speeds,
@@ -85,7 +88,8 @@ def test_link_obstacle_rows_match_the_numpy_barrier(n: int, passive: bool) -> No
     row = ref.row.reshape(m, k)
     h = ref.h.reshape(m)
     np.testing.assert_allclose(A[:m], -row, rtol=1e-10, atol=1e-12)
-    expected_b = kappa * (h - margin) + ref.dh_dt.reshape(m) - np.sum(row ** 2, axis=-1) / epsilon
+    drift = ref.grad_q.reshape(m, n)[:, 0] * p1 / mass_matrix(arm, q)[0, 0]
+    expected_b = kappa * (h - margin) + ref.dh_dt.reshape(m) + drift - np.sum(row ** 2, axis=-1) / epsilon
     np.testing.assert_allclose(b[:m], expected_b, rtol=1e-10, atol=1e-12)
     assert h_min == pytest.approx(h.min(), rel=1e-12)
     assert np.allclose(row, ref.grad_q.reshape(m, n) @ passive_velocity_map(arm, q))
@@ -108,13 +112,15 @@ def test_whole_arm_rows_with_the_filter_choices_match_the_numpy_reference(distan
     radii, speeds, rho = rng.uniform(0.05, 0.2, 5), rng.uniform(0.1, 0.5, 5), 0.03
     time, kappa, epsilon, margin = 2.7, 0.8, 20.0, 0.01
     caps = _capsules(K, centers, centers, radii, np.ones(5), ends, speeds)
+    p1, M11 = -0.29, mass_matrix(arm, q)[0, 0]  # a passive momentum: its drift's rate joins ∂h/∂t
     A, b, h_min = _rows(arm, q, caps, rho=rho, time=time, kappa=kappa, epsilon=epsilon, margin=margin,
-                        distance=distance, decay=decay)
+                        distance=distance, decay=decay, p1=p1)
     now = bodies.obstacle_centers(centers, ends, speeds, time)
     ref = bodies.link_obstacle_barrier(arm, q, now, radii, rho, bodies.obstacle_velocities(centers, ends, speeds,
                                                                                             time))
+    rate = ref.dh_dt.reshape(15) + ref.grad_q.reshape(15, 3)[:, 0] * p1 / M11
     h, row, dh_dt = shaped_barrier(ref.h.reshape(15), (radii[None, :] + rho).repeat(3, 0).reshape(15), form,
-                                   ref.row.reshape(15, 2), ref.dh_dt.reshape(15))
+                                   ref.row.reshape(15, 2), rate)
     A_ref, b_ref = cbf_rows(h, row, kappa, epsilon, margin, decay, dh_dt)
     np.testing.assert_allclose(A, A_ref, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(b, b_ref, rtol=1e-10, atol=1e-12)
@@ -124,10 +130,11 @@ def test_whole_arm_rows_with_the_filter_choices_match_the_numpy_reference(distan
     qj = rng.uniform(-1.5, 1.5, 4)
     P = bodies.link_segments(arm_j, qj)
     caps = _capsules(K, P[0], P[1], np.full(4, rho), np.full(4, 0.5))
-    A, b, _ = _rows(arm, q, caps, rho=rho, kappa=kappa, epsilon=epsilon, distance=distance, decay=decay)
+    A, b, _ = _rows(arm, q, caps, rho=rho, kappa=kappa, epsilon=epsilon, distance=distance, decay=decay, p1=p1)
     ref = bodies.inter_arm_barrier(arm, q, arm_j, qj, rho)
-    h, row = shaped_barrier(ref.h.reshape(12), 2 * rho, form, ref.row_i.reshape(12, 2))
-    A_ref, b_ref = cbf_rows(h, row, kappa, epsilon, 0.0, decay, share=0.5)
+    h, row, rate = shaped_barrier(ref.h.reshape(12), 2 * rho, form, ref.row_i.reshape(12, 2),
+                                  ref.grad_i.reshape(12, 3)[:, 0] * p1 / M11)  # arm i's own drift, whole
+    A_ref, b_ref = cbf_rows(h, row, kappa, epsilon, 0.0, decay, rate, share=0.5)
     np.testing.assert_allclose(A, A_ref, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(b, b_ref, rtol=1e-9, atol=1e-12)
 

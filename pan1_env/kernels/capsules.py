@@ -113,10 +113,12 @@ def _body(P, n, links, body):
 
 
 @njit(**_JIT)
-def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, lengths, bx, by, c, s, qd, M, caps,
+def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, lengths, bx, by, c, s, qd, M, p1, caps,
                    time, kappa, epsilon, margin, distance, decay, v_max, v0, A, b, active, P, near):
     """The whole-arm RCBF rows of arm i (lane w of the kernel's scratch) at ``time``, then its speed
     bounds (finite ``v_max``), into ``A``, ``b``, ``active``: returns (rows written, smallest barrier h).
+    A PAn−1 arm's passive momentum ``p1`` drifts its bodies, q̇ = g0 v + e₁ p₁ / M_11 (docs/MODEL.md §7):
+    each b gains (∂h/∂q₁) p₁ / M_11, and the speed bound below |p₁| / M_11.
 
     Only pairs that are close get a row: clearance d − r − ρ at most ``sensing`` plus twice what the
     gap can close in the sub-step ``dt`` (no point of the arm moves faster than its reach times
@@ -135,12 +137,10 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
     0 is the hard range.
 
     The rows keep each capsule ``skin`` plus the obstacle's travel in one sub-step farther out than its
-    radius: the condition holds at the sub-step's start, and within the sub-step an obstacle may turn
-    round on its path and the arm lags the filtered velocity, which without the skin let capsules
-    graze obstacles by fractions of a millimetre.
+    radius: within a sub-step an obstacle may turn round and the arm lags the filtered velocity, which
+    without the skin let capsules graze obstacles by fractions of a millimetre.
 
-    ``near (C, NEAR_COLUMNS)`` is scratch: the capsules whose bounding box comes within range of the
-    bodies' box, where they are now, found once for all bodies."""
+    ``near (C, NEAR_COLUMNS)`` is scratch: the capsules whose box comes within range of the bodies' box."""
     C = caps.shape[1]
     m = 0
     h_min = np.inf
@@ -148,19 +148,17 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
     # a bound on the joint speeds Σ|q̇_a| during the sub-step: now, and what the filtered command can
     # reach within it (in torque mode the arm is driven to v* in one sub-step): |v_t| ≤ v_max, the
     # passive joint q̇_0 = −Σ_t M_0,t+1/M_00 v_t; without a speed bound, the command's own speeds
-    joint_speed = 0.0
-    arm_reach = 0.0
+    joint_speed, arm_reach, coupling, drift_speed, commanded = 0.0, 0.0, 1.0, 0.0, 0.0
     for a in range(n):
         joint_speed += abs(qd[a, w])
         arm_reach += lengths[a, w]
-    coupling = 1.0
     if passive:
         for t in range(k):
             coupling += abs(M[0, t + 1, w] / M[0, 0, w])
-    commanded = 0.0
+        drift_speed = p1 / M[0, 0, w]
     for t in range(k):
         commanded += min(abs(v0[t]), v_max)
-    reach_speed = arm_reach * max(joint_speed, coupling * commanded)
+    reach_speed = arm_reach * max(joint_speed, coupling * commanded + abs(drift_speed))
     _joints(lengths, bx, by, c, s, n, w, P)
     # the bodies' bounding box: a capsule whose segment's box is farther than its range along an axis is
     # out of range of every body (the gap along an axis bounds the distance from below)
@@ -235,11 +233,12 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
                 lg2 += A[m, t] * A[m, t]
                 bound += abs(A[m, t])
             if not distance and decay == 0.0:  # the paper's row, its operations as before the choices existed
-                bm = near[x, 9] * kappa * (h - margin) - 2.0 * (rx * near[x, 4] + ry * near[x, 5]) - lg2 / epsilon
+                bm = near[x, 9] * kappa * (h - margin) - 2.0 * (rx * near[x, 4] + ry * near[x, 5]) - lg2 / epsilon \
+                    + grad0 * drift_speed
             else:  # ε(h̃) = ε e^{min(λ h̃, 700)} (pan1_env.safety.robust_epsilon); ε = inf: the fallback's rows
                 ht = h - margin
-                bm = near[x, 9] * kappa * ht - 2.0 * (rx * near[x, 4] + ry * near[x, 5]) * scale \
-                    - lg2 / (epsilon * np.exp(min(decay * ht, 700.0)))
+                bm = near[x, 9] * kappa * ht + (grad0 * drift_speed - 2.0 * (rx * near[x, 4] + ry * near[x, 5])) * \
+                    scale - lg2 / (epsilon * np.exp(min(decay * ht, 700.0)))
             sigma = 1.0
             if gate > 0.0:  # the smooth activation past the range: σ = 1 − (3 u² − 2 u³), u = (c − on)/gate
                 u = min(max((np.sqrt(rx * rx + ry * ry) - (within - gate)) / gate, 0.0), 1.0)

@@ -77,8 +77,13 @@ def _rotate_lanes(c0, s0, thd, h, n, W, c, s):
 
 
 @njit(**_JIT, forceinline=True)
-def _mass_lanes(lam, c, s, v, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H):
-    """M, q̇ = g0 v, M_comb and H_comb of W arms from their link angles' c, s (written to the arrays).
+def _mass_lanes(lam, c, s, v, p1, damping, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H):
+    """M, q̇, M_comb and H_comb of W arms from their link angles' c, s (written to the arrays).
+
+    A PAn−1 arm's passive speed comes from its momentum ``p1`` (docs/MODEL.md §7):
+    q̇₁ = (p₁ − M_1a v) / M_11, so q̇ = g0 v + e₁ p₁ / M_11, and its H_comb carries the passive joint's
+    damping ``damping`` b: H_comb = H_a − M_a1 (H_1 + b q̇₁) / M_11. With p₁ = b = 0 this is §3's
+    cascade, operation for operation (the paper's arm at rest before its first step).
 
     M = Sᵀ (λ ∘ cos(θ_b − θ_a)) S and H = Sᵀ h, h_a = −Σ_b λ_ab sin(θ_b − θ_a) θ̇_b² (docs/MODEL.md §1, §3);
     the differences θ_b − θ_a do not depend on φ, so c, s may include it. λ is symmetric, so each
@@ -116,7 +121,7 @@ def _mass_lanes(lam, c, s, v, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H):
             acc = 0.0
             for j in range(k):
                 acc += M[0, j + 1, w] * v[j, w]
-            qd[0, w] = -acc * inv
+            qd[0, w] = (p1[w] - acc) * inv
         for j in range(k):
             qd[j + off, w] = v[j, w]
         acc = 0.0
@@ -131,9 +136,10 @@ def _mass_lanes(lam, c, s, v, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H):
             acc += h
             H[a, w] = acc
         if passive:
+            h_passive = H[0, w] + damping[w] * qd[0, w]
             for i in range(k):
                 g = M[i + 1, 0, w] * inv
-                Hc[i, w] = H[i + 1, w] - g * H[0, w]
+                Hc[i, w] = H[i + 1, w] - g * h_passive
                 for j in range(k):
                     Mc[i, j, w] = M[i + 1, j + 1, w] - g * M[0, j + 1, w]
         else:
@@ -262,13 +268,16 @@ def _jacobian_lanes(lengths, c, s, M, passive, n, k, W, J, Jbar):
 
 
 @njit(**_JIT)
-def group_terms(lam, lengths, base, phi, passive, q, v, p, Jbar, Mc, Hc, momentum):
-    """Per arm: end-effector p (A,2), reduced Jacobian J̄ (A,2,k), M_comb, H_comb, passive momentum
-    (one arm at a time, as a single lane of the sub-step kernel's building blocks)."""
+def group_terms(lam, lengths, base, phi, damping, passive, q, v, p1, p, Jbar, Mc, Hc, momentum, drift):
+    """Per arm, at the state (q, v, p1): end-effector p (A,2), reduced Jacobian J̄ (A,2,k), M_comb, H_comb,
+    the passive momentum Σ_α M_1α q̇_α recomputed from q̇ (NaN for a fully actuated arm) and the
+    end-effector's drift J₁ p₁ / M_11 (A,2) (0 for a fully actuated arm), one arm at a time, as a single
+    lane of the sub-step kernel's building blocks."""
     A, n = q.shape
     k = v.shape[1]
     lm, ln, qi, vi = np.empty((n, n, 1)), np.empty((n, 1)), np.empty((n, 1)), np.empty((k, 1))
     bx, by, ph, px, py = np.empty(1), np.empty(1), np.empty(1), np.empty(1), np.empty(1)
+    pm, bd = np.empty(1), np.empty(1)
     c, s, qd, thd, H = np.empty((n, 1)), np.empty((n, 1)), np.empty((n, 1)), np.empty((n, 1)), np.empty((n, 1))
     M, R, Sn, J = np.empty((n, n, 1)), np.empty((n, n, 1)), np.empty((n, n, 1)), np.empty((2, n, 1))
     Mc1, Hc1, Jb = np.empty((k, k, 1)), np.empty((k, 1)), np.empty((2, k, 1))
@@ -281,8 +290,9 @@ def group_terms(lam, lengths, base, phi, passive, q, v, p, Jbar, Mc, Hc, momentu
         for t in range(k):
             vi[t, 0] = v[i, t]
         bx[0], by[0], ph[0] = base[i, 0], base[i, 1], phi[i]
+        pm[0], bd[0] = p1[i], damping[i]
         _lane_angles(qi, ph, n, 0, c, s)
-        _mass_lanes(lm, c, s, vi, passive, n, k, 1, M, R, Sn, Mc1, Hc1, qd, thd, H)
+        _mass_lanes(lm, c, s, vi, pm, bd, passive, n, k, 1, M, R, Sn, Mc1, Hc1, qd, thd, H)
         mom = 0.0
         for a in range(n):
             mom += M[0, a, 0] * qd[a, 0]
@@ -290,6 +300,8 @@ def group_terms(lam, lengths, base, phi, passive, q, v, p, Jbar, Mc, Hc, momentu
         _position_lanes(ln, bx, by, c, s, n, 1, px, py)
         p[i, 0], p[i, 1] = px[0], py[0]
         _jacobian_lanes(ln, c, s, M, passive, n, k, 1, J, Jb)
+        per_momentum = p1[i] / M[0, 0, 0] if passive else 0.0
+        drift[i, 0], drift[i, 1] = J[0, 0, 0] * per_momentum, J[1, 0, 0] * per_momentum
         for r in range(2):
             for t in range(k):
                 Jbar[i, r, t] = Jb[r, t, 0]

@@ -145,10 +145,12 @@ def qp_project(v0, A, b, active, v_out, status):
 
 
 @njit(**_JIT, forceinline=True)
-def _rcbf_row_lanes(j, px, py, Jbar, obstacles, kappa, epsilon, margin, distance, decay, k, W, A, b, h):
+def _rcbf_row_lanes(j, px, py, Jbar, drift, obstacles, kappa, epsilon, margin, distance, decay, k, W, A, b, h):
     """The RCBF row of obstacle j for W lanes, A_j v ≤ b_j, into ``A (k, W)``, ``b (W)``:
-    A_j = −L_g0 h_j and b_j = κ h̃_j − ‖L_g0 h_j‖²/ε(h̃_j), h̃_j = h_j − margin (also writes h_j to
-    ``h``); ``obstacles (3, O, W)`` holds every lane's obstacle centres (x, y) and radii.
+    A_j = −L_g0 h_j and b_j = κ h̃_j − ‖L_g0 h_j‖²/ε(h̃_j) + ∇h_j · d, h̃_j = h_j − margin (also writes h_j
+    to ``h``); ``obstacles (3, O, W)`` holds every lane's obstacle centres (x, y) and radii, ``drift (2, W)``
+    the end-effector's drift d = J₁ p₁ / M_11 of a PAn−1 arm with passive momentum p₁ (0 without:
+    docs/MODEL.md §7), the part of ṗ that no command changes.
 
     The barrier (:func:`pan1_env.safety.shaped_barrier`, docs/MODEL.md §5a): the paper's squared
     h_j = ‖p − o_j‖² − r_j² with L_g0 h_j = 2 (p − o_j)ᵀ J̄, or with ``distance`` h_j = d − r_j,
@@ -170,7 +172,7 @@ def _rcbf_row_lanes(j, px, py, Jbar, obstacles, kappa, epsilon, margin, distance
                 lg = 2.0 * (dx * Jbar[0, t, w] + dy * Jbar[1, t, w])
                 A[t, w] = -lg
                 lg2 += lg * lg
-            b[w] = kappa * (hw - margin) - lg2 / epsilon
+            b[w] = kappa * (hw - margin) - lg2 / epsilon + 2.0 * (dx * drift[0, w] + dy * drift[1, w])
             h[w] = hw
         return
     for w in range(W):
@@ -190,7 +192,8 @@ def _rcbf_row_lanes(j, px, py, Jbar, obstacles, kappa, epsilon, margin, distance
             A[t, w] = -lg
             lg2 += lg * lg
         ht = hw - margin
-        b[w] = kappa * ht - lg2 / (epsilon * np.exp(min(decay * ht, 700.0)))
+        b[w] = kappa * ht - lg2 / (epsilon * np.exp(min(decay * ht, 700.0))) + \
+            2.0 * (dx * drift[0, w] + dy * drift[1, w]) * scale
         h[w] = hw
 
 
@@ -247,9 +250,9 @@ def _check_row(A, b, norm, act, cand, cand_norm, k, W, found):
 
 
 @njit(**_JIT, forceinline=True)
-def _first_projection_lanes(px, py, Jbar, obstacles, active, filtered, kappa, epsilon, margin, distance, decay, v_max,
-                            O, k, W, v0, arm_h, A, b, h, norm, act, rows, violated, best, best_viol, Ab, bb, cand,
-                            found):
+def _first_projection_lanes(px, py, Jbar, drift, obstacles, active, filtered, kappa, epsilon, margin, distance, decay,
+                            v_max, O, k, W, v0, arm_h, A, b, h, norm, act, rows, violated, best, best_viol, Ab, bb,
+                            cand, found):
     """The safety QP of W lanes as far as it goes without a search, all lanes at once (branch-free, so
     they vectorise):
 
@@ -279,7 +282,7 @@ def _first_projection_lanes(px, py, Jbar, obstacles, active, filtered, kappa, ep
         for t in range(k):
             Ab[t, w] = 0.0
     for j in range(O):
-        _rcbf_row_lanes(j, px, py, Jbar, obstacles, kappa, epsilon, margin, distance, decay, k, W, A, b, h)
+        _rcbf_row_lanes(j, px, py, Jbar, drift, obstacles, kappa, epsilon, margin, distance, decay, k, W, A, b, h)
         for w in range(W):
             act[w] = active[j, w] & filtered[w]
         _consider_row(j, A, b, h, act, v0, k, W, arm_h, violated, best, best_viol, Ab, bb, found, norm)
@@ -339,15 +342,15 @@ def _first_projection_lanes(px, py, Jbar, obstacles, active, filtered, kappa, ep
 
 
 @njit(**_JIT, forceinline=True)
-def _filter_rows_lanes(px, py, Jbar, obstacles, active, filtered, kappa, epsilon, margin, distance, decay, O, k, W,
-                       arm_h, A, b, h, rows):
+def _filter_rows_lanes(px, py, Jbar, drift, obstacles, active, filtered, kappa, epsilon, margin, distance, decay, O, k,
+                       W, arm_h, A, b, h, rows):
     """The generic kernel's lighter stand-in for :func:`_first_projection_lanes`: the RCBF rows into
     ``rows (O, k + 2, W)`` (A_j and b_j; the norm is not needed) and the smallest active barrier into
     ``arm_h``, no candidate. The caller hands every filtered lane to :func:`_project_one`, which
     starts with the same feasibility test as the first pass there, so the answers are the same; a
     smaller kernel compiles faster, which is the generic kernel's purpose."""
     for j in range(O):
-        _rcbf_row_lanes(j, px, py, Jbar, obstacles, kappa, epsilon, margin, distance, decay, k, W, A, b, h)
+        _rcbf_row_lanes(j, px, py, Jbar, drift, obstacles, kappa, epsilon, margin, distance, decay, k, W, A, b, h)
         for w in range(W):
             act = active[j, w] & filtered[w]
             arm_h[w] = h[w] if act and h[w] < arm_h[w] else arm_h[w]

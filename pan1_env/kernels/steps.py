@@ -27,6 +27,7 @@ from .qp import (
 # unreferenced by the kernel (_borrowed). A step tests ``whole is not None`` only on the kernel's own
 # argument: numba prunes the untaken branch of an inlined step on an argument's None type, not on a local.
 #   dyn    = (M, R, Sn, Mc, Hc, qd, thd, H): the terms at a state (_mass_lanes);
+#   pj     = (p1, damping): a PAn−1 arm's passive momentum p₁ (state) and damping b per lane (docs/MODEL.md §7);
 #   chol   = (rhs, Lc, yc, ok): the solve for the accelerations (_acceleration_lanes);
 #   ee     = the end-effector filter's Jacobians and rows (_filter_end_effector);
 #   search = one lane's full QP search (_project_one); scratch = the whole-arm rows' (None without).
@@ -103,13 +104,13 @@ def _load_filter(W, O, filter_on, torque_mode, v_max, centers, radii, mask, has_
 
 
 @njit(**_JIT, inline="always")
-def _desired_velocity(n, k, W, passive, any_filter, torque_mode, dt, command, arm, lm, vi, c, s, dyn, chol, tau, acc,
-                      vdes, vs, status):
+def _desired_velocity(n, k, W, passive, any_filter, torque_mode, dt, command, arm, lm, vi, pj, c, s, dyn, chol, tau,
+                      acc, vdes, vs, status):
     """The terms at the sub-step's state, and the velocity to filter: the command, or the one-step
     result of the commanded torque; the filtered velocity starts as it, the status as nominal."""
     M, R, Sn, Mc, Hc, qd, thd, H = dyn
     rhs, Lc, yc, ok = chol
-    _mass_lanes(lm, c, s, vi, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H)
+    _mass_lanes(lm, c, s, vi, pj[0], pj[1], passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H)
     if torque_mode:
         for t in range(k):
             for w in range(W):
@@ -132,10 +133,10 @@ def _desired_velocity(n, k, W, passive, any_filter, torque_mode, dt, command, ar
 
 @njit(**_JIT, inline="always")
 def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodies, scratch, arm, real, ln, bx, by, c,
-                      s, dyn, use_filter, live, vdes, vs, status, arm_h, search):
+                      s, dyn, pj, use_filter, live, vdes, vs, status, arm_h, search):
     """Whole-arm safety: each filtered lane's rows are its bodies against its capsules at the sub-step's
     time, solved by the full search, one lane at a time. ``bodies`` = (link radius, link bodies or the
-    end-effector only, sensing range, gate, skin)."""
+    end-effector only, sensing range, gate, skin); ``pj`` the lanes' passive momenta (their drift)."""
     kappa, epsilon, margin, distance, decay, v_max = fparams
     M, R, Sn, Mc, Hc, qd, thd, H = dyn
     Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy = search
@@ -146,8 +147,9 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
             for t in range(k):
                 qv0[t] = vdes[t, w]
             time = start_time[arm[w]] + sub * dt
+            p1 = pj[0][w] if passive else 0.0
             m_w, h_w = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, gate, skin, dt, ln, bx, by,
-                                      c, s, qd, M, caps, time, kappa, epsilon, margin, distance, decay, v_max, qv0,
+                                      c, s, qd, M, p1, caps, time, kappa, epsilon, margin, distance, decay, v_max, qv0,
                                       wA, wb, wact, wP, wnear)
             arm_h[w] = min(arm_h[w], h_w)
             status[w] = _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand, qL, qy, wviol,
@@ -158,7 +160,7 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
                 # velocity that violates the rows least (braking does not keep a moving obstacle out);
                 # reported as a fallback either way
                 m_w, _ = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, gate, skin, dt, ln, bx,
-                                        by, c, s, qd, M, caps, time, kappa, np.inf, margin, distance, decay, v_max,
+                                        by, c, s, qd, M, p1, caps, time, kappa, np.inf, margin, distance, decay, v_max,
                                         qv0, wA, wb, wact, wP, wnear)
                 if _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand, qL, qy, wviol,
                                 wnorm) == STATUS_FALLBACK:
@@ -169,17 +171,22 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
 
 
 @njit(**_JIT, inline="always")
-def _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, ln, bx, by, c, s, dyn, px, py,
+def _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, ln, bx, by, c, s, dyn, pj, px, py,
                          obstacles, lane_active, use_filter, live, vdes, vs, status, arm_h, ee, search):
     """The paper's end-effector filter on every lane at once as far as one active row settles it
-    (:func:`_first_projection_lanes`), then the full active-set search lane by lane."""
+    (:func:`_first_projection_lanes`), then the full active-set search lane by lane. A PAn−1 arm's
+    rows take the end-effector's drift J₁ p₁ / M_11 (docs/MODEL.md §7)."""
     kappa, epsilon, margin, distance, decay, v_max = fparams
     M, R, Sn, Mc, Hc, qd, thd, H = dyn
-    J, Jbar, filtered, row_A, row_b, row_h, row_norm, row_act, obst_rows, needs_qp, q_best, q_best_viol, q_Ab, q_bb, \
-        q_cand, q_found = ee
+    J, Jbar, drift, filtered, row_A, row_b, row_h, row_norm, row_act, obst_rows, needs_qp, q_best, q_best_viol, q_Ab, \
+        q_bb, q_cand, q_found = ee
     Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy = search
     _position_lanes(ln, bx, by, c, s, n, W, px, py)
     _jacobian_lanes(ln, c, s, M, passive, n, k, W, J, Jbar)
+    for w in range(W):
+        per_momentum = pj[0][w] / M[0, 0, w] if passive else 0.0
+        drift[0, w] = J[0, 0, w] * per_momentum
+        drift[1, w] = J[1, 0, w] * per_momentum
     for w in range(W):
         filtered[w] = use_filter[w] & live[w] & real[w]  # a padded lane's result is never used
     # numba prunes a branch only on an argument that is None: lane_qp is None in the generic kernel,
@@ -187,13 +194,13 @@ def _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, 
     if lane_qp is None:
         if sizes is not None:  # the generic kernel: every filtered lane to the full search (whose first
             # test is the feasibility test the lane-batched stage starts with)
-            _filter_rows_lanes(px, py, Jbar, obstacles, lane_active, filtered, kappa, epsilon, margin, distance,
+            _filter_rows_lanes(px, py, Jbar, drift, obstacles, lane_active, filtered, kappa, epsilon, margin, distance,
                                decay, O, k, W, arm_h, row_A, row_b, row_h, obst_rows)
             for w in range(W):
                 needs_qp[w] = filtered[w]
                 q_found[w] = False
     else:
-        _first_projection_lanes(px, py, Jbar, obstacles, lane_active, filtered, kappa, epsilon, margin, distance,
+        _first_projection_lanes(px, py, Jbar, drift, obstacles, lane_active, filtered, kappa, epsilon, margin, distance,
                                 decay, v_max, O, k, W, vdes, arm_h, row_A, row_b, row_h, row_norm, row_act, obst_rows,
                                 needs_qp, q_best, q_best_viol, q_Ab, q_bb, q_cand, q_found)
     for w in range(W):
@@ -265,13 +272,15 @@ def _track(k, W, torque_mode, ke, inv_dt, vi, vp, Mc, Hc, use_filter, live, prev
 
 
 @njit(**_JIT, inline="always")
-def _rk4(n, k, W, passive, dt, finite_out, arm, real, live, lm, qi, vi, tau, c, s, c0, s0, dyn, chol, stages):
+def _rk4(n, k, W, passive, dt, finite_out, arm, real, live, lm, qi, vi, pj, tau, c, s, c0, s0, dyn, chol, stages):
     """One RK4 step with τ held; returns the number of lanes still live. The first stage uses the terms
     at the current state, and every stage's link angles come from the current ones (c0, s0) by a small
-    rotation. A lane whose state goes non-finite stops at its last finite state."""
+    rotation. A PAn−1 arm's momentum p₁ is integrated with them, ṗ₁ = −b q̇₁ (constant without damping).
+    A lane whose state goes non-finite stops at its last finite state."""
     M, R, Sn, Mc, Hc, qd, thd, H = dyn
     rhs, Lc, yc, ok = chol
-    qt, vt, dv, sq, sv = stages
+    qt, vt, dv, sq, sv, pt, sp = stages
+    p1, damping = pj
     for a in range(n):
         for w in range(W):
             c0[a, w] = c[a, w]
@@ -283,15 +292,21 @@ def _rk4(n, k, W, passive, dt, finite_out, arm, real, live, lm, qi, vi, tau, c, 
     for t in range(k):
         for w in range(W):
             sv[t, w] = dv[t, w]
+    if passive:
+        for w in range(W):
+            sp[w] = -damping[w] * qd[0, w]
     for stage in range(3):
         hs = 0.5 * dt if stage < 2 else dt
         g = 2.0 if stage < 2 else 1.0
         for t in range(k):
             for w in range(W):
                 vt[t, w] = vi[t, w] + hs * dv[t, w]
+        if passive:  # the stage's momentum, from the previous stage's q̇₁
+            for w in range(W):
+                pt[w] = p1[w] - hs * damping[w] * qd[0, w]
         # the stage's state q + hs q̇: its link angles θ + hs θ̇ (θ̇ = thd of the previous stage)
         _rotate_lanes(c0, s0, thd, hs, n, W, c, s)
-        _mass_lanes(lm, c, s, vt, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H)
+        _mass_lanes(lm, c, s, vt, pt, damping, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H)
         _acceleration_lanes(Mc, Hc, tau, k, W, dv, rhs, Lc, yc, ok)
         for a in range(n):
             for w in range(W):
@@ -299,6 +314,9 @@ def _rk4(n, k, W, passive, dt, finite_out, arm, real, live, lm, qi, vi, tau, c, 
         for t in range(k):
             for w in range(W):
                 sv[t, w] += g * dv[t, w]
+        if passive:
+            for w in range(W):
+                sp[w] -= g * damping[w] * qd[0, w]
     for w in range(W):
         finite = True
         acc_th = 0.0
@@ -310,6 +328,9 @@ def _rk4(n, k, W, passive, dt, finite_out, arm, real, live, lm, qi, vi, tau, c, 
         for t in range(k):
             vt[t, w] = vi[t, w] + dt / 6.0 * sv[t, w]
             finite = finite & np.isfinite(vt[t, w])
+        if passive:
+            pt[w] = p1[w] + dt / 6.0 * sp[w]
+            finite = finite & np.isfinite(pt[w])
         if live[w] and not finite:
             live[w] = False
             if real[w]:
@@ -323,6 +344,8 @@ def _rk4(n, k, W, passive, dt, finite_out, arm, real, live, lm, qi, vi, tau, c, 
                 qi[a, w] = qt[a, w]
             for t in range(k):
                 vi[t, w] = vt[t, w]
+            if passive:
+                p1[w] = pt[w]
         else:  # frozen at its last finite state (whose angles the sub-step started from)
             for a in range(n):
                 c[a, w] = c0[a, w]
@@ -352,8 +375,8 @@ def _store_outputs(k, W, arm, real, has_prev, prev_ok, qp_counts, counts, min_cl
 
 
 @njit(**_JIT, inline="always")
-def _store_state(n, k, W, passive, whole, scratch, q, qd_out, p_out, arm, real, live, ph, lm, ln, bx, by, qi, vi, c, s,
-                 dyn, px, py):
+def _store_state(n, k, W, passive, whole, scratch, q, momentum, qd_out, p_out, arm, real, live, ph, lm, ln, bx, by, qi,
+                 vi, pj, c, s, dyn, px, py):
     """The real lanes' joint angles back to their arms, with the joint velocities and end-effector at the
     (last finite) state (a stopped arm's angles from q), and with whole-arm safety its joints and link
     angles; a whole-arm call that does not ``finish`` leaves the joint velocities and end-effectors out."""
@@ -366,13 +389,15 @@ def _store_state(n, k, W, passive, whole, scratch, q, qd_out, p_out, arm, real, 
         if not live[w]:
             _lane_angles(qi, ph, n, w, c, s)
     if finish:
-        _mass_lanes(lm, c, s, vi, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H)
+        _mass_lanes(lm, c, s, vi, pj[0], pj[1], passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H)
         _position_lanes(ln, bx, by, c, s, n, W, px, py)
     for w in range(W):
         if real[w]:
             i = arm[w]
             for a in range(n):
                 q[i, a] = qi[a, w]
+            if passive:
+                momentum[i] = pj[0][w]
             if finish:
                 for a in range(n):
                     qd_out[i, a] = qd[a, w]

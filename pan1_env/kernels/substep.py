@@ -60,10 +60,10 @@ from .steps import (
 
 
 @njit(**_JIT)
-def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, base, phi, _passive, q, v, v_prev,
-                  has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, distance,
-                  decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts,
-                  max_track, finite_out, whole):
+def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, base, phi, damping, _passive, q, v,
+                  momentum, v_prev, has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon,
+                  margin, distance, decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h,
+                  qp_counts, max_track, finite_out, whole):
     """Arms ``lo … hi−1`` of :func:`group_advance` (the loop body, with its own scratch space): see the
     module's docstring for the lanes, the per-kind and generic signatures and the whole-arm calls."""
     if sizes is None:  # the per-kind kernel (numba prunes the other branch by the argument's type)
@@ -86,11 +86,13 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     arm, real = _local(lw, np.int64), _local(lw, b1)
     lm, ln, qi, vi, vp = _local(nnw, f8), _local(nw, f8), _local(nw, f8), _local(kw, f8), _local(kw, f8)
     bx, by, ph = _local(lw, f8), _local(lw, f8), _local(lw, f8)
+    pj = (_local(lw, f8), _local(lw, f8))  # a PAn−1 arm's passive momentum p₁ and damping b
     # kinematics and dynamics at a state
     c, s, qd, thd, H = _local(nw, f8), _local(nw, f8), _local(nw, f8), _local(nw, f8), _local(nw, f8)
     c0, s0, px, py = _local(nw, f8), _local(nw, f8), _local(lw, f8), _local(lw, f8)
     M, R, Sn, J = _local(nnw, f8), _local(nnw, f8), _local(nnw, f8), _local(((0, 0), links, lanes), f8)
     Mc, Hc, Jbar = _local(kkw, f8), _local(kw, f8), _local(((0, 0), actuated, lanes), f8)
+    drift = _local(((0, 0), lanes), f8)  # the end-effector's drift J₁ p₁ / M_11
     Lc, yc, rhs, ok = _local(kkw, f8), _local(kw, f8), _local(kw, f8), _local(lw, b1)
     # command, filter and tracker, per lane; the outputs of each lane's last sub-step (kept when it stops)
     vdes, vs, tau, acc = _local(kw, f8), _local(kw, f8), _local(kw, f8), _local(kw, f8)
@@ -113,9 +115,10 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
         _local(kx, f8)
     # RK4: trial state, stage derivative, weighted sums
     qt, vt, dv, sq, sv = _local(nw, f8), _local(kw, f8), _local(kw, f8), _local(nw, f8), _local(kw, f8)
-    dyn, chol, stages = (M, R, Sn, Mc, Hc, qd, thd, H), (rhs, Lc, yc, ok), (qt, vt, dv, sq, sv)
+    pt, sp = _local(lw, f8), _local(lw, f8)
+    dyn, chol, stages = (M, R, Sn, Mc, Hc, qd, thd, H), (rhs, Lc, yc, ok), (qt, vt, dv, sq, sv, pt, sp)
     # the groups' heap arrays unreferenced (_borrowed), kept alive to the end (_keep_alive below)
-    ee = _borrowed((J, Jbar, filtered, row_A, row_b, row_h, row_norm, row_act, obst_rows, needs_qp, q_best,
+    ee = _borrowed((J, Jbar, drift, filtered, row_A, row_b, row_h, row_norm, row_act, obst_rows, needs_qp, q_best,
                     q_best_viol, q_Ab, q_bb, q_cand, q_found))
     search = _borrowed((Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy))
     fparams = (kappa, epsilon, margin, distance, decay, v_max)
@@ -144,21 +147,26 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     for first in range(lo, hi, W):
         _load_arms(first, hi, n, k, W, lam, lengths, base, phi, q, v, v_prev, whole, arm, real, counts, lm, ln, qi, vi,
                    vp, bx, by, ph, vs_last, tau_last, c, s)
+        if passive:
+            for w in range(W):
+                pj[0][w] = momentum[arm[w]]
+                pj[1][w] = damping[arm[w]]
         any_filter = _load_filter(W, O, filter_on, torque_mode, v_max, centers, radii, mask, has_prev, min_clear, min_h,
                                   max_track, finite_out, whole, arm, real, obstacles, lane_active, use_filter, prev_ok,
                                   live, arm_clear, arm_h, arm_track)
         for sub in range(n_sub):
-            _desired_velocity(n, k, W, passive, any_filter, torque_mode, dt, command, arm, lm, vi, c, s, dyn, chol, tau,
-                              acc, vdes, vs, status)
+            _desired_velocity(n, k, W, passive, any_filter, torque_mode, dt, command, arm, lm, vi, pj, c, s, dyn, chol,
+                              tau, acc, vdes, vs, status)
             if any_filter and whole is not None:
                 _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodies, scratch, arm, real, ln,
-                                  bx, by, c, s, dyn, use_filter, live, vdes, vs, status, arm_h, search)
+                                  bx, by, c, s, dyn, pj, use_filter, live, vdes, vs, status, arm_h, search)
             elif any_filter:
-                _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, ln, bx, by, c, s, dyn, px,
-                                     py, obstacles, lane_active, use_filter, live, vdes, vs, status, arm_h, ee, search)
+                _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, ln, bx, by, c, s, dyn, pj,
+                                     px, py, obstacles, lane_active, use_filter, live, vdes, vs, status, arm_h, ee,
+                                     search)
             _track(k, W, torque_mode, ke, inv_dt, vi, vp, Mc, Hc, use_filter, live, prev_ok, status, counts,
                    arm_track, vs, acc, tau, vs_last, tau_last)
-            if _rk4(n, k, W, passive, dt, finite_out, arm, real, live, lm, qi, vi, tau, c, s, c0, s0, dyn, chol,
+            if _rk4(n, k, W, passive, dt, finite_out, arm, real, live, lm, qi, vi, pj, tau, c, s, c0, s0, dyn, chol,
                     stages) == 0:
                 break
             # clearance after the sub-step (a stopped lane keeps its value)
@@ -173,8 +181,8 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                                           start_time, (sub + 1) * dt, joints_x, joints_y, ox, oy, orad, arm_clear)
         _store_outputs(k, W, arm, real, has_prev, prev_ok, qp_counts, counts, min_clear, arm_clear, min_h, arm_h,
                        max_track, arm_track, v_star_out, vs_last, tau_out, tau_last, v, vi, v_prev, vp)
-        _store_state(n, k, W, passive, whole, scratch, q, qd_out, p_out, arm, real, live, ph, lm, ln, bx, by, qi,
-                     vi, c, s, dyn, px, py)
+        _store_state(n, k, W, passive, whole, scratch, q, momentum, qd_out, p_out, arm, real, live, ph, lm, ln, bx, by,
+                     qi, vi, pj, c, s, dyn, px, py)
     _keep_alive((obstacles, lane_active, obst_rows, Arows, brows, active, qrows, qviol, qnorm, owned))
 
 
@@ -188,7 +196,9 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     a compile-time constant too.
 
     Arrays are per arm (leading axis A): parameters ``lam, lengths, base, phi`` (see
-    :class:`~pan1_env.dynamics.ArmBatch`), state ``q (A, n)``, ``v (A, k)``, obstacles
+    :class:`~pan1_env.dynamics.ArmBatch`) and ``damping (A,)`` (b of a passive first joint), state
+    ``q (A, n)``, ``v (A, k)`` and ``momentum (A,)`` (a PAn−1 arm's passive momentum p₁: q̇₁ =
+    (p₁ − M_1a v) / M_11, ṗ₁ = −b q̇₁, docs/MODEL.md §7; a fully actuated arm ignores both), obstacles
     ``centers (A, O, 2)``, ``radii (A, O)`` and ``mask (A, O)`` (the obstacles each arm's filter
     sees; a team's obstacles are broadcast to every arm).
 
@@ -234,38 +244,40 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
 
 
 @njit(**_JIT)
-def _check_sizes(links, actuated, passive, q, v):
+def _check_sizes(links, actuated, passive, q, v, momentum, damping):
     if q.shape[1] != len(links) or v.shape[1] != len(actuated):
         raise ValueError("group_advance: links, actuated must be kernel_sizes(q.shape[1], v.shape[1])")
+    if momentum.shape[0] != q.shape[0] or damping.shape[0] != q.shape[0]:
+        raise ValueError("group_advance: momentum and damping need one value per arm (q.shape[0])")
     if len(actuated) != len(links) - (1 if passive else 0):
         raise ValueError("group_advance: a PAn-1 arm (passive) has k = n - 1 actuated joints, a full one k = n")
 
 
 @njit(**_JIT)
-def group_advance(links, actuated, lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command, torque_mode,
-                  filter_on, centers, radii, mask, kappa, epsilon, margin, distance, decay, ke, dt, n_sub, v_max,
-                  v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out, whole):
-    _check_sizes(links, actuated, passive, q, v)
+def group_advance(links, actuated, lam, lengths, base, phi, damping, passive, q, v, momentum, v_prev, has_prev, command,
+                  torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, distance, decay, ke, dt, n_sub,
+                  v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out, whole):
+    _check_sizes(links, actuated, passive, q, v, momentum, damping)
     lo = q.shape[0] * 0  # an int64, like the parallel kernel's chunk bounds
-    _advance_arms(links, actuated, _LANES, None, True, lo, q.shape[0], lam, lengths, base, phi, passive, q, v, v_prev,
-                  has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, distance,
-                  decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts,
-                  max_track, finite_out, whole)
+    _advance_arms(links, actuated, _LANES, None, True, lo, q.shape[0], lam, lengths, base, phi, damping, passive, q, v,
+                  momentum, v_prev, has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon,
+                  margin, distance, decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h,
+                  qp_counts, max_track, finite_out, whole)
 
 
 @njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
-def group_advance_parallel(links, actuated, lam, lengths, base, phi, passive, q, v, v_prev, has_prev, command,
-                           torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, distance, decay, ke,
-                           dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track,
-                           finite_out, whole, n_chunks):
-    _check_sizes(links, actuated, passive, q, v)
+def group_advance_parallel(links, actuated, lam, lengths, base, phi, damping, passive, q, v, momentum, v_prev, has_prev,
+                           command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, distance,
+                           decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts,
+                           max_track, finite_out, whole, n_chunks):
+    _check_sizes(links, actuated, passive, q, v, momentum, damping)
     _check_chunks(n_chunks)
     A = q.shape[0]
     for c in prange(n_chunks):
         _advance_arms(links, actuated, _LANES, None, True, c * A // n_chunks, (c + 1) * A // n_chunks, lam, lengths,
-                      base, phi, passive, q, v, v_prev, has_prev, command, torque_mode, filter_on, centers, radii,
-                      mask, kappa, epsilon, margin, distance, decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out,
-                      p_out, min_clear, min_h, qp_counts, max_track, finite_out, whole)
+                      base, phi, damping, passive, q, v, momentum, v_prev, has_prev, command, torque_mode, filter_on,
+                      centers, radii, mask, kappa, epsilon, margin, distance, decay, ke, dt, n_sub, v_max, v_star_out,
+                      tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out, whole)
 
 
 # The generic kernel: arms of any kind up to GENERIC_MAX_LINKS links, n and k read at run time, one
@@ -276,7 +288,7 @@ _GENERIC_SIZES = (0,) * GENERIC_MAX_LINKS
 _ONE_LANE = (0,)
 
 
-def group_advance_generic(links, actuated, lam, lengths, base, phi, passive, q, v, *args):
+def group_advance_generic(links, actuated, lam, lengths, base, phi, damping, passive, q, v, momentum, *args):
     """:func:`group_advance` (same arguments, same results bit for bit) through one kernel compiled for
     every arm kind of at most ``GENERIC_MAX_LINKS`` links: a new kind costs no compilation, and the
     kernel steps 3–4× slower (one arm at a time, loops of run-time length). The engine uses it while a
@@ -288,8 +300,10 @@ def group_advance_generic(links, actuated, lam, lengths, base, phi, passive, q, 
         raise ValueError(f"group_advance_generic: arms of n ≤ {GENERIC_MAX_LINKS} links (q.shape[1]) and k actuated "
                          "joints (v.shape[1]), links, actuated = kernel_sizes(n, k): k = n − 1 with a passive first "
                          "joint, else k = n")
+    if len(momentum) != len(q) or len(damping) != len(q):
+        raise ValueError("group_advance_generic: momentum and damping need one value per arm (q.shape[0])")
     _advance_arms(_GENERIC_SIZES, _GENERIC_SIZES, _ONE_LANE, (n, k), None, 0, q.shape[0], lam, lengths, base, phi,
-                  bool(passive), q, v, *args)
+                  damping, bool(passive), q, v, momentum, *args)
 
 
 group_advance.__doc__ = _ADVANCE_DOC
