@@ -171,6 +171,7 @@ def run(
         else (0.0 if last_bad_time is None else last_bad_time),
         "max_tracking_error": float(max_track.max()),
         "max_tracking_error_after_1s": float(max_track_after_1s.max()),
+        # the integration's drift from p₁ = 0 for undamped arms; with passive_damping, the momentum itself
         "max_momentum_drift": max_momentum if has_passive else None,
         "qp_solved_steps": int(qp_counts[QPStatus.SOLVED]),
         "qp_fallback_steps": int(qp_counts[QPStatus.FALLBACK]),

@@ -137,7 +137,7 @@ def _trajectory_panel(ax, scenario: Scenario, traj: Mapping[str, np.ndarray], co
         ax.plot(*P[0, i], "x", color=col, ms=8)
         ax.plot(*P[-1, i], "o", mfc="none", color=col, ms=8)
         ax.plot(*arm.base, "s", color=col, ms=5)
-        if arm.passive_first_joint and arm.n_links == 2:
+        if arm.passive_first_joint and arm.n_links == 2 and not arm.passive_damping:  # zero momentum throughout
             curve = pa_reachable_curve(arm, scenario.q0[i])
             ax.plot(curve[:, 0], curve[:, 1], "--", color=col, lw=0.8)
     for i, j in scenario.formation.edges:

@@ -6,7 +6,8 @@ so the same generator state gives the same scenario. Every draw is checked to be
 * **reachable** – the formation is placed in the plane first and every arm is built around a
   *target configuration* whose end-effector sits on its vertex; the start is joined to the target
   by a straight path in the actuated joints, along which the passive joint follows from the zero
-  passive momentum (dq₁ = −M₁ₐ/M₁₁ dqₐ), so the target is reached from the start at rest;
+  passive momentum (dq₁ = −M₁ₐ/M₁₁ dqₐ), so the target is reached from the start at rest (with the
+  frictionless passive joint; ``passive_damping`` > 0 lets the momentum leave zero on the way);
 * **collision-free at the start** – every end-effector starts at least ``start_clearance`` outside
   every obstacle, and no obstacle covers a formation vertex or a base (it stays ``BASE_MARGIN`` clear);
   with ``bodies="links"`` every link capsule (radius ``link_radius``) starts ``start_clearance`` clear of

@@ -34,9 +34,10 @@ class PAReachEnv(OneCopyGymEnv):
     ## Description
 
     A planar arm with n links taken from a scenario (``scenario``, ``arm``), the scenario's disk
-    obstacles, and a goal point. A PA arm's first joint is passive: started at rest, it keeps zero
-    passive momentum, so the passive joint follows the active ones and the end-effector moves
-    through the reduced Jacobian J̄ (the paper's cascaded model). The dynamics, tracker and safety
+    obstacles, and a goal point. A PA arm's first joint is passive: started at rest and frictionless, it
+    keeps zero passive momentum, so the passive joint follows the active ones and the end-effector moves
+    through the reduced Jacobian J̄ (the paper's cascaded model; with ``passive_damping`` > 0 the momentum
+    leaves zero and the drawn goal is the frictionless arm's). The dynamics, tracker and safety
     filter are the team environment's (:class:`~pan1_env.environment.Pan1ParallelEnv`).
 
     ## Action Space

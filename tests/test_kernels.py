@@ -7,7 +7,7 @@ import pytest
 from numba import njit
 
 from pan1_env import kernels
-from pan1_env.cascade import cascade_rk4_step, cascade_terms, passive_momentum, reduced_jacobian
+from pan1_env.cascade import cascade_rk4_step, cascade_terms, end_effector_drift, passive_momentum, reduced_jacobian
 from pan1_env.compiled import kernel_sizes
 from pan1_env.control import backstepping_torque
 from pan1_env.dynamics import ArmBatch, ArmParams, end_effector
@@ -63,6 +63,14 @@ def test_group_terms_match_reference(n: int, passive: bool) -> None:
         np.testing.assert_allclose(got["mom"], passive_momentum(batch, q, ref.qd), atol=1e-12)
     else:
         assert np.all(np.isnan(got["mom"]))
+    assert np.all(got["drift"] == 0.0), "at p₁ = 0 no drift"
+    if passive:  # with a passive momentum and damping: the reduced model of docs/MODEL.md §7
+        p1, damping = rng.uniform(-1.0, 1.0, len(q)), rng.uniform(0.0, 2.0, len(q))
+        got = _terms(batch, q, v, p1, damping)
+        ref = cascade_terms(dataclasses.replace(batch, passive_damping=damping), q, v, p1)
+        np.testing.assert_allclose(got["Hc"], ref.H_comb, atol=1e-12)
+        np.testing.assert_allclose(got["mom"], p1, atol=1e-12)
+        np.testing.assert_allclose(got["drift"], end_effector_drift(batch, q, p1), atol=1e-12)
 
 
 def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False, centers=None, radii=None,
@@ -327,7 +335,7 @@ def test_parallel_kernel_equals_serial_and_reports_state(torque: bool) -> None:
     t, centers, radii = _binding_obstacles(rng, batch, q, v)
     command = rng.normal(scale=2.0, size=v.shape)
     kw = dict(torque=torque, filter_on=True, centers=centers, radii=radii, mask=np.ones((9, 3), bool), n_sub=5,
-              v_max=2.0)
+              v_max=2.0, momentum=rng.uniform(-0.5, 0.5, 9), damping=rng.uniform(0.0, 2.0, 9))
     ok_s, q_s, v_s, _, out_s = _advance(batch, q, v, command, **kw)
     ok_p, q_p, v_p, _, out_p = _advance(batch, q, v, command, parallel=True, **kw)
     assert ok_s and ok_p
@@ -338,7 +346,7 @@ def test_parallel_kernel_equals_serial_and_reports_state(torque: bool) -> None:
     for key in out_s:
         np.testing.assert_array_equal(_bits(out_p[key]), _bits(out_s[key]))
     # the reported q̇ and end-effector are those of the final state
-    np.testing.assert_allclose(out_s["qd"], cascade_terms(batch, q_s, v_s).qd, atol=1e-12)
+    np.testing.assert_allclose(out_s["qd"], cascade_terms(batch, q_s, v_s, out_s["momentum"]).qd, atol=1e-12)
     np.testing.assert_allclose(out_s["p"], end_effector(batch, q_s), atol=1e-12)
 
 
@@ -388,15 +396,17 @@ def test_piqp_and_active_set_records_agree_on_barriers() -> None:
 # plain @njit (no cache): numba's cache of a test helper would not notice a change to the kernels it inlines
 @njit(error_model="numpy", fastmath=_JIT["fastmath"])  # as the kernels: 0/0 is NaN, not an exception
 def _first_candidates(px, py, Jbar, obstacles, active, filtered, v0, kappa, epsilon, margin, v_max, distance=False,
-                      decay=0.0):
-    """_first_projection_lanes on W lanes, with the rows it used as a (W, m, k) QP batch."""
+                      decay=0.0, drift=None):
+    """_first_projection_lanes on W lanes (end-effector drift ``(2, W)``, default none), with the rows it used
+    as a (W, m, k) QP batch."""
     O, k, W = obstacles.shape[1], v0.shape[0], v0.shape[1]
     m = O + 2 * k
     arm_h = np.full(W, np.inf)
     A, b, h, norm, act = np.empty((k, W)), np.empty(W), np.empty(W), np.empty(W), np.empty(W, np.bool_)
     rows, violated, best, best_viol = np.empty((O, k + 2, W)), np.empty(W, np.bool_), np.empty(W, np.int64), np.empty(W)
     Ab, bb, cand, found = np.empty((k, W)), np.empty(W), np.empty((k, W)), np.empty(W, np.bool_)
-    _first_projection_lanes(px, py, Jbar, np.zeros((2, W)), obstacles, active, filtered, kappa, epsilon, margin,
+    drift = np.zeros((2, W)) if drift is None else drift
+    _first_projection_lanes(px, py, Jbar, drift, obstacles, active, filtered, kappa, epsilon, margin,
                             distance, decay, v_max, O, k, W, v0, arm_h, A, b, h, norm, act, rows, violated, best,
                             best_viol, Ab, bb, cand, found)
     A_all, b_all = np.zeros((W, m, k)), np.zeros((W, m))
@@ -528,13 +538,15 @@ def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> Non
     """kernels.group_advance_generic (one kernel for every arm kind, n and k at run time, one lane, no
     lane-batched first QP candidate) gives the per-kind kernel's results bit for bit: velocity mode
     shielded with a speed bound, torque mode shielded, both unfiltered, with an arm that goes
-    non-finite and a group that is not a multiple of the lanes."""
+    non-finite and a group that is not a multiple of the lanes; passive arms with a momentum and damping."""
     rng = np.random.default_rng(60 + n)
     A = 11
     batch, q, v = _group(rng, n, passive, count=A)
     k = v.shape[1]
     t, centers, radii = _binding_obstacles(rng, batch, q, v)
     mask = rng.random((A, 3)) < 0.8
+    momentum = rng.uniform(-0.5, 0.5, A) if passive else np.zeros(A)
+    damping = rng.uniform(0.0, 2.0, A) if passive else np.zeros(A)
     # the last: the distance barrier with the tunable ε (the generic kernel's rows are _filter_rows_lanes')
     for torque, filter_on, v_max, distance, decay in ((False, True, 2.0, False, 0.0), (True, True, 3.0, False, 0.0),
                                                       (False, False, np.inf, False, 0.0),
@@ -548,12 +560,13 @@ def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> Non
             out = [np.zeros((A, k)), np.zeros(A, bool), np.empty((A, k)), np.full((A, n), 7.0), np.empty((A, n)),
                    np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64), np.zeros(A),
                    np.zeros(A, bool)]
+            pk = momentum.copy()
             for _ in range(2):  # the second call starts from the first's v_prev / has_prev
-                kernel(*kernel_sizes(n, k), batch.lam, batch.lengths, batch.base, batch.phi, np.zeros(A), passive, qk,
-                       vk, np.zeros(A), out[0], out[1], command, torque, filter_on,
+                kernel(*kernel_sizes(n, k), batch.lam, batch.lengths, batch.base, batch.phi, damping, passive, qk,
+                       vk, pk, out[0], out[1], command, torque, filter_on,
                        np.broadcast_to(centers, (A, 3, 2)).copy(), np.broadcast_to(radii, (A, 3)).copy(), mask, 0.5,
                        5.0, 0.01, distance, decay, 100.0, 1e-2, 5, v_max, *out[2:], None)
-            runs.append([qk, vk, *out])
+            runs.append([qk, vk, pk, *out])
         finite, counts = runs[0][-1], runs[0][-3]
         assert not finite[3]
         if filter_on:
@@ -585,7 +598,7 @@ def test_compiled_filter_choices_match_the_numpy_reference(barrier: str, decay: 
     answers (first candidate where it settles a lane, the full compiled search elsewhere) against the
     reference's ``active_set_projection`` on the reference's rows. Lanes with the end-effector on an
     obstacle's centre (d = 0: a zero distance row, b < 0) and far from every obstacle (exp capped)
-    are included."""
+    are included; every end-effector drifts (a passive momentum's J₁ p₁ / M_11, ``drift=``)."""
     rng = np.random.default_rng(7 + int(decay) + 100 * (barrier == "distance"))
     O, k, W, v_max, margin = 3, 2, 600, 2.5, 0.01
     centers, radii = rng.uniform(-0.5, 0.5, (O, 2)), rng.uniform(0.05, 0.2, O)
@@ -594,6 +607,7 @@ def test_compiled_filter_choices_match_the_numpy_reference(barrier: str, decay: 
     p[5:10] += 40.0  # far: λ h̃ beyond the exponent's cap at λ = 50
     Jbar = rng.normal(size=(W, 2, k))
     v0 = rng.normal(scale=2.0, size=(W, k))
+    drift = rng.normal(scale=0.3, size=(W, 2))
     active = np.zeros((O + 2 * k, W), bool)
     active[:O] = rng.random((O, W)) < 0.9
     active[O:] = True
@@ -604,9 +618,11 @@ def test_compiled_filter_choices_match_the_numpy_reference(barrier: str, decay: 
     violated, found, cand, A_all, b_all, arm_h = _first_candidates(
         np.ascontiguousarray(p[:, 0]), np.ascontiguousarray(p[:, 1]), np.ascontiguousarray(Jbar.transpose(1, 2, 0)),
         obstacles, active, filtered, np.ascontiguousarray(v0.T), 0.5, 5.0, margin, v_max, barrier == "distance",
-        decay)
+        decay, np.ascontiguousarray(drift.T))
     A_ref, b_ref, h_ref = rcbf_constraints(p, Jbar, centers, radii, 0.5, 5.0, margin=margin, barrier=barrier,
-                                           decay=decay)
+                                           decay=decay, drift=drift)
+    _, b_still, _ = rcbf_constraints(p, Jbar, centers, radii, 0.5, 5.0, margin=margin, barrier=barrier, decay=decay)
+    assert np.abs(b_ref - b_still)[5:].min() > 0.0, "the drift moves every row but the zero ones"
     np.testing.assert_allclose(A_all[:, :O], A_ref, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(b_all[:, :O], b_ref, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(arm_h, np.where(active[:O].T, h_ref, np.inf).min(axis=1), rtol=1e-14)
