@@ -45,7 +45,8 @@ distance d ≥ 0 to keep above a radius R (r, r + ρ or 2ρ):
 If the desired velocity already satisfies every row it is the optimum and is returned unchanged.
 If the QP is infeasible (or the solver fails) the documented fallback is **braking**: v* = 0, so
 q̇ = g0·0 = 0 and no barrier can decrease; the status says so. (A PAn−1 arm whose passive joint still
-carries momentum p₁ keeps drifting at q̇ = e₁ p₁ / M_11 while it brakes: docs/MODEL.md §7.)
+carries momentum p₁ would keep drifting at q̇ = e₁ p₁ / M_11 if it braked: the engine's filter gives it
+the least violating velocity instead, docs/MODEL.md §7.)
 """
 
 from __future__ import annotations
@@ -326,7 +327,7 @@ class QPStatus(IntEnum):
 
     NOMINAL = 0  #: the desired velocity satisfied every row and was returned unchanged
     SOLVED = 1  #: the QP was solved and its optimum returned
-    FALLBACK = 2  #: infeasible or solver failure: braking fallback v* = 0 was returned (p₁ ≠ 0 still drifts)
+    FALLBACK = 2  #: infeasible or solver failure: braking fallback v* = 0 was returned
 
 
 class FilterResult(NamedTuple):

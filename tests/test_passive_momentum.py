@@ -122,12 +122,12 @@ def test_the_filter_takes_the_drift_into_account(bodies: str) -> None:
     enters an obstacle in 3 s (the independent clearance of tests/geometry.py after every sub-step),
     through the end-effector rows and the whole-arm rows. With a speed bound of 5 rad/s the joints cannot
     cancel it for ever (b = 0: p₁ stays): an arm enters an obstacle first in a sub-step whose QP reported a
-    fallback (which brakes, and braking does not stop the drift)."""
+    fallback, and that fallback does not brake (v* = 0 would leave the drift acting) but pulls against it."""
     team, q, qd = _drifting_team(bodies)
     for max_speed in (np.inf, 5.0):
         engine = Engine(team, 1, safety_filter=True, max_speed=max_speed)
         engine.set_state(0, q, qd)
-        solved, entered = np.zeros(4, dtype=int), np.zeros(4, dtype=bool)
+        solved, entered, fallbacks = np.zeros(4, dtype=int), np.zeros(4, dtype=bool), 0
         for _ in range(300):  # 0.3 s of 1 ms sub-steps
             rec = engine.step(np.zeros((1, 4, 3)), 1)
             solved += rec.qp_counts[0, :, 1]
@@ -137,7 +137,11 @@ def test_the_filter_takes_the_drift_into_account(bodies: str) -> None:
             first = inside & ~entered
             assert np.all(rec.qp_counts[0, first, 2] > 0), "an arm entered an obstacle in a sub-step with no fallback"
             entered |= inside
+            fell_back = rec.qp_counts[0, :, 2] > 0
+            fallbacks += int(fell_back.sum())
+            assert np.all(np.abs(rec.v_star[0, fell_back]).max(axis=-1) > 0.1), "a drifting arm's fallback braked"
         assert np.all(solved > 0), "the filter should have changed every arm's command to cancel its drift"
+        assert fallbacks > 0 or bodies == "links" or max_speed == np.inf, "the speed bound should leave no way out"
         assert np.all(np.abs(engine.passive_momentum()) > 0.5), "the passive joints keep their momentum"
 
 

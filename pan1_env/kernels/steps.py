@@ -139,7 +139,7 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
     end-effector only, sensing range, gate, skin); ``pj`` the lanes' passive momenta (their drift)."""
     kappa, epsilon, margin, distance, decay, v_max = fparams
     M, R, Sn, Mc, Hc, qd, thd, H = dyn
-    Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy = search
+    Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy, qb0, qn0 = search
     wA, wb, wact, wP, wnear, wrows, wviol, wnorm, wb0, wn0, joints_x, joints_y, ox, oy, orad = scratch
     rho, link_bodies, sensing, gate, skin = bodies
     for w in range(W):
@@ -175,12 +175,13 @@ def _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, 
                          obstacles, lane_active, use_filter, live, vdes, vs, status, arm_h, ee, search):
     """The paper's end-effector filter on every lane at once as far as one active row settles it
     (:func:`_first_projection_lanes`), then the full active-set search lane by lane. A PAn−1 arm's
-    rows take the end-effector's drift J₁ p₁ / M_11 (docs/MODEL.md §7)."""
+    rows take the end-effector's drift J₁ p₁ / M_11 (docs/MODEL.md §7), and its fallback, where p₁ ≠ 0,
+    is the least violating velocity instead of braking."""
     kappa, epsilon, margin, distance, decay, v_max = fparams
     M, R, Sn, Mc, Hc, qd, thd, H = dyn
     J, Jbar, drift, filtered, row_A, row_b, row_h, row_norm, row_act, obst_rows, needs_qp, q_best, q_best_viol, q_Ab, \
         q_bb, q_cand, q_found = ee
-    Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy = search
+    Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy, qb0, qn0 = search
     _position_lanes(ln, bx, by, c, s, n, W, px, py)
     _jacobian_lanes(ln, c, s, M, passive, n, k, W, J, Jbar)
     for w in range(W):
@@ -218,6 +219,11 @@ def _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, 
                 qv0[t] = vdes[t, w]
             status[w] = _project_one(qv0, Arows, brows, active, m, k, qvs, qrows, qidx, qG, qr, qlam, qcand, qL, qy,
                                      qviol, qnorm)
+            if status[w] == STATUS_FALLBACK and passive and pj[0][w] != 0.0:
+                # braking (v* = 0) would leave the drift J₁ p₁ / M_11 acting: the velocity that violates the rows
+                # least pulls against it (still reported as a fallback)
+                least_violation(qv0, Arows, brows, active, m, k, 2 * k if v_max < np.inf else 0, qvs, qb0, qn0, qrows,
+                                qidx, qG, qr, qlam, qcand, qL, qy, qviol, qnorm)
             for t in range(k):
                 vs[t, w] = qvs[t]
 
