@@ -45,8 +45,8 @@ distance d ≥ 0 to keep above a radius R (r, r + ρ or 2ρ):
 If the desired velocity already satisfies every row it is the optimum and is returned unchanged.
 If the QP is infeasible (or the solver fails) the documented fallback is **braking**: v* = 0, so
 q̇ = g0·0 = 0 and no barrier can decrease; the status says so. (A PAn−1 arm whose passive joint still
-carries momentum p₁ would keep drifting at q̇ = e₁ p₁ / M_11 if it braked: the engine's filter gives it
-the least violating velocity instead, docs/MODEL.md §7.)
+carries momentum p₁ would keep drifting at q̇ = e₁ p₁ / M_11 if it braked: the engine's end-effector filter
+holds its end-effector instead, docs/MODEL.md §7.)
 """
 
 from __future__ import annotations

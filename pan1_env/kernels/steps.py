@@ -139,7 +139,7 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
     end-effector only, sensing range, gate, skin); ``pj`` the lanes' passive momenta (their drift)."""
     kappa, epsilon, margin, distance, decay, v_max = fparams
     M, R, Sn, Mc, Hc, qd, thd, H = dyn
-    Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy, qb0, qn0 = search
+    Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy = search
     wA, wb, wact, wP, wnear, wrows, wviol, wnorm, wb0, wn0, joints_x, joints_y, ox, oy, orad = scratch
     rho, link_bodies, sensing, gate, skin = bodies
     for w in range(W):
@@ -175,13 +175,13 @@ def _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, 
                          obstacles, lane_active, use_filter, live, vdes, vs, status, arm_h, ee, search):
     """The paper's end-effector filter on every lane at once as far as one active row settles it
     (:func:`_first_projection_lanes`), then the full active-set search lane by lane. A PAn−1 arm's
-    rows take the end-effector's drift J₁ p₁ / M_11 (docs/MODEL.md §7), and its fallback, where p₁ ≠ 0,
-    is the least violating velocity instead of braking."""
+    rows take the end-effector's drift J₁ p₁ / M_11 (docs/MODEL.md §7), and where p₁ ≠ 0 its fallback
+    holds the end-effector instead of braking (:func:`_hold_end_effector`)."""
     kappa, epsilon, margin, distance, decay, v_max = fparams
     M, R, Sn, Mc, Hc, qd, thd, H = dyn
     J, Jbar, drift, filtered, row_A, row_b, row_h, row_norm, row_act, obst_rows, needs_qp, q_best, q_best_viol, q_Ab, \
         q_bb, q_cand, q_found = ee
-    Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy, qb0, qn0 = search
+    Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy = search
     _position_lanes(ln, bx, by, c, s, n, W, px, py)
     _jacobian_lanes(ln, c, s, M, passive, n, k, W, J, Jbar)
     for w in range(W):
@@ -220,12 +220,35 @@ def _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, 
             status[w] = _project_one(qv0, Arows, brows, active, m, k, qvs, qrows, qidx, qG, qr, qlam, qcand, qL, qy,
                                      qviol, qnorm)
             if status[w] == STATUS_FALLBACK and passive and pj[0][w] != 0.0:
-                # braking (v* = 0) would leave the drift J₁ p₁ / M_11 acting: the velocity that violates the rows
-                # least pulls against it (still reported as a fallback)
-                least_violation(qv0, Arows, brows, active, m, k, 2 * k if v_max < np.inf else 0, qvs, qb0, qn0, qrows,
-                                qidx, qG, qr, qlam, qcand, qL, qy, qviol, qnorm)
+                _hold_end_effector(k, w, Jbar, drift, v_max, qvs)
             for t in range(k):
                 vs[t, w] = qvs[t]
+
+
+@njit(**_JIT)  # not inlined: the same types in every kind, so compiled once, not once per kind
+def _hold_end_effector(k, w, Jbar, drift, v_max, v):
+    """The fallback of a drifting PAn−1 arm (lane w): braking (v = 0) leaves its end-effector moving at the drift
+    d = J₁ p₁ / M_11, so the actuated speeds that hold it, v = −J̄⁺ d (least squares, ṗ = J̄ v + d), scaled
+    into the speed bound; ḣ = ∇h · ṗ is then 0 wherever J̄ has rank 2 and the bound allows."""
+    a, c, e = 0.0, 0.0, 0.0  # J̄ J̄ᵀ = [[a, c], [c, e]]
+    for t in range(k):
+        a += Jbar[0, t, w] * Jbar[0, t, w]
+        c += Jbar[0, t, w] * Jbar[1, t, w]
+        e += Jbar[1, t, w] * Jbar[1, t, w]
+    det = a * e - c * c
+    if det > 1e-12 * (a * e + 1e-300):  # v = −J̄ᵀ (J̄ J̄ᵀ)⁻¹ d
+        y0, y1 = (e * drift[0, w] - c * drift[1, w]) / det, (a * drift[1, w] - c * drift[0, w]) / det
+    elif a + e > 0.0:  # rank 1 (one actuated joint, or a singular posture): along J̄'s one direction
+        y0, y1 = drift[0, w] / (a + e), drift[1, w] / (a + e)
+    else:
+        y0, y1 = 0.0, 0.0
+    peak = 0.0
+    for t in range(k):
+        v[t] = -(Jbar[0, t, w] * y0 + Jbar[1, t, w] * y1)
+        peak = max(peak, abs(v[t]))
+    if peak > v_max:
+        for t in range(k):
+            v[t] *= v_max / peak
 
 
 @njit(**_JIT, inline="always")

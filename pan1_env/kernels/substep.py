@@ -120,9 +120,7 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     # the groups' heap arrays unreferenced (_borrowed), kept alive to the end (_keep_alive below)
     ee = _borrowed((J, Jbar, drift, filtered, row_A, row_b, row_h, row_norm, row_act, obst_rows, needs_qp, q_best,
                     q_best_viol, q_Ab, q_bb, q_cand, q_found))
-    qb0, qn0 = np.empty(m), np.empty(m)  # least_violation's scratch (a drifting arm's fallback)
-    search = _borrowed((Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy, qb0,
-                        qn0))
+    search = _borrowed((Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy))
     fparams = (kappa, epsilon, margin, distance, decay, v_max)
     if whole is not None:  # whole-arm scratch: one lane's rows (bodies × capsules, speed bounds) and joints
         caps, start_time, rho, link_bodies, sensing, gate, skin, joints_out, n_world, angles, carried, finish = whole
@@ -185,7 +183,7 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                        max_track, arm_track, v_star_out, vs_last, tau_out, tau_last, v, vi, v_prev, vp)
         _store_state(n, k, W, passive, whole, scratch, q, momentum, qd_out, p_out, arm, real, live, ph, lm, ln, bx, by,
                      qi, vi, pj, c, s, dyn, px, py)
-    _keep_alive((obstacles, lane_active, obst_rows, Arows, brows, active, qrows, qviol, qnorm, qb0, qn0, owned))
+    _keep_alive((obstacles, lane_active, obst_rows, Arows, brows, active, qrows, qviol, qnorm, owned))
 
 
 _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a held command (in place).
