@@ -25,8 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .bodies import capsule_clearance, obstacle_velocities
+from .cascade import passive_momentum
 from .compiled import WholeArm, kernel_sizes, kernels, plain
-from .dynamics import ArmBatch, mass_matrix
+from .dynamics import ArmBatch
 from .piqp_filter import PiqpFilter
 from .safety import QP_SOLVERS, FilterParams, clearance, filter_parameters
 from .scenario import Scenario
@@ -420,7 +421,7 @@ class Engine:
             for r, i in zip(kind.rows(np.array([copy])), kind.ids, strict=True):
                 qi, qdi = np.asarray(q[i], dtype=float), np.asarray(qd[i], dtype=float)
                 kind.q[r], kind.qd[r], kind.v[r] = qi, qdi, qdi[kind.n - kind.k:]
-                kind.momentum[r] = mass_matrix(arms[i], qi)[0] @ qdi if kind.passive else 0.0
+                kind.momentum[r] = passive_momentum(arms[i], qi, qdi) if kind.passive else 0.0
                 kind.v_prev[r], kind.has_prev[r] = 0.0, False
             kernels().group_end_effectors(kind.lengths, kind.base, kind.phi, kind.q, kind.p)
 

@@ -321,10 +321,10 @@ def _arm(entry: Any, defaults: Mapping[str, Any], src: str, index: int) -> tuple
     if not isinstance(q0_raw, list) or len(q0_raw) != n:
         raise ScenarioError(src, f"{prefix}.q0", f"expected a list of {n} angles, got {q0_raw!r}")
     q0 = np.array([_angle(x, src, f"{prefix}.q0[{k}]") for k, x in enumerate(q0_raw)])
-    damping = merged.get("passive_damping", 0.0)
-    if isinstance(damping, bool) or not isinstance(damping, (int, float)) or not math.isfinite(damping) or damping < 0:
-        raise ScenarioError(src, where("passive_damping"), f"expected a finite number ≥ 0 (N·m·s/rad), got {damping!r}")
-    arm = ArmParams(base=base, phi=phi, passive_first_joint=passive, passive_damping=float(damping), **vectors)
+    table = entry if "passive_damping" in entry else defaults  # where the key is, for the error
+    damping = _number(table, "passive_damping", src, where("passive_damping").rpartition(".")[0], positive=False,
+                      default=0.0)
+    arm = ArmParams(base=base, phi=phi, passive_first_joint=passive, passive_damping=damping, **vectors)
     q0.setflags(write=False)
     return arm, q0
 

@@ -267,6 +267,16 @@ def _jacobian_lanes(lengths, c, s, M, passive, n, k, W, J, Jbar):
                     Jbar[r, t, w] = J[r, t, w]
 
 
+@njit(**_JIT, forceinline=True)
+def _drift_lanes(J, M, p1, passive, W, drift):
+    """The end-effector's drift d = J₁ p₁ / M_11 into ``drift (2, W)``: the velocity a PAn−1 arm's passive
+    momentum p₁ gives it whatever the command (docs/MODEL.md §7); 0 for a fully actuated arm."""
+    for w in range(W):
+        per_momentum = p1[w] / M[0, 0, w] if passive else 0.0
+        drift[0, w] = J[0, 0, w] * per_momentum
+        drift[1, w] = J[1, 0, w] * per_momentum
+
+
 @njit(**_JIT)
 def group_terms(lam, lengths, base, phi, damping, passive, q, v, p1, p, Jbar, Mc, Hc, momentum, drift):
     """Per arm, at the state (q, v, p1): end-effector p (A,2), reduced Jacobian J̄ (A,2,k), M_comb, H_comb,
@@ -277,7 +287,7 @@ def group_terms(lam, lengths, base, phi, damping, passive, q, v, p1, p, Jbar, Mc
     k = v.shape[1]
     lm, ln, qi, vi = np.empty((n, n, 1)), np.empty((n, 1)), np.empty((n, 1)), np.empty((k, 1))
     bx, by, ph, px, py = np.empty(1), np.empty(1), np.empty(1), np.empty(1), np.empty(1)
-    pm, bd = np.empty(1), np.empty(1)
+    pm, bd, d = np.empty(1), np.empty(1), np.empty((2, 1))
     c, s, qd, thd, H = np.empty((n, 1)), np.empty((n, 1)), np.empty((n, 1)), np.empty((n, 1)), np.empty((n, 1))
     M, R, Sn, J = np.empty((n, n, 1)), np.empty((n, n, 1)), np.empty((n, n, 1)), np.empty((2, n, 1))
     Mc1, Hc1, Jb = np.empty((k, k, 1)), np.empty((k, 1)), np.empty((2, k, 1))
@@ -300,8 +310,8 @@ def group_terms(lam, lengths, base, phi, damping, passive, q, v, p1, p, Jbar, Mc
         _position_lanes(ln, bx, by, c, s, n, 1, px, py)
         p[i, 0], p[i, 1] = px[0], py[0]
         _jacobian_lanes(ln, c, s, M, passive, n, k, 1, J, Jb)
-        per_momentum = p1[i] / M[0, 0, 0] if passive else 0.0
-        drift[i, 0], drift[i, 1] = J[0, 0, 0] * per_momentum, J[1, 0, 0] * per_momentum
+        _drift_lanes(J, M, pm, passive, 1, d)
+        drift[i, 0], drift[i, 1] = d[0, 0], d[1, 0]
         for r in range(2):
             for t in range(k):
                 Jbar[i, r, t] = Jb[r, t, 0]

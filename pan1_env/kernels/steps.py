@@ -9,7 +9,15 @@ from numba import njit
 
 from ._numba_ext import _JIT
 from .capsules import CAP_ACTIVE, _joints, least_violation, whole_arm_rows
-from .physics import _acceleration_lanes, _jacobian_lanes, _lane_angles, _mass_lanes, _position_lanes, _rotate_lanes
+from .physics import (
+    _acceleration_lanes,
+    _drift_lanes,
+    _jacobian_lanes,
+    _lane_angles,
+    _mass_lanes,
+    _position_lanes,
+    _rotate_lanes,
+)
 from .qp import (
     STATUS_FALLBACK,
     STATUS_NOMINAL,
@@ -184,10 +192,7 @@ def _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, 
     Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy = search
     _position_lanes(ln, bx, by, c, s, n, W, px, py)
     _jacobian_lanes(ln, c, s, M, passive, n, k, W, J, Jbar)
-    for w in range(W):
-        per_momentum = pj[0][w] / M[0, 0, w] if passive else 0.0
-        drift[0, w] = J[0, 0, w] * per_momentum
-        drift[1, w] = J[1, 0, w] * per_momentum
+    _drift_lanes(J, M, pj[0], passive, W, drift)
     for w in range(W):
         filtered[w] = use_filter[w] & live[w] & real[w]  # a padded lane's result is never used
     # numba prunes a branch only on an argument that is None: lane_qp is None in the generic kernel,
