@@ -355,10 +355,7 @@ class Engine:
         if q0 is not None:
             if len(copies) != 1 or len(q0) != self.n_arms:
                 raise ValueError(f"q0 needs one configuration per arm ({self.n_arms}) and resets one copy")
-            for i, row in enumerate(q0):
-                row = np.asarray(row, dtype=float)
-                if row.shape != (self.n_links[i],) or not np.all(np.isfinite(row)):
-                    raise ValueError(f"q0[{i}] must be {self.n_links[i]} finite joint angles, got {row.tolist()}")
+            self._check_per_arm("q0", q0, "joint angles")
         self.elapsed[copies] = 0.0
         self.centers[copies] = self.start_centers[copies]
         self.velocities[copies] = obstacle_velocities(self.start_centers[copies], self.path_ends[copies],
@@ -393,6 +390,13 @@ class Engine:
             qd[:, kind.cols, : kind.n] = kind.qd.reshape(B, kind.A, kind.n)
         return q, qd
 
+    def _check_per_arm(self, name: str, rows: list[np.ndarray], what: str) -> None:
+        """``rows[i]``: one finite value per link of arm i, else a ValueError naming ``name[i]``."""
+        for i, row in enumerate(rows):
+            row = np.asarray(row, dtype=float)
+            if row.shape != (self.n_links[i],) or not np.all(np.isfinite(row)):
+                raise ValueError(f"{name}[{i}] must be {self.n_links[i]} finite {what}, got {row.tolist()}")
+
     def passive_momentum(self) -> np.ndarray:
         """p₁ = Σ_α M_1α q̇_α of every PAn−1 arm ``(B, N)``: the state its passive speed follows from, in float64
         (constant without damping, docs/MODEL.md §7); NaN for a fully actuated arm."""
@@ -411,11 +415,8 @@ class Engine:
             raise ValueError(f"copy must be an integer in [0, {self.copies}), got {copy!r}")
         if len(q) != self.n_arms or len(qd) != self.n_arms:
             raise ValueError(f"set_state needs q and qd for every arm ({self.n_arms})")
-        for i, (qi, qdi) in enumerate(zip(q, qd, strict=True)):
-            for name, x in (("q", qi), ("qd", qdi)):
-                x = np.asarray(x, dtype=float)
-                if x.shape != (self.n_links[i],) or not np.all(np.isfinite(x)):
-                    raise ValueError(f"{name}[{i}] must be {self.n_links[i]} finite values, got {x.tolist()}")
+        self._check_per_arm("q", q, "joint angles")
+        self._check_per_arm("qd", qd, "joint speeds")
         arms = self.teams[copy].arms
         for kind in self.kinds:
             for r, i in zip(kind.rows(np.array([copy])), kind.ids, strict=True):

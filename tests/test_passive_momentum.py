@@ -152,5 +152,5 @@ def test_set_state_checks_its_input() -> None:
         engine.set_state(2, good, good)
     with pytest.raises(ValueError, match="every arm"):
         engine.set_state(0, good[:3], good)
-    with pytest.raises(ValueError, match=r"qd\[1\] must be 4 finite"):
+    with pytest.raises(ValueError, match=r"qd\[1\] must be 4 finite joint speeds"):
         engine.set_state(0, good, [np.zeros(4), np.array([0.0, np.nan, 0.0, 0.0]), np.zeros(4), np.zeros(4)])
