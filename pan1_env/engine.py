@@ -26,8 +26,8 @@ import numpy as np
 
 from .bodies import capsule_clearance, obstacle_velocities
 from .cascade import passive_momentum
-from .compiled import WholeArm, kernel_sizes, kernels, plain
-from .dynamics import ArmBatch
+from .compiled import WholeArm, kernels, plain
+from .kinds import Kind
 from .piqp_filter import PiqpFilter
 from .safety import QP_SOLVERS, FilterParams, clearance, filter_parameters
 from .scenario import Scenario
@@ -79,65 +79,6 @@ _Outputs = namedtuple("_Outputs", "v_star tau min_clear min_h qp_counts max_trac
 #: the record's field each of them goes to
 _RECORD_FIELDS = dict(zip(_Outputs._fields, ("v_star", "tau", "min_clearance", "min_barrier", "qp_counts",
                                               "max_tracking_error", "finite"), strict=True))
-
-
-def _kind_rows(team: np.ndarray) -> np.ndarray:
-    """A kind's columns of a team array ``(B, A, …)`` as its rows ``b·A + r``, C-contiguous (the kernel's
-    layout): a copy, or with one copy a view."""
-    return np.ascontiguousarray(team).reshape(-1, *team.shape[2:])
-
-
-class _Kind:
-    """The arms of one kind in every copy: rows ``b·A + r`` hold arm ``ids[r]`` of copy b."""
-
-    def __init__(self, ids: list[int], scenario: Scenario, copies: int) -> None:
-        batch = ArmBatch.stack([scenario.arms[i] for i in ids])
-        self.ids = np.asarray(ids, dtype=np.int64)
-        # its columns of the team arrays (B, N, …): a slice when its arms are consecutive (basic indexing,
-        # several times faster than an index array on the per-step gathers and scatters)
-        consecutive = np.array_equal(self.ids, np.arange(self.ids[0], self.ids[0] + len(ids)))
-        self.cols = slice(int(self.ids[0]), int(self.ids[0]) + len(ids)) if consecutive else self.ids
-        self.A, self.n, self.k = len(ids), batch.n_links, batch.n_actuated
-        self.passive = batch.passive_first_joint
-        self.sizes = kernel_sizes(self.n, self.k)
-        rows, O = copies * self.A, len(scenario.obstacles)
-        self.lam, self.lengths = np.empty((rows, self.n, self.n)), np.empty((rows, self.n))
-        self.base, self.phi, self.damping = np.empty((rows, 2)), np.empty(rows), np.empty(rows)
-        self.centers, self.radii = np.empty((rows, O, 2)), np.empty((rows, O))
-        self.mask, self.q0 = np.empty((rows, O), dtype=bool), np.empty((rows, self.n))
-        # the state, updated in place (views of it stay valid for the engine's life)
-        self.q, self.v, self.qd, self.p = (np.zeros((rows, self.n)), np.zeros((rows, self.k)),
-                                           np.zeros((rows, self.n)), np.zeros((rows, 2)))
-        self.momentum = np.zeros(rows)  # a PAn−1 arm's passive momentum p₁ (docs/MODEL.md §7)
-        self.v_prev, self.has_prev = np.zeros((rows, self.k)), np.zeros(rows, dtype=bool)
-        # the kernel's leading arguments: sizes, parameters and state (arrays updated in place, never replaced)
-        self.state_args = (*self.sizes, self.lam, self.lengths, self.base, self.phi, self.damping, self.passive,
-                           self.q, self.v, self.momentum, self.v_prev, self.has_prev)
-        # the serial kernel: None until the first step decides (Engine._specialised), False while the
-        # generic kernel stands in for the kind's own, True from then on
-        self.specialised: bool | None = None
-        self.generation = -1
-        self.whole: WholeArm | None = None  # the kernel's whole-arm argument (Engine._whole_arm_setup)
-
-    def __getstate__(self) -> dict:
-        state = {**self.__dict__, "specialised": None}  # another process decides for itself
-        if "block" in state:  # views of the engine's team arrays, which Engine.__setstate__ takes again
-            for name in ("caps", "start_time", "joints", "whole"):
-                del state[name]
-        return state
-
-    def rows(self, copies: np.ndarray) -> np.ndarray:
-        return (np.asarray(copies)[:, None] * self.A + np.arange(self.A)[None]).ravel()
-
-    def load(self, b: int, scenario: Scenario, mask: np.ndarray) -> None:
-        sl = slice(b * self.A, (b + 1) * self.A)
-        batch = ArmBatch.stack([scenario.arms[i] for i in self.ids])
-        self.lam[sl], self.lengths[sl], self.base[sl], self.phi[sl] = batch.lam, batch.lengths, batch.base, batch.phi
-        self.damping[sl] = batch.passive_damping
-        self.centers[sl] = scenario.obstacles.centers[None]
-        self.radii[sl] = scenario.obstacles.radii[None]
-        self.mask[sl] = mask[self.ids]
-        self.q0[sl] = np.array([scenario.q0[i] for i in self.ids])
 
 
 class KernelQP:
@@ -193,7 +134,15 @@ class Engine:
         kinds: dict[tuple[int, bool], list[int]] = {}
         for i, arm in enumerate(scenario.arms):
             kinds.setdefault((arm.n_links, arm.passive_first_joint), []).append(i)
-        self.kinds = [_Kind(ids, scenario, self.copies) for _, ids in sorted(kinds.items())]
+        self.kinds = [Kind(ids, scenario, self.copies) for _, ids in sorted(kinds.items())]
+        # arms that may lose their first joint's actuator: each fully actuated kind gets a faulted twin
+        self.faults = scenario.fault_times is not None
+        for kind in self.kinds:
+            if self.faults and not kind.passive:
+                kind.twin = Kind(kind.ids.tolist(), scenario, self.copies, faulted=True)
+        self.kinds += [kind.twin for kind in self.kinds if kind.twin is not None]
+        self.fault_times = np.full((self.copies, self.n_arms), np.inf)  # s since a copy's reset
+        self.faulted = np.zeros((self.copies, self.n_arms), dtype=bool)
         # one kind in team order: its (B·N, ·) state arrays reshaped are the team arrays
         self.team_order = len(self.kinds) == 1 and self.kinds[0].ids.tolist() == list(range(self.n_arms))
         B, O = self.copies, len(scenario.obstacles)
@@ -261,10 +210,13 @@ class Engine:
                 (scenario.obstacle_paths is not None and not self.whole_arm):
             raise ValueError("a loaded team must keep the protected bodies, link_radius and inter_arm, and may have "
                              "moving obstacles only if the engine's first team had them")
+        if scenario.fault_times is not None and not self.faults:
+            raise ValueError("a loaded team may have fault_times only if the engine's first team had them")
         mask = scenario.obstacle_mask()
         for kind in self.kinds:
             kind.load(b, scenario, mask)
         self.teams[b] = scenario
+        self.fault_times[b] = np.inf if scenario.fault_times is None else scenario.fault_times
         self.bases[b] = [a.base for a in scenario.arms]
         self.centers[b], self.radii[b] = scenario.obstacles.centers, scenario.obstacles.radii
         self.start_centers[b] = scenario.obstacles.centers
@@ -282,8 +234,9 @@ class Engine:
         # team-level arrays, each kind's rows a contiguous block of them (the kind's arrays are views), so
         # that one compiled pass reaches every arm of a copy between sub-steps: row copy_rows[b, i] is arm
         # i of copy b
-        caps, start_time = np.zeros((B * N, C, kernels().capsules.CAPSULE_COLUMNS)), np.zeros(B * N)
-        joints = np.zeros((B * N, L + 1, 2))
+        R = sum(len(kind.q) for kind in self.kinds)  # B·N, and B·A more for each faulted twin
+        caps, start_time = np.zeros((R, C, kernels().capsules.CAPSULE_COLUMNS)), np.zeros(R)
+        joints = np.zeros((R, L + 1, 2))
         self.others = np.array([[j for j in range(N) if j != i] for i in range(N)], dtype=np.int64).reshape(N, N - 1)
         self.copy_rows = np.empty((B, N), dtype=np.int64)
         first = 0
@@ -292,7 +245,8 @@ class Engine:
             block = slice(first, first + rows)
             kind.caps, kind.start_time, kind.joints = caps[block], start_time[block], joints[block]
             kind.block = block
-            self.copy_rows[:, kind.ids] = first + np.arange(rows).reshape(B, kind.A)
+            if not kind.faulted:  # a twin's rows take over copy_rows' entries at a fault (_lose_actuator)
+                self.copy_rows[:, kind.ids] = first + np.arange(rows).reshape(B, kind.A)
             kind.angles = np.zeros((rows, 2, kind.n))
             kind.whole = self.whole_arm_args(kind)
             kind.no_obstacles = (np.empty((rows, 0, 2)), np.empty((rows, 0)), np.empty((rows, 0), dtype=bool))
@@ -313,7 +267,7 @@ class Engine:
                              f"{travel:.4g} m (max_speed {self.max_speed:g} rad/s × reach {reach:.3g} m × physics_dt "
                              f"{self.physics_dt:g} s), got {params.gate:g}")
 
-    def whole_arm_args(self, kind: _Kind) -> WholeArm:
+    def whole_arm_args(self, kind: Kind) -> WholeArm:
         """The kernel's ``whole`` argument for a kind (:func:`pan1_env.kernels.substep.group_advance`)."""
         sensing = None if self.filter is None else self.filter.sensing_radius
         return WholeArm(caps=kind.caps, start_time=kind.start_time, link_radius=self.link_radius,
@@ -356,6 +310,7 @@ class Engine:
             if len(copies) != 1 or len(q0) != self.n_arms:
                 raise ValueError(f"q0 needs one configuration per arm ({self.n_arms}) and resets one copy")
             self._check_per_arm("q0", q0, "joint angles")
+        self._restore_actuators(copies)
         self.elapsed[copies] = 0.0
         self.centers[copies] = self.start_centers[copies]
         self.velocities[copies] = obstacle_velocities(self.start_centers[copies], self.path_ends[copies],
@@ -368,6 +323,48 @@ class Engine:
             kind.has_prev[rows] = False
             kernels().group_end_effectors(kind.lengths, kind.base, kind.phi, kind.q, kind.p)
 
+    def _actuators_lost(self, left: int, rec: StepRecord | None) -> int:
+        """Arms whose fault time has come (at the start of the first sub-step at or after it) lose their first
+        joint's actuator now; returns the sub-steps, at most ``left``, until the next one in this step."""
+        if not self.faults:
+            return left
+        dt = self.physics_dt
+        wait = np.where(self.faulted, np.inf, (self.fault_times - self.elapsed[:, None]) / dt)
+        for b, i in zip(*np.nonzero(wait <= 1e-6), strict=True):  # within rounding of the clock
+            self._lose_actuator(int(b), int(i), rec)
+            wait[b, i] = np.inf
+        return int(min(left, np.ceil(wait.min() - 1e-6)))
+
+    def _lose_actuator(self, b: int, i: int, rec: StepRecord | None) -> None:
+        """Arm i of copy b goes over to its kind's faulted twin (:meth:`pan1_env.kinds.Kind.take_over`): its
+        first joint's torque is 0 from now on and its action there is ignored (v* NaN); ``rec``: the step's
+        record, where the fault comes within the step."""
+        full = next(kind for kind in self.kinds if not kind.faulted and i in kind.ids)
+        twin, r = full.twin, b * full.A + int(np.flatnonzero(full.ids == i)[0])
+        twin.take_over(full, r, self.teams[b].arms[i])
+        if self.whole_arm:  # the next call refreshes the row's capsules and clock, and starts from its q
+            self.copy_rows[b, i] = twin.block.start + r
+        self.faulted[b, i] = True
+        self._blank.tau[b, i, 0] = 0.0  # (the full kind's kernel writes it again after a reset)
+        if rec is not None:
+            rec.tau[b, i, 0], rec.v_star[b, i, 0] = 0.0, np.nan
+
+    def _restore_actuators(self, copies: np.ndarray) -> None:
+        """At a reset: the faulted arms of ``copies`` step in their full kind again."""
+        if not self.faulted[copies].any():
+            return
+        for full in self.kinds:
+            twin = full.twin
+            if twin is None:
+                continue
+            rows = full.rows(copies)
+            full.active[rows], twin.active[rows] = True, False
+            full.set_stepped()
+            twin.set_stepped()
+            if self.whole_arm:
+                self.copy_rows[np.ix_(copies, full.ids)] = full.block.start + rows.reshape(len(copies), full.A)
+        self.faulted[copies] = False
+
     # ------------------------------------------------------------------ state
     def positions(self) -> np.ndarray:
         """End-effectors ``(B, N, 2)`` (a view of the state when one kind is the team in order)."""
@@ -375,7 +372,7 @@ class Engine:
             return self.kinds[0].p.reshape(self.copies, self.n_arms, 2)
         P = np.empty((self.copies, self.n_arms, 2))
         for kind in self.kinds:
-            P[:, kind.cols] = kind.p.reshape(self.copies, kind.A, 2)
+            kind.to_team(P, kind.p, first=0)
         return P
 
     def joint_state(self, pad: float = np.nan) -> tuple[np.ndarray, np.ndarray]:
@@ -386,8 +383,8 @@ class Engine:
             return self.kinds[0].q.reshape(B, N, -1), self.kinds[0].qd.reshape(B, N, -1)
         q, qd = np.full((B, N, self.n_max), pad), np.full((B, N, self.n_max), pad)
         for kind in self.kinds:
-            q[:, kind.cols, : kind.n] = kind.q.reshape(B, kind.A, kind.n)
-            qd[:, kind.cols, : kind.n] = kind.qd.reshape(B, kind.A, kind.n)
+            kind.to_team(q, kind.q, first=0)
+            kind.to_team(qd, kind.qd, first=0)
         return q, qd
 
     def _check_per_arm(self, name: str, rows: list[np.ndarray], what: str) -> None:
@@ -403,7 +400,7 @@ class Engine:
         out = np.full((self.copies, self.n_arms), np.nan)
         for kind in self.kinds:
             if kind.passive:
-                out[:, kind.cols] = kind.momentum.reshape(self.copies, kind.A)
+                kind.to_team(out, kind.momentum)
         return out
 
     def set_state(self, copy: int, q: list[np.ndarray], qd: list[np.ndarray]) -> None:
@@ -435,7 +432,8 @@ class Engine:
         repeats its end-effector (its padding links have length 0)."""
         P = np.empty((self.copies, self.n_arms, self.n_max + 1, 2))
         for kind in self.kinds:
-            self._geometry("kind_joints", len(kind.q), kind.q, kind.lengths, kind.base, kind.phi, kind.ids, P)
+            self._geometry("kind_joints", len(kind.stepped), kind.q, kind.lengths, kind.base, kind.phi, kind.ids,
+                           kind.stepped, P)
         return P
 
     def clearance(self) -> np.ndarray:
@@ -465,7 +463,7 @@ class Engine:
         kernels().capsules.inter_arm_clearance(self.joint_positions() if P is None else P, self.link_radius, clear)
         return clear
 
-    def kind_terms(self, kind: _Kind) -> KindTerms:
+    def kind_terms(self, kind: Kind) -> KindTerms:
         """A kind's end-effectors ``(B·A, 2)``, reduced Jacobians J̄ ``(B·A, 2, k)``, passive momenta (from q̇)
         and end-effector drifts ``(B·A, 2)``."""
         rows = len(kind.q)
@@ -498,16 +496,24 @@ class Engine:
 
     def advance_compiled(self, command: np.ndarray, substeps: int, torque: bool, rec: StepRecord) -> None:
         """Every arm of every copy ``substeps`` sub-steps through the sub-step kernel, its QP included,
-        into ``rec``: one kernel call per kind, or with ``inter_arm`` one per kind and sub-step."""
-        if self.inter_arm:
-            self._advance_inter_arm(command, substeps, torque, rec)
-            return
-        if self.whole_arm:
-            self.refresh_capsules()
-        for kind in self.kinds:
-            self._advance(kind, command, substeps, torque, self.filter, rec)
-        if self.whole_arm:
-            self._tick(substeps)
+        into ``rec``: one kernel call per kind, or with ``inter_arm`` one per kind and sub-step; the calls
+        split where an arm loses its actuator (:meth:`_actuators_lost`), and an arm whose fault time is the
+        step's end loses it before the step returns (its observation shows the fault)."""
+        done = 0
+        while True:
+            todo = self._actuators_lost(substeps - done, rec if done < substeps else None)
+            if done == substeps:
+                return
+            if self.inter_arm:
+                self._advance_inter_arm(command, todo, torque, rec)
+            else:
+                if self.whole_arm:
+                    self.refresh_capsules()
+                for kind in self.kinds:
+                    if len(kind.stepped):
+                        self._advance(kind, command, todo, torque, self.filter, rec)
+                self._tick(todo)
+            done += todo
 
     def _advance_inter_arm(self, command: np.ndarray, substeps: int, torque: bool, rec: StepRecord) -> None:
         """:meth:`advance_compiled` with other arms in each arm's filter, which sees their capsules as they
@@ -518,10 +524,12 @@ class Engine:
         running clearances and finite flags live in team-level arrays (views of the record with one kind
         in team order)."""
         B, N = self.copies, self.n_arms
-        clear, finite = (None, None) if self.team_order else (np.empty(B * N), np.empty(B * N, dtype=bool))
+        R = len(self._team_start_time)
+        clear, finite = (None, None) if self.team_order else (np.empty(R), np.empty(R, dtype=bool))
+        kinds = [kind for kind in self.kinds if len(kind.stepped)]
         calls = [self._kernel_args(kind, command, 1, torque, self.filter, rec,
                                    None if clear is None else clear[kind.block],
-                                   None if finite is None else finite[kind.block]) for kind in self.kinds]
+                                   None if finite is None else finite[kind.block]) for kind in kinds]
         if clear is None:
             first = calls[0][1]
             clear, finite = first.min_clear, first.finite
@@ -530,7 +538,7 @@ class Engine:
         between = np.full((B, N), np.inf)
         self.refresh_capsules(P)
         for sub in range(substeps):
-            for kind, (args, _) in zip(self.kinds, calls, strict=True):
+            for kind, (args, _) in zip(kinds, calls, strict=True):
                 # a call after the step's first starts from the link angles' sines and cosines the
                 # previous one ended with (`carried`, as one call's sub-steps do); only the last
                 # computes the joint velocities and end-effectors (`finish`)
@@ -540,12 +548,12 @@ class Engine:
                            ok, self._team_start_time, self._team_caps, self.radii.shape[1], self.link_radius,
                            self.physics_dt, sub < substeps - 1, self.elapsed, P, between)
         finite[:] = ok
-        for kind, (_, out) in zip(self.kinds, calls, strict=True):
+        for kind, (_, out) in zip(kinds, calls, strict=True):
             self._finish(kind, out, torque, rec)
         np.minimum(rec.min_clearance, between, out=rec.min_clearance)
         self.place_obstacles()
 
-    def advance_kind(self, kind: _Kind, command: np.ndarray, substeps: int, rec: StepRecord, *,
+    def advance_kind(self, kind: Kind, command: np.ndarray, substeps: int, rec: StepRecord, *,
                      filtered: bool) -> None:
         """One kernel call in velocity mode: every arm of ``kind`` ``substeps`` sub-steps at ``command``,
         through the filter or not (for a solver that filters by itself: :mod:`pan1_env.piqp_filter`)."""
@@ -573,14 +581,14 @@ class Engine:
             return
         self._team_start_time[self.copy_rows] = self.elapsed[:, None]
 
-    def _advance(self, kind: _Kind, command: np.ndarray, substeps: int, torque: bool, params: FilterParams | None,
+    def _advance(self, kind: Kind, command: np.ndarray, substeps: int, torque: bool, params: FilterParams | None,
                  rec: StepRecord) -> None:
         """The kernel call: every arm of a kind in every copy, ``substeps`` sub-steps."""
         args, out = self._kernel_args(kind, command, substeps, torque, params, rec)
         self._call(kind, args, kind.whole)
         self._finish(kind, out, torque, rec)
 
-    def _kernel_args(self, kind: _Kind, command: np.ndarray, substeps: int, torque: bool,
+    def _kernel_args(self, kind: Kind, command: np.ndarray, substeps: int, torque: bool,
                      params: FilterParams | None, rec: StepRecord, clear: np.ndarray | None = None,
                      finite: np.ndarray | None = None) -> tuple[tuple, _Outputs]:
         """The kernel's arguments for a kind but the last (``whole``: :meth:`_call`), and its outputs: views
@@ -595,12 +603,11 @@ class Engine:
                            rec.max_tracking_error.reshape(rows), rec.finite.reshape(rows))
             cmd = np.ascontiguousarray(command.reshape(rows, k))
         else:
-            cols = kind.cols
-            out = _Outputs(np.empty((rows, k)), _kind_rows(rec.tau[:, cols, :n]),
-                           _kind_rows(rec.min_clearance[:, cols]), _kind_rows(rec.min_barrier[:, cols]),
+            out = _Outputs(np.empty((rows, k)), kind.from_team(rec.tau, n, first=0),
+                           kind.from_team(rec.min_clearance), kind.from_team(rec.min_barrier),
                            np.zeros((rows, 3), dtype=np.int64),
-                           _kind_rows(rec.max_tracking_error[:, cols]), np.ones(rows, dtype=bool))
-            cmd = _kind_rows(command[:, cols, :k])
+                           kind.from_team(rec.max_tracking_error), np.ones(rows, dtype=bool))
+            cmd = kind.from_team(command, k)
         if clear is not None:
             clear[:], finite[:] = out.min_clear, out.finite
             out = out._replace(min_clear=clear, finite=finite)
@@ -612,7 +619,7 @@ class Engine:
                 out.qp_counts, out.max_track, out.finite)
         return args, out
 
-    def _call(self, kind: _Kind, args: tuple, whole: WholeArm | None) -> None:
+    def _call(self, kind: Kind, args: tuple, whole: WholeArm | None) -> None:
         """One call of the sub-step kernel on every arm of a kind: the multi-threaded one for large batches,
         else the kind's own or the generic one (:meth:`_specialised`); ``whole`` goes as a plain tuple."""
         whole = plain(whole)
@@ -624,26 +631,18 @@ class Engine:
         else:
             kernels().group_advance_generic(*args, whole)
 
-    def _finish(self, kind: _Kind, out: _Outputs, torque: bool, rec: StepRecord) -> None:
-        """After a kind's kernel call(s): scatter gathered outputs back into the record."""
-        B, A = self.copies, kind.A
+    def _finish(self, kind: Kind, out: _Outputs, torque: bool, rec: StepRecord) -> None:
+        """After a kind's kernel call(s): scatter gathered outputs back into the record (counts add up, and an
+        arm is finite if it was in every call)."""
         if torque:
             kind.has_prev[:] = False
         if not self.team_order:
             for name, value in zip(_Outputs._fields, out, strict=True):
-                field = _RECORD_FIELDS[name]
-                target = getattr(rec, field)
-                if target.ndim == 3:
-                    width = value.shape[1]
-                    if field == "qp_counts":
-                        target[:, kind.cols] += value.reshape(B, A, width)
-                    else:
-                        target[:, kind.cols, :width] = value.reshape(B, A, width)
-                else:
-                    target[:, kind.cols] = value.reshape(B, A)
+                kind.to_team(getattr(rec, _RECORD_FIELDS[name]), value, add=name == "qp_counts", both=name == "finite",
+                             first=0 if name in ("tau", "qp_counts") else None)
 
     @staticmethod
-    def _specialised(kind: _Kind, args: tuple) -> bool:
+    def _specialised(kind: Kind, args: tuple) -> bool:
         """Whether the kind steps with its own compiled kernel (``group_advance``) rather than the generic
         one, which gives the same results bit for bit: asked at its first serial step and again whenever
         a background compilation has ended (:mod:`pan1_env.kernels.specialise`), until the answer is yes.

@@ -99,6 +99,9 @@ class Scenario:
     safety_barrier: str = "squared"
     safety_decay: float = 0.0
     safety_gate: float = 0.0
+    #: ``(N,)`` s: when each arm's first joint loses its actuator (inf: never; docs/MODEL.md §7); None: no arm
+    #: of this team or of the teams an engine loads after it can fault
+    fault_times: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.bodies not in BODIES:
@@ -126,6 +129,24 @@ class Scenario:
             speeds.setflags(write=False)
             object.__setattr__(self, "obstacle_paths", paths)
             object.__setattr__(self, "obstacle_speeds", speeds)
+        if self.fault_times is not None:
+            object.__setattr__(self, "fault_times", self._checked_fault_times())
+
+    def _checked_fault_times(self) -> np.ndarray:
+        times = np.array(self.fault_times, dtype=float).reshape(-1)
+        if len(times) != len(self.arms):
+            raise ValueError(f"Scenario.fault_times needs one time per arm ({len(self.arms)}), got {len(times)}")
+        for i, (t, arm) in enumerate(zip(times, self.arms, strict=True)):
+            if np.isinf(t) and t > 0:
+                continue
+            if arm.passive_first_joint:
+                raise ValueError(f"Scenario.fault_times[{i}]: arm {i}'s first joint is passive already; only a fully "
+                                 f"actuated arm can lose its first joint's actuator")
+            if not 0.0 <= t <= self.horizon:
+                raise ValueError(f"Scenario.fault_times[{i}] must lie within the episode, [0, {self.horizon:g}] s "
+                                 f"(inf: never), got {t!r}")
+        times.setflags(write=False)
+        return times
 
     @property
     def moving_obstacles(self) -> np.ndarray:

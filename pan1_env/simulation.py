@@ -81,21 +81,21 @@ class Simulation:
 
     def passive_momentum(self) -> np.ndarray:
         """Σ_α M_1α q̇_α for every arm, ``(N,)`` (NaN for fully actuated arms)."""
-        out = np.full(self.n_arms, np.nan)
+        out = np.full((1, self.n_arms), np.nan)
         for kind in self.engine.kinds:
-            out[kind.ids] = self.engine.kind_terms(kind).momentum
-        return out
+            kind.to_team(out, self.engine.kind_terms(kind).momentum)
+        return out[0]
 
     def nominal_velocity(self) -> np.ndarray:
         """The distributed formation law v_i0 = −K_P J̄_iᵀ ê_i (Eq. 39) of every arm, ``(N, k_max)``."""
         formation = self.scenario.formation
         z = edge_vectors(formation.incidence, self.positions())
         e_hat = formation_gradient(formation.incidence, z, edge_errors(z, formation.distances))
-        out = np.zeros((self.n_arms, self.k_max))
+        out = np.zeros((1, self.n_arms, self.k_max))
         for kind in self.engine.kinds:
             Jbar = self.engine.kind_terms(kind).Jbar
-            out[kind.ids, : kind.k] = nominal_velocity(Jbar, e_hat[kind.ids], self.scenario.kp)
-        return out
+            kind.to_team(out, nominal_velocity(Jbar, e_hat[kind.ids], self.scenario.kp))
+        return out[0]
 
     def step(self, command: np.ndarray, substeps: int, *, torque: bool = False,
              max_speed: float | None = None) -> StepRecord:

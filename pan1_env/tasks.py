@@ -132,10 +132,10 @@ class FormationTask:
             e = e_hat[:, kind.ids].reshape(-1, 2)
             v0 = nominal_velocity(Jbar, e, np.repeat(self.kp, kind.A)[:, None])
             if gain is not None:
-                v0 *= gain[:, kind.ids, : kind.k].reshape(-1, kind.k)
+                v0 *= kind.from_team(gain, kind.k)
             peak = np.abs(v0).max(axis=1, initial=0.0) / self.max_joint_speed
             v0 /= np.maximum(peak, 1.0)[:, None]
-            out[:, kind.ids, : kind.k] = v0.reshape(engine.copies, kind.A, kind.k)
+            kind.to_team(out, v0)
         return out
 
     def compose(self, action_mode: str, command: np.ndarray, engine: Engine) -> None:

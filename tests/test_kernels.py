@@ -76,7 +76,7 @@ def test_group_terms_match_reference(n: int, passive: bool) -> None:
 def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False, centers=None, radii=None,
              mask=None, kappa=0.5, eps=5.0, margin=0.0, distance=False, decay=0.0,
              ke=100.0, dt=1e-3, n_sub=1, v_max=np.inf, parallel=False,
-             sizes=None, n_chunks=2, momentum=None, damping=None):
+             sizes=None, n_chunks=2, momentum=None, damping=None, rows=None):
     A, k = v.shape
     centers = np.zeros((0, 2)) if centers is None else centers
     radii = np.zeros(0) if radii is None else radii
@@ -90,7 +90,7 @@ def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False
     sizes = kernel_sizes(q.shape[1], k) if sizes is None else sizes
     momentum = _per_arm(momentum, A)
     args = (*sizes, batch.lam, batch.lengths, batch.base, batch.phi, _per_arm(damping, A),
-            batch.passive_first_joint, q, v, momentum, prev, has_prev,
+            batch.passive_first_joint, q, v, momentum, prev, has_prev, np.arange(A) if rows is None else rows,
             command, torque, filter_on, np.broadcast_to(centers, (A, *centers.shape)).copy(),
             np.broadcast_to(radii, (A, len(radii))).copy(), mask, kappa, eps, margin, distance, decay, ke, dt,
             n_sub, v_max, out["v_star"], out["tau"], out["qd"], out["p"], out["clear"], out["min_h"], out["counts"],
@@ -350,6 +350,32 @@ def test_parallel_kernel_equals_serial_and_reports_state(torque: bool) -> None:
     np.testing.assert_allclose(out_s["p"], end_effector(batch, q_s), atol=1e-12)
 
 
+@pytest.mark.parametrize("parallel", [False, True])
+def test_kernel_steps_only_its_rows(parallel: bool) -> None:
+    """``rows`` picks the arms a call advances: they end as in a call on every arm (each lane computes its arm
+    alone), and the others, state and outputs, are left as they were."""
+    rng = np.random.default_rng(23)
+    batch, q, v = _group(rng, 4, True, count=9)
+    t, centers, radii = _binding_obstacles(rng, batch, q, v)
+    command = rng.normal(scale=2.0, size=v.shape)
+    kw = dict(filter_on=True, centers=centers, radii=radii, mask=np.ones((9, 3), bool), n_sub=5, v_max=2.0,
+              momentum=rng.uniform(-0.5, 0.5, 9), damping=rng.uniform(0.0, 2.0, 9), parallel=parallel)
+    _, q_all, v_all, _, out_all = _advance(batch, q, v, command, **kw)
+    rows = np.array([0, 3, 4, 8])
+    _, q_some, v_some, _, out_some = _advance(batch, q, v, command, rows=rows, **kw)
+    rest = np.setdiff1d(np.arange(9), rows)
+    np.testing.assert_array_equal(_bits(q_some[rows]), _bits(q_all[rows]))
+    np.testing.assert_array_equal(_bits(v_some[rows]), _bits(v_all[rows]))
+    np.testing.assert_array_equal(q_some[rest], q[rest])
+    np.testing.assert_array_equal(v_some[rest], v[rest])
+    for key in ("clear", "min_h", "counts", "track", "finite", "momentum"):
+        np.testing.assert_array_equal(_bits(out_some[key][rows]), _bits(out_all[key][rows]))
+    assert np.all(out_some["counts"][rest] == 0) and not out_some["finite"][rest].any()
+    assert np.all(out_some["momentum"][rest] == kw["momentum"][rest])
+    with pytest.raises(ValueError, match="rows must index the arms"):
+        _advance(batch, q, v, command, rows=np.array([0, 9]), **kw)
+
+
 def test_per_arm_obstacles_equal_one_arm_at_a_time() -> None:
     """Each arm's filter sees its own obstacle rows (the vector env gives every copy its own)."""
     rng = np.random.default_rng(31)
@@ -364,7 +390,8 @@ def test_per_arm_obstacles_equal_one_arm_at_a_time() -> None:
                 track=np.zeros(A), finite=np.zeros(A, bool))
     q_all, v_all = q.copy(), v.copy()
     kernels.group_advance(*kernel_sizes(q.shape[1], k), batch.lam, batch.lengths, batch.base, batch.phi, np.zeros(A),
-                          True, q_all, v_all, np.zeros(A), np.zeros((A, k)), np.zeros(A, bool), command, False, True,
+                          True, q_all, v_all, np.zeros(A), np.zeros((A, k)), np.zeros(A, bool), np.arange(A), command,
+                          False, True,
                           centers, radii, np.ones((A, 2), bool), 0.5, 5.0, 0.0, False, 0.0, 100.0, 1e-3, 3, 2.0,
                           *args.values(), None)
     for i in range(A):
@@ -516,7 +543,7 @@ def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
                    np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64), np.zeros(A),
                    np.zeros(A, bool)]
             args = [batch.lam, batch.lengths, batch.base, batch.phi, np.zeros(A), True, qk, vk, np.zeros(A), out[0],
-                    out[1], command, torque,
+                    out[1], np.arange(A), command, torque,
                     True, np.broadcast_to(centers, (A, 3, 2)).copy(), np.broadcast_to(radii, (A, 3)).copy(), mask,
                     0.5, 5.0, 0.01, distance, decay, 100.0, 1e-2, 5, v_max, *out[2:], None]
             if kernel == "slp":
@@ -563,7 +590,7 @@ def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> Non
             pk = momentum.copy()
             for _ in range(2):  # the second call starts from the first's v_prev / has_prev
                 kernel(*kernel_sizes(n, k), batch.lam, batch.lengths, batch.base, batch.phi, damping, passive, qk,
-                       vk, pk, out[0], out[1], command, torque, filter_on,
+                       vk, pk, out[0], out[1], np.arange(A), command, torque, filter_on,
                        np.broadcast_to(centers, (A, 3, 2)).copy(), np.broadcast_to(radii, (A, 3)).copy(), mask, 0.5,
                        5.0, 0.01, distance, decay, 100.0, 1e-2, 5, v_max, *out[2:], None)
             runs.append([qk, vk, pk, *out])
@@ -578,16 +605,21 @@ def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> Non
 def test_generic_kernel_checks_its_sizes() -> None:
     rng = np.random.default_rng(0)
     batch, q, v = _group(rng, 9, True, count=1)
-    args = (batch.lam, batch.lengths, batch.base, batch.phi, np.zeros(1), True, q, v, np.zeros(1))
+    rest = (np.zeros((1, 8)), np.zeros(1, bool), np.arange(1))
+    args = (batch.lam, batch.lengths, batch.base, batch.phi, np.zeros(1), True, q, v, np.zeros(1), *rest)
     with pytest.raises(ValueError, match="n ≤ 8"):
         kernels.group_advance_generic(*kernel_sizes(9, 8), *args)
     batch, q, v = _group(rng, 3, True, count=1)
     with pytest.raises(ValueError, match="kernel_sizes"):
         kernels.group_advance_generic(*kernel_sizes(3, 3), batch.lam, batch.lengths, batch.base, batch.phi,
-                                      np.zeros(1), True, q, v, np.zeros(1))
+                                      np.zeros(1), True, q, v, np.zeros(1), *rest)
     with pytest.raises(ValueError, match="momentum and damping"):
         kernels.group_advance_generic(*kernel_sizes(3, 2), batch.lam, batch.lengths, batch.base, batch.phi,
-                                      np.zeros(2), True, q, v, np.zeros(1))
+                                      np.zeros(2), True, q, v, np.zeros(1), *rest)
+    for rows in (np.array([1]), np.array([0.0]), np.zeros((1, 1), np.int64)):
+        with pytest.raises(ValueError, match="rows must be int64 indices"):
+            kernels.group_advance_generic(*kernel_sizes(3, 2), batch.lam, batch.lengths, batch.base, batch.phi,
+                                          np.zeros(1), True, q, v, np.zeros(1), *rest[:2], rows)
 
 
 @pytest.mark.parametrize(("barrier", "decay"), [("squared", 0.0), ("squared", 20.0), ("distance", 0.0),

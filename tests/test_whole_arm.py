@@ -676,7 +676,7 @@ import numpy as np
 from pan1_env import kernels
 K = kernels.capsules
 P = np.zeros((1, 2, 3, 2))
-K.kind_joints(np.zeros((2, 2)), np.ones((2, 2)), np.zeros((2, 2)), np.zeros(2), np.arange(2), P)
+K.kind_joints(np.zeros((2, 2)), np.ones((2, 2)), np.zeros((2, 2)), np.zeros(2), np.arange(2), np.arange(2), P)
 K.inter_arm_clearance(P, 0.03, np.full((1, 2), np.inf))
 """
 

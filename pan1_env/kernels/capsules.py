@@ -567,10 +567,11 @@ def inter_arm_clearance(P, rho, out):
 
 
 @njit(**_JIT)
-def _kind_joints_rows(q, lengths, base, phi, ids, P, lo, hi):
-    """:func:`kind_joints` for rows ``lo … hi−1``."""
+def _kind_joints_rows(q, lengths, base, phi, ids, rows, P, lo, hi):
+    """:func:`kind_joints` for rows ``rows[lo … hi−1]``."""
     A, n, L = ids.shape[0], q.shape[1], P.shape[2] - 1
-    for row in range(lo, hi):
+    for at in range(lo, hi):
+        row = rows[at]
         b, i = row // A, ids[row % A]
         x, y, ang = base[row, 0], base[row, 1], phi[row]
         P[b, i, 0, 0], P[b, i, 0, 1] = x, y
@@ -583,18 +584,19 @@ def _kind_joints_rows(q, lengths, base, phi, ids, P, lo, hi):
 
 
 @njit(**_JIT)
-def kind_joints(q, lengths, base, phi, ids, P):
-    """Joints of the arms of one kind (rows ``b·A + r`` of ``q (B·A, n)`` …, arm ``ids[r]`` of copy b)
-    into ``P (B, N, L + 1, 2)``: base, joints, end-effector, then the end-effector repeated up to L."""
-    _kind_joints_rows(q, lengths, base, phi, ids, P, 0, q.shape[0])
+def kind_joints(q, lengths, base, phi, ids, rows, P):
+    """Joints of the arms of one kind (rows ``b·A + r`` of ``q (B·A, n)`` …, arm ``ids[r]`` of copy b) that
+    are among ``rows`` (int64, valid indices: the kind's stepped rows) into ``P (B, N, L + 1, 2)``: base,
+    joints, end-effector, then the end-effector repeated up to L."""
+    _kind_joints_rows(q, lengths, base, phi, ids, rows, P, 0, rows.shape[0])
 
 
 @njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
-def kind_joints_parallel(q, lengths, base, phi, ids, P, n_chunks):
+def kind_joints_parallel(q, lengths, base, phi, ids, rows, P, n_chunks):
     """:func:`kind_joints` with the rows split into ``n_chunks`` chunks on numba's threads."""
-    rows = q.shape[0]
+    R = rows.shape[0]
     for c in prange(n_chunks):
-        _kind_joints_rows(q, lengths, base, phi, ids, P, c * rows // n_chunks, (c + 1) * rows // n_chunks)
+        _kind_joints_rows(q, lengths, base, phi, ids, rows, P, c * R // n_chunks, (c + 1) * R // n_chunks)
 
 
 @njit(**_JIT)

@@ -42,15 +42,15 @@ from .qp import (
 
 
 @njit(**_JIT, inline="always")
-def _load_arms(first, hi, n, k, W, lam, lengths, base, phi, q, v, v_prev, whole, arm, real, counts, lm, ln, qi, vi,
-               vp, bx, by, ph, vs_last, tau_last, c, s):
-    """Lanes 0 … W−1 take arms ``first`` … (the last real arm repeated as padding): their parameters,
+def _load_arms(first, hi, rows, n, k, W, lam, lengths, base, phi, q, v, v_prev, whole, arm, real, counts, lm, ln, qi,
+               vi, vp, bx, by, ph, vs_last, tau_last, c, s):
+    """Lanes 0 … W−1 take arms ``rows[first]`` … (the last real arm repeated as padding): their parameters,
     state and link angles (computed from q, or with whole-arm ``carried`` where the control step's
     previous call left them)."""
     if whole is not None:
         caps, start_time, rho, link_bodies, sensing, gate, skin, joints_out, n_world, angles, carried, finish = whole
     for w in range(W):
-        i = min(first + w, hi - 1)
+        i = rows[min(first + w, hi - 1)]
         arm[w] = i
         real[w] = first + w < hi
         for x in range(3):

@@ -61,10 +61,10 @@ from .steps import (
 
 @njit(**_JIT)
 def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, base, phi, damping, _passive, q, v,
-                  momentum, v_prev, has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon,
-                  margin, distance, decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h,
-                  qp_counts, max_track, finite_out, whole):
-    """Arms ``lo … hi−1`` of :func:`group_advance` (the loop body, with its own scratch space): see the
+                  momentum, v_prev, has_prev, rows, command, torque_mode, filter_on, centers, radii, mask, kappa,
+                  epsilon, margin, distance, decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear,
+                  min_h, qp_counts, max_track, finite_out, whole):
+    """Arms ``rows[lo … hi−1]`` of :func:`group_advance` (the loop body, with its own scratch space): see the
     module's docstring for the lanes, the per-kind and generic signatures and the whole-arm calls."""
     if sizes is None:  # the per-kind kernel (numba prunes the other branch by the argument's type)
         n = len(links)
@@ -145,8 +145,8 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                 brows[row] = v_max
                 active[row] = True
     for first in range(lo, hi, W):
-        _load_arms(first, hi, n, k, W, lam, lengths, base, phi, q, v, v_prev, whole, arm, real, counts, lm, ln, qi, vi,
-                   vp, bx, by, ph, vs_last, tau_last, c, s)
+        _load_arms(first, hi, rows, n, k, W, lam, lengths, base, phi, q, v, v_prev, whole, arm, real, counts, lm, ln,
+                   qi, vi, vp, bx, by, ph, vs_last, tau_last, c, s)
         if passive:
             for w in range(W):
                 pj[0][w] = momentum[arm[w]]
@@ -198,7 +198,9 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     Arrays are per arm (leading axis A): parameters ``lam, lengths, base, phi`` (see
     :class:`~pan1_env.dynamics.ArmBatch`) and ``damping (A,)`` (b of a passive first joint), state
     ``q (A, n)``, ``v (A, k)`` and ``momentum (A,)`` (a PAn−1 arm's passive momentum p₁: q̇₁ =
-    (p₁ − M_1a v) / M_11, ṗ₁ = −b q̇₁, docs/MODEL.md §7; a fully actuated arm ignores both), obstacles
+    (p₁ − M_1a v) / M_11, ṗ₁ = −b q̇₁, docs/MODEL.md §7; a fully actuated arm ignores both). ``rows (R,)``
+    (int64, distinct) are the arms advanced: the others, their outputs included, are left as they are
+    (an engine's arm that has changed kind keeps a row here, unused, until its next reset). Obstacles
     ``centers (A, O, 2)``, ``radii (A, O)`` and ``mask (A, O)`` (the obstacles each arm's filter
     sees; a team's obstacles are broadcast to every arm).
 
@@ -244,7 +246,10 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
 
 
 @njit(**_JIT)
-def _check_sizes(links, actuated, passive, q, v, momentum, damping):
+def _check_sizes(links, actuated, passive, q, v, momentum, damping, rows):
+    for r in rows:  # the lanes index the arrays by them unchecked
+        if r < 0 or r >= q.shape[0]:
+            raise ValueError("group_advance: rows must index the arms (0 <= row < q.shape[0])")
     if q.shape[1] != len(links) or v.shape[1] != len(actuated):
         raise ValueError("group_advance: links, actuated must be kernel_sizes(q.shape[1], v.shape[1])")
     if momentum.shape[0] != q.shape[0] or damping.shape[0] != q.shape[0]:
@@ -254,30 +259,31 @@ def _check_sizes(links, actuated, passive, q, v, momentum, damping):
 
 
 @njit(**_JIT)
-def group_advance(links, actuated, lam, lengths, base, phi, damping, passive, q, v, momentum, v_prev, has_prev, command,
-                  torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, distance, decay, ke, dt, n_sub,
-                  v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out, whole):
-    _check_sizes(links, actuated, passive, q, v, momentum, damping)
-    lo = q.shape[0] * 0  # an int64, like the parallel kernel's chunk bounds
-    _advance_arms(links, actuated, _LANES, None, True, lo, q.shape[0], lam, lengths, base, phi, damping, passive, q, v,
-                  momentum, v_prev, has_prev, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon,
-                  margin, distance, decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h,
-                  qp_counts, max_track, finite_out, whole)
+def group_advance(links, actuated, lam, lengths, base, phi, damping, passive, q, v, momentum, v_prev, has_prev, rows,
+                  command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, distance, decay, ke,
+                  dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track,
+                  finite_out, whole):
+    _check_sizes(links, actuated, passive, q, v, momentum, damping, rows)
+    lo = rows.shape[0] * 0  # an int64, like the parallel kernel's chunk bounds
+    _advance_arms(links, actuated, _LANES, None, True, lo, rows.shape[0], lam, lengths, base, phi, damping, passive, q,
+                  v, momentum, v_prev, has_prev, rows, command, torque_mode, filter_on, centers, radii, mask, kappa,
+                  epsilon, margin, distance, decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear,
+                  min_h, qp_counts, max_track, finite_out, whole)
 
 
 @njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
 def group_advance_parallel(links, actuated, lam, lengths, base, phi, damping, passive, q, v, momentum, v_prev, has_prev,
-                           command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, distance,
-                           decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts,
-                           max_track, finite_out, whole, n_chunks):
-    _check_sizes(links, actuated, passive, q, v, momentum, damping)
+                           rows, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin,
+                           distance, decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h,
+                           qp_counts, max_track, finite_out, whole, n_chunks):
+    _check_sizes(links, actuated, passive, q, v, momentum, damping, rows)
     _check_chunks(n_chunks)
-    A = q.shape[0]
+    R = rows.shape[0]
     for c in prange(n_chunks):
-        _advance_arms(links, actuated, _LANES, None, True, c * A // n_chunks, (c + 1) * A // n_chunks, lam, lengths,
-                      base, phi, damping, passive, q, v, momentum, v_prev, has_prev, command, torque_mode, filter_on,
-                      centers, radii, mask, kappa, epsilon, margin, distance, decay, ke, dt, n_sub, v_max, v_star_out,
-                      tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out, whole)
+        _advance_arms(links, actuated, _LANES, None, True, c * R // n_chunks, (c + 1) * R // n_chunks, lam, lengths,
+                      base, phi, damping, passive, q, v, momentum, v_prev, has_prev, rows, command, torque_mode,
+                      filter_on, centers, radii, mask, kappa, epsilon, margin, distance, decay, ke, dt, n_sub, v_max,
+                      v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out, whole)
 
 
 # The generic kernel: arms of any kind up to GENERIC_MAX_LINKS links, n and k read at run time, one
@@ -288,7 +294,8 @@ _GENERIC_SIZES = (0,) * GENERIC_MAX_LINKS
 _ONE_LANE = (0,)
 
 
-def group_advance_generic(links, actuated, lam, lengths, base, phi, damping, passive, q, v, momentum, *args):
+def group_advance_generic(links, actuated, lam, lengths, base, phi, damping, passive, q, v, momentum, v_prev, has_prev,
+                          rows, *args):
     """:func:`group_advance` (same arguments, same results bit for bit) through one kernel compiled for
     every arm kind of at most ``GENERIC_MAX_LINKS`` links: a new kind costs no compilation, and the
     kernel steps 3–4× slower (one arm at a time, loops of run-time length). The engine uses it while a
@@ -302,8 +309,11 @@ def group_advance_generic(links, actuated, lam, lengths, base, phi, damping, pas
                          "joint, else k = n")
     if len(momentum) != len(q) or len(damping) != len(q):
         raise ValueError("group_advance_generic: momentum and damping need one value per arm (q.shape[0])")
-    _advance_arms(_GENERIC_SIZES, _GENERIC_SIZES, _ONE_LANE, (n, k), None, 0, q.shape[0], lam, lengths, base, phi,
-                  damping, bool(passive), q, v, momentum, *args)
+    rows = np.asarray(rows)
+    if rows.dtype != np.int64 or rows.ndim != 1 or (len(rows) and not 0 <= rows.min() <= rows.max() < len(q)):
+        raise ValueError("group_advance_generic: rows must be int64 indices of the arms (0 <= row < q.shape[0])")
+    _advance_arms(_GENERIC_SIZES, _GENERIC_SIZES, _ONE_LANE, (n, k), None, 0, len(rows), lam, lengths, base, phi,
+                  damping, bool(passive), q, v, momentum, v_prev, has_prev, rows, *args)
 
 
 group_advance.__doc__ = _ADVANCE_DOC

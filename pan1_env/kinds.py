@@ -1,0 +1,137 @@
+"""An engine's arm kinds: the arms of one number of links and one actuation, in every copy, as the rows
+of the arrays the sub-step kernel advances (:mod:`pan1_env.engine`).
+
+Row ``b·A + r`` of a kind holds arm ``ids[r]`` of copy b. An engine whose arms may lose an actuator
+gives each fully actuated kind a *faulted twin*: a PAn−1 kind of the same arms and rows, whose row takes
+over an arm of one copy from the moment its first joint loses its actuator (docs/MODEL.md §7) until
+that copy's next reset. Each row is stepped in exactly one of the two; the kernel advances a kind's
+``stepped`` rows and leaves the others as they are, and a kind writes into the team's arrays only
+from the rows it steps. A twin's actuated joints are the arm's joints 2 … n, so its commands and
+filtered velocities sit one column further in the team's ``(B, N, k_max)`` arrays (``shift``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .cascade import passive_momentum
+from .compiled import kernel_sizes
+from .dynamics import ArmBatch
+from .scenario import Scenario
+
+
+def kind_rows(team: np.ndarray) -> np.ndarray:
+    """A kind's columns of a team array ``(B, A, …)`` as its rows ``b·A + r``, C-contiguous (the kernel's
+    layout): a copy, or with one copy a view."""
+    return np.ascontiguousarray(team).reshape(-1, *team.shape[2:])
+
+
+class Kind:
+    """The arms of one kind in every copy: rows ``b·A + r`` hold arm ``ids[r]`` of copy b.
+
+    With ``faulted`` the arms are fully actuated arms whose first joint has lost its actuator: a PAn−1
+    kind (k = n − 1) whose rows start unstepped (:meth:`take_over`)."""
+
+    def __init__(self, ids: list[int], scenario: Scenario, copies: int, *, faulted: bool = False) -> None:
+        batch = ArmBatch.stack([scenario.arms[i] for i in ids])
+        self.ids = np.asarray(ids, dtype=np.int64)
+        self.copies = copies
+        # its columns of the team arrays (B, N, …): a slice when its arms are consecutive (basic indexing,
+        # several times faster than an index array on the per-step gathers and scatters)
+        consecutive = np.array_equal(self.ids, np.arange(self.ids[0], self.ids[0] + len(ids)))
+        self.cols = slice(int(self.ids[0]), int(self.ids[0]) + len(ids)) if consecutive else self.ids
+        self.A, self.n = len(ids), batch.n_links
+        self.faulted = faulted
+        if faulted and batch.passive_first_joint:
+            raise ValueError("a faulted twin is made of fully actuated arms")
+        self.passive = batch.passive_first_joint or faulted
+        self.k = self.n - 1 if self.passive else self.n
+        self.shift = 1 if faulted else 0  # the team column of its first actuated joint
+        self.sizes = kernel_sizes(self.n, self.k)
+        rows, O = copies * self.A, len(scenario.obstacles)
+        self.lam, self.lengths = np.empty((rows, self.n, self.n)), np.empty((rows, self.n))
+        self.base, self.phi, self.damping = np.empty((rows, 2)), np.empty(rows), np.empty(rows)
+        self.centers, self.radii = np.empty((rows, O, 2)), np.empty((rows, O))
+        self.mask, self.q0 = np.empty((rows, O), dtype=bool), np.empty((rows, self.n))
+        # the state, updated in place (views of it stay valid for the engine's life)
+        self.q, self.v, self.qd, self.p = (np.zeros((rows, self.n)), np.zeros((rows, self.k)),
+                                           np.zeros((rows, self.n)), np.zeros((rows, 2)))
+        self.momentum = np.zeros(rows)  # a PAn−1 arm's passive momentum p₁ (docs/MODEL.md §7)
+        self.v_prev, self.has_prev = np.zeros((rows, self.k)), np.zeros(rows, dtype=bool)
+        self.active = np.full(rows, not faulted)
+        self.twin: Kind | None = None  # a fully actuated kind's faulted twin (Engine: arms that may fault)
+        self.set_stepped()
+        # the serial kernel: None until the first step decides (Engine._specialised), False while the
+        # generic kernel stands in for the kind's own, True from then on
+        self.specialised: bool | None = None
+        self.generation = -1
+        self.whole = None  # the kernel's whole-arm argument (Engine._whole_arm_setup)
+
+    def set_stepped(self) -> None:
+        """After ``active`` changed: the rows the kernel steps, and its leading arguments (sizes, parameters
+        and state: arrays updated in place, never replaced)."""
+        self.stepped = np.flatnonzero(self.active).astype(np.int64)
+        self.complete = len(self.stepped) == len(self.active)
+        self.state_args = (*self.sizes, self.lam, self.lengths, self.base, self.phi, self.damping, self.passive,
+                           self.q, self.v, self.momentum, self.v_prev, self.has_prev, self.stepped)
+
+    def __getstate__(self) -> dict:
+        state = {**self.__dict__, "specialised": None}  # another process decides for itself
+        if "block" in state:  # views of the engine's team arrays, which Engine.__setstate__ takes again
+            for name in ("caps", "start_time", "joints", "whole"):
+                del state[name]
+        return state
+
+    def rows(self, copies: np.ndarray) -> np.ndarray:
+        return (np.asarray(copies)[:, None] * self.A + np.arange(self.A)[None]).ravel()
+
+    def load(self, b: int, scenario: Scenario, mask: np.ndarray) -> None:
+        sl = slice(b * self.A, (b + 1) * self.A)
+        batch = ArmBatch.stack([scenario.arms[i] for i in self.ids])
+        self.lam[sl], self.lengths[sl], self.base[sl], self.phi[sl] = batch.lam, batch.lengths, batch.base, batch.phi
+        self.damping[sl] = batch.passive_damping
+        self.centers[sl] = scenario.obstacles.centers[None]
+        self.radii[sl] = scenario.obstacles.radii[None]
+        self.mask[sl] = mask[self.ids]
+        self.q0[sl] = np.array([scenario.q0[i] for i in self.ids])
+
+    def from_team(self, team: np.ndarray, width: int | None = None, *, first: int | None = None) -> np.ndarray:
+        """Its rows of a team array ``(B, N)`` or ``(B, N, ·)`` (``width`` columns from ``first``, default
+        ``shift``)."""
+        if width is None:
+            return kind_rows(team[:, self.cols])
+        start = self.shift if first is None else first
+        return kind_rows(team[:, self.cols, start: start + width])
+
+    def to_team(self, team: np.ndarray, values: np.ndarray, *, first: int | None = None, add: bool = False,
+                both: bool = False) -> None:
+        """Write its rows ``values (B·A, …)`` into a team array ``(B, N, …)`` (columns from ``first``, default
+        ``shift``, when ``values`` has a second axis), or add them (``add``), or with ``both`` keep the
+        logical and of the two: only from the rows it steps."""
+        B = self.copies
+        values = values.reshape(B, self.A, *values.shape[1:])
+        if values.ndim == 2:
+            index = (slice(None), self.cols)
+        else:
+            start = self.shift if first is None else first
+            index = (slice(None), self.cols, slice(start, start + values.shape[2]))
+        if not (add or both or not self.complete):
+            team[index] = values
+            return
+        current = team[index]
+        new = current + values if add else (current & values if both else values)
+        if not self.complete:
+            where = self.active.reshape(B, self.A)
+            new = np.where(where.reshape(where.shape + (1,) * (values.ndim - 2)), new, current)
+        team[index] = new
+
+    def take_over(self, full: Kind, row: int, arm) -> None:
+        """Row ``row`` of the full kind ``full`` loses its first joint's actuator: this twin steps it from
+        now on, from the same angles and joint speeds, v = q̇₂…q̇ₙ and p₁ = Σ_α M_1α q̇_α. Its tracker starts
+        afresh (the copy's reset left the row's ``has_prev`` False, and an unstepped row keeps it)."""
+        qd = full.v[row]
+        self.q[row], self.qd[row], self.v[row], self.p[row] = full.q[row], qd, qd[1:], full.p[row]
+        self.momentum[row] = passive_momentum(arm, full.q[row], qd)
+        full.active[row], self.active[row] = False, True
+        full.set_stepped()
+        self.set_stepped()
