@@ -324,16 +324,16 @@ class Engine:
             kernels().group_end_effectors(kind.lengths, kind.base, kind.phi, kind.q, kind.p)
 
     def _actuators_lost(self, left: int, rec: StepRecord | None) -> int:
-        """Arms whose fault time has come (at the start of the first sub-step at or after it) lose their first
-        joint's actuator now; returns the sub-steps, at most ``left``, until the next one in this step."""
+        """Arms whose fault time falls within the sub-step that starts now lose their first joint's actuator
+        now (from the start of that sub-step, docs/MODEL.md §7); returns the sub-steps, at most ``left``, until
+        the next one in this step."""
         if not self.faults:
             return left
-        dt = self.physics_dt
-        wait = np.where(self.faulted, np.inf, (self.fault_times - self.elapsed[:, None]) / dt)
-        for b, i in zip(*np.nonzero(wait <= 1e-6), strict=True):  # within rounding of the clock
+        wait = np.where(self.faulted, np.inf, (self.fault_times - self.elapsed[:, None]) / self.physics_dt)
+        for b, i in zip(*np.nonzero(wait < 1.0 - 1e-6), strict=True):  # 1e-6: the clock's rounding
             self._lose_actuator(int(b), int(i), rec)
             wait[b, i] = np.inf
-        return int(min(left, np.ceil(wait.min() - 1e-6)))
+        return int(min(left, np.floor(wait.min() + 1e-6)))
 
     def _lose_actuator(self, b: int, i: int, rec: StepRecord | None) -> None:
         """Arm i of copy b goes over to its kind's faulted twin (:meth:`pan1_env.kinds.Kind.take_over`): its
@@ -497,8 +497,8 @@ class Engine:
     def advance_compiled(self, command: np.ndarray, substeps: int, torque: bool, rec: StepRecord) -> None:
         """Every arm of every copy ``substeps`` sub-steps through the sub-step kernel, its QP included,
         into ``rec``: one kernel call per kind, or with ``inter_arm`` one per kind and sub-step; the calls
-        split where an arm loses its actuator (:meth:`_actuators_lost`), and an arm whose fault time is the
-        step's end loses it before the step returns (its observation shows the fault)."""
+        split where an arm loses its actuator (:meth:`_actuators_lost`); an arm whose fault falls within the
+        next step's first sub-step loses it before the step returns (its observation shows the fault)."""
         done = 0
         while True:
             todo = self._actuators_lost(substeps - done, rec if done < substeps else None)

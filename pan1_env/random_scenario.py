@@ -81,6 +81,11 @@ class RandomScenarioOptions:
             (:class:`pan1_env.dynamics.ArmParams`; 0: the paper's frictionless joint). It changes no draw: the
             start is the frictionless arm's, from which the target is reached with p₁ = 0 (with damping p₁
             leaves 0 as the arm moves, docs/MODEL.md §7).
+        fault_probability: the chance that a fully actuated arm loses its first joint's actuator during the
+            episode (0: never, and the team is drawn as without the option; docs/MODEL.md §7).
+        fault_time: the range (low, high) in seconds the fault's time is drawn from, within the horizon.
+            The two fault options are drawn after everything else: a team with faults is the same seed's
+            team without them, plus its fault times.
     """
 
     n_arms: int = 4
@@ -108,6 +113,8 @@ class RandomScenarioOptions:
     decay: float = 0.0
     gate: float = 0.0
     passive_damping: float = 0.0
+    fault_probability: float = 0.0
+    fault_time: tuple[float, float] = (1.0, 10.0)
 
     def __post_init__(self) -> None:
         n_arms = positive_int("RandomScenarioOptions.n_arms", self.n_arms, minimum=2)
@@ -171,6 +178,22 @@ class RandomScenarioOptions:
         object.__setattr__(self, "gate", real("RandomScenarioOptions.gate", self.gate, non_negative=True))
         object.__setattr__(self, "passive_damping",
                            real("RandomScenarioOptions.passive_damping", self.passive_damping, non_negative=True))
+        self._check_faults()
+
+    def _check_faults(self) -> None:
+        chance = real("RandomScenarioOptions.fault_probability", self.fault_probability, non_negative=True)
+        if chance > 1:
+            raise ValueError(f"RandomScenarioOptions.fault_probability must lie in [0, 1], got {chance!r}")
+        object.__setattr__(self, "fault_probability", chance)
+        value = self.fault_time
+        if not isinstance(value, (tuple, list)) or len(value) != 2:
+            raise ValueError(f"RandomScenarioOptions.fault_time must be a range (low, high) in seconds, got {value!r}")
+        lo = real("RandomScenarioOptions.fault_time[0]", value[0], non_negative=True)
+        hi = real("RandomScenarioOptions.fault_time[1]", value[1], non_negative=True)
+        if lo > hi or hi > self.horizon:
+            raise ValueError(f"RandomScenarioOptions.fault_time must have low ≤ high ≤ horizon ({self.horizon:g} s): "
+                             f"a fault comes within the episode, got {value!r}")
+        object.__setattr__(self, "fault_time", (lo, hi))
 
     @property
     def moving(self) -> bool:
@@ -287,6 +310,10 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
         if len(radii) < opt.n_obstacles:
             continue
         formation = Formation.from_shape(opt.shape, size, N)
+        fault_times = None
+        if opt.fault_probability > 0:  # drawn last: the team is the one drawn without faults
+            faults = (rng.random(N) < opt.fault_probability) & ~np.array(opt.passive)
+            fault_times = np.where(faults, rng.uniform(*opt.fault_time, N), np.inf)
         for q in q0:
             q.setflags(write=False)
         return Scenario(
@@ -298,7 +325,7 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
             link_radius=opt.link_radius, inter_arm=opt.inter_arm,
             obstacle_paths=np.array(paths).reshape(-1, 2) if opt.moving else None,
             obstacle_speeds=np.array(speeds) if opt.moving else None,
-            safety_barrier=opt.barrier, safety_decay=opt.decay, safety_gate=opt.gate,
+            safety_barrier=opt.barrier, safety_decay=opt.decay, safety_gate=opt.gate, fault_times=fault_times,
         )
     raise RuntimeError(f"no valid random scenario in {max_tries} draws; loosen the options {opt}")
 

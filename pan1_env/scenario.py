@@ -197,7 +197,7 @@ class Scenario:
 
 
 _TOP_KEYS = {"name", "description", "simulation", "controller", "safety", "arm_defaults", "arms",
-             "formation", "obstacles"}
+             "formation", "obstacles", "faults"}
 _ARM_PARAM_KEYS = {"masses", "lengths", "com", "inertias", "passive_first_joint", "phi", "passive_damping"}
 _ARM_KEYS = _ARM_PARAM_KEYS | {"base", "q0"}
 
@@ -478,7 +478,34 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
         ignore_unreachable_obstacles=ignore, source=source, bodies=bodies, link_radius=link_radius,
         inter_arm=inter_arm, obstacle_paths=obstacle_paths, obstacle_speeds=obstacle_speeds,
         safety_barrier=barrier, safety_decay=decay, safety_gate=gate,
+        fault_times=_fault_times(data, arms, horizon, src),
     )
+
+
+def _fault_times(data: Mapping[str, Any], arms: tuple[ArmParams, ...], horizon: float, src: str) -> np.ndarray | None:
+    """``[[faults]]`` entries ``{arm, time}`` as :attr:`Scenario.fault_times` (None without the key)."""
+    if "faults" not in data:
+        return None
+    entries = data["faults"]
+    if not isinstance(entries, list):
+        raise ScenarioError(src, "faults", "expected an array of tables [[faults]]")
+    times = np.full(len(arms), np.inf)
+    for f, entry in enumerate(entries):
+        key = f"faults[{f}]"
+        _known_keys(entry, key, src, {"arm", "time"})
+        i = entry.get("arm")
+        if isinstance(i, bool) or not isinstance(i, int) or not 0 <= i < len(arms):
+            raise ScenarioError(src, f"{key}.arm", f"expected an arm index from 0 to {len(arms) - 1}, got {i!r}")
+        if arms[i].passive_first_joint:
+            raise ScenarioError(src, f"{key}.arm", f"arm {i}'s first joint is passive already: only a fully "
+                                "actuated arm (passive_first_joint = false) can lose its first joint's actuator")
+        if np.isfinite(times[i]):
+            raise ScenarioError(src, f"{key}.arm", f"arm {i} has a fault already: one [[faults]] entry per arm")
+        times[i] = _number(entry, "time", src, key, positive=False)
+        if times[i] > horizon:
+            raise ScenarioError(src, f"{key}.time", f"{times[i]:g} s is after the episode's end "
+                                f"(simulation.horizon = {horizon:g} s)")
+    return times
 
 
 def _bodies(saf: Mapping[str, Any], src: str) -> tuple[str, float, bool]:

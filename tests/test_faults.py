@@ -9,7 +9,6 @@ import dataclasses
 
 import numpy as np
 import pytest
-
 from geometry import inter_arm_clearances, joints, obstacle_clearances
 
 from pan1_env import scenario
@@ -44,11 +43,11 @@ def _whole_arm_team(seed: int, fault_times=None) -> scenario.Scenario:
 
 @pytest.mark.parametrize("whole_arm", [False, True])
 def test_a_fault_mid_step_equals_a_passive_arm_from_the_faults_state(whole_arm: bool) -> None:
-    """Torque mode, 10 sub-steps per step: arm 0 faults inside the third step, at the start of the first
-    sub-step at or after 23.4 sub-steps, arm 2 inside the sixth. Until a fault the engine is the team without faults;
-    from it, the team with that arm passive, put at the fault's joint angles and speeds, its lost joint's
-    command ignored. Whole-arm: a random team of 3-link arms with other arms and moving obstacles, the filter
-    on (the other arms' filters must see the faulted arm where it is)."""
+    """Torque mode, 10 sub-steps per step: arm 0 faults inside the third step, at 23.4 sub-steps (from the
+    start of the sub-step that contains it, the 24th), arm 2 inside the sixth. Until a fault the engine is
+    the team without faults; from it, the team with that arm passive, put at the fault's joint angles and
+    speeds, its lost joint's command ignored. Whole-arm: a random team of 3-link arms with other arms and
+    moving obstacles, the filter on (the other arms' filters must see the faulted arm where it is)."""
     rng = np.random.default_rng(5)
     dt = 0.002 if whole_arm else 0.001
     times = [23.4 * dt, np.inf, 51 * dt, np.inf]
@@ -58,7 +57,7 @@ def test_a_fault_mid_step_equals_a_passive_arm_from_the_faults_state(whole_arm: 
     faulty = Engine(team, 1, **kw)
     plain = Engine(dataclasses.replace(team, fault_times=None), 1, **kw)
     tau = _torques(rng, 9, (1, 4, n))
-    before = int(np.ceil(times[0] / dt - 1e-6)) - 20  # sub-steps of the third step before arm 0's fault
+    before = 3  # sub-steps of the third step before the one that contains arm 0's fault
 
     def lost_joint(command):
         command = command.copy()

@@ -157,9 +157,15 @@ def test_inter_arm_keeps_crowded_random_arms_apart() -> None:
     ({"obstacle_speed": 0.1}, "RandomScenarioOptions.obstacle_speed must be a range (low, high)"),
     ({"obstacle_path_length": (0.0, 0.5)}, "RandomScenarioOptions.obstacle_path_length[0] must be positive"),
     ({"passive_damping": -0.5}, "RandomScenarioOptions.passive_damping must be non-negative"),
+    ({"fault_probability": 1.5}, "RandomScenarioOptions.fault_probability must lie in [0, 1], got 1.5"),
+    ({"fault_probability": -0.1}, "RandomScenarioOptions.fault_probability must be non-negative"),
+    ({"fault_time": (3.0, 2.0)}, "RandomScenarioOptions.fault_time must have low ≤ high ≤ horizon (100 s)"),
+    ({"fault_time": (1.0, 200.0)}, "RandomScenarioOptions.fault_time must have low ≤ high ≤ horizon (100 s)"),
+    ({"fault_time": 3.0}, "RandomScenarioOptions.fault_time must be a range (low, high) in seconds, got 3.0"),
 ], ids=["bodies_misspelt", "negative_link_radius", "link_radius_without_links", "inter_arm_without_links",
         "inter_arm_not_bool", "speed_range_reversed", "negative_speed", "speed_not_a_range", "zero_path_length",
-        "negative_damping"])
+        "negative_damping", "fault_probability_above_1", "negative_fault_probability", "fault_time_reversed",
+        "fault_time_after_horizon", "fault_time_not_a_range"])
 def test_random_options_bad_input(options: dict, message: str) -> None:
     with pytest.raises(ValueError) as err:
         RandomScenarioOptions(**options)
