@@ -15,9 +15,11 @@ For each scenario × policy × shield setting, episodes ``seed, seed+1, …`` ar
 ``time_to_edge_error_1cm_s``), ``mean_return`` (sum over steps of
 the mean agent reward), ``total_cost`` (arm-steps inside an obstacle), ``min_clearance_m`` (over every
 sub-step), ``intervention_rate`` (fraction of arm-steps where the shield changed the action; in torque mode
-this includes speed limiting) and ``fallback_steps``. A model trained with ``--param-sharing`` acts for
-each arm on the arm's own observation. :func:`run_benchmark` returns the rows; :func:`markdown_table` and
-:func:`plot_benchmark` present them.
+this includes speed limiting) and ``fallback_steps``; on a task whose arms lose actuators, ``fault_episodes``
+(episodes in which some arm lost one) and ``mean_time_from_fault_s`` (over those that end formed: from the
+step that showed the episode's last fault to the formation, 0 if the shape held through it). A model
+trained with ``--param-sharing`` acts for each arm on the arm's own observation. :func:`run_benchmark`
+returns the rows; :func:`markdown_table` and :func:`plot_benchmark` present them.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ def _episode(env, policy, seed: int, shield: bool) -> dict[str, Any]:
     ret, cost, steps, arm_steps, interventions, fallbacks = 0.0, 0.0, 0, 0, 0, 0
     clearance = math.inf
     last_failure = 0.0  # the last time the formation error was ≥ 1 cm
+    lost, last_fault = 0, None  # arms that have lost an actuator, and when the last one showed
     infos: dict = {}
     while env.agents:
         obs, rewards, _, _, infos = env.step(policy(obs))
@@ -56,11 +59,14 @@ def _episode(env, policy, seed: int, shield: bool) -> dict[str, Any]:
                 fallbacks += int(info["shield_fallback"])
         if not next(iter(infos.values()))["is_success"]:
             last_failure = steps * core.control_dt
+        now_lost = sum(bool(info.get("actuator_lost", False)) for info in infos.values())
+        if now_lost > lost:
+            lost, last_fault = now_lost, steps * core.control_dt
     final = next(iter(infos.values())) if infos else {"is_success": False}
     success = bool(final["is_success"])
     return {"success": success, "time_to_formation": last_failure if success else None, "return": ret,
             "cost": cost, "min_clearance": clearance, "arm_steps": arm_steps, "interventions": interventions,
-            "fallbacks": fallbacks}
+            "fallbacks": fallbacks, "last_fault": last_fault}
 
 
 def run_benchmark(scenarios: Sequence[str], policies: Sequence[str], episodes: int = 5, seed: int = 0,
@@ -115,6 +121,11 @@ def run_benchmark(scenarios: Sequence[str], policies: Sequence[str], episodes: i
             "intervention_rate": (sum(r["interventions"] for r in results) / arm_steps) if shield else None,
             "fallback_steps": sum(r["fallbacks"] for r in results) if shield else None,
         }
+        faulted = [r for r in results if r["last_fault"] is not None]
+        if faulted:
+            recovered = [max(0.0, r["time_to_formation"] - r["last_fault"]) for r in faulted if r["success"]]
+            row["fault_episodes"] = len(faulted)
+            row["mean_time_from_fault_s"] = float(np.mean(recovered)) if recovered else None
         rows.append(row)
         if progress is not None:
             progress(f"{scenario} / {name} / shield {'on' if shield else 'off'}: "
@@ -127,10 +138,12 @@ def _finite_or_none(x: float) -> float | None:
 
 
 def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
-    """The benchmark rows as a Markdown table."""
+    """The benchmark rows as a Markdown table (with a column for the time from a fault to the formation
+    when some row had actuator faults)."""
+    faults = any("fault_episodes" in r for r in rows)
     head = ("| scenario | policy | shield | success | time to formation [s] | mean return | cost "
-            "| min clearance [mm] | interventions |")
-    lines = [head, "|" + "---|" * 9]
+            "| min clearance [mm] | interventions |" + (" faulted episodes: time from fault [s] |" if faults else ""))
+    lines = [head, "|" + "---|" * (10 if faults else 9)]
     for r in rows:
         t = r["mean_time_to_formation_s"]
         iv = r["intervention_rate"]
@@ -138,8 +151,16 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
         lines.append(
             f"| {r['scenario']} | {r['policy']} | {'on' if r['shield'] else 'off'} | {r['success_rate']:.0%} "
             f"| {'—' if t is None else f'{t:.1f}'} | {r['mean_return']:.1f} | {r['total_cost']:g} "
-            f"| {'—' if clear is None else f'{1000 * clear:+.1f}'} | {'—' if iv is None else f'{iv:.1%}'} |")
+            f"| {'—' if clear is None else f'{1000 * clear:+.1f}'} | {'—' if iv is None else f'{iv:.1%}'} |"
+            + (f" {_fault_cell(r)} |" if faults else ""))
     return "\n".join(lines)
+
+
+def _fault_cell(row: dict[str, Any]) -> str:
+    if "fault_episodes" not in row:
+        return "—"
+    t = row["mean_time_from_fault_s"]
+    return f"{row['fault_episodes']}: {'—' if t is None else f'{t:.1f}'}"
 
 
 def benchmark_figure(rows: Sequence[dict[str, Any]]):

@@ -8,6 +8,10 @@ returns
 
 as a normalised velocity action v_i0 / max_joint_speed. If the largest entry exceeds 1 the whole
 vector is scaled down (not clipped entry by entry), so the action stays a descent direction of V.
+An arm whose observation says it has lost its first joint's actuator takes the law of its PAn−1
+model in its actuated joints' entries (the lost joint's entry is 0, ignored). Such an arm, and a PAn−1
+arm with a damped passive joint, subtract J̄⁺ of the drift their passive momentum gives the
+end-effector (p₁ from the observed joint speeds, docs/MODEL.md §7).
 Behind :class:`pan1_env.wrappers.SafetyShield` this is the paper's full safe controller.
 """
 
@@ -15,8 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from pan1_env.cascade import reduced_jacobian
+from pan1_env.cascade import end_effector_drift, passive_momentum, reduced_jacobian
 from pan1_env.control import nominal_velocity
+from pan1_env.dynamics import faulted
 from pan1_env.formation import edge_errors, formation_gradient
 from pan1_env.observation import NEIGHBOUR_FEATURES, OBSTACLE_FEATURES, ObservationLayout
 
@@ -33,7 +38,8 @@ def decode_observation(obs: np.ndarray, layout: ObservationLayout, n_links: int 
 
     Returns ``q``, ``qd_scaled``, ``ee_rel_base``, the present neighbours' ``neighbour_delta``
     (p_j − p_i, ``(m, 2)``) and ``neighbour_error`` (``(m,)``), and every obstacle slot
-    ``obstacles`` ``(K, 5)`` (``[present, dx, dy, r, h]``, absent slots zero).
+    ``obstacles`` ``(K, 5)`` (``[present, dx, dy, r, h]``, absent slots zero), and where the layout
+    observes faults ``actuator_lost`` (a bool).
     """
     if not isinstance(layout, ObservationLayout):
         raise TypeError(f"decode_observation(obs, layout): layout is the env's observation_layout, got {layout!r}")
@@ -44,7 +50,8 @@ def decode_observation(obs: np.ndarray, layout: ObservationLayout, n_links: int 
     seg = layout.segments(n)
     nb = obs[seg["neighbours"]].reshape(layout.slots, NEIGHBOUR_FEATURES)
     present = nb[:, 0] > 0.5
-    return {
+    out = {} if "actuator_lost" not in seg else {"actuator_lost": bool(obs[seg["actuator_lost"]][0] > 0.5)}
+    return out | {
         "q": np.arctan2(obs[seg["sin_q"]], obs[seg["cos_q"]]),
         "qd_scaled": obs[seg["qd_scaled"]],
         "ee_rel_base": obs[seg["ee_rel_base"]],
@@ -82,7 +89,12 @@ class ReferencePolicy:
         z = -d["neighbour_delta"]  # p_i − p_j: the agent's edges, oriented away from it
         desired = np.linalg.norm(z, axis=-1) - d["neighbour_error"]
         e_hat = formation_gradient(np.ones((1, len(z))), z, edge_errors(z, desired))[0]
-        v0 = nominal_velocity(reduced_jacobian(arm, d["q"]), e_hat, kp)
+        lost, drift = d.get("actuator_lost", False), None
+        arm = faulted(arm) if lost else arm
+        if lost or (arm.passive_first_joint and arm.passive_damping > 0):  # p₁ ≠ 0 possible (else exactly 0)
+            p1 = passive_momentum(arm, d["q"], d["qd_scaled"] * env.max_joint_speed)
+            drift = end_effector_drift(arm, d["q"], p1)
+        v0 = nominal_velocity(reduced_jacobian(arm, d["q"]), e_hat, kp, drift)
         if gain is not None:
             gain = np.asarray(gain, dtype=float)
             if gain.shape != v0.shape or not np.all(gain > 0):
@@ -92,6 +104,8 @@ class ReferencePolicy:
         peak = np.max(np.abs(a)) if a.size else 0.0
         if peak > 1.0:
             a = a / peak
+        if lost:  # the action keeps the full arm's shape; the lost joint's entry is ignored
+            a = np.concatenate([[0.0], a])
         return a.astype(np.float32)
 
     def __call__(self, observations: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

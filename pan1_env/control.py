@@ -15,9 +15,15 @@ import numpy as np
 __all__ = ["nominal_velocity", "backstepping_torque", "finite_difference"]
 
 
-def nominal_velocity(Jbar: np.ndarray, e_hat: np.ndarray, kp: float) -> np.ndarray:
-    """v0 = −K_P J̄ᵀ ê for ``J̄ (..., 2, k)`` and ``ê (..., 2)``: shape ``(..., k)``."""
-    return -kp * np.einsum("...ck,...c->...k", Jbar, e_hat)
+def nominal_velocity(Jbar: np.ndarray, e_hat: np.ndarray, kp: float, drift: np.ndarray | None = None) -> np.ndarray:
+    """v0 = −K_P J̄ᵀ ê for ``J̄ (..., 2, k)`` and ``ê (..., 2)``: shape ``(..., k)``. With a PAn−1 arm's
+    end-effector ``drift`` d = J₁ p₁ / M_11 ``(..., 2)``, v0 − J̄⁺ d: the actuated joints cancel what of the drift
+    they can (all of it where J̄ has rank 2), so the end-effector moves as the paper's law says
+    (docs/MODEL.md §7)."""
+    v0 = -kp * np.einsum("...ck,...c->...k", Jbar, e_hat)
+    if drift is None or not np.any(drift):
+        return v0
+    return v0 - np.einsum("...kc,...c->...k", np.linalg.pinv(Jbar), drift)
 
 
 def backstepping_torque(

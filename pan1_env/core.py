@@ -19,7 +19,8 @@ Infos (:meth:`FormationCore.infos`) are flat arrays, the same keys after a reset
   ``shield_min_barrier`` (the smallest barrier value the filter saw; inf with none), ``shield_applied
   (B, N, k_max)`` float32 (the command applied at the last sub-step, in action units: the filtered velocity
   v*/``max_joint_speed``, or the torque/``max_torque``; 0 in the padding) and ``qp_counts (B, N, 3)``
-  (sub-steps per QP status);
+  (sub-steps per QP status); on a team whose arms may lose an actuator (``Scenario.fault_times``),
+  ``actuator_lost`` (the arm's first joint has lost its drive: the first entry of its action is ignored);
 * per copy ``(B,)``: ``formation_error`` (m, largest edge-length error), ``is_success``, and ``fault`` (a
   message, "" for the copies without one) only in a step where some copy's state went non-finite.
 """
@@ -304,9 +305,10 @@ class FormationCore:
 
     def team_infos(self, infos: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """The infos per copy ``(B,)``, as the team views give them: ``cost`` the number of arms that entered
-        an obstacle, ``min_clearance`` and ``shield_min_barrier`` the smallest, ``reward_<term>`` the mean
-        over arms (as the team reward is), ``shield_intervened``/``_fallback`` any arm's, ``shield_status``
-        the worst, ``shield_applied (B, Σ k_i)`` laid out as the flat team action; per-copy keys as they are."""
+        an obstacle (``actuator_lost``: that have lost an actuator), ``min_clearance`` and ``shield_min_barrier``
+        the smallest, ``reward_<term>`` the mean over arms (as the team reward is), ``shield_intervened``/
+        ``_fallback`` any arm's, ``shield_status`` the worst, ``shield_applied (B, Σ k_i)`` laid out as the flat
+        team action; per-copy keys as they are."""
         out: dict[str, np.ndarray] = {}
         for key, value in infos.items():
             rule = _team_rule(key)
@@ -370,17 +372,20 @@ class FormationCore:
             infos[f"reward_{name}"] = value if rec is not None else np.zeros_like(value, dtype=float)
         if self.engine.filter is not None:
             infos.update(self._shield_infos(rec, shape))
+        if self.engine.faults:
+            infos["actuator_lost"] = self.engine.faulted.copy()
         infos.update((key, value) for key, value in out.measures.items() if key != "min_clearance")
         infos["is_success"] = out.success
         return infos
 
 
 # How the team views gather an info over the arms (an array reduction's name), None for a per-copy info:
-# costs and QP counts add up, clearances and barriers take the smallest, a flag is any arm's, the status the
-# worst, the applied commands are laid out as the team's flat action, a reward term is averaged as the team
-# reward is.
+# costs, QP counts and lost actuators add up, clearances and barriers take the smallest, a flag is any arm's,
+# the status the worst, the applied commands are laid out as the team's flat action, a reward term is averaged
+# as the team reward is.
 _TEAM_RULES = {"cost": "sum", "qp_counts": "sum", "min_clearance": "min", "shield_min_barrier": "min",
-               "shield_intervened": "any", "shield_fallback": "any", "shield_status": "max", "shield_applied": "flat"}
+               "shield_intervened": "any", "shield_fallback": "any", "shield_status": "max", "shield_applied": "flat",
+               "actuator_lost": "sum"}
 
 
 def _team_rule(key: str) -> str | None:

@@ -3,7 +3,8 @@
 :class:`ObservationLayout` fixes, from a scenario's structure, what each agent sees and where
 (the table in its docstring):
 ``[cos q, sin q, q̇ / v_max, p − p0, D neighbour slots (present, dx, dy, err), K obstacle slots
-(present, dx, dy, r, h)]``, and with moving obstacles the K slots' velocities (vx, vy) at the end.
+(present, dx, dy, r, h)]``, with moving obstacles the K slots' velocities (vx, vy), and on a team whose
+arms may lose an actuator a last flag: this arm has lost its first joint's actuator.
 :meth:`ObservationLayout.build` computes every agent's observation
 from batched state arrays with a leading batch axis B (the parallel env passes B = 1, the vector
 env B copies), one compiled call (:func:`pan1_env.kernels.group_observations`) per group of
@@ -47,7 +48,8 @@ class ObservationLayout:
     | ``[3n, 3n+2)`` | own end-effector relative to own base, p − p0 (m) |
     | next ``4D`` | D neighbour slots ``[present, dx, dy, err]`` |
     | next ``5K`` | K obstacle slots ``[present, dx, dy, r, h]`` |
-    | last ``2K`` | only with moving obstacles: the same slots' obstacle velocities ``[vx, vy]`` (m/s) |
+    | next ``2K`` | only with moving obstacles: the same slots' obstacle velocities ``[vx, vy]`` (m/s) |
+    | last 1 | only where arms may fault (``Scenario.fault_times``): 1.0 once the arm's first joint lost its drive |
 
     D is the formation graph's largest degree (N − 1 for random scenarios); for neighbour j,
     (dx, dy) = p_j − p_i and err = ‖p_j − p_i‖ − d_ij (m). The K obstacles are the nearest by
@@ -65,6 +67,7 @@ class ObservationLayout:
         groups: ``(n, arm indices)`` for each distinct n, in increasing n.
         obstacle_velocity: the scenario has moving obstacles: the observation ends with the K obstacle
             slots' velocities ``[vx, vy]`` (m/s).
+        faults: the team's arms may lose an actuator: the observation ends with the arm's fault flag.
     """
 
     n: np.ndarray
@@ -75,6 +78,7 @@ class ObservationLayout:
     neighbour_present: np.ndarray
     groups: tuple[tuple[int, np.ndarray], ...]
     obstacle_velocity: bool = False
+    faults: bool = False
 
     @classmethod
     def from_scenario(cls, scenario: Scenario, slots: int, n_obstacle_obs: int) -> ObservationLayout:
@@ -97,7 +101,7 @@ class ObservationLayout:
         groups = tuple((int(m), np.flatnonzero(n == m)) for m in np.unique(n))
         return cls(n=n, slots=int(slots), n_obstacle_obs=int(n_obstacle_obs), neighbour=neighbour,
                    neighbour_edge=edge, neighbour_present=present, groups=groups,
-                   obstacle_velocity=scenario.obstacle_paths is not None)
+                   obstacle_velocity=scenario.obstacle_paths is not None, faults=scenario.fault_times is not None)
 
     @cached_property
     def _neighbour_mask(self) -> np.ndarray:
@@ -105,12 +109,14 @@ class ObservationLayout:
 
     @cached_property
     def _group_sizes(self) -> tuple[tuple[np.ndarray, int], ...]:
-        return tuple((ids, self.size(n)) for n, ids in self.groups)
+        """Each group's arms and the size the compiled builders write (the fault flag comes after)."""
+        return tuple((ids, self.size(n) - self.faults) for n, ids in self.groups)
 
     def size(self, n: int) -> int:
         """Observation length of an agent with n links."""
         velocities = 2 * self.n_obstacle_obs if self.obstacle_velocity else 0
-        return 3 * n + 2 + NEIGHBOUR_FEATURES * self.slots + OBSTACLE_FEATURES * self.n_obstacle_obs + velocities
+        return (3 * n + 2 + NEIGHBOUR_FEATURES * self.slots + OBSTACLE_FEATURES * self.n_obstacle_obs + velocities
+                + self.faults)
 
     def segments(self, n: int) -> dict[str, slice]:
         """Where each part of an n-link agent's observation lies, as slices of its vector.
@@ -119,7 +125,8 @@ class ObservationLayout:
         ``neighbours`` (:attr:`slots` × :data:`NEIGHBOUR_FEATURES` entries ``[present, dx, dy, err]``)
         and ``obstacles`` (:attr:`n_obstacle_obs` × :data:`OBSTACLE_FEATURES` entries
         ``[present, dx, dy, r, h]``), in this order, then with :attr:`obstacle_velocity`
-        ``obstacle_velocities`` (the same slots' ``[vx, vy]``), covering :meth:`size` entries.
+        ``obstacle_velocities`` (the same slots' ``[vx, vy]``), then with :attr:`faults` ``actuator_lost``
+        (one entry), covering :meth:`size` entries.
         """
         nb = 3 * n + 2
         ob = nb + NEIGHBOUR_FEATURES * self.slots
@@ -127,7 +134,10 @@ class ObservationLayout:
         parts = {"cos_q": slice(0, n), "sin_q": slice(n, 2 * n), "qd_scaled": slice(2 * n, 3 * n),
                  "ee_rel_base": slice(3 * n, nb), "neighbours": slice(nb, ob), "obstacles": slice(ob, end)}
         if self.obstacle_velocity:
-            parts["obstacle_velocities"] = slice(end, end + 2 * self.n_obstacle_obs)
+            end += 2 * self.n_obstacle_obs
+            parts["obstacle_velocities"] = slice(end - 2 * self.n_obstacle_obs, end)
+        if self.faults:
+            parts["actuator_lost"] = slice(end, end + 1)
         return parts
 
     def n_links(self, size: int) -> int:
@@ -146,14 +156,15 @@ class ObservationLayout:
         high = np.full(size, OBS_BOUND, dtype=np.float32)
         low[: 2 * n], high[: 2 * n] = -1.0, 1.0
         nb, ob = seg["neighbours"], seg["obstacles"]
-        flags = [*range(nb.start, nb.stop, NEIGHBOUR_FEATURES), *range(ob.start, ob.stop, OBSTACLE_FEATURES)]
+        flags = [*range(nb.start, nb.stop, NEIGHBOUR_FEATURES), *range(ob.start, ob.stop, OBSTACLE_FEATURES),
+                 *range(size - self.faults, size)]
         low[flags], high[flags] = 0.0, 1.0
         return low, high
 
     def build_with_errors(self, q: np.ndarray, qd: np.ndarray, P: np.ndarray, base: np.ndarray, edges: np.ndarray,
                           distances: np.ndarray, centers: np.ndarray, radii: np.ndarray,
-                          max_joint_speed: float, n_chunks: int = 0, *,
-                          velocities: np.ndarray | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
+                          max_joint_speed: float, n_chunks: int = 0, *, velocities: np.ndarray | None = None,
+                          faulted: np.ndarray | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
         """The edges' length errors ‖z_k‖ − d_k ``(B, E)`` and :meth:`build`'s observations, computed
         together (``edges (E, 2)`` int64, ``distances (B, E)``; other arguments as :meth:`build`)."""
         _check_chunks(n_chunks)
@@ -163,7 +174,7 @@ class ObservationLayout:
         if n_chunks:
             kern.edge_length_errors(P, edges, distances, err)
             return err, self.build(q, qd, P, base, err, centers, radii, max_joint_speed, n_chunks,
-                                   velocities=velocities)
+                                   velocities=velocities, faulted=faulted)
         out = []
         for r, (ids, size) in enumerate(self._group_sizes):
             obs = np.empty((P.shape[0], len(ids), size), dtype=np.float32)
@@ -176,7 +187,7 @@ class ObservationLayout:
                                         self.neighbour_edge, self._neighbour_mask, self.n_obstacle_obs,
                                         1.0 / max_joint_speed, OBS_BOUND, obs)
             out.append(obs)
-        return err, out
+        return err, self._flagged(out, faulted)
 
     def _velocities(self, velocities: np.ndarray | None, radii: np.ndarray) -> np.ndarray:
         """The kernels' velocity argument: ``(B, O, 2)`` with :attr:`obstacle_velocity`, else ``(B, 0, 2)``."""
@@ -188,7 +199,7 @@ class ObservationLayout:
 
     def build(self, q: np.ndarray, qd: np.ndarray, P: np.ndarray, base: np.ndarray, edge_errors: np.ndarray,
               centers: np.ndarray, radii: np.ndarray, max_joint_speed: float, n_chunks: int = 0, *,
-              velocities: np.ndarray | None = None) -> list[np.ndarray]:
+              velocities: np.ndarray | None = None, faulted: np.ndarray | None = None) -> list[np.ndarray]:
         """Every agent's observation, one float32 array ``(B, A, size(n))`` per group of :attr:`groups`.
 
         Args:
@@ -199,6 +210,8 @@ class ObservationLayout:
             max_joint_speed: scale of q̇.
             velocities: ``(B, O, 2)`` the obstacles' velocities, for a layout with
                 :attr:`obstacle_velocity` (required there, ignored otherwise).
+            faulted: ``(B, N)`` booleans, the arms that have lost their first joint's actuator, for a layout
+                with :attr:`faults` (required there, ignored otherwise).
             n_chunks: 0 for the single-threaded kernel; otherwise the teams are split into this
                 many chunks on numba's thread pool (for large B).
         """
@@ -215,4 +228,14 @@ class ObservationLayout:
             else:
                 kern.group_observations(*args)
             out.append(obs)
-        return out
+        return self._flagged(out, faulted)
+
+    def _flagged(self, out: list[np.ndarray], faulted: np.ndarray | None) -> list[np.ndarray]:
+        """With :attr:`faults`, each group's observations with the arms' fault flags appended."""
+        if not self.faults:
+            return out
+        if faulted is None or np.shape(faulted) != (out[0].shape[0], len(self.n)):
+            raise ValueError(f"this layout observes faults: pass faulted of shape {(out[0].shape[0], len(self.n))}")
+        flags = np.asarray(faulted, dtype=np.float32)
+        return [np.concatenate([obs, flags[:, ids, None]], axis=-1) for (ids, _), obs in
+                zip(self._group_sizes, out, strict=True)]

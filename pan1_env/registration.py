@@ -10,6 +10,9 @@
 * ``pan1_env/WholeArmStaticFormation-v1`` (the same teams behind RandomFormation-v1's filter choices),
 * ``pan1_env/WholeArmFormation-v0`` (the same with obstacles moving at 0.05–0.2 m/s),
 * ``pan1_env/WholeArmFormation-v1`` (the moving obstacles behind RandomFormation-v1's filter choices),
+* ``pan1_env/FaultFormation-v0`` (RandomFormation-v1's teams, whose fully actuated arms each lose their
+  first joint's actuator with probability ½ at a time drawn from 1–10 s; passive joints damped with
+  b = 0.5 N·m·s/rad: docs/ENVIRONMENTS.md),
 
 as :class:`~pan1_env.centralized.CentralizedEnv` (one agent controlling every arm), and the one-arm task
 ``pan1_env/PAReach-v0`` (:class:`~pan1_env.reach.PAReachEnv`). The envs truncate their episodes
@@ -27,6 +30,7 @@ __all__ = ["register_envs", "env_arguments", "ENV_IDS", "REACH_ENV_ID", "DEFAULT
 
 _WHOLE_ARM = {"bodies": "links", "link_radius": 0.03, "inter_arm": True}
 _V1_FILTER = {"barrier": "distance", "decay": 50.0, "kappa": 0.5, "epsilon": 5.0}  # docs/ENVIRONMENTS.md says why
+_FAULTS = {"fault_probability": 0.5, "fault_time": (1.0, 10.0), "passive_damping": 0.5}
 ENV_IDS = {
     "pan1_env/PaperPA3Square-v0": {"scenario": "paper_pa3_square"},
     "pan1_env/PaperMixedPA-v0": {"scenario": "paper_pa_mixed_square"},
@@ -40,6 +44,7 @@ ENV_IDS = {
                                       "random_options": _WHOLE_ARM | {"obstacle_speed": (0.05, 0.2)}},
     "pan1_env/WholeArmFormation-v1": {"scenario": "random",
                                       "random_options": _WHOLE_ARM | _V1_FILTER | {"obstacle_speed": (0.05, 0.2)}},
+    "pan1_env/FaultFormation-v0": {"scenario": "random", "random_options": _V1_FILTER | _FAULTS},
 }
 REACH_ENV_ID = "pan1_env/PAReach-v0"
 DEFAULT_REACH_STEPS = 200  # PAReach-v0: 10 s at the default control_dt of 0.05 s

@@ -93,8 +93,8 @@ class Simulation:
         e_hat = formation_gradient(formation.incidence, z, edge_errors(z, formation.distances))
         out = np.zeros((1, self.n_arms, self.k_max))
         for kind in self.engine.kinds:
-            Jbar = self.engine.kind_terms(kind).Jbar
-            kind.to_team(out, nominal_velocity(Jbar, e_hat[kind.ids], self.scenario.kp))
+            terms = self.engine.kind_terms(kind)
+            kind.to_team(out, nominal_velocity(terms.Jbar, e_hat[kind.ids], self.scenario.kp, terms.drift))
         return out[0]
 
     def step(self, command: np.ndarray, substeps: int, *, torque: bool = False,

@@ -120,7 +120,8 @@ class FormationTask:
 
     def nominal_velocity(self, engine: Engine, gain: np.ndarray | None = None) -> np.ndarray:
         """The paper's distributed law for every arm, ``(B, N, k_max)`` rad/s (padding zero):
-        ``v_i0 = −K_P J̄_iᵀ ê_i``, ``ê_i = Σ_j 2 (p_i − p_j)(‖p_i − p_j‖² − d_ij²)`` (Eq. 39), each arm's
+        ``v_i0 = −K_P J̄_iᵀ ê_i``, ``ê_i = Σ_j 2 (p_i − p_j)(‖p_i − p_j‖² − d_ij²)`` (Eq. 39; for a PAn−1 arm
+        whose passive joint turns, minus J̄⁺ of its end-effector's drift, docs/MODEL.md §7), each arm's
         vector scaled down as a whole to ``max_joint_speed`` when an entry exceeds it (so it stays a
         descent direction of V), as :class:`~pan1_env.baselines.ReferencePolicy` does from observations.
         ``gain (B, N, k_max)``, if given, multiplies each joint's term before that scaling."""
@@ -128,9 +129,9 @@ class FormationTask:
         e_hat = formation_gradient(self.incidence, z, edge_errors(z, self.distances))  # (B, N, 2)
         out = np.zeros((engine.copies, engine.n_arms, engine.k_max))
         for kind in engine.kinds:
-            Jbar = engine.kind_terms(kind).Jbar
+            terms = engine.kind_terms(kind)
             e = e_hat[:, kind.ids].reshape(-1, 2)
-            v0 = nominal_velocity(Jbar, e, np.repeat(self.kp, kind.A)[:, None])
+            v0 = nominal_velocity(terms.Jbar, e, np.repeat(self.kp, kind.A)[:, None], terms.drift)
             if gain is not None:
                 v0 *= kind.from_team(gain, kind.k)
             peak = np.abs(v0).max(axis=1, initial=0.0) / self.max_joint_speed
@@ -181,7 +182,8 @@ class FormationTask:
         velocities = engine.obstacle_velocities() if self.layout.obstacle_velocity else None
         return self.layout.build_with_errors(q, qd, engine.positions(), engine.bases, self.edges, self.distances,
                                              engine.centers, engine.radii, self.max_joint_speed,
-                                             engine.chunks(engine.copies * engine.n_arms), velocities=velocities)
+                                             engine.chunks(engine.copies * engine.n_arms), velocities=velocities,
+                                             faulted=engine.faulted)
 
     def flat(self, mats: list[np.ndarray]) -> np.ndarray:
         """The agents' observations concatenated in agent order, ``(B, Σ size)``."""

@@ -132,3 +132,53 @@ def test_soak_whole_arm_moving_obstacles(capsys, env_id) -> None:
     assert stats["episodes_with_penetration"] <= 0.02 * stats["episodes"]
     assert stats["non_finite"] == 0
     assert stats["rss_growth_after_warmup_mb"] < 100.0
+
+
+def test_soak_actuator_faults(capsys) -> None:
+    """10⁶ shielded arm-steps on ``FaultFormation-v0``'s teams (v1's filter, passive joints damped) with every
+    fully actuated arm losing its first joint's actuator at a time drawn from 0.2–2 s of its 2.5 s episode,
+    control_dt = physics_dt = 0.01 s: half the copies take uniform random actions, half the vector adversary's
+    (every end-effector straight at its nearest obstacle). Still obstacles: a penetration (the step's cost)
+    may begin only in a step whose shield report says fallback (momentum carrying an arm in faster than
+    its actuated joints can pull it back), and in at most 2 % of the episodes."""
+    from pan1_env.baselines import VectorAdversary
+    from pan1_env.vector import Pan1VectorEnv
+
+    B, steps = 128, 2000
+    venv = Pan1VectorEnv("pan1_env/FaultFormation-v0", B, control_dt=0.01, physics_dt=0.01, max_steps=250,
+                         random_options={"fault_probability": 1.0, "fault_time": (0.2, 2.0)})
+    obs, _ = venv.reset(seed=8_000_000)
+    adversary = VectorAdversary().attach(venv)
+    rng = np.random.default_rng(0)
+    adversarial = np.arange(B) >= B // 2
+    inside = np.zeros(B, dtype=bool)
+    hit_this_episode, faulted_this_episode = np.zeros(B, dtype=bool), np.zeros(B, dtype=bool)
+    stats = {"arm_steps": 0, "episodes": 0, "episodes_with_a_fault": 0, "episodes_with_penetration": 0,
+             "penetrations_begun": 0, "begun_outside_fallback": 0, "fallback_copy_steps": 0, "non_finite": 0,
+             "min_clearance_m": float("inf")}
+    for _ in range(steps):
+        actions = rng.uniform(-1.0, 1.0, venv.action_space.shape)
+        actions[adversarial] = adversary(obs)[adversarial]
+        obs, _, terminated, truncated, infos = venv.step(actions)
+        now_inside = infos["cost"] > 0
+        begins = now_inside & ~inside
+        stats["penetrations_begun"] += int(begins.sum())
+        stats["begun_outside_fallback"] += int((begins & ~infos["shield_fallback"]).sum())
+        stats["fallback_copy_steps"] += int(infos["shield_fallback"].sum())
+        stats["non_finite"] += int((~np.isfinite(obs)).any(axis=1).sum()) + int("fault" in infos)
+        stats["min_clearance_m"] = min(stats["min_clearance_m"], float(infos["min_clearance"].min()))
+        stats["arm_steps"] += B * venv.engine.n_arms
+        hit_this_episode |= now_inside
+        faulted_this_episode |= infos["actuator_lost"] > 0
+        done = terminated | truncated
+        stats["episodes"] += int(done.sum())
+        stats["episodes_with_penetration"] += int((hit_this_episode & done).sum())
+        stats["episodes_with_a_fault"] += int((faulted_this_episode & done).sum())
+        hit_this_episode[done] = faulted_this_episode[done] = False
+        inside = now_inside & ~done
+    with capsys.disabled():
+        print("\nfault soak:", json.dumps(stats))
+    assert stats["arm_steps"] >= ARM_STEPS and stats["episodes_with_a_fault"] >= 0.9 * stats["episodes"] >= 900
+    assert stats["begun_outside_fallback"] == 0
+    assert stats["episodes_with_penetration"] <= 0.02 * stats["episodes"]
+    assert stats["non_finite"] == 0
