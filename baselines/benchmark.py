@@ -16,8 +16,9 @@ For each scenario × policy × shield setting, episodes ``seed, seed+1, …`` ar
 the mean agent reward), ``total_cost`` (arm-steps inside an obstacle), ``min_clearance_m`` (over every
 sub-step), ``intervention_rate`` (fraction of arm-steps where the shield changed the action; in torque mode
 this includes speed limiting) and ``fallback_steps``; on a task whose arms lose actuators, ``fault_episodes``
-(episodes in which some arm lost one) and ``mean_time_from_fault_s`` (over those that end formed: from the
-step that showed the episode's last fault to the formation, 0 if the shape held through it). A model
+(episodes in which some arm lost one), ``fault_success_rate`` (the success rate over those) and
+``mean_time_from_fault_s`` (over those that end formed: from the step that showed the episode's last fault to
+the formation, 0 if the shape held through it). A model
 trained with ``--param-sharing`` acts for each arm on the arm's own observation. :func:`run_benchmark`
 returns the rows; :func:`markdown_table` and :func:`plot_benchmark` present them.
 """
@@ -125,6 +126,7 @@ def run_benchmark(scenarios: Sequence[str], policies: Sequence[str], episodes: i
         if faulted:
             recovered = [max(0.0, r["time_to_formation"] - r["last_fault"]) for r in faulted if r["success"]]
             row["fault_episodes"] = len(faulted)
+            row["fault_success_rate"] = len(recovered) / len(faulted)
             row["mean_time_from_fault_s"] = float(np.mean(recovered)) if recovered else None
         rows.append(row)
         if progress is not None:
@@ -142,7 +144,8 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
     when some row had actuator faults)."""
     faults = any("fault_episodes" in r for r in rows)
     head = ("| scenario | policy | shield | success | time to formation [s] | mean return | cost "
-            "| min clearance [mm] | interventions |" + (" faulted episodes: time from fault [s] |" if faults else ""))
+            "| min clearance [mm] | interventions |"
+            + (" episodes with a fault (success): time from fault to formation [s] |" if faults else ""))
     lines = [head, "|" + "---|" * (10 if faults else 9)]
     for r in rows:
         t = r["mean_time_to_formation_s"]
@@ -160,7 +163,7 @@ def _fault_cell(row: dict[str, Any]) -> str:
     if "fault_episodes" not in row:
         return "—"
     t = row["mean_time_from_fault_s"]
-    return f"{row['fault_episodes']}: {'—' if t is None else f'{t:.1f}'}"
+    return f"{row['fault_episodes']} ({row['fault_success_rate']:.0%}): {'—' if t is None else f'{t:.1f}'}"
 
 
 def benchmark_figure(rows: Sequence[dict[str, Any]]):

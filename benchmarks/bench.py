@@ -318,8 +318,8 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
         def run():
             q, v, momentum, v_prev, has_prev = (state[name].copy() for name in names)
             args = (*kind.sizes, kind.lam, kind.lengths, kind.base, kind.phi, kind.damping, kind.passive, q, v,
-                    momentum, v_prev, has_prev, kind.stepped, command * (0.3 if torque else t.max_joint_speed), torque,
-                    not torque,
+                    momentum, v_prev, has_prev, kind.stepped, kind.window,
+                    command * (0.3 if torque else t.max_joint_speed), torque, not torque,
                     kind.centers, kind.radii, kind.mask, kappa, epsilon, margin, distance, decay, ke, t.physics_dt,
                     t.substeps, np.inf if torque else t.max_joint_speed, np.empty((A, k)), np.empty((A, k)),
                     np.empty((A, n)), np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf),

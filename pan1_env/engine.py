@@ -323,31 +323,29 @@ class Engine:
             kind.has_prev[rows] = False
             kernels().group_end_effectors(kind.lengths, kind.base, kind.phi, kind.q, kind.p)
 
-    def _actuators_lost(self, left: int, rec: StepRecord | None) -> int:
-        """Arms whose fault time falls within the sub-step that starts now lose their first joint's actuator
-        now (from the start of that sub-step, docs/MODEL.md §7); returns the sub-steps, at most ``left``, until
-        the next one in this step."""
-        if not self.faults:
-            return left
+    def _fault_substeps(self) -> np.ndarray:
+        """``(B, N)``: in how many sub-steps from now each arm's coming fault begins (0: the sub-step that starts
+        now contains its time, docs/MODEL.md §7; inf: none). 1e-6 sub-steps absorb the clock's rounding."""
         wait = np.where(self.faulted, np.inf, (self.fault_times - self.elapsed[:, None]) / self.physics_dt)
-        for b, i in zip(*np.nonzero(wait < 1.0 - 1e-6), strict=True):  # 1e-6: the clock's rounding
-            self._lose_actuator(int(b), int(i), rec)
-            wait[b, i] = np.inf
-        return int(min(left, np.floor(wait.min() + 1e-6)))
+        return np.where(wait < 1.0 - 1e-6, 0.0, np.floor(wait + 1e-6))
 
-    def _lose_actuator(self, b: int, i: int, rec: StepRecord | None) -> None:
-        """Arm i of copy b goes over to its kind's faulted twin (:meth:`pan1_env.kinds.Kind.take_over`): its
-        first joint's torque is 0 from now on and its action there is ignored (v* NaN); ``rec``: the step's
-        record, where the fault comes within the step."""
-        full = next(kind for kind in self.kinds if not kind.faulted and i in kind.ids)
-        twin, r = full.twin, b * full.A + int(np.flatnonzero(full.ids == i)[0])
-        twin.take_over(full, r, self.teams[b].arms[i])
-        if self.whole_arm:  # the next call refreshes the row's capsules and clock, and starts from its q
-            self.copy_rows[b, i] = twin.block.start + r
-        self.faulted[b, i] = True
-        self._blank.tau[b, i, 0] = 0.0  # (the full kind's kernel writes it again after a reset)
+    def _lose_actuators(self, due: np.ndarray, rec: StepRecord | None) -> None:
+        """The arms ``due (B, N)`` go over to their kind's faulted twin (:meth:`pan1_env.kinds.Kind.take_over`):
+        their first joint's torque is 0 from now on and their action there is ignored (v* NaN); ``rec``: the
+        step's record, where the faults come within the step."""
+        if not due.any():
+            return
+        for full in self.kinds:
+            if full.twin is None or not due[:, full.ids].any():
+                continue
+            rows = np.flatnonzero(due[:, full.ids])  # b·A + r, as the kind's rows
+            full.twin.take_over(full, rows)
+            if self.whole_arm:  # the next call refreshes the rows' capsules and clock, and starts from their q
+                self.copy_rows[rows // full.A, full.ids[rows % full.A]] = full.twin.block.start + rows
+        self.faulted |= due
+        self._blank.tau[due, 0] = 0.0  # (the full kind's kernel writes it again after a reset)
         if rec is not None:
-            rec.tau[b, i, 0], rec.v_star[b, i, 0] = 0.0, np.nan
+            rec.tau[due, 0], rec.v_star[due, 0] = 0.0, np.nan
 
     def _restore_actuators(self, copies: np.ndarray) -> None:
         """At a reset: the faulted arms of ``copies`` step in their full kind again."""
@@ -496,24 +494,39 @@ class Engine:
 
     def advance_compiled(self, command: np.ndarray, substeps: int, torque: bool, rec: StepRecord) -> None:
         """Every arm of every copy ``substeps`` sub-steps through the sub-step kernel, its QP included,
-        into ``rec``: one kernel call per kind, or with ``inter_arm`` one per kind and sub-step; the calls
-        split where an arm loses its actuator (:meth:`_actuators_lost`); an arm whose fault falls within the
-        next step's first sub-step loses it before the step returns (its observation shows the fault)."""
-        done = 0
-        while True:
-            todo = self._actuators_lost(substeps - done, rec if done < substeps else None)
-            if done == substeps:
-                return
-            if self.inter_arm:
+        into ``rec``: one kernel call per kind, or with ``inter_arm`` one per kind and sub-step. An arm that
+        loses its actuator within the step (:meth:`_fault_substeps`) is held by its full kind's call from the
+        start of the sub-step that contains its fault time and goes on from there in its faulted twin's (the
+        kernel's ``window``); with ``inter_arm`` the calls split there instead. An arm whose fault falls
+        within the next step's first sub-step loses it before the step returns (its observation shows it)."""
+        if self.inter_arm:
+            done = 0
+            while done < substeps:
+                at = self._fault_substeps() if self.faults else np.full(1, np.inf)
+                self._lose_actuators(at == 0, rec)
+                todo = int(min(substeps - done, at[at > 0].min(initial=np.inf)))
                 self._advance_inter_arm(command, todo, torque, rec)
-            else:
-                if self.whole_arm:
-                    self.refresh_capsules()
+                done += todo
+        else:
+            at = self._fault_substeps() if self.faults else None
+            within = None if at is None else (at > 0) & (at < substeps)
+            if at is not None:
+                self._lose_actuators(at == 0, rec)
+            if self.whole_arm:
+                self.refresh_capsules()
+            split = within is not None and within.any()
+            for twins in (False, True):  # a full kind's call hands its arms that fault within the step over
+                if twins and split:
+                    self._lose_actuators(within, rec)
+                    if self.whole_arm:
+                        self.refresh_capsules()  # the twins' new rows' clock
                 for kind in self.kinds:
-                    if len(kind.stepped):
-                        self._advance(kind, command, todo, torque, self.filter, rec)
-                self._tick(todo)
-            done += todo
+                    if kind.faulted == twins and len(kind.stepped):
+                        self._advance(kind, command, substeps, torque, self.filter, rec,
+                                      (at, within) if split else None)
+            self._tick(substeps)
+        if self.faults:
+            self._lose_actuators(self._fault_substeps() == 0, None)
 
     def _advance_inter_arm(self, command: np.ndarray, substeps: int, torque: bool, rec: StepRecord) -> None:
         """:meth:`advance_compiled` with other arms in each arm's filter, which sees their capsules as they
@@ -582,10 +595,20 @@ class Engine:
         self._team_start_time[self.copy_rows] = self.elapsed[:, None]
 
     def _advance(self, kind: Kind, command: np.ndarray, substeps: int, torque: bool, params: FilterParams | None,
-                 rec: StepRecord) -> None:
-        """The kernel call: every arm of a kind in every copy, ``substeps`` sub-steps."""
+                 rec: StepRecord, faults: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        """The kernel call: every arm of a kind in every copy, ``substeps`` sub-steps; with ``faults`` (the
+        step's :meth:`_fault_substeps` and the arms that fault within it), a full kind's faulting arms stop
+        where their fault begins and its twin's start there (the kernel's ``window``)."""
         args, out = self._kernel_args(kind, command, substeps, torque, params, rec)
-        self._call(kind, args, kind.whole)
+        if faults is None or (kind.twin is None and not kind.faulted):
+            self._call(kind, args, kind.whole)
+        else:
+            at, within = faults
+            rows = np.flatnonzero(within[:, kind.ids])
+            bound = int(kind.faulted)  # a full kind's rows stop there (window end), a twin's start (window start)
+            kind.window[rows, 1 - bound] = at[:, kind.ids].ravel()[rows]
+            self._call(kind, args, kind.whole)
+            kind.window[rows, 1 - bound] = kind.window_default[1 - bound]
         self._finish(kind, out, torque, rec)
 
     def _kernel_args(self, kind: Kind, command: np.ndarray, substeps: int, torque: bool,

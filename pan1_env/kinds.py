@@ -59,6 +59,10 @@ class Kind:
         self.momentum = np.zeros(rows)  # a PAn−1 arm's passive momentum p₁ (docs/MODEL.md §7)
         self.v_prev, self.has_prev = np.zeros((rows, self.k)), np.zeros(rows, dtype=bool)
         self.active = np.full(rows, not faulted)
+        #: the sub-steps [start, stop) of a call in which each row is stepped (the sub-step kernel's ``window``):
+        #: all, but in a step where the row's arm loses its actuator (Engine._advance)
+        self.window_default = np.array([0, np.iinfo(np.int64).max], dtype=np.int64)
+        self.window = np.tile(self.window_default, (rows, 1))
         self.twin: Kind | None = None  # a fully actuated kind's faulted twin (Engine: arms that may fault)
         self.set_stepped()
         # the serial kernel: None until the first step decides (Engine._specialised), False while the
@@ -73,7 +77,7 @@ class Kind:
         self.stepped = np.flatnonzero(self.active).astype(np.int64)
         self.complete = len(self.stepped) == len(self.active)
         self.state_args = (*self.sizes, self.lam, self.lengths, self.base, self.phi, self.damping, self.passive,
-                           self.q, self.v, self.momentum, self.v_prev, self.has_prev, self.stepped)
+                           self.q, self.v, self.momentum, self.v_prev, self.has_prev, self.stepped, self.window)
 
     def __getstate__(self) -> dict:
         state = {**self.__dict__, "specialised": None}  # another process decides for itself
@@ -115,8 +119,15 @@ class Kind:
         else:
             start = self.shift if first is None else first
             index = (slice(None), self.cols, slice(start, start + values.shape[2]))
-        if not (add or both or not self.complete):
-            team[index] = values
+        if isinstance(self.cols, slice):  # a view: written in place, only where stepped
+            where = True if self.complete else self.active.reshape(B, self.A, *(1,) * (values.ndim - 2))
+            target = team[index]
+            if add:
+                np.add(target, values, out=target, where=where)
+            elif both:
+                np.logical_and(target, values, out=target, where=where)
+            else:
+                np.copyto(target, values, where=where)
             return
         current = team[index]
         new = current + values if add else (current & values if both else values)
@@ -125,13 +136,15 @@ class Kind:
             new = np.where(where.reshape(where.shape + (1,) * (values.ndim - 2)), new, current)
         team[index] = new
 
-    def take_over(self, full: Kind, row: int, arm) -> None:
-        """Row ``row`` of the full kind ``full`` loses its first joint's actuator: this twin steps it from
-        now on, from the same angles and joint speeds, v = q̇₂…q̇ₙ and p₁ = Σ_α M_1α q̇_α. Its tracker starts
-        afresh (the copy's reset left the row's ``has_prev`` False, and an unstepped row keeps it)."""
-        qd = full.v[row]
-        self.q[row], self.qd[row], self.v[row], self.p[row] = full.q[row], qd, qd[1:], full.p[row]
-        self.momentum[row] = passive_momentum(arm, full.q[row], qd)
-        full.active[row], self.active[row] = False, True
+    def take_over(self, full: Kind, rows: np.ndarray) -> None:
+        """Rows ``rows`` of the full kind ``full`` lose their first joint's actuator: this twin steps them from
+        now on, from the same angles and joint speeds, v = q̇₂…q̇ₙ and p₁ = Σ_α M_1α q̇_α. Their tracker starts
+        afresh (the copy's reset left the rows' ``has_prev`` False, and an unstepped row keeps it)."""
+        q, qd = full.q[rows], full.v[rows]
+        self.q[rows], self.qd[rows], self.v[rows], self.p[rows] = q, qd, qd[:, 1:], full.p[rows]
+        arms = ArmBatch(lam=full.lam[rows], lengths=full.lengths[rows], base=full.base[rows], phi=full.phi[rows],
+                        passive_first_joint=False)
+        self.momentum[rows] = passive_momentum(arms, q, qd)
+        full.active[rows], self.active[rows] = False, True
         full.set_stepped()
         self.set_stepped()

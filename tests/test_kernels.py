@@ -43,6 +43,11 @@ def _terms(batch, q, v, momentum=None, damping=None):
     return out
 
 
+def _window(A, n_sub):
+    """Every arm's sub-steps: all of a call's."""
+    return np.tile(np.array([0, n_sub], dtype=np.int64), (A, 1))
+
+
 def _per_arm(values, A):
     """A kernel's per-arm array of passive momenta or dampings (zeros: the paper's arm)."""
     return np.zeros(A) if values is None else np.broadcast_to(np.asarray(values, dtype=float), (A,)).copy()
@@ -76,7 +81,7 @@ def test_group_terms_match_reference(n: int, passive: bool) -> None:
 def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False, centers=None, radii=None,
              mask=None, kappa=0.5, eps=5.0, margin=0.0, distance=False, decay=0.0,
              ke=100.0, dt=1e-3, n_sub=1, v_max=np.inf, parallel=False,
-             sizes=None, n_chunks=2, momentum=None, damping=None, rows=None):
+             sizes=None, n_chunks=2, momentum=None, damping=None, rows=None, window=None):
     A, k = v.shape
     centers = np.zeros((0, 2)) if centers is None else centers
     radii = np.zeros(0) if radii is None else radii
@@ -91,7 +96,8 @@ def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False
     momentum = _per_arm(momentum, A)
     args = (*sizes, batch.lam, batch.lengths, batch.base, batch.phi, _per_arm(damping, A),
             batch.passive_first_joint, q, v, momentum, prev, has_prev, np.arange(A) if rows is None else rows,
-            command, torque, filter_on, np.broadcast_to(centers, (A, *centers.shape)).copy(),
+            _window(A, n_sub) if window is None else window, command, torque, filter_on,
+            np.broadcast_to(centers, (A, *centers.shape)).copy(),
             np.broadcast_to(radii, (A, len(radii))).copy(), mask, kappa, eps, margin, distance, decay, ke, dt,
             n_sub, v_max, out["v_star"], out["tau"], out["qd"], out["p"], out["clear"], out["min_h"], out["counts"],
             out["track"], out["finite"], None)
@@ -390,8 +396,8 @@ def test_per_arm_obstacles_equal_one_arm_at_a_time() -> None:
                 track=np.zeros(A), finite=np.zeros(A, bool))
     q_all, v_all = q.copy(), v.copy()
     kernels.group_advance(*kernel_sizes(q.shape[1], k), batch.lam, batch.lengths, batch.base, batch.phi, np.zeros(A),
-                          True, q_all, v_all, np.zeros(A), np.zeros((A, k)), np.zeros(A, bool), np.arange(A), command,
-                          False, True,
+                          True, q_all, v_all, np.zeros(A), np.zeros((A, k)), np.zeros(A, bool), np.arange(A),
+                          _window(A, 3), command, False, True,
                           centers, radii, np.ones((A, 2), bool), 0.5, 5.0, 0.0, False, 0.0, 100.0, 1e-3, 3, 2.0,
                           *args.values(), None)
     for i in range(A):
@@ -543,7 +549,7 @@ def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
                    np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64), np.zeros(A),
                    np.zeros(A, bool)]
             args = [batch.lam, batch.lengths, batch.base, batch.phi, np.zeros(A), True, qk, vk, np.zeros(A), out[0],
-                    out[1], np.arange(A), command, torque,
+                    out[1], np.arange(A), _window(A, 5), command, torque,
                     True, np.broadcast_to(centers, (A, 3, 2)).copy(), np.broadcast_to(radii, (A, 3)).copy(), mask,
                     0.5, 5.0, 0.01, distance, decay, 100.0, 1e-2, 5, v_max, *out[2:], None]
             if kernel == "slp":
@@ -590,7 +596,7 @@ def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> Non
             pk = momentum.copy()
             for _ in range(2):  # the second call starts from the first's v_prev / has_prev
                 kernel(*kernel_sizes(n, k), batch.lam, batch.lengths, batch.base, batch.phi, damping, passive, qk,
-                       vk, pk, out[0], out[1], np.arange(A), command, torque, filter_on,
+                       vk, pk, out[0], out[1], np.arange(A), _window(A, 5), command, torque, filter_on,
                        np.broadcast_to(centers, (A, 3, 2)).copy(), np.broadcast_to(radii, (A, 3)).copy(), mask, 0.5,
                        5.0, 0.01, distance, decay, 100.0, 1e-2, 5, v_max, *out[2:], None)
             runs.append([qk, vk, pk, *out])
@@ -605,7 +611,7 @@ def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> Non
 def test_generic_kernel_checks_its_sizes() -> None:
     rng = np.random.default_rng(0)
     batch, q, v = _group(rng, 9, True, count=1)
-    rest = (np.zeros((1, 8)), np.zeros(1, bool), np.arange(1))
+    rest = (np.zeros((1, 8)), np.zeros(1, bool), np.arange(1), _window(1, 1))
     args = (batch.lam, batch.lengths, batch.base, batch.phi, np.zeros(1), True, q, v, np.zeros(1), *rest)
     with pytest.raises(ValueError, match="n ≤ 8"):
         kernels.group_advance_generic(*kernel_sizes(9, 8), *args)
@@ -619,7 +625,7 @@ def test_generic_kernel_checks_its_sizes() -> None:
     for rows in (np.array([1]), np.array([0.0]), np.zeros((1, 1), np.int64)):
         with pytest.raises(ValueError, match="rows must be int64 indices"):
             kernels.group_advance_generic(*kernel_sizes(3, 2), batch.lam, batch.lengths, batch.base, batch.phi,
-                                          np.zeros(1), True, q, v, np.zeros(1), *rest[:2], rows)
+                                          np.zeros(1), True, q, v, np.zeros(1), *rest[:2], rows, rest[3])
 
 
 @pytest.mark.parametrize(("barrier", "decay"), [("squared", 0.0), ("squared", 20.0), ("distance", 0.0),

@@ -61,9 +61,9 @@ from .steps import (
 
 @njit(**_JIT)
 def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, base, phi, damping, _passive, q, v,
-                  momentum, v_prev, has_prev, rows, command, torque_mode, filter_on, centers, radii, mask, kappa,
-                  epsilon, margin, distance, decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear,
-                  min_h, qp_counts, max_track, finite_out, whole):
+                  momentum, v_prev, has_prev, rows, window, command, torque_mode, filter_on, centers, radii, mask,
+                  kappa, epsilon, margin, distance, decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out,
+                  min_clear, min_h, qp_counts, max_track, finite_out, whole):
     """Arms ``rows[lo … hi−1]`` of :func:`group_advance` (the loop body, with its own scratch space): see the
     module's docstring for the lanes, the per-kind and generic signatures and the whole-arm calls."""
     if sizes is None:  # the per-kind kernel (numba prunes the other branch by the argument's type)
@@ -97,6 +97,8 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     # command, filter and tracker, per lane; the outputs of each lane's last sub-step (kept when it stops)
     vdes, vs, tau, acc = _local(kw, f8), _local(kw, f8), _local(kw, f8), _local(kw, f8)
     use_filter, prev_ok, live, status = _local(lw, b1), _local(lw, b1), _local(lw, b1), _local(lw, np.int64)
+    # each lane's sub-steps [w_lo, w_hi) (it is live within them while its state stays finite: alive)
+    w_lo, w_hi, alive = _local(lw, np.int64), _local(lw, np.int64), _local(lw, b1)
     arm_clear, arm_h, arm_track = _local(lw, f8), _local(lw, f8), _local(lw, f8)
     vs_last, tau_last, counts = _local(kw, f8), _local(kw, f8), _local(((0, 0, 0), lanes), np.int64)
     # the filter of every lane: its obstacles (centre x, y, radius), active rows, RCBF rows (A_j, b_j,
@@ -154,7 +156,11 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
         any_filter = _load_filter(W, O, filter_on, torque_mode, v_max, centers, radii, mask, has_prev, min_clear, min_h,
                                   max_track, finite_out, whole, arm, real, obstacles, lane_active, use_filter, prev_ok,
                                   live, arm_clear, arm_h, arm_track)
+        for w in range(W):
+            w_lo[w], w_hi[w], alive[w] = window[arm[w], 0], window[arm[w], 1], True
         for sub in range(n_sub):
+            for w in range(W):
+                live[w] = alive[w] and w_lo[w] <= sub < w_hi[w]
             _desired_velocity(n, k, W, passive, any_filter, torque_mode, dt, command, arm, lm, vi, pj, c, s, dyn, chol,
                               tau, acc, vdes, vs, status)
             if any_filter and whole is not None:
@@ -166,9 +172,12 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                                      search)
             _track(k, W, torque_mode, ke, inv_dt, vi, vp, Mc, Hc, use_filter, live, prev_ok, status, counts,
                    arm_track, vs, acc, tau, vs_last, tau_last)
-            if _rk4(n, k, W, passive, dt, finite_out, arm, real, live, lm, qi, vi, pj, tau, c, s, c0, s0, dyn, chol,
-                    stages) == 0:
-                break
+            _rk4(n, k, W, passive, dt, finite_out, arm, real, live, lm, qi, vi, pj, tau, c, s, c0, s0, dyn, chol,
+                 stages)
+            later = False  # a lane still to step in a later sub-step
+            for w in range(W):
+                alive[w] = live[w] if w_lo[w] <= sub < w_hi[w] else alive[w]
+                later = later or (alive[w] and sub + 1 < w_hi[w])
             # clearance after the sub-step (a stopped lane keeps its value)
             _position_lanes(ln, bx, by, c, s, n, W, px, py)
             for j in range(O):
@@ -179,6 +188,8 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
             if whole is not None:  # the bodies' clearance to the world's obstacles
                 whole_arm_clearance_lanes(arm, live, n, W, link_bodies, rho, ln, bx, by, c, s, caps, n_world,
                                           start_time, (sub + 1) * dt, joints_x, joints_y, ox, oy, orad, arm_clear)
+            if not later:
+                break
         _store_outputs(k, W, arm, real, has_prev, prev_ok, qp_counts, counts, min_clear, arm_clear, min_h, arm_h,
                        max_track, arm_track, v_star_out, vs_last, tau_out, tau_last, v, vi, v_prev, vp)
         _store_state(n, k, W, passive, whole, scratch, q, momentum, qd_out, p_out, arm, real, live, ph, lm, ln, bx, by,
@@ -200,7 +211,10 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     ``q (A, n)``, ``v (A, k)`` and ``momentum (A,)`` (a PAn−1 arm's passive momentum p₁: q̇₁ =
     (p₁ − M_1a v) / M_11, ṗ₁ = −b q̇₁, docs/MODEL.md §7; a fully actuated arm ignores both). ``rows (R,)``
     (int64, distinct) are the arms advanced: the others, their outputs included, are left as they are
-    (an engine's arm that has changed kind keeps a row here, unused, until its next reset). Obstacles
+    (an engine's arm that has changed kind keeps a row here, unused, until its next reset). ``window (A, 2)``
+    (int64): arm i is advanced in the call's sub-steps ``window[i, 0] ≤ s < window[i, 1]`` only and held
+    where it is outside them (as a non-finite arm is), so that one call can stop an arm where it loses an
+    actuator and the next start it there in another kind; ``(0, n_sub)`` or wider: every sub-step. Obstacles
     ``centers (A, O, 2)``, ``radii (A, O)`` and ``mask (A, O)`` (the obstacles each arm's filter
     sees; a team's obstacles are broadcast to every arm).
 
@@ -246,7 +260,9 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
 
 
 @njit(**_JIT)
-def _check_sizes(links, actuated, passive, q, v, momentum, damping, rows):
+def _check_sizes(links, actuated, passive, q, v, momentum, damping, rows, window):
+    if window.shape[0] != q.shape[0] or window.shape[1] != 2:
+        raise ValueError("group_advance: window needs a (start, stop) pair of sub-steps per arm (q.shape[0], 2)")
     for r in rows:  # the lanes index the arrays by them unchecked
         if r < 0 or r >= q.shape[0]:
             raise ValueError("group_advance: rows must index the arms (0 <= row < q.shape[0])")
@@ -260,30 +276,31 @@ def _check_sizes(links, actuated, passive, q, v, momentum, damping, rows):
 
 @njit(**_JIT)
 def group_advance(links, actuated, lam, lengths, base, phi, damping, passive, q, v, momentum, v_prev, has_prev, rows,
-                  command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, distance, decay, ke,
-                  dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track,
-                  finite_out, whole):
-    _check_sizes(links, actuated, passive, q, v, momentum, damping, rows)
+                  window, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, distance,
+                  decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts,
+                  max_track, finite_out, whole):
+    _check_sizes(links, actuated, passive, q, v, momentum, damping, rows, window)
     lo = rows.shape[0] * 0  # an int64, like the parallel kernel's chunk bounds
     _advance_arms(links, actuated, _LANES, None, True, lo, rows.shape[0], lam, lengths, base, phi, damping, passive, q,
-                  v, momentum, v_prev, has_prev, rows, command, torque_mode, filter_on, centers, radii, mask, kappa,
-                  epsilon, margin, distance, decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear,
-                  min_h, qp_counts, max_track, finite_out, whole)
+                  v, momentum, v_prev, has_prev, rows, window, command, torque_mode, filter_on, centers, radii, mask,
+                  kappa, epsilon, margin, distance, decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out,
+                  min_clear, min_h, qp_counts, max_track, finite_out, whole)
 
 
 @njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
 def group_advance_parallel(links, actuated, lam, lengths, base, phi, damping, passive, q, v, momentum, v_prev, has_prev,
-                           rows, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin,
+                           rows, window, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin,
                            distance, decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h,
                            qp_counts, max_track, finite_out, whole, n_chunks):
-    _check_sizes(links, actuated, passive, q, v, momentum, damping, rows)
+    _check_sizes(links, actuated, passive, q, v, momentum, damping, rows, window)
     _check_chunks(n_chunks)
     R = rows.shape[0]
     for c in prange(n_chunks):
         _advance_arms(links, actuated, _LANES, None, True, c * R // n_chunks, (c + 1) * R // n_chunks, lam, lengths,
-                      base, phi, damping, passive, q, v, momentum, v_prev, has_prev, rows, command, torque_mode,
-                      filter_on, centers, radii, mask, kappa, epsilon, margin, distance, decay, ke, dt, n_sub, v_max,
-                      v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out, whole)
+                      base, phi, damping, passive, q, v, momentum, v_prev, has_prev, rows, window, command,
+                      torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, distance, decay, ke, dt,
+                      n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track,
+                      finite_out, whole)
 
 
 # The generic kernel: arms of any kind up to GENERIC_MAX_LINKS links, n and k read at run time, one
@@ -295,7 +312,7 @@ _ONE_LANE = (0,)
 
 
 def group_advance_generic(links, actuated, lam, lengths, base, phi, damping, passive, q, v, momentum, v_prev, has_prev,
-                          rows, *args):
+                          rows, window, *args):
     """:func:`group_advance` (same arguments, same results bit for bit) through one kernel compiled for
     every arm kind of at most ``GENERIC_MAX_LINKS`` links: a new kind costs no compilation, and the
     kernel steps 3–4× slower (one arm at a time, loops of run-time length). The engine uses it while a
@@ -312,8 +329,11 @@ def group_advance_generic(links, actuated, lam, lengths, base, phi, damping, pas
     rows = np.asarray(rows)
     if rows.dtype != np.int64 or rows.ndim != 1 or (len(rows) and not 0 <= rows.min() <= rows.max() < len(q)):
         raise ValueError("group_advance_generic: rows must be int64 indices of the arms (0 <= row < q.shape[0])")
+    window = np.asarray(window)
+    if window.dtype != np.int64 or window.shape != (len(q), 2):
+        raise ValueError("group_advance_generic: window needs an int64 (start, stop) pair of sub-steps per arm")
     _advance_arms(_GENERIC_SIZES, _GENERIC_SIZES, _ONE_LANE, (n, k), None, 0, len(rows), lam, lengths, base, phi,
-                  damping, bool(passive), q, v, momentum, v_prev, has_prev, rows, *args)
+                  damping, bool(passive), q, v, momentum, v_prev, has_prev, rows, window, *args)
 
 
 group_advance.__doc__ = _ADVANCE_DOC
