@@ -97,6 +97,7 @@ class ReferencePolicy:
         v0 = nominal_velocity(reduced_jacobian(arm, d["q"]), e_hat, kp, drift)
         if gain is not None:
             gain = np.asarray(gain, dtype=float)
+            gain = gain[1:] if lost and gain.shape == (arm.n_links,) else gain  # one per action entry: drop the lost
             if gain.shape != v0.shape or not np.all(gain > 0):
                 raise ValueError(f"gain for {agent} must be {v0.shape[0]} positive numbers, got {gain.tolist()}")
             v0 = v0 * gain

@@ -226,6 +226,42 @@ def bench_v1(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
             (f"  ratio of its step time to RandomFormation-v0's at B = {B}", v1 / v0, "ratio")]
 
 
+def bench_faults(repeats: int, B: int = 1024, steps: int = 200) -> list[tuple[str, float, str]]:
+    """FaultFormation-v0 against RandomFormation-v1 (the same teams and filter) in the shielded vector env at B
+    copies, over the first ``steps`` steps after a reset (10 s: a fault comes at 1–10 s to about half the fully
+    actuated arms, 1,000 faults at B = 1024), each round one episode start of each, in alternation; the slowest
+    step of each against its median (a fault must cost no pause: no compilation, no long step)."""
+    from pan1_env.vector import Pan1VectorEnv
+
+    envs = {}
+    for env_id in ("pan1_env/RandomFormation-v1", "pan1_env/FaultFormation-v0"):
+        print(f"bench: vector env at B = {B}, {env_id} ...", file=sys.stderr, flush=True)
+        envs[env_id] = venv = Pan1VectorEnv(env_id, B)
+        step = _vector_stepper(venv)
+        for _ in range(30):  # through a first fault: compiles the faulted twin's kernel if need be
+            step()
+    actions = [venv.action_space.sample() for _ in range(4)]
+    rates, spikes = {name: [] for name in envs}, {name: [] for name in envs}
+    for r in range(repeats):
+        for name, venv in envs.items():
+            venv.reset(seed=100 + r)
+            times = []
+            for t in range(steps):
+                start = time.perf_counter()
+                venv.step(actions[t % 4])
+                times.append(time.perf_counter() - start)
+            rates[name].append(steps * B * venv.engine.n_arms / sum(times))
+            spikes[name].append(max(times) / statistics.median(times))
+    v1, faults = (statistics.median(rates[name]) for name in envs)
+    return [(f"FaultFormation-v0, shielded arm-steps per second at B = {B} over its fault window (target ≥ 1,000,000)",
+             faults, "rate"),
+            (f"  ratio to RandomFormation-v1's at B = {B} (same rounds)", faults / v1, "ratio"),
+            ("  its slowest step / its median step (RandomFormation-v1's: next row)",
+             max(spikes["pan1_env/FaultFormation-v0"]), "ratio"),
+            ("  RandomFormation-v1's slowest step / its median step", max(spikes["pan1_env/RandomFormation-v1"]),
+             "ratio")]
+
+
 def bench_gate(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
     """The smooth activation gate's cost: WholeArmStaticFormation-v1 with a 5 cm gate past its sensing range
     against the same id's hard range, per arm-sub-step of the shielded vector env at B copies (5 sub-steps of
@@ -578,7 +614,7 @@ def bench_marl(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
 
 
 #: the groups of rows, in the order they run (``--only`` picks some)
-GROUPS = ("import", "cold_start", "mpe", "acrobot", "vector", "kernel", "v1", "gate", "whole_arm", "qp",
+GROUPS = ("import", "cold_start", "mpe", "acrobot", "vector", "kernel", "v1", "faults", "gate", "whole_arm", "qp",
           "team_scaling", "marl", "reproduce", "training")
 
 
@@ -604,6 +640,7 @@ def main() -> int:
         "vector": lambda: bench_vector(repeats, (1, 64, 1024) if args.quick else (1, 64, 1024, 16384)),
         "kernel": lambda: bench_kernel(repeats),
         "v1": lambda: bench_v1(repeats),
+        "faults": lambda: bench_faults(repeats),
         "gate": lambda: bench_gate(repeats),
         "whole_arm": lambda: bench_whole_arm(repeats),
         "qp": lambda: bench_qp(300 if args.quick else 2000),

@@ -18,9 +18,10 @@ Infos (:meth:`FormationCore.infos`) are flat arrays, the same keys after a reset
   over the sub-steps, 0 nominal, 1 solved, 2 fallback: :class:`~pan1_env.safety.QPStatus`),
   ``shield_min_barrier`` (the smallest barrier value the filter saw; inf with none), ``shield_applied
   (B, N, k_max)`` float32 (the command applied at the last sub-step, in action units: the filtered velocity
-  v*/``max_joint_speed``, or the torque/``max_torque``; 0 in the padding) and ``qp_counts (B, N, 3)``
-  (sub-steps per QP status); on a team whose arms may lose an actuator (``Scenario.fault_times``),
-  ``actuator_lost`` (the arm's first joint has lost its drive: the first entry of its action is ignored);
+  v*/``max_joint_speed``, or the torque/``max_torque``; 0 in the padding and for a lost joint) and
+  ``qp_counts (B, N, 3)`` (sub-steps per QP status); on a team whose arms may lose an actuator
+  (``Scenario.fault_times``), ``actuator_lost`` (the arm's first joint has lost its drive: the first entry of
+  its action is ignored);
 * per copy ``(B,)``: ``formation_error`` (m, largest edge-length error), ``is_success``, and ``fault`` (a
   message, "" for the copies without one) only in a step where some copy's state went non-finite.
 """
@@ -357,6 +358,8 @@ class FormationCore:
                 applied, unit = rec.v_star, c.max_joint_speed
             if not self._uniform_actions:  # the padding (NaN in the record) reads 0
                 applied = np.where(self._padding, 0.0, applied)
+            if self.engine.faults:  # and so does a lost joint's entry
+                applied = np.where(self.engine.faulted[..., None] & (np.arange(self.k_max) == 0), 0.0, applied)
             applied = np.multiply(applied, 1.0 / unit, dtype=np.float32)
         solved, fallback = counts[..., 1] > 0, counts[..., 2] > 0
         return {"shield_intervened": solved | fallback, "shield_fallback": fallback,

@@ -88,7 +88,7 @@ class KernelQP:
     name = "active_set"
 
     @staticmethod
-    def check(copies: int, torque: bool = False) -> None:
+    def check(copies: int, torque: bool = False, faults: bool = False) -> None:
         """Everything is allowed."""
 
     @staticmethod
@@ -122,7 +122,7 @@ class Engine:
             raise ValueError(f"threads must be 'auto', True or False, got {threads!r}")
         #: the solver of the filter's QPs, which a step goes through
         self.qp: KernelQP | PiqpFilter = PiqpFilter() if qp_solver == "piqp" else KernelQP()
-        self.qp.check(int(copies))
+        self.qp.check(int(copies), faults=scenario.fault_times is not None)
         self.physics_dt = real("physics_dt", scenario.physics_dt if physics_dt is None else physics_dt, positive=True)
         self.copies, self.qp_solver, self.threads = int(copies), qp_solver, threads
         self.max_speed = float(max_speed)
@@ -322,6 +322,8 @@ class Engine:
             kind.momentum[rows] = 0.0
             kind.has_prev[rows] = False
             kernels().group_end_effectors(kind.lengths, kind.base, kind.phi, kind.q, kind.p)
+        if self.faults:  # a fault within the first sub-step: lost from the start (the first observation shows it)
+            self._lose_actuators(np.isin(np.arange(self.copies), copies)[:, None] & (self._fault_substeps() == 0), None)
 
     def _fault_substeps(self) -> np.ndarray:
         """``(B, N)``: in how many sub-steps from now each arm's coming fault begins (0: the sub-step that starts
@@ -596,19 +598,18 @@ class Engine:
 
     def _advance(self, kind: Kind, command: np.ndarray, substeps: int, torque: bool, params: FilterParams | None,
                  rec: StepRecord, faults: tuple[np.ndarray, np.ndarray] | None = None) -> None:
-        """The kernel call: every arm of a kind in every copy, ``substeps`` sub-steps; with ``faults`` (the
-        step's :meth:`_fault_substeps` and the arms that fault within it), a full kind's faulting arms stop
-        where their fault begins and its twin's start there (the kernel's ``window``)."""
+        """The kernel call: every arm of a kind in every copy, ``substeps`` sub-steps; with ``faults`` (the step's
+        :meth:`_fault_substeps` and the arms that fault within it) a full kind's arms stop where their fault
+        begins and its twin's start there (the kernel's ``window``)."""
         args, out = self._kernel_args(kind, command, substeps, torque, params, rec)
-        if faults is None or (kind.twin is None and not kind.faulted):
+        rows, end = np.empty(0, dtype=np.int64), 0 if kind.faulted else 1  # a twin's rows start, a full kind's stop
+        if faults is not None and (kind.twin is not None or kind.faulted):
+            rows = np.flatnonzero(faults[1][:, kind.ids])
+            kind.window[rows, end] = faults[0][:, kind.ids].ravel()[rows]
+        try:
             self._call(kind, args, kind.whole)
-        else:
-            at, within = faults
-            rows = np.flatnonzero(within[:, kind.ids])
-            bound = int(kind.faulted)  # a full kind's rows stop there (window end), a twin's start (window start)
-            kind.window[rows, 1 - bound] = at[:, kind.ids].ravel()[rows]
-            self._call(kind, args, kind.whole)
-            kind.window[rows, 1 - bound] = kind.window_default[1 - bound]
+        finally:
+            kind.window[rows, end] = kind.window_default[end]
         self._finish(kind, out, torque, rec)
 
     def _kernel_args(self, kind: Kind, command: np.ndarray, substeps: int, torque: bool,

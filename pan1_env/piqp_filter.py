@@ -32,8 +32,11 @@ class PiqpFilter:
     name = "piqp"
 
     @staticmethod
-    def check(copies: int, torque: bool = False) -> None:
-        """Refuse what this filter cannot do: more than one copy, or torque mode."""
+    def check(copies: int, torque: bool = False, faults: bool = False) -> None:
+        """Refuse what this filter cannot do: more than one copy, torque mode, or arms that lose an actuator."""
+        if faults:
+            raise ValueError("qp_solver='piqp' does not step arms that lose an actuator (Scenario.fault_times); "
+                             "use the compiled 'active_set' QP")
         if copies != 1:
             raise ValueError("qp_solver='piqp' steps one copy; use the compiled 'active_set' QP for batches")
         if torque:

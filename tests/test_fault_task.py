@@ -101,6 +101,30 @@ def test_the_fault_flag_the_infos_and_the_ignored_action() -> None:
     assert seen[full].all() and not seen[[i for i in range(env.num_agents) if i not in full]].any()
 
 
+def test_the_flag_shows_a_fault_from_its_sub_step() -> None:
+    """An observation shows an arm's fault once the sub-step that contains its time has begun: a fault at
+    0 s in the reset's observation, others at the first observation at most one sub-step before their time;
+    behind the shield, the lost joint's ``shield_applied`` entry reads 0, and a reset gives the actuator back."""
+    from pan1_env.wrappers import SafetyShield
+
+    env = SafetyShield(_fault_env(random_options={"fault_probability": 1.0, "fault_time": (0.0, 0.4)}))
+    for seed in (3, 4):
+        obs, infos = env.reset(seed=seed)
+        times, dt = env.unwrapped.scenario.fault_times, env.unwrapped.engine.physics_dt
+        for step in range(12):
+            now = step * env.unwrapped.control_dt
+            for i, agent in enumerate(env.agents):
+                assert infos[agent]["actuator_lost"] == (times[i] < now + dt - 1e-9), (seed, step, i, times[i])
+                applied = infos[agent]["shield_applied"]
+                if step and infos[agent]["actuator_lost"]:
+                    assert applied[0] == 0.0 and np.isfinite(applied).all()
+            obs, _, _, _, infos = env.step({a: np.full(env.action_space(a).shape, 0.5, np.float32) for a in env.agents})
+    zero = _fault_env(random_options={"fault_probability": 1.0, "fault_time": (0.0, 0.0)})
+    obs, infos = zero.reset(seed=5)
+    full = [i for i, arm in enumerate(zero.scenario.arms) if not arm.passive_first_joint]
+    assert all(infos[zero.agents[i]]["actuator_lost"] for i in full)
+
+
 def test_the_reference_law_through_a_fault_is_the_tasks() -> None:
     """After the faults, the reference policy from observations (the PAn−1 law minus J̄⁺ of the drift, p₁
     from the observed speeds) equals the env's own law from its state, as the residual mode's zero action."""
@@ -118,6 +142,9 @@ def test_the_reference_law_through_a_fault_is_the_tasks() -> None:
         np.testing.assert_allclose(nominal[i, : env.n_actuated[i]], ref.act(agent, obs[agent]), rtol=1e-4, atol=1e-5)
         if env.engine.faulted[0, i]:
             assert nominal[i, 0] == 0.0
+            # a gain per action entry (as a gain-trained model gives): the lost joint's is dropped
+            ones = np.ones(env.n_actuated[i])
+            np.testing.assert_allclose(ref.act(agent, obs[agent], ones), ref.act(agent, obs[agent]))
 
 
 def test_the_fault_env_passes_the_api_tests() -> None:

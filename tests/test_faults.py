@@ -33,31 +33,34 @@ def _torques(rng, steps, shape):
     return rng.uniform(-0.6, 0.6, (steps, *shape))
 
 
-def _whole_arm_team(seed: int, fault_times=None) -> scenario.Scenario:
-    """A random team of four full 3-link arms, whole-arm safety with other arms and moving obstacles."""
-    options = RandomScenarioOptions(links=3, passive_fraction=0.0, bodies="links", link_radius=0.02, inter_arm=True,
-                                    obstacle_speed=(0.05, 0.2), physics_dt=0.002, control_dt=0.02)
+def _whole_arm_team(seed: int, fault_times=None, inter_arm: bool = True) -> scenario.Scenario:
+    """A random team of four full 3-link arms, whole-arm safety (with other arms) and moving obstacles."""
+    options = RandomScenarioOptions(links=3, passive_fraction=0.0, bodies="links", link_radius=0.02,
+                                    inter_arm=inter_arm, obstacle_speed=(0.05, 0.2), physics_dt=0.002, control_dt=0.02)
     team = random_scenario(np.random.default_rng(seed), options)
     return dataclasses.replace(team, fault_times=fault_times)
 
 
-@pytest.mark.parametrize("whole_arm", [False, True])
-def test_a_fault_mid_step_equals_a_passive_arm_from_the_faults_state(whole_arm: bool) -> None:
+@pytest.mark.parametrize("bodies", ["end_effector", "links", "links_and_arms"])
+def test_a_fault_mid_step_equals_a_passive_arm_from_the_faults_state(bodies: str) -> None:
     """Torque mode, 10 sub-steps per step: arm 0 faults inside the third step, at 23.4 sub-steps (from the
     start of the sub-step that contains it, the 24th), arm 2 inside the sixth. Until a fault the engine is
     the team without faults; from it, the team with that arm passive, put at the fault's joint angles and
-    speeds, its lost joint's command ignored. Whole-arm: a random team of 3-link arms with other arms and
-    moving obstacles, the filter on (the other arms' filters must see the faulted arm where it is)."""
+    speeds, its lost joint's command ignored. Whole-arm: a random team of 3-link arms with moving obstacles,
+    and other arms (their filters must see the faulted arm where it is), the filter on; the one-call step
+    (kernel windows) and the inter-arm one (a call per sub-step)."""
     rng = np.random.default_rng(5)
+    whole_arm = bodies != "end_effector"
     dt = 0.002 if whole_arm else 0.001
     times = [23.4 * dt, np.inf, 51 * dt, np.inf]
-    team = _whole_arm_team(7, times) if whole_arm else _mixed(times)
+    team = _whole_arm_team(2, times, bodies == "links_and_arms") if whole_arm else _mixed(times)
     n = team.arms[0].n_links
     kw = dict(safety_filter=whole_arm, max_speed=3.0 if whole_arm else np.inf)
     faulty = Engine(team, 1, **kw)
     plain = Engine(dataclasses.replace(team, fault_times=None), 1, **kw)
     tau = _torques(rng, 9, (1, 4, n))
     before = 3  # sub-steps of the third step before the one that contains arm 0's fault
+    acted = 0
 
     def lost_joint(command):
         command = command.copy()
@@ -71,20 +74,29 @@ def test_a_fault_mid_step_equals_a_passive_arm_from_the_faults_state(whole_arm: 
             q, qd = plain.joint_state()
             passive = Engine(_passive(team, {0}), 1, **kw)
             passive.set_state(0, list(q[0]), list(qd[0]))
-            passive.step(lost_joint(tau[s]), 10 - before, torque=True)
+            passive.elapsed[:] = plain.elapsed  # the moving obstacles where they are
+            passive.place_obstacles()
+            alone = passive.step(lost_joint(tau[s]), 10 - before, torque=True)
         elif s < 2:
             plain.step(tau[s], 10, torque=True)
             np.testing.assert_array_equal(faulty.joint_state()[0], plain.joint_state()[0])
             assert not np.isfinite(faulty.passive_momentum()[0, :3]).any()
             continue
         else:
-            passive.step(lost_joint(tau[s]), 10, torque=True)
+            alone = passive.step(lost_joint(tau[s]), 10, torque=True)
+            # the same sub-steps: the bodies' clearance to the obstacles where they are, and to the other arms
+            np.testing.assert_allclose(rec.min_clearance, alone.min_clearance, rtol=0, atol=1e-12)
+            assert np.isfinite(rec.min_clearance[0, 0])  # arm 0 can reach an obstacle
         for got, expected in zip(faulty.joint_state(), passive.joint_state(), strict=True):
             np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
         np.testing.assert_allclose(faulty.passive_momentum()[0, 0], passive.passive_momentum()[0, 0], rtol=0,
                                    atol=1e-12)
-        assert rec.tau[0, 0, 0] == 0.0 and faulty.faulted[0].tolist() == [True, False, False, False]
+        assert rec.tau[0, 0, 0] == 0.0 and np.isnan(rec.v_star[0, 0, 0])
+        assert np.isfinite(rec.v_star[0, 0, 1:]).all() == whole_arm  # v* is filtered (unfiltered torque mode: NaN)
+        assert faulty.faulted[0].tolist() == [True, False, False, False]
+        acted += rec.qp_counts[0, :, 1:].sum()
     assert abs(faulty.passive_momentum()[0, 0]) > 1e-3, "the fault came while the arm moved"
+    assert (acted > 0) == whole_arm, "the filter should act on the faulted team"
     faulty.step(tau[5], 10, torque=True)
     assert faulty.faulted[0].tolist() == [True, False, True, False]
 
@@ -209,3 +221,5 @@ def test_fault_times_are_checked() -> None:
     engine = Engine(scenario.load("paper_pa_mixed_square"), 2)
     with pytest.raises(ValueError, match="fault_times only if the engine's first team had them"):
         engine.load_team(1, _mixed([1.0, np.inf, np.inf, np.inf]))
+    with pytest.raises(ValueError, match="qp_solver='piqp' does not step arms that lose an actuator"):
+        Engine(_mixed([1.0, np.inf, np.inf, np.inf]), 1, qp_solver="piqp", safety_filter=True)

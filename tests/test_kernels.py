@@ -382,6 +382,36 @@ def test_kernel_steps_only_its_rows(parallel: bool) -> None:
         _advance(batch, q, v, command, rows=np.array([0, 9]), **kw)
 
 
+@pytest.mark.parametrize("parallel", [False, True])
+def test_kernel_steps_each_arm_within_its_window(parallel: bool) -> None:
+    """``window`` picks each arm's sub-steps within a call: an arm stepped in sub-steps [0, 3) of 5 ends as in a
+    3-sub-step call, one stepped in [2, 5) or [0, 5) as in a 3- or 5-sub-step call from its state (held
+    meanwhile), one in [4, 4) is left as it was; outputs count only its own sub-steps."""
+    rng = np.random.default_rng(29)
+    batch, q, v = _group(rng, 4, True, count=9)
+    t, centers, radii = _binding_obstacles(rng, batch, q, v)
+    command = rng.normal(scale=2.0, size=v.shape)
+    kw = dict(filter_on=True, centers=centers, radii=radii, mask=np.ones((9, 3), bool), v_max=2.0,
+              momentum=rng.uniform(-0.5, 0.5, 9), damping=rng.uniform(0.0, 2.0, 9), parallel=parallel)
+    window = np.array([[0, 3], [2, 5], [0, 5], [4, 4], [0, 3], [2, 5], [0, 99], [1, 4], [0, 5]], dtype=np.int64)
+    _, q_w, v_w, _, out_w = _advance(batch, q, v, command, n_sub=5, window=window, **kw)
+    steps = window.clip(0, 5)[:, 1] - window.clip(0, 5)[:, 0]
+    for n_sub in (0, 3, 5):
+        if n_sub == 0:
+            q_n, v_n = q, v
+        else:
+            _, q_n, v_n, _, out_n = _advance(batch, q, v, command, n_sub=n_sub, **kw)
+        same = steps == n_sub
+        np.testing.assert_array_equal(_bits(q_w[same]), _bits(q_n[same]))
+        np.testing.assert_array_equal(_bits(v_w[same]), _bits(v_n[same]))
+        if n_sub:
+            for key in ("counts", "clear", "min_h", "momentum"):
+                np.testing.assert_array_equal(_bits(out_w[key][same]), _bits(out_n[key][same]))
+    assert np.array_equal(out_w["counts"].sum(axis=1), steps)
+    with pytest.raises(ValueError, match="window needs a"):
+        _advance(batch, q, v, command, n_sub=5, window=window[:, :1].copy(), **kw)
+
+
 def test_per_arm_obstacles_equal_one_arm_at_a_time() -> None:
     """Each arm's filter sees its own obstacle rows (the vector env gives every copy its own)."""
     rng = np.random.default_rng(31)
