@@ -60,6 +60,21 @@ def _soak(mode: str, arm_steps: int, first_seed: int) -> dict:
     return stats
 
 
+def _count_step(stats: dict, venv, obs: np.ndarray, infos: dict, inside: np.ndarray) -> np.ndarray:
+    """A vector-env step into ``stats``: penetrations begun (a copy inside something now and not at the last
+    step's end ``inside``) and begun outside a fallback step, fallback copy-steps, non-finite observations or
+    numerical faults, the smallest clearance and the arm-steps; returns which copies are inside now."""
+    now_inside = infos["cost"] > 0
+    begins = now_inside & ~inside
+    stats["penetrations_begun"] += int(begins.sum())
+    stats["begun_outside_fallback"] += int((begins & ~infos["shield_fallback"]).sum())
+    stats["fallback_copy_steps"] += int(infos["shield_fallback"].sum())
+    stats["non_finite"] += int((~np.isfinite(obs)).any(axis=1).sum()) + int("fault" in infos)
+    stats["min_clearance_m"] = min(stats["min_clearance_m"], float(infos["min_clearance"].min()))
+    stats["arm_steps"] += len(obs) * venv.engine.n_arms
+    return now_inside
+
+
 def test_soak_one_million_shielded_arm_steps(capsys) -> None:
     jobs = [("velocity", ARM_STEPS // 2, 0), ("torque", ARM_STEPS // 2, 100_000)]
     with multiprocessing.get_context("spawn").Pool(2) as pool:
@@ -106,15 +121,8 @@ def test_soak_whole_arm_moving_obstacles(capsys, env_id) -> None:
             held = rng.choice([-1.0, 1.0], size=venv.action_space.shape)
         actions[bang] = held[bang]
         obs, _, terminated, truncated, infos = venv.step(actions)
-        now_inside = infos["cost"] > 0
-        begins = now_inside & ~inside
-        stats["penetrations_begun"] += int(begins.sum())
-        stats["begun_outside_fallback"] += int((begins & ~infos["shield_fallback"]).sum())
-        stats["fallback_copy_steps"] += int(infos["shield_fallback"].sum())
+        now_inside = _count_step(stats, venv, obs, infos, inside)
         stats["intervention_copy_steps"] += int(infos["shield_intervened"].sum())
-        stats["non_finite"] += int((~np.isfinite(obs)).any(axis=1).sum()) + int("fault" in infos)
-        stats["min_clearance_m"] = min(stats["min_clearance_m"], float(infos["min_clearance"].min()))
-        stats["arm_steps"] += B * venv.engine.n_arms
         hit_this_episode |= now_inside
         done = terminated | truncated
         stats["episodes"] += int(done.sum())
@@ -160,14 +168,7 @@ def test_soak_actuator_faults(capsys) -> None:
         actions = rng.uniform(-1.0, 1.0, venv.action_space.shape)
         actions[adversarial] = adversary(obs)[adversarial]
         obs, _, terminated, truncated, infos = venv.step(actions)
-        now_inside = infos["cost"] > 0
-        begins = now_inside & ~inside
-        stats["penetrations_begun"] += int(begins.sum())
-        stats["begun_outside_fallback"] += int((begins & ~infos["shield_fallback"]).sum())
-        stats["fallback_copy_steps"] += int(infos["shield_fallback"].sum())
-        stats["non_finite"] += int((~np.isfinite(obs)).any(axis=1).sum()) + int("fault" in infos)
-        stats["min_clearance_m"] = min(stats["min_clearance_m"], float(infos["min_clearance"].min()))
-        stats["arm_steps"] += B * venv.engine.n_arms
+        now_inside = _count_step(stats, venv, obs, infos, inside)
         hit_this_episode |= now_inside
         faulted_this_episode |= infos["actuator_lost"] > 0
         done = terminated | truncated
