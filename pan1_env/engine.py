@@ -25,7 +25,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from .bodies import capsule_clearance, obstacle_velocities
-from .cascade import passive_momentum
 from .compiled import WholeArm, kernels, plain
 from .kinds import Kind
 from .piqp_filter import PiqpFilter
@@ -414,13 +413,9 @@ class Engine:
             raise ValueError(f"set_state needs q and qd for every arm ({self.n_arms})")
         self._check_per_arm("q", q, "joint angles")
         self._check_per_arm("qd", qd, "joint speeds")
-        arms = self.teams[copy].arms
         for kind in self.kinds:
-            for r, i in zip(kind.rows(np.array([copy])), kind.ids, strict=True):
-                qi, qdi = np.asarray(q[i], dtype=float), np.asarray(qd[i], dtype=float)
-                kind.q[r], kind.qd[r], kind.v[r] = qi, qdi, qdi[kind.n - kind.k:]
-                kind.momentum[r] = passive_momentum(arms[i], qi, qdi) if kind.passive else 0.0
-                kind.v_prev[r], kind.has_prev[r] = 0.0, False
+            kind.put_state(kind.rows(np.array([copy])), np.array([q[i] for i in kind.ids], dtype=float),
+                           np.array([qd[i] for i in kind.ids], dtype=float))
             kernels().group_end_effectors(kind.lengths, kind.base, kind.phi, kind.q, kind.p)
 
     def obstacle_velocities(self) -> np.ndarray:

@@ -136,15 +136,23 @@ class Kind:
             new = np.where(where.reshape(where.shape + (1,) * (values.ndim - 2)), new, current)
         team[index] = new
 
+    def put_state(self, rows: np.ndarray, q: np.ndarray, qd: np.ndarray) -> None:
+        """Rows ``rows`` at joint angles ``q`` moving at ``qd`` (n columns each): v = the actuated joints' speeds
+        and, for a PAn−1 kind, p₁ = Σ_α M_1α q̇_α, from which its passive speed follows (docs/MODEL.md §7); the
+        tracker starts afresh. The end-effectors ``p`` are the caller's to set."""
+        self.q[rows], self.qd[rows], self.v[rows] = q, qd, qd[:, self.n - self.k:]
+        self.momentum[rows] = 0.0
+        if self.passive:
+            arms = ArmBatch(lam=self.lam[rows], lengths=self.lengths[rows], base=self.base[rows], phi=self.phi[rows],
+                            passive_first_joint=False)
+            self.momentum[rows] = passive_momentum(arms, q, qd)
+        self.v_prev[rows], self.has_prev[rows] = 0.0, False
+
     def take_over(self, full: Kind, rows: np.ndarray) -> None:
         """Rows ``rows`` of the full kind ``full`` lose their first joint's actuator: this twin steps them from
-        now on, from the same angles and joint speeds, v = q̇₂…q̇ₙ and p₁ = Σ_α M_1α q̇_α. Their tracker starts
-        afresh (the copy's reset left the rows' ``has_prev`` False, and an unstepped row keeps it)."""
-        q, qd = full.q[rows], full.v[rows]
-        self.q[rows], self.qd[rows], self.v[rows], self.p[rows] = q, qd, qd[:, 1:], full.p[rows]
-        arms = ArmBatch(lam=full.lam[rows], lengths=full.lengths[rows], base=full.base[rows], phi=full.phi[rows],
-                        passive_first_joint=False)
-        self.momentum[rows] = passive_momentum(arms, q, qd)
+        now on, from the same angles, joint speeds and end-effectors (:meth:`put_state`)."""
+        self.put_state(rows, full.q[rows], full.v[rows])
+        self.p[rows] = full.p[rows]
         full.active[rows], self.active[rows] = False, True
         full.set_stepped()
         self.set_stepped()
