@@ -138,14 +138,7 @@ class RandomScenarioOptions:
         if self.shape == "square" and n_arms != 4:
             raise ValueError("RandomScenarioOptions.shape 'square' needs n_arms = 4")
         for name in ("size", "obstacle_radius"):
-            value = getattr(self, name)
-            if not isinstance(value, (tuple, list)) or len(value) != 2:
-                raise ValueError(f"RandomScenarioOptions.{name} must be a range (low, high), got {value!r}")
-            lo = real(f"RandomScenarioOptions.{name}[0]", value[0], positive=True)
-            hi = real(f"RandomScenarioOptions.{name}[1]", value[1], positive=True)
-            if lo > hi:
-                raise ValueError(f"RandomScenarioOptions.{name} must have low ≤ high, got {value!r}")
-            object.__setattr__(self, name, (lo, hi))
+            self._range(name, positive=True)
         for name in ("start_clearance", "min_sigma", "kp", "ke", "kappa", "epsilon", "physics_dt",
                      "control_dt", "horizon"):
             object.__setattr__(self, name, real(f"RandomScenarioOptions.{name}", getattr(self, name), positive=True))
@@ -164,14 +157,7 @@ class RandomScenarioOptions:
             raise ValueError("RandomScenarioOptions.link_radius > 0 and inter_arm=True need bodies='links', "
                              f"got bodies={self.bodies!r}, link_radius={rho}, inter_arm={self.inter_arm}")
         for name, positive in (("obstacle_speed", False), ("obstacle_path_length", True)):
-            value = getattr(self, name)
-            if not isinstance(value, (tuple, list)) or len(value) != 2:
-                raise ValueError(f"RandomScenarioOptions.{name} must be a range (low, high), got {value!r}")
-            lo = real(f"RandomScenarioOptions.{name}[0]", value[0], positive=positive, non_negative=True)
-            hi = real(f"RandomScenarioOptions.{name}[1]", value[1], positive=positive, non_negative=True)
-            if lo > hi:
-                raise ValueError(f"RandomScenarioOptions.{name} must have low ≤ high, got {value!r}")
-            object.__setattr__(self, name, (lo, hi))
+            self._range(name, positive=positive, non_negative=True)
         if not isinstance(self.barrier, str) or self.barrier not in BARRIERS:
             raise ValueError(f"RandomScenarioOptions.barrier must be one of {BARRIERS}, got {self.barrier!r}")
         object.__setattr__(self, "decay", real("RandomScenarioOptions.decay", self.decay, non_negative=True))
@@ -185,15 +171,22 @@ class RandomScenarioOptions:
         if chance > 1:
             raise ValueError(f"RandomScenarioOptions.fault_probability must lie in [0, 1], got {chance!r}")
         object.__setattr__(self, "fault_probability", chance)
-        value = self.fault_time
+        self._range("fault_time", " in seconds", horizon=self.horizon, non_negative=True)  # within the episode
+
+    def _range(self, name: str, unit: str = "", horizon: float | None = None, **bounds: bool) -> None:
+        """Option ``name`` checked to be a range (low, high) of real numbers with ``bounds`` (:func:`real`'s),
+        low ≤ high (≤ ``horizon`` if given), and stored as a tuple of floats."""
+        value = getattr(self, name)
         if not isinstance(value, (tuple, list)) or len(value) != 2:
-            raise ValueError(f"RandomScenarioOptions.fault_time must be a range (low, high) in seconds, got {value!r}")
-        lo = real("RandomScenarioOptions.fault_time[0]", value[0], non_negative=True)
-        hi = real("RandomScenarioOptions.fault_time[1]", value[1], non_negative=True)
-        if lo > hi or hi > self.horizon:
-            raise ValueError(f"RandomScenarioOptions.fault_time must have low ≤ high ≤ horizon ({self.horizon:g} s): "
-                             f"a fault comes within the episode, got {value!r}")
-        object.__setattr__(self, "fault_time", (lo, hi))
+            raise ValueError(f"RandomScenarioOptions.{name} must be a range (low, high){unit}, got {value!r}")
+        lo = real(f"RandomScenarioOptions.{name}[0]", value[0], **bounds)
+        hi = real(f"RandomScenarioOptions.{name}[1]", value[1], **bounds)
+        if horizon is not None and (lo > hi or hi > horizon):
+            raise ValueError(f"RandomScenarioOptions.{name} must have low ≤ high ≤ horizon ({horizon:g} s), "
+                             f"got {value!r}")
+        if lo > hi:
+            raise ValueError(f"RandomScenarioOptions.{name} must have low ≤ high, got {value!r}")
+        object.__setattr__(self, name, (lo, hi))
 
     @property
     def moving(self) -> bool:
