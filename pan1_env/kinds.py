@@ -129,6 +129,9 @@ class Kind:
             else:
                 np.copyto(target, values, where=where)
             return
+        if self.complete and not (add or both):
+            team[index] = values
+            return
         current = team[index]
         new = current + values if add else (current & values if both else values)
         if not self.complete:
