@@ -166,3 +166,17 @@ def test_the_benchmark_reports_the_faults() -> None:
     assert "time from fault" in markdown_table(rows).splitlines()[0]
     plain = run_benchmark(["paper_pa3_square"], ["zero"], episodes=1, max_steps=5, shield_settings=(False,))
     assert "fault_episodes" not in plain[0] and "fault" not in markdown_table(plain)
+
+
+def test_a_fault_layout_needs_the_fault_flags() -> None:
+    env = _fault_env()
+    env.reset(seed=1)
+    engine, layout, task = env.engine, env.observation_layout, env.task
+    q, qd = engine.joint_state()
+    args = (q, qd, engine.positions(), engine.bases, np.zeros((1, len(task.edges))), engine.centers, engine.radii,
+            env.max_joint_speed)
+    for faulted in (None, np.zeros((1, 3), dtype=bool)):
+        with pytest.raises(ValueError, match=r"this layout observes faults: pass faulted of shape \(1, 4\)"):
+            layout.build(*args, faulted=faulted)
+    sizes = [obs.shape[-1] for obs in layout.build(*args, faulted=engine.faulted)]
+    assert sizes == [layout.size(n) for n, _ in layout.groups]
