@@ -18,7 +18,9 @@ sub-step), ``intervention_rate`` (fraction of arm-steps where the shield changed
 this includes speed limiting) and ``fallback_steps``; on a task whose arms lose actuators, ``fault_episodes``
 (episodes in which some arm lost one), ``fault_success_rate`` (the success rate over those) and
 ``mean_time_from_fault_s`` (over those that end formed: from the step that showed the episode's last fault to
-the formation, 0 if the shape held through it). A model
+the formation, 0 if the shape held through it); on a moving formation ``mean_tracking_error_m`` (the formation
+error averaged over each episode's steps, then over episodes; success there is the error below 1 cm for the
+env's ``success_hold`` seconds at the end). A model
 trained with ``--param-sharing`` acts for each arm on the arm's own observation. :func:`run_benchmark`
 returns the rows; :func:`markdown_table` and :func:`plot_benchmark` present them.
 """
@@ -46,6 +48,7 @@ def _episode(env, policy, seed: int, shield: bool) -> dict[str, Any]:
     clearance = math.inf
     last_failure = 0.0  # the last time the formation error was ≥ 1 cm
     lost, last_fault = 0, None  # arms that have lost an actuator, and when the last one showed
+    tracking = 0.0  # the formation error summed over the steps
     infos: dict = {}
     while env.agents:
         obs, rewards, _, _, infos = env.step(policy(obs))
@@ -58,7 +61,9 @@ def _episode(env, policy, seed: int, shield: bool) -> dict[str, Any]:
             if shield:
                 interventions += int(info["shield_intervened"])
                 fallbacks += int(info["shield_fallback"])
-        if not next(iter(infos.values()))["is_success"]:
+        team = next(iter(infos.values()))
+        tracking += team["formation_error"]
+        if not team["is_success"]:
             last_failure = steps * core.control_dt
         now_lost = sum(bool(info.get("actuator_lost", False)) for info in infos.values())
         if now_lost > lost:
@@ -67,7 +72,7 @@ def _episode(env, policy, seed: int, shield: bool) -> dict[str, Any]:
     success = bool(final["is_success"])
     return {"success": success, "time_to_formation": last_failure if success else None, "return": ret,
             "cost": cost, "min_clearance": clearance, "arm_steps": arm_steps, "interventions": interventions,
-            "fallbacks": fallbacks, "last_fault": last_fault}
+            "fallbacks": fallbacks, "last_fault": last_fault, "tracking_error": tracking / max(steps, 1)}
 
 
 def run_benchmark(scenarios: Sequence[str], policies: Sequence[str], episodes: int = 5, seed: int = 0,
@@ -128,6 +133,8 @@ def run_benchmark(scenarios: Sequence[str], policies: Sequence[str], episodes: i
             row["fault_episodes"] = len(faulted)
             row["fault_success_rate"] = len(recovered) / len(faulted)
             row["mean_time_from_fault_s"] = float(np.mean(recovered)) if recovered else None
+        if env.unwrapped.observation_layout.motion:
+            row["mean_tracking_error_m"] = float(np.mean([r["tracking_error"] for r in results]))
         rows.append(row)
         if progress is not None:
             progress(f"{scenario} / {name} / shield {'on' if shield else 'off'}: "
@@ -141,12 +148,14 @@ def _finite_or_none(x: float) -> float | None:
 
 def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
     """The benchmark rows as a Markdown table (with a column for the time from a fault to the formation
-    when some row had actuator faults)."""
+    when some row had actuator faults, and one for the mean tracking error when some row's formation moved)."""
     faults = any("fault_episodes" in r for r in rows)
+    moving = any("mean_tracking_error_m" in r for r in rows)
     head = ("| scenario | policy | shield | success | time to formation [s] | mean return | cost "
             "| min clearance [mm] | interventions |"
-            + (" episodes with a fault (success): time from fault to formation [s] |" if faults else ""))
-    lines = [head, "|" + "---|" * (10 if faults else 9)]
+            + (" episodes with a fault (success): time from fault to formation [s] |" if faults else "")
+            + (" mean tracking error [mm] |" if moving else ""))
+    lines = [head, "|" + "---|" * (9 + faults + moving)]
     for r in rows:
         t = r["mean_time_to_formation_s"]
         iv = r["intervention_rate"]
@@ -155,8 +164,13 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
             f"| {r['scenario']} | {r['policy']} | {'on' if r['shield'] else 'off'} | {r['success_rate']:.0%} "
             f"| {'—' if t is None else f'{t:.1f}'} | {r['mean_return']:.1f} | {r['total_cost']:g} "
             f"| {'—' if clear is None else f'{1000 * clear:+.1f}'} | {'—' if iv is None else f'{iv:.1%}'} |"
-            + (f" {_fault_cell(r)} |" if faults else ""))
+            + (f" {_fault_cell(r)} |" if faults else "")
+            + (f" {_tracking_cell(r)} |" if moving else ""))
     return "\n".join(lines)
+
+
+def _tracking_cell(row: dict[str, Any]) -> str:
+    return "—" if "mean_tracking_error_m" not in row else f"{1000 * row['mean_tracking_error_m']:.1f}"
 
 
 def _fault_cell(row: dict[str, Any]) -> str:

@@ -11,7 +11,8 @@ vector is scaled down (not clipped entry by entry), so the action stays a descen
 An arm whose observation says it has lost its first joint's actuator takes the law of its PAn−1
 model in its actuated joints' entries (the lost joint's entry is 0, ignored). Such an arm, and a PAn−1
 arm with a damped passive joint, subtract J̄⁺ of the drift their passive momentum gives the
-end-effector (p₁ from the observed joint speeds, docs/MODEL.md §7).
+end-effector (p₁ from the observed joint speeds, docs/MODEL.md §7). With a moving formation the arm adds
+J̄⁺ of the feed-forward its observation carries (``formation_velocity``, docs/MODEL.md §8).
 Behind :class:`pan1_env.wrappers.SafetyShield` this is the paper's full safe controller.
 """
 
@@ -39,7 +40,8 @@ def decode_observation(obs: np.ndarray, layout: ObservationLayout, n_links: int 
     Returns ``q``, ``qd_scaled``, ``ee_rel_base``, the present neighbours' ``neighbour_delta``
     (p_j − p_i, ``(m, 2)``) and ``neighbour_error`` (``(m,)``), and every obstacle slot
     ``obstacles`` ``(K, 5)`` (``[present, dx, dy, r, h]``, absent slots zero), and where the layout
-    observes faults ``actuator_lost`` (a bool).
+    observes faults ``actuator_lost`` (a bool), and where it observes a moving formation
+    ``formation_velocity`` (ṗ_ff, ``(2,)`` m/s).
     """
     if not isinstance(layout, ObservationLayout):
         raise TypeError(f"decode_observation(obs, layout): layout is the env's observation_layout, got {layout!r}")
@@ -51,6 +53,8 @@ def decode_observation(obs: np.ndarray, layout: ObservationLayout, n_links: int 
     nb = obs[seg["neighbours"]].reshape(layout.slots, NEIGHBOUR_FEATURES)
     present = nb[:, 0] > 0.5
     out = {} if "actuator_lost" not in seg else {"actuator_lost": bool(obs[seg["actuator_lost"]][0] > 0.5)}
+    if "formation_velocity" in seg:
+        out["formation_velocity"] = obs[seg["formation_velocity"]]
     return out | {
         "q": np.arctan2(obs[seg["sin_q"]], obs[seg["cos_q"]]),
         "qd_scaled": obs[seg["qd_scaled"]],
@@ -94,6 +98,8 @@ class ReferencePolicy:
         if lost or (arm.passive_first_joint and arm.passive_damping > 0):  # p₁ ≠ 0 possible (else exactly 0)
             p1 = passive_momentum(arm, d["q"], d["qd_scaled"] * env.max_joint_speed)
             drift = end_effector_drift(arm, d["q"], p1)
+        if "formation_velocity" in d:  # the moving shape's feed-forward: a drift the other way
+            drift = (0.0 if drift is None else drift) - d["formation_velocity"]
         v0 = nominal_velocity(reduced_jacobian(arm, d["q"]), e_hat, kp, drift)
         if gain is not None:
             gain = np.asarray(gain, dtype=float)

@@ -38,6 +38,7 @@ TASKS = {
     "pan1_env/RandomFormation-v1": {"safety_filter": True},
     "pan1_env/WholeArmStaticFormation-v1": {"safety_filter": True},
     "pan1_env/FaultFormation-v0": {"safety_filter": True},
+    "pan1_env/MovingFormation-v0": {"safety_filter": True},
 }
 YAML_DIR = Path(__file__).with_name("benchmarl_tasks")
 

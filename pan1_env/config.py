@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -80,6 +81,8 @@ class FormationConfig:
       2 ms in torque mode, or the next shorter step that divides ``control_dt`` and keeps K_e·dt ≤ 1).
     * ``max_steps``: steps before truncation (default: the scenario's horizon / ``control_dt``).
     * ``terminate_on_collision``, ``terminate_on_success``, ``success_tolerance`` (m, default 0.01).
+    * ``success_hold`` (s, default 0): success needs the formation error below ``success_tolerance`` for this
+      long without a break (a moving formation's tracking criterion, docs/ENVIRONMENTS.md).
     * ``formation_weight``, ``effort_weight``, ``collision_penalty``, ``success_bonus``,
       ``intervention_penalty``: reward weights (defaults 1, 0, 0, 0, 0).
     * ``residual_gate``, ``blocked_gate``: gates of the residual correction (``action_mode="residual"``
@@ -106,6 +109,7 @@ class FormationConfig:
     terminate_on_collision: bool = False
     terminate_on_success: bool = False
     success_tolerance: float = SUCCESS_TOLERANCE
+    success_hold: float = 0.0
     formation_weight: float = 1.0
     effort_weight: float = 0.0
     collision_penalty: float = 0.0
@@ -137,7 +141,7 @@ class FormationConfig:
         for name in ("formation_weight", "effort_weight", "collision_penalty", "success_bonus",
                      "intervention_penalty", "gain_range"):
             put(name, real(name, getattr(self, name)))
-        for name in ("residual_gate", "blocked_gate"):
+        for name in ("residual_gate", "blocked_gate", "success_hold"):
             put(name, real(name, getattr(self, name), non_negative=True))
         put("terminate_on_collision", bool(self.terminate_on_collision))
         put("terminate_on_success", bool(self.terminate_on_success))
@@ -155,6 +159,9 @@ class FormationConfig:
         max_steps = int(np.ceil(self.team.horizon / self.control_dt - 1e-9)) if self.max_steps is None \
             else self.max_steps
         put("max_steps", positive_int("max_steps", max_steps))
+        if self.success_hold > self.max_steps * self.control_dt:  # legitimate in a short smoke test: warn
+            warnings.warn(f"success_hold={self.success_hold:g} s is longer than the episode ({self.max_steps} steps "
+                          f"of {self.control_dt:g} s): no episode can succeed", stacklevel=3)
         put("safety_filter", filter_parameters(self.safety_filter, self.team))
 
     def _resolve_team(self, put) -> None:

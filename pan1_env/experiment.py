@@ -89,8 +89,8 @@ def run(
         "clearance": np.zeros((n_rec, N)),
     }
 
-    def edge_error() -> np.ndarray:
-        return edge_length_errors(edge_vectors(incidence, sim.positions()), distances)
+    def edge_error() -> np.ndarray:  # against the lengths now (a moving formation's change)
+        return edge_length_errors(edge_vectors(incidence, sim.positions()), sim.targets()[0])
 
     def sample_state(r: int) -> None:
         traj["time"][r] = sim.time

@@ -29,6 +29,7 @@ __all__ = [
     "is_infinitesimally_rigid",
     "is_connected",
     "shape_positions",
+    "realise",
     "SHAPES",
 ]
 
@@ -145,8 +146,11 @@ def shape_positions(shape: str, size: float, n_agents: int) -> tuple[np.ndarray,
     raise FormationError(f"unknown formation shape {shape!r}; choose one of {SHAPES}")
 
 
-def _realise(edges: np.ndarray, distances: np.ndarray, n_agents: int) -> np.ndarray | None:
-    """Find planar positions whose edge lengths equal ``distances`` (None if none is found)."""
+def realise(edges: np.ndarray, distances: np.ndarray, n_agents: int, near: np.ndarray | None = None
+            ) -> np.ndarray | None:
+    """Planar positions ``(N, 2)`` whose edge lengths equal ``distances`` (None if none is found): with ``near``
+    the one a local search finds from those positions first (a graph's distances can have several
+    realisations, e.g. a triangle folded over a shared edge; this keeps the one next to ``near``)."""
     from scipy.optimize import least_squares
 
     def residual(x: np.ndarray) -> np.ndarray:
@@ -155,8 +159,9 @@ def _realise(edges: np.ndarray, distances: np.ndarray, n_agents: int) -> np.ndar
 
     scale = float(distances.max())
     rng = np.random.default_rng(0)
+    starts = [] if near is None else [np.asarray(near, dtype=float).ravel()]
     for _ in range(20):
-        x0 = rng.uniform(-scale, scale, 2 * n_agents)
+        x0 = starts.pop() if starts else rng.uniform(-scale, scale, 2 * n_agents)
         sol = least_squares(residual, x0, xtol=1e-15, ftol=1e-15, gtol=1e-15)
         if np.max(np.abs(sol.fun)) < 1e-9 * scale:
             return sol.x.reshape(n_agents, 2)
@@ -222,7 +227,7 @@ class Formation:
             raise FormationError("an edge is listed twice")
         if not np.all(np.isfinite(d)) or np.any(d <= 0):
             raise FormationError(f"distances must be positive, got {d.tolist()}")
-        pos = _realise(e, d, n_agents) if is_connected(e, n_agents) else None
+        pos = realise(e, d, n_agents) if is_connected(e, n_agents) else None
         if pos is None and is_connected(e, n_agents):
             raise FormationError(
                 f"no planar placement of the arms realises the distances {d.tolist()} "

@@ -3,8 +3,9 @@
 :class:`ObservationLayout` fixes, from a scenario's structure, what each agent sees and where
 (the table in its docstring):
 ``[cos q, sin q, q̇ / v_max, p − p0, D neighbour slots (present, dx, dy, err), K obstacle slots
-(present, dx, dy, r, h)]``, with moving obstacles the K slots' velocities (vx, vy), and on a team whose
-arms may lose an actuator a last flag: this arm has lost its first joint's actuator.
+(present, dx, dy, r, h)]``, with moving obstacles the K slots' velocities (vx, vy), with a moving formation the
+velocity its motion asks of the end-effector, and on a team whose arms may lose an actuator a last flag: this arm
+has lost its first joint's actuator.
 :meth:`ObservationLayout.build` computes every agent's observation
 from batched state arrays with a leading batch axis B (the parallel env passes B = 1, the vector
 env B copies), one compiled call (:func:`pan1_env.kernels.group_observations`) per group of
@@ -49,6 +50,7 @@ class ObservationLayout:
     | next ``4D`` | D neighbour slots ``[present, dx, dy, err]`` |
     | next ``5K`` | K obstacle slots ``[present, dx, dy, r, h]`` |
     | next ``2K`` | only with moving obstacles: the same slots' obstacle velocities ``[vx, vy]`` (m/s) |
+    | next 2 | only with a moving formation (``Scenario.motion``): the feed-forward ṗ_ff,i (m/s; :mod:`~.motion`) |
     | last 1 | only where arms may fault (``Scenario.fault_times``): 1.0 once the arm's first joint lost its drive |
 
     D is the formation graph's largest degree (N − 1 for random scenarios); for neighbour j,
@@ -68,6 +70,7 @@ class ObservationLayout:
         obstacle_velocity: the scenario has moving obstacles: the observation ends with the K obstacle
             slots' velocities ``[vx, vy]`` (m/s).
         faults: the team's arms may lose an actuator: the observation ends with the arm's fault flag.
+        motion: the formation moves: the observation has the velocity its motion asks of the end-effector.
     """
 
     n: np.ndarray
@@ -79,6 +82,7 @@ class ObservationLayout:
     groups: tuple[tuple[int, np.ndarray], ...]
     obstacle_velocity: bool = False
     faults: bool = False
+    motion: bool = False
 
     @classmethod
     def from_scenario(cls, scenario: Scenario, slots: int, n_obstacle_obs: int) -> ObservationLayout:
@@ -101,7 +105,8 @@ class ObservationLayout:
         groups = tuple((int(m), np.flatnonzero(n == m)) for m in np.unique(n))
         return cls(n=n, slots=int(slots), n_obstacle_obs=int(n_obstacle_obs), neighbour=neighbour,
                    neighbour_edge=edge, neighbour_present=present, groups=groups,
-                   obstacle_velocity=scenario.obstacle_paths is not None, faults=scenario.fault_times is not None)
+                   obstacle_velocity=scenario.obstacle_paths is not None, faults=scenario.fault_times is not None,
+                   motion=scenario.motion is not None)
 
     @cached_property
     def _neighbour_mask(self) -> np.ndarray:
@@ -109,14 +114,15 @@ class ObservationLayout:
 
     @cached_property
     def _group_sizes(self) -> tuple[tuple[np.ndarray, int], ...]:
-        """Each group's arms and the size the compiled builders write (the fault flag comes after)."""
-        return tuple((ids, self.size(n) - self.faults) for n, ids in self.groups)
+        """Each group's arms and the size the compiled builders write (the feed-forward and the fault flag come
+        after)."""
+        return tuple((ids, self.size(n) - self.faults - 2 * self.motion) for n, ids in self.groups)
 
     def size(self, n: int) -> int:
         """Observation length of an agent with n links."""
         velocities = 2 * self.n_obstacle_obs if self.obstacle_velocity else 0
         return (3 * n + 2 + NEIGHBOUR_FEATURES * self.slots + OBSTACLE_FEATURES * self.n_obstacle_obs + velocities
-                + self.faults)
+                + 2 * self.motion + self.faults)
 
     def segments(self, n: int) -> dict[str, slice]:
         """Where each part of an n-link agent's observation lies, as slices of its vector.
@@ -125,8 +131,8 @@ class ObservationLayout:
         ``neighbours`` (:attr:`slots` × :data:`NEIGHBOUR_FEATURES` entries ``[present, dx, dy, err]``)
         and ``obstacles`` (:attr:`n_obstacle_obs` × :data:`OBSTACLE_FEATURES` entries
         ``[present, dx, dy, r, h]``), in this order, then with :attr:`obstacle_velocity`
-        ``obstacle_velocities`` (the same slots' ``[vx, vy]``), then with :attr:`faults` ``actuator_lost``
-        (one entry), covering :meth:`size` entries.
+        ``obstacle_velocities`` (the same slots' ``[vx, vy]``), then with :attr:`motion` ``formation_velocity``
+        (ṗ_ff, two entries), then with :attr:`faults` ``actuator_lost`` (one entry), covering :meth:`size` entries.
         """
         nb = 3 * n + 2
         ob = nb + NEIGHBOUR_FEATURES * self.slots
@@ -136,6 +142,9 @@ class ObservationLayout:
         if self.obstacle_velocity:
             end += 2 * self.n_obstacle_obs
             parts["obstacle_velocities"] = slice(end - 2 * self.n_obstacle_obs, end)
+        if self.motion:
+            parts["formation_velocity"] = slice(end, end + 2)
+            end += 2
         if self.faults:
             parts["actuator_lost"] = slice(end, end + 1)
         return parts
@@ -164,7 +173,8 @@ class ObservationLayout:
     def build_with_errors(self, q: np.ndarray, qd: np.ndarray, P: np.ndarray, base: np.ndarray, edges: np.ndarray,
                           distances: np.ndarray, centers: np.ndarray, radii: np.ndarray,
                           max_joint_speed: float, n_chunks: int = 0, *, velocities: np.ndarray | None = None,
-                          faulted: np.ndarray | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
+                          faulted: np.ndarray | None = None, formation_velocity: np.ndarray | None = None
+                          ) -> tuple[np.ndarray, list[np.ndarray]]:
         """The edges' length errors ‖z_k‖ − d_k ``(B, E)`` and :meth:`build`'s observations, computed
         together (``edges (E, 2)`` int64, ``distances (B, E)``; other arguments as :meth:`build`)."""
         _check_chunks(n_chunks)
@@ -174,7 +184,7 @@ class ObservationLayout:
         if n_chunks:
             kern.edge_length_errors(P, edges, distances, err)
             return err, self.build(q, qd, P, base, err, centers, radii, max_joint_speed, n_chunks,
-                                   velocities=velocities, faulted=faulted)
+                                   velocities=velocities, faulted=faulted, formation_velocity=formation_velocity)
         out = []
         for r, (ids, size) in enumerate(self._group_sizes):
             obs = np.empty((P.shape[0], len(ids), size), dtype=np.float32)
@@ -187,7 +197,7 @@ class ObservationLayout:
                                         self.neighbour_edge, self._neighbour_mask, self.n_obstacle_obs,
                                         1.0 / max_joint_speed, OBS_BOUND, obs)
             out.append(obs)
-        return err, self._flagged(out, faulted)
+        return err, self._appended(out, faulted, formation_velocity)
 
     def _velocities(self, velocities: np.ndarray | None, radii: np.ndarray) -> np.ndarray:
         """The kernels' velocity argument: ``(B, O, 2)`` with :attr:`obstacle_velocity`, else ``(B, 0, 2)``."""
@@ -199,7 +209,8 @@ class ObservationLayout:
 
     def build(self, q: np.ndarray, qd: np.ndarray, P: np.ndarray, base: np.ndarray, edge_errors: np.ndarray,
               centers: np.ndarray, radii: np.ndarray, max_joint_speed: float, n_chunks: int = 0, *,
-              velocities: np.ndarray | None = None, faulted: np.ndarray | None = None) -> list[np.ndarray]:
+              velocities: np.ndarray | None = None, faulted: np.ndarray | None = None,
+              formation_velocity: np.ndarray | None = None) -> list[np.ndarray]:
         """Every agent's observation, one float32 array ``(B, A, size(n))`` per group of :attr:`groups`.
 
         Args:
@@ -212,6 +223,8 @@ class ObservationLayout:
                 :attr:`obstacle_velocity` (required there, ignored otherwise).
             faulted: ``(B, N)`` booleans, the arms that have lost their first joint's actuator, for a layout
                 with :attr:`faults` (required there, ignored otherwise).
+            formation_velocity: ``(B, N, 2)`` the feed-forward ṗ_ff (m/s), for a layout with :attr:`motion`
+                (required there, ignored otherwise).
             n_chunks: 0 for the single-threaded kernel; otherwise the teams are split into this
                 many chunks on numba's thread pool (for large B).
         """
@@ -228,14 +241,25 @@ class ObservationLayout:
             else:
                 kern.group_observations(*args)
             out.append(obs)
-        return self._flagged(out, faulted)
+        return self._appended(out, faulted, formation_velocity)
 
-    def _flagged(self, out: list[np.ndarray], faulted: np.ndarray | None) -> list[np.ndarray]:
-        """With :attr:`faults`, each group's observations with the arms' fault flags appended."""
-        if not self.faults:
+    def _appended(self, out: list[np.ndarray], faulted: np.ndarray | None,
+                  formation_velocity: np.ndarray | None) -> list[np.ndarray]:
+        """Each group's observations with, after what the compiled builders wrote, the feed-forward
+        (with :attr:`motion`) and the fault flag (with :attr:`faults`)."""
+        B, N = out[0].shape[0], len(self.n)
+        extra = []
+        if self.motion:
+            if formation_velocity is None or np.shape(formation_velocity) != (B, N, 2):
+                raise ValueError(f"this layout observes a moving formation: pass formation_velocity of shape "
+                                 f"{(B, N, 2)}")
+            extra.append(np.clip(formation_velocity, -OBS_BOUND, OBS_BOUND).astype(np.float32))
+        if self.faults:
+            if faulted is None or np.shape(faulted) != (B, N):
+                raise ValueError(f"this layout observes faults: pass faulted of shape {(B, N)}")
+            extra.append(np.asarray(faulted, dtype=np.float32)[..., None])
+        if not extra:
             return out
-        if faulted is None or np.shape(faulted) != (out[0].shape[0], len(self.n)):
-            raise ValueError(f"this layout observes faults: pass faulted of shape {(out[0].shape[0], len(self.n))}")
-        flags = np.asarray(faulted, dtype=np.float32)
-        return [np.concatenate([obs, flags[:, ids, None]], axis=-1) for (ids, _), obs in
+        columns = np.concatenate(extra, axis=-1)
+        return [np.concatenate([obs, columns[:, ids]], axis=-1) for (ids, _), obs in
                 zip(self._group_sizes, out, strict=True)]

@@ -34,6 +34,7 @@ from .bodies import closest_point_on_segment, inter_arm_clearance, link_clearanc
 from .cascade import reduced_jacobian
 from .dynamics import ArmParams, end_effector, mass_matrix
 from .formation import Formation, shape_positions
+from .motion import FormationMotion
 from .safety import BARRIERS, Obstacles, clearance
 from .scenario import BODIES, Scenario
 from .validation import positive_int, real, whole_ratio
@@ -86,6 +87,13 @@ class RandomScenarioOptions:
         fault_time: the range (low, high) in seconds the fault's time is drawn from, within the horizon.
             The two fault options are drawn after everything else: a team with faults is the same seed's
             team without them, plus its fault times.
+        formation_scale: the range (low, high) of the moving formation's scale s (docs/MODEL.md §8); the
+            default (1, 1) keeps the shape still and draws nothing.
+        scale_period: seconds between the scale's keyframes: s = 1 at 0 s, then at every multiple of the
+            period within the horizon a scale drawn from ``formation_scale``, linear in between. Drawn after
+            the faults, and redrawn (up to 20 times, then a new team) until every arm reaches its vertex of
+            the drawn placement, scaled, at every scale between the lowest and highest keyframe and the
+            scaled vertices stay 5 cm clear of the obstacles.
     """
 
     n_arms: int = 4
@@ -115,6 +123,8 @@ class RandomScenarioOptions:
     passive_damping: float = 0.0
     fault_probability: float = 0.0
     fault_time: tuple[float, float] = (1.0, 10.0)
+    formation_scale: tuple[float, float] = (1.0, 1.0)
+    scale_period: float = 15.0
 
     def __post_init__(self) -> None:
         n_arms = positive_int("RandomScenarioOptions.n_arms", self.n_arms, minimum=2)
@@ -172,6 +182,9 @@ class RandomScenarioOptions:
             raise ValueError(f"RandomScenarioOptions.fault_probability must lie in [0, 1], got {chance!r}")
         object.__setattr__(self, "fault_probability", chance)
         self._range("fault_time", " in seconds", horizon=self.horizon, non_negative=True)  # within the episode
+        self._range("formation_scale", positive=True)
+        object.__setattr__(self, "scale_period", real("RandomScenarioOptions.scale_period", self.scale_period,
+                                                      positive=True))
 
     def _range(self, name: str, unit: str = "", horizon: float | None = None, **bounds: bool) -> None:
         """Option ``name`` checked to be a range (low, high) of real numbers with ``bounds`` (:func:`real`'s),
@@ -192,6 +205,11 @@ class RandomScenarioOptions:
     def moving(self) -> bool:
         """Whether the drawn obstacles move (``obstacle_speed`` above 0)."""
         return self.obstacle_speed[1] > 0
+
+    @property
+    def moving_formation(self) -> bool:
+        """Whether the drawn formation moves (``formation_scale`` other than (1, 1))."""
+        return self.formation_scale != (1.0, 1.0)
 
     @property
     def passive(self) -> tuple[bool, ...]:
@@ -307,6 +325,11 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
         if opt.fault_probability > 0:  # drawn last: the team is the one drawn without faults
             faults = (rng.random(N) < opt.fault_probability) & ~np.array(opt.passive)
             fault_times = np.where(faults, rng.uniform(*opt.fault_time, N), np.inf)
+        motion = None
+        if opt.moving_formation:
+            motion = _draw_motion(rng, opt, formation, targets, arms, np.array(centers).reshape(-1, 2), radii)
+            if motion is None:
+                continue
         for q in q0:
             q.setflags(write=False)
         return Scenario(
@@ -319,8 +342,32 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
             obstacle_paths=np.array(paths).reshape(-1, 2) if opt.moving else None,
             obstacle_speeds=np.array(speeds) if opt.moving else None,
             safety_barrier=opt.barrier, safety_decay=opt.decay, safety_gate=opt.gate, fault_times=fault_times,
+            motion=motion,
         )
     raise RuntimeError(f"no valid random scenario in {max_tries} draws; loosen the options {opt}")
+
+
+def _draw_motion(rng: np.random.Generator, opt: RandomScenarioOptions, formation: Formation, targets: np.ndarray,
+                 arms: list[ArmParams], centers: np.ndarray, radii: list[float]) -> FormationMotion | None:
+    """Scale keyframes every ``scale_period`` s (s = 1 at 0 s) such that each arm reaches its vertex of the
+    placement ``targets (N, 2)`` (centred on the origin) at every scale between the lowest and the highest,
+    and those vertices stay 5 cm clear of the obstacles; None after 20 draws without."""
+    times = np.arange(0.0, opt.horizon + 1e-9, opt.scale_period)
+    scale = np.linspace(0.0, 1.0, 21)
+    bases = np.array([a.base for a in arms])
+    inner = np.array([max(0.0, 2.0 * max(a.lengths) - a.reach) for a in arms])
+    outer = np.array([a.reach for a in arms])
+    for _ in range(20):
+        scales = np.concatenate([[1.0], rng.uniform(*opt.formation_scale, len(times) - 1)])
+        s = scales.min() + scale * (scales.max() - scales.min())
+        vertices = s[:, None, None] * targets[None]  # (21, N, 2)
+        dist = np.linalg.norm(vertices - bases, axis=-1)
+        if np.any(dist > outer - 0.01) or np.any(dist < inner + 0.01):
+            continue
+        if len(radii) and clearance(vertices.reshape(-1, 2), centers, np.asarray(radii)).min() < 0.05:
+            continue
+        return FormationMotion(times, scales)
+    return None
 
 
 def _arms_apart(arms: list[ArmParams], q0: list[np.ndarray], opt: RandomScenarioOptions) -> bool:

@@ -13,6 +13,8 @@
 * ``pan1_env/FaultFormation-v0`` (RandomFormation-v1's teams, whose fully actuated arms each lose their
   first joint's actuator with probability ½ at a time drawn from 1–10 s; passive joints damped with
   b = 0.5 N·m·s/rad: docs/ENVIRONMENTS.md),
+* ``pan1_env/MovingFormation-v0`` (RandomFormation-v1's teams, whose formation scales between 0.8 and 1.2
+  through keyframes 15 s apart; success is the error below 1 cm for the last 5 s: docs/ENVIRONMENTS.md),
 
 as :class:`~pan1_env.centralized.CentralizedEnv` (one agent controlling every arm), and the one-arm task
 ``pan1_env/PAReach-v0`` (:class:`~pan1_env.reach.PAReachEnv`). The envs truncate their episodes
@@ -31,6 +33,8 @@ __all__ = ["register_envs", "env_arguments", "ENV_IDS", "REACH_ENV_ID", "DEFAULT
 _WHOLE_ARM = {"bodies": "links", "link_radius": 0.03, "inter_arm": True}
 _V1_FILTER = {"barrier": "distance", "decay": 50.0, "kappa": 0.5, "epsilon": 5.0}  # docs/ENVIRONMENTS.md says why
 _FAULTS = {"fault_probability": 0.5, "fault_time": (1.0, 10.0), "passive_damping": 0.5}
+_MOVING = {"formation_scale": (0.8, 1.2), "scale_period": 15.0}
+MOVING_SUCCESS_HOLD = 5.0  # s: MovingFormation-v0's success is the error below tolerance for this long
 ENV_IDS = {
     "pan1_env/PaperPA3Square-v0": {"scenario": "paper_pa3_square"},
     "pan1_env/PaperMixedPA-v0": {"scenario": "paper_pa_mixed_square"},
@@ -45,6 +49,8 @@ ENV_IDS = {
     "pan1_env/WholeArmFormation-v1": {"scenario": "random",
                                       "random_options": _WHOLE_ARM | _V1_FILTER | {"obstacle_speed": (0.05, 0.2)}},
     "pan1_env/FaultFormation-v0": {"scenario": "random", "random_options": _V1_FILTER | _FAULTS},
+    "pan1_env/MovingFormation-v0": {"scenario": "random", "random_options": _V1_FILTER | _MOVING,
+                                    "success_hold": MOVING_SUCCESS_HOLD},
 }
 REACH_ENV_ID = "pan1_env/PAReach-v0"
 DEFAULT_REACH_STEPS = 200  # PAReach-v0: 10 s at the default control_dt of 0.05 s

@@ -16,6 +16,7 @@ the README ("Scenario files"); in short::
                   passive_damping = 0 (N·m·s/rad at a passive first joint)   (optional)
     [[arms]]      base, q0, and any arm_defaults key to override it
     [formation]   shape = "square" | "polygon" with size,  or  edges + distances (0-based arms)
+    [formation.motion]  scale = [[t, s], ...], switch_distances, switch_time, switch_duration = 0  (optional)
     [[obstacles]] center, radius, and for a moving obstacle path_end = [x, y] and speed (m/s)
 
 Angles (``q0``, ``phi``) are numbers in radians or strings such as ``"-3*pi/4"``.
@@ -42,7 +43,8 @@ from .bodies import (
     obstacle_velocities,
 )
 from .dynamics import ArmParams
-from .formation import Formation, FormationError
+from .formation import Formation, FormationError, realise
+from .motion import FormationMotion, align, check_motion
 from .safety import BARRIERS, Obstacles, clearance
 
 if sys.version_info >= (3, 11):
@@ -102,6 +104,8 @@ class Scenario:
     #: ``(N,)`` s: when each arm's first joint loses its actuator (inf: never; docs/MODEL.md §7); None: no arm
     #: of this team or of the teams an engine loads after it can fault
     fault_times: np.ndarray | None = None
+    #: how the desired shape moves (:class:`pan1_env.motion.FormationMotion`, docs/MODEL.md §8); None: it stands
+    motion: FormationMotion | None = None
 
     def __post_init__(self) -> None:
         if self.bodies not in BODIES:
@@ -131,6 +135,15 @@ class Scenario:
             object.__setattr__(self, "obstacle_speeds", speeds)
         if self.fault_times is not None:
             object.__setattr__(self, "fault_times", self._checked_fault_times())
+        if self.motion is not None:
+            if not isinstance(self.motion, FormationMotion):
+                raise ValueError(f"Scenario.motion must be a FormationMotion or None, got {type(self.motion).__name__}")
+            try:
+                check_motion(self.motion, self.formation.target, self.formation.edges,
+                             np.array([a.base for a in self.arms]), np.array([a.reach for a in self.arms]),
+                             self.horizon)
+            except ValueError as err:
+                raise ValueError(f"Scenario.motion: {err}") from None
 
     def _checked_fault_times(self) -> np.ndarray:
         times = np.array(self.fault_times, dtype=float).reshape(-1)
@@ -404,7 +417,7 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
     arms = tuple(a for a, _ in built)
     q0 = tuple(q for _, q in built)
 
-    form = _table(data, "formation", src, {"shape", "size", "edges", "distances"})
+    form = _table(data, "formation", src, {"shape", "size", "edges", "distances", "motion"})
     try:
         if "shape" in form:
             if "edges" in form or "distances" in form:
@@ -478,8 +491,48 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
         ignore_unreachable_obstacles=ignore, source=source, bodies=bodies, link_radius=link_radius,
         inter_arm=inter_arm, obstacle_paths=obstacle_paths, obstacle_speeds=obstacle_speeds,
         safety_barrier=barrier, safety_decay=decay, safety_gate=gate,
-        fault_times=_fault_times(data, arms, horizon, src),
+        fault_times=_fault_times(data, arms, horizon, src), motion=_motion(form, formation, arms, horizon, src),
     )
+
+
+def _motion(form: Mapping[str, Any], formation: Formation, arms: tuple[ArmParams, ...], horizon: float,
+            src: str) -> FormationMotion | None:
+    """``[formation.motion]`` as :attr:`Scenario.motion` (None without the table): ``scale``, a list of
+    ``[time, scale]`` keyframes (default ``[[0, 1]]``), and for a switch ``switch_distances`` (the edges' new
+    lengths), ``switch_time`` and ``switch_duration``, checked against the team
+    (:func:`pan1_env.motion.check_motion`)."""
+    if "motion" not in form:
+        return None
+    table = _known_keys(form["motion"], "formation.motion", src,
+                        {"scale", "switch_distances", "switch_time", "switch_duration"})
+    keyframes = table.get("scale", [[0.0, 1.0]])
+    if not isinstance(keyframes, list) or not keyframes or not all(
+            isinstance(k, list) and len(k) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                        for x in k) for k in keyframes):
+        raise ScenarioError(src, "formation.motion.scale", f"expected a list of [time, scale] pairs, got {keyframes!r}")
+    switch = {}
+    if "switch_distances" in table:
+        distances = _vector(table["switch_distances"], src, "formation.motion.switch_distances")
+        try:
+            other = Formation.from_edges(formation.edges.tolist(), distances, formation.n_agents)
+        except FormationError as err:
+            raise ScenarioError(src, "formation.motion.switch_distances", str(err)) from None
+        switch = {"switch_shape": align(realise(other.edges, other.distances, other.n_agents, near=formation.target),
+                                        formation.target),
+                  "switch_time": _number(table, "switch_time", src, "formation.motion", positive=False),
+                  "switch_duration": _number(table, "switch_duration", src, "formation.motion", positive=False,
+                                             default=0.0)}
+    elif "switch_time" in table or "switch_duration" in table:
+        raise ScenarioError(src, "formation.motion.switch_time", "a switch needs switch_distances (the edges' "
+                            "lengths after it)")
+    try:
+        motion = FormationMotion(np.array(keyframes, dtype=float)[:, 0], np.array(keyframes, dtype=float)[:, 1],
+                                 **switch)
+        check_motion(motion, formation.target, formation.edges, np.array([a.base for a in arms]),
+                     np.array([a.reach for a in arms]), horizon)
+    except ValueError as err:
+        raise ScenarioError(src, "formation.motion", str(err)) from None
+    return motion
 
 
 def _fault_times(data: Mapping[str, Any], arms: tuple[ArmParams, ...], horizon: float, src: str) -> np.ndarray | None:

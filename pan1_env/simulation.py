@@ -17,6 +17,7 @@ import numpy as np
 from .control import nominal_velocity
 from .engine import Engine, StepRecord
 from .formation import edge_errors, edge_vectors, formation_gradient
+from .motion import MotionTable
 from .scenario import Scenario
 
 __all__ = ["Simulation", "StepRecord"]
@@ -38,6 +39,10 @@ class Simulation:
                  physics_dt: float | None = None) -> None:
         self.scenario = scenario
         self.engine = Engine(scenario, 1, physics_dt=physics_dt, safety_filter=safety_filter, qp_solver=qp_solver)
+        self.motion = None
+        if scenario.motion is not None:
+            self.motion = MotionTable(1, scenario.n_arms, len(scenario.motion.scale_times))
+            self.motion.load(0, scenario.formation.target, scenario.motion)
         self.reset()
 
     @property
@@ -86,15 +91,27 @@ class Simulation:
             kind.to_team(out, self.engine.kind_terms(kind).momentum)
         return out[0]
 
-    def nominal_velocity(self) -> np.ndarray:
-        """The distributed formation law v_i0 = −K_P J̄_iᵀ ê_i (Eq. 39) of every arm, ``(N, k_max)``."""
+    def targets(self) -> tuple[np.ndarray, np.ndarray]:
+        """The desired edge lengths ``(E,)`` now and the feed-forward ṗ_ff ``(N, 2)`` (zero for a still formation;
+        a moving one's at the clock, :mod:`pan1_env.motion`)."""
         formation = self.scenario.formation
+        if self.motion is None:
+            return formation.distances, np.zeros((self.n_arms, 2))
+        d, ff = self.motion.targets(np.array([self.time]), formation.edges, self.engine.positions())
+        return d[0], ff[0]
+
+    def nominal_velocity(self) -> np.ndarray:
+        """The distributed formation law v_i0 = −K_P J̄_iᵀ ê_i (Eq. 39) of every arm, ``(N, k_max)`` (a moving
+        formation's lengths now and J̄⁺ of its feed-forward added, docs/MODEL.md §8)."""
+        formation = self.scenario.formation
+        distances, ff = self.targets()
         z = edge_vectors(formation.incidence, self.positions())
-        e_hat = formation_gradient(formation.incidence, z, edge_errors(z, formation.distances))
+        e_hat = formation_gradient(formation.incidence, z, edge_errors(z, distances))
         out = np.zeros((1, self.n_arms, self.k_max))
         for kind in self.engine.kinds:
             terms = self.engine.kind_terms(kind)
-            kind.to_team(out, nominal_velocity(terms.Jbar, e_hat[kind.ids], self.scenario.kp, terms.drift))
+            drift = terms.drift if self.motion is None else (0.0 if terms.drift is None else terms.drift) - ff[kind.ids]
+            kind.to_team(out, nominal_velocity(terms.Jbar, e_hat[kind.ids], self.scenario.kp, drift))
         return out[0]
 
     def step(self, command: np.ndarray, substeps: int, *, torque: bool = False,

@@ -18,6 +18,7 @@ from .control import nominal_velocity
 from .dynamics import end_effector
 from .engine import Engine, StepRecord
 from .formation import edge_errors, edge_length_errors, edge_vectors, formation_gradient, incidence_matrix
+from .motion import MotionTable
 from .observation import OBS_BOUND, OBSTACLE_FEATURES, ObservationLayout
 from .random_scenario import zero_momentum_start
 from .safety import clearance
@@ -49,7 +50,9 @@ class FormationTask:
     Reward of agent i: ``−formation_weight · mean_k |‖z_k‖ − d_k| − effort_weight · ‖a_i‖²/k_i
     − collision_penalty · cost_i + success_bonus · success − intervention_penalty · ‖(v_i − v*_i)/v_max‖²/k_i``
     (v_i the commanded, v*_i the filtered velocity of the step's last sub-step); success: every edge
-    within ``success_tolerance`` of its length.
+    within ``success_tolerance`` of its length (for ``success_hold`` seconds without a break, if set). With a moving
+    formation (``Scenario.motion``) the lengths are the moving shape's at the copy's clock, and the law gets
+    the motion's feed-forward (:mod:`pan1_env.motion`).
     The observation layout (:class:`~pan1_env.observation.ObservationLayout`) is the one public
     description of what each agent sees.
 
@@ -93,6 +96,14 @@ class FormationTask:
         self.incidence = incidence_matrix(self.edges, scenario.n_arms)  # for the residual mode's law and gate
         self.distances = np.tile(np.asarray(scenario.formation.distances, dtype=float)[None], (copies, 1))
         self.kp = np.full(copies, float(scenario.kp))
+        self.success_hold = config.success_hold
+        self.below_since = np.zeros(copies)  # the clock when the error last was at or above the tolerance
+        self.motion = None
+        if layout.motion:
+            self.motion = MotionTable(copies, scenario.n_arms, len(scenario.motion.scale_times))
+            for b in range(copies):
+                self.motion.load(b, scenario.formation.target, scenario.motion)
+        self.feed_forward = np.zeros((copies, scenario.n_arms, 2))  # ṗ_ff (m/s): zero for a still formation
         self.sizes = [layout.size(n) for n in layout.n]
         self.offsets = np.concatenate([[0], np.cumsum(self.sizes)])
         # every arm in one layout group, in agent order: the flat observation is a reshape
@@ -106,17 +117,27 @@ class FormationTask:
         return {}
 
     def reset(self, copies: np.ndarray, rngs: list[np.random.Generator], engine: Engine, options: dict) -> None:
-        """A new episode in ``copies`` (their arms at their start): no filter change of a previous command yet."""
+        """A new episode in ``copies`` (their arms at their start): no filter change of a previous command yet,
+        and no time below the tolerance."""
         self.blocked[copies] = 0.0
+        self.below_since[copies] = 0.0
 
     def bounds(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """Agent i's observation bounds."""
         return self.layout.bounds(int(self.layout.n[i]))
 
     def load_team(self, b: int, scenario: Scenario) -> None:
-        """Copy ``b`` now has ``scenario``'s formation."""
+        """Copy ``b`` now has ``scenario``'s formation (and its motion, where the env's formations move)."""
         self.distances[b] = scenario.formation.distances
         self.kp[b] = scenario.kp
+        if self.motion is not None:
+            self.motion.load(b, scenario.formation.target, scenario.motion)
+
+    def track(self, engine: Engine) -> None:
+        """With a moving formation, the desired lengths and the feed-forward at every copy's clock and state."""
+        if self.motion is None:
+            return
+        self.distances[:], self.feed_forward = self.motion.targets(engine.elapsed, self.edges, engine.positions())
 
     def nominal_velocity(self, engine: Engine, gain: np.ndarray | None = None) -> np.ndarray:
         """The paper's distributed law for every arm, ``(B, N, k_max)`` rad/s (padding zero):
@@ -124,14 +145,19 @@ class FormationTask:
         whose passive joint turns, minus J̄⁺ of its end-effector's drift, docs/MODEL.md §7), each arm's
         vector scaled down as a whole to ``max_joint_speed`` when an entry exceeds it (so it stays a
         descent direction of V), as :class:`~pan1_env.baselines.ReferencePolicy` does from observations.
-        ``gain (B, N, k_max)``, if given, multiplies each joint's term before that scaling."""
+        ``gain (B, N, k_max)``, if given, multiplies each joint's term before that scaling. A moving formation
+        adds J̄⁺ ṗ_ff (its feed-forward) before that scaling."""
+        self.track(engine)
         z = edge_vectors(self.incidence, engine.positions())  # (B, E, 2)
         e_hat = formation_gradient(self.incidence, z, edge_errors(z, self.distances))  # (B, N, 2)
         out = np.zeros((engine.copies, engine.n_arms, engine.k_max))
         for kind in engine.kinds:
             terms = engine.kind_terms(kind)
             e = e_hat[:, kind.ids].reshape(-1, 2)
-            v0 = nominal_velocity(terms.Jbar, e, np.repeat(self.kp, kind.A)[:, None], terms.drift)
+            drift = terms.drift
+            if self.motion is not None:  # the motion's feed-forward is a drift the other way
+                drift = (0.0 if drift is None else drift) - self.feed_forward[:, kind.ids].reshape(-1, 2)
+            v0 = nominal_velocity(terms.Jbar, e, np.repeat(self.kp, kind.A)[:, None], drift)
             if gain is not None:
                 v0 *= kind.from_team(gain, kind.k)
             peak = np.abs(v0).max(axis=1, initial=0.0) / self.max_joint_speed
@@ -178,12 +204,13 @@ class FormationTask:
     def observe(self, engine: Engine) -> tuple[np.ndarray, list[np.ndarray]]:
         """The edges' length errors ``(B, E)`` and every agent's observation, one float32 array
         ``(B, A, size)`` per group of :attr:`ObservationLayout.groups`."""
+        self.track(engine)
         q, qd = engine.joint_state()
         velocities = engine.obstacle_velocities() if self.layout.obstacle_velocity else None
         return self.layout.build_with_errors(q, qd, engine.positions(), engine.bases, self.edges, self.distances,
                                              engine.centers, engine.radii, self.max_joint_speed,
                                              engine.chunks(engine.copies * engine.n_arms), velocities=velocities,
-                                             faulted=engine.faulted)
+                                             faulted=engine.faulted, formation_velocity=self.feed_forward)
 
     def flat(self, mats: list[np.ndarray]) -> np.ndarray:
         """The agents' observations concatenated in agent order, ``(B, Σ size)``."""
@@ -208,6 +235,10 @@ class FormationTask:
         cost = np.empty(min_clear.shape)
         kernels().formation_outcome(err, min_clear, w_form, self.success_tolerance, formation, formation_error,
                                     success, cost)
+        if self.success_hold > 0:
+            clock = engine.elapsed
+            self.below_since = np.where(success, self.below_since, clock)
+            success &= clock - self.below_since >= self.success_hold - 1e-9
         reward = np.empty_like(cost)
         reward[:] = formation[:, None]
         intervention = 0.0

@@ -171,3 +171,12 @@ def test_fault_task_specs_hold() -> None:
     wrapped = PettingZooWrapper(env=env, use_mask=False, return_state=True)
     check_env_specs(wrapped, seed=0)
     assert wrapped.rollout(12, break_when_any_done=False)["next", "arm", "info", "actuator_lost"][-1].sum() >= 1
+
+
+def test_moving_task_specs_hold() -> None:
+    """``MovingFormation-v0``: both TorchRL views pass their spec check while the shape moves."""
+    native = torchrl_env("pan1_env/MovingFormation-v0", num_envs=3, max_steps=10, safety_filter=True, success_hold=0.2,
+                         random_options={"scale_period": 0.2})
+    check_env_specs(native, seed=0)
+    env = PadToLargestArm(SafetyShield(parallel_env("pan1_env/MovingFormation-v0", max_steps=12, success_hold=0.2)))
+    check_env_specs(PettingZooWrapper(env=env, use_mask=False, return_state=True), seed=0)

@@ -1,0 +1,238 @@
+"""Moving formations: a desired shape that changes with time (docs/MODEL.md §8).
+
+The desired shape is a realisation of the formation that scales and morphs,
+
+    r(t) = s(t) · [(1 − λ(t)) r_A + λ(t) r_B],
+
+with s(t) piecewise linear through keyframes (t_m, s_m) (held before the first and after the last),
+r_A the formation's realisation, r_B the shape it switches to (the same edges, other lengths, aligned to
+r_A) and λ(t) rising linearly from 0 to 1 over [t_s, t_s + T_s] (a step when T_s = 0). The desired edge
+lengths are the shape's, d_k(t) = ‖r_i(t) − r_j(t)‖, so every d(t) is realisable in the plane, and
+
+    d_k ḋ_k = (r_i − r_j) · (ṙ_i − ṙ_j).
+
+The distances fix a shape only up to a rigid motion, so the formation cannot be told to turn or travel:
+those need a displacement-based graph, which the package does not have.
+
+The **feed-forward** is the smallest set of end-effector velocities that changes every edge at its
+desired rate: with the rigidity matrix R(p) (row k: z_kᵀ at arm i, −z_kᵀ at arm j),
+
+    ṗ_ff = Rᵀ (R Rᵀ + μ I)⁻¹ (d ⊙ ḋ),     μ = FEED_FORWARD_DAMPING (m²),
+
+so that z_k · (ṗ_i − ṗ_j) = d_k ḋ_k where R has full row rank: with it, the edge errors
+e_k = ‖z_k‖² − d_k² see no disturbance from the motion. μ keeps it bounded where R loses rank (the arms
+in a line); at a formation of side 0.5 m it changes ṗ_ff by about 0.1 %. It needs every end-effector,
+so the env computes it and gives each arm its own share (the observation's ``formation_velocity``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["FormationMotion", "MotionTable", "FEED_FORWARD_DAMPING", "MIN_EDGE", "edge_rates", "feed_forward", "align",
+           "check_motion"]
+
+FEED_FORWARD_DAMPING = 1e-4  # μ in m²: R Rᵀ + μ I stays invertible where the arms line up
+
+
+@dataclass(frozen=True)
+class FormationMotion:
+    """How a formation's desired shape moves: scale keyframes and an optional switch to another shape.
+
+    Attributes:
+        scale_times: ``(K,)`` s, increasing, K ≥ 1: the keyframes' times.
+        scales: ``(K,)`` > 0: s at those times (linear between them, held outside).
+        switch_shape: ``(N, 2)`` r_B, the shape switched to (same edges as the formation; None: no switch).
+        switch_time: t_s (s) when the switch starts.
+        switch_duration: T_s ≥ 0 (s) it takes (0: a step).
+    """
+
+    scale_times: np.ndarray
+    scales: np.ndarray
+    switch_shape: np.ndarray | None = None
+    switch_time: float = math.inf
+    switch_duration: float = 0.0
+
+    def __post_init__(self) -> None:
+        times = np.array(self.scale_times, dtype=float).reshape(-1)
+        scales = np.array(self.scales, dtype=float).reshape(-1)
+        if times.size == 0 or times.shape != scales.shape:
+            raise ValueError(f"FormationMotion: scale_times and scales need the same K ≥ 1 entries, got "
+                             f"{times.size} and {scales.size}")
+        if not (np.all(np.isfinite(times)) and np.all(times >= 0) and np.all(np.diff(times) > 0)):
+            raise ValueError(f"FormationMotion.scale_times must be finite, ≥ 0 and increasing, got {times.tolist()}")
+        if not (np.all(np.isfinite(scales)) and np.all(scales > 0)):
+            raise ValueError(f"FormationMotion.scales must be positive, got {scales.tolist()}")
+        if self.switch_shape is not None:
+            shape = np.array(self.switch_shape, dtype=float)
+            if shape.ndim != 2 or shape.shape[1] != 2 or not np.all(np.isfinite(shape)):
+                raise ValueError(f"FormationMotion.switch_shape must be finite (N, 2) positions, got {shape.shape}")
+            if not (math.isfinite(self.switch_time) and self.switch_time >= 0):
+                raise ValueError(f"FormationMotion.switch_time must be a finite time ≥ 0 (s), got "
+                                 f"{self.switch_time!r}")
+            shape.setflags(write=False)
+            object.__setattr__(self, "switch_shape", shape)
+        if not (math.isfinite(self.switch_duration) and self.switch_duration >= 0):
+            raise ValueError(f"FormationMotion.switch_duration must be finite and ≥ 0 (s), got "
+                             f"{self.switch_duration!r}")
+        for arr in (times, scales):
+            arr.setflags(write=False)
+        object.__setattr__(self, "scale_times", times)
+        object.__setattr__(self, "scales", scales)
+
+    def shape(self, start: np.ndarray, t: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+        """The desired shape r(t) and its velocity ṙ(t), ``(T, N, 2)`` each, from the formation's realisation
+        ``start (N, 2)`` at the times ``t (T,)``."""
+        table = MotionTable(1, len(start), len(self.scale_times))
+        table.load(0, start, self)
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        return table.shape(t[:, None], np.zeros(len(t), dtype=np.int64))
+
+
+class MotionTable:
+    """The moving shapes of B copies, batched: each copy's keyframes (padded by holding the last), its
+    shapes r_A, r_B and its switch, so that one call gives every copy's target at its own clock."""
+
+    def __init__(self, copies: int, n_arms: int, keyframes: int) -> None:
+        self.start = np.zeros((copies, n_arms, 2))
+        self.end = np.zeros((copies, n_arms, 2))
+        self.times = np.tile(np.arange(max(keyframes, 2), dtype=float), (copies, 1))
+        self.scales = np.ones((copies, max(keyframes, 2)))
+        self.switch = np.tile([math.inf, 0.0], (copies, 1))  # t_s, T_s
+
+    def load(self, b: int, start: np.ndarray, motion: FormationMotion | None) -> None:
+        """Copy ``b`` moves as ``motion`` from the realisation ``start (N, 2)`` (None: holds it)."""
+        self.start[b] = start
+        self.end[b] = start if motion is None or motion.switch_shape is None else motion.switch_shape
+        K = self.times.shape[1]
+        times = np.zeros(1) if motion is None else motion.scale_times
+        scales = np.ones(1) if motion is None else motion.scales
+        if len(times) > K:
+            raise ValueError(f"a motion with {len(times)} scale keyframes does not fit this env's {K}")
+        self.times[b] = np.concatenate([times, times[-1] + 1.0 + np.arange(K - len(times))])
+        self.scales[b] = np.concatenate([scales, np.full(K - len(scales), scales[-1])])
+        self.switch[b] = (math.inf, 0.0) if motion is None or motion.switch_shape is None else \
+            (motion.switch_time, motion.switch_duration)
+
+    def shape(self, t: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """r(t) and ṙ(t), ``(B, N, 2)``, for each copy at its time ``t (B,)`` (``rows``: the copies' rows in the
+        table, default all; ``t`` then has one time per row, or ``(T, 1)`` times of one row)."""
+        rows = np.arange(len(self.times)) if rows is None else rows
+        times, scales = self.times[rows], self.scales[rows]
+        t = np.asarray(t, dtype=float).reshape(-1)
+        seg = np.clip((times <= t[:, None]).sum(axis=1) - 1, 0, times.shape[1] - 2)
+        t0 = np.take_along_axis(times, seg[:, None], 1)[:, 0]
+        t1 = np.take_along_axis(times, seg[:, None] + 1, 1)[:, 0]
+        s0 = np.take_along_axis(scales, seg[:, None], 1)[:, 0]
+        s1 = np.take_along_axis(scales, seg[:, None] + 1, 1)[:, 0]
+        inside = (t >= times[:, 0]) & (t < times[:, -1])
+        rate = np.where(inside, (s1 - s0) / (t1 - t0), 0.0)
+        s = s0 + rate * (np.clip(t, times[:, 0], times[:, -1]) - t0)
+        s = np.where(t >= times[:, -1], scales[:, -1], s)
+        t_s, dur = self.switch[rows, 0], self.switch[rows, 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam = np.where(dur > 0, np.clip((t - t_s) / dur, 0.0, 1.0), (t >= t_s).astype(float))
+            lam_rate = np.where((dur > 0) & (t >= t_s) & (t < t_s + dur), 1.0 / dur, 0.0)
+        start, end = self.start[rows], self.end[rows]
+        blend = start + lam[:, None, None] * (end - start)
+        r = s[:, None, None] * blend
+        r_dot = rate[:, None, None] * blend + (s * lam_rate)[:, None, None] * (end - start)
+        return r, r_dot
+
+
+    def targets(self, t: np.ndarray, edges: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Every copy's desired edge lengths d ``(B, E)`` at its time ``t (B,)`` and the feed-forward ṗ_ff
+        ``(B, N, 2)`` at its end-effectors ``P (B, N, 2)``."""
+        distances, rates = edge_rates(edges, *self.shape(t))
+        return distances, feed_forward(edges, P, rates)
+
+
+def edge_rates(edges: np.ndarray, r: np.ndarray, r_dot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The desired lengths d ``(B, E)`` of the shapes ``r (B, N, 2)`` and d ⊙ ḋ from their velocities ``r_dot``."""
+    dz = r[:, edges[:, 0]] - r[:, edges[:, 1]]
+    dz_dot = r_dot[:, edges[:, 0]] - r_dot[:, edges[:, 1]]
+    return np.sqrt(np.sum(dz * dz, axis=-1)), np.sum(dz * dz_dot, axis=-1)
+
+
+def feed_forward(edges: np.ndarray, P: np.ndarray, rates: np.ndarray) -> np.ndarray:
+    """ṗ_ff = Rᵀ (R Rᵀ + μ I)⁻¹ (d ⊙ ḋ) ``(B, N, 2)`` at the end-effectors ``P (B, N, 2)`` for the edge rates
+    ``rates (B, E)`` = d ⊙ ḋ (zero where every rate is zero)."""
+    out = np.zeros(P.shape)
+    moving = np.any(rates != 0, axis=1)
+    if not moving.any():
+        return out
+    B, N = int(moving.sum()), P.shape[1]
+    E = len(edges)
+    z = P[moving][:, edges[:, 0]] - P[moving][:, edges[:, 1]]  # (B, E, 2)
+    R = np.zeros((B, E, N, 2))
+    R[:, np.arange(E), edges[:, 0]] = z
+    R[:, np.arange(E), edges[:, 1]] = -z
+    R = R.reshape(B, E, 2 * N)
+    gram = R @ R.transpose(0, 2, 1) + FEED_FORWARD_DAMPING * np.eye(E)
+    out[moving] = (R.transpose(0, 2, 1) @ np.linalg.solve(gram, rates[moving][..., None]))[..., 0].reshape(B, N, 2)
+    return out
+
+
+def align(shape: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """``shape (N, 2)`` moved rigidly (turned, and mirrored where that fits better) onto ``reference (N, 2)``
+    in the least-squares sense: the same distances, placed so that blending the two shapes moves each
+    vertex as little as it can."""
+    a, b = shape - shape.mean(0), reference - reference.mean(0)
+    best = None
+    for mirror in (np.eye(2), np.diag([1.0, -1.0])):
+        u, _, vt = np.linalg.svd((a @ mirror).T @ b)
+        d = np.diag([1.0, np.sign(np.linalg.det(u @ vt))])
+        moved = (a @ mirror) @ (u @ d @ vt) + reference.mean(0)
+        err = float(np.sum((moved - reference) ** 2))
+        if best is None or err < best[0]:
+            best = (err, moved)
+    return best[1]
+
+
+MIN_EDGE = 0.01  # m: the shortest edge a moving shape may ask for (its lengths' errors are relative to it)
+
+
+def check_motion(motion: FormationMotion, start: np.ndarray, edges: np.ndarray, bases: np.ndarray,
+                 reaches: np.ndarray, horizon: float) -> None:
+    """Raise ``ValueError`` for a motion the team cannot follow from the realisation ``start (N, 2)``: keyframes
+    or a switch outside ``[0, horizon]``, a switch shape of the wrong size or one the edges do not hold rigid
+    along the blend, an edge shorter than :data:`MIN_EDGE`, or two arms asked to be farther apart than their
+    bases' distance plus their reaches (or closer than their bases' distance minus them). The last is
+    necessary, not sufficient: a shape that passes may still be out of reach as a whole."""
+    from .formation import is_infinitesimally_rigid
+
+    N = len(start)
+    if motion.scale_times[-1] > horizon:
+        raise ValueError(f"the scale keyframes end at {motion.scale_times[-1]:g} s, after the episode's "
+                         f"{horizon:g} s")
+    if motion.switch_shape is not None:
+        if motion.switch_shape.shape != (N, 2):
+            raise ValueError(f"the switch shape has {motion.switch_shape.shape[0]} vertices for {N} arms")
+        if motion.switch_time > horizon:
+            raise ValueError(f"the switch at {motion.switch_time:g} s comes after the episode's {horizon:g} s")
+        for lam in np.linspace(0.0, 1.0, 51):
+            blend = start + lam * (motion.switch_shape - start)
+            if not is_infinitesimally_rigid(edges, blend):
+                raise ValueError(f"the edges do not hold the shape rigid {lam:.0%} of the way through the switch "
+                                 "(the blend of the two shapes degenerates): choose other lengths")
+    grid = np.unique(np.concatenate([np.arange(0.0, horizon, 0.05), [horizon], motion.scale_times,
+                                     [min(motion.switch_time, horizon), min(motion.switch_time
+                                                                            + motion.switch_duration, horizon)]]))
+    r, _ = motion.shape(start, grid)
+    i, j = np.triu_indices(N, 1)
+    apart = np.linalg.norm(r[:, i] - r[:, j], axis=-1)  # (T, pairs)
+    bases_apart = np.linalg.norm(bases[i] - bases[j], axis=-1)
+    far, near = bases_apart + reaches[i] + reaches[j], bases_apart - reaches[i] - reaches[j]
+    for bad, bound, word in ((apart > far + 1e-9, far, "farther apart"), (apart < near - 1e-9, near, "closer")):
+        if bad.any():
+            t, p = np.argwhere(bad)[0]
+            raise ValueError(f"at t = {grid[t]:g} s the shape puts arms {i[p]} and {j[p]} {apart[t, p]:.3f} m apart, "
+                             f"{word} than their reach allows ({bound[p]:.3f} m from their bases' distance and "
+                             f"reaches): no placement of the formation is reachable")
+    lengths = np.linalg.norm(r[:, edges[:, 0]] - r[:, edges[:, 1]], axis=-1)
+    if (lengths < MIN_EDGE).any():
+        t = int(np.argwhere(lengths < MIN_EDGE)[0, 0])
+        raise ValueError(f"at t = {grid[t]:g} s an edge of the moving shape is shorter than {MIN_EDGE} m")

@@ -1,0 +1,334 @@
+"""Moving formations: the shape's lengths and their rates against finite differences and an independent
+geometry, the feed-forward against the edge rates it must realise, ``[formation.motion]`` and the random
+options with their bad inputs, the tracking success, the reference law from observations against the env's,
+the feed-forward's effect on tracking, and ``pan1_env/MovingFormation-v0`` under Gymnasium's, PettingZoo's and
+TorchRL's API tests."""
+
+from __future__ import annotations
+
+from importlib import resources
+
+import gymnasium
+import numpy as np
+import pytest
+import tomllib
+from pettingzoo.test import parallel_api_test
+
+from pan1_env import scenario
+from pan1_env.baselines import ReferencePolicy
+from pan1_env.environment import parallel_env
+from pan1_env.formation import Formation
+from pan1_env.motion import FEED_FORWARD_DAMPING, MIN_EDGE, FormationMotion, MotionTable, edge_rates, feed_forward
+from pan1_env.random_scenario import RandomScenarioOptions, random_scenario
+from pan1_env.registration import env_arguments
+
+RECTANGLE = [0.7, 0.8, 0.7, 0.8, float(np.hypot(0.7, 0.8))]  # the square's edges (sides, then the diagonal 0–2)
+
+
+def _square(motion: dict | None) -> dict:
+    data = tomllib.loads(resources.files("pan1_env.scenarios").joinpath("paper_pa3_square.toml").read_text())
+    if motion is not None:
+        data["formation"]["motion"] = motion
+    return data
+
+
+def _moving_square(**motion) -> scenario.Scenario:
+    return scenario.from_dict(_square({"scale": [[0, 1.0], [50, 1.0], [70, 1.2]], "switch_distances": RECTANGLE,
+                                       "switch_time": 80.0, "switch_duration": 10.0} | motion))
+
+
+def test_the_shape_scales_and_switches_as_its_keyframes_say() -> None:
+    team = _moving_square()
+    start = team.formation.target
+    r, _ = team.motion.shape(start, [0.0, 25.0, 50.0, 60.0, 70.0, 79.9, 90.0, 100.0])
+    d = np.linalg.norm(r[:, team.formation.edges[:, 0]] - r[:, team.formation.edges[:, 1]], axis=-1)
+    np.testing.assert_allclose(d[:3], np.tile(team.formation.distances, (3, 1)), rtol=1e-12)
+    np.testing.assert_allclose(d[3], 1.1 * team.formation.distances, rtol=1e-12)
+    np.testing.assert_allclose(d[4:6], np.tile(1.2 * team.formation.distances, (2, 1)), rtol=1e-12)
+    # after the switch: the rectangle's lengths, scaled; not its folded twin (arms 1 and 3 on one side)
+    np.testing.assert_allclose(d[6:], np.tile(1.2 * np.array(RECTANGLE), (2, 1)), rtol=1e-9)
+    assert np.linalg.norm(r[-1, 1] - r[-1, 3]) > 1.0
+    step = _moving_square(switch_duration=0.0).motion.shape(start, [79.99, 80.0])[0]
+    assert np.linalg.norm(step[0, 1] - step[0, 2]) == pytest.approx(0.84) and \
+        np.linalg.norm(step[1, 1] - step[1, 2]) == pytest.approx(0.96)
+
+
+@pytest.mark.parametrize("t", [10.0, 55.0, 69.0, 83.0, 89.5])
+def test_the_rates_are_the_lengths_derivatives(t: float) -> None:
+    """d ⊙ ḋ from the shape's velocity equals a central difference of ½ d² (d from numpy's norm of the shape)."""
+    team = _moving_square()
+    h = 1e-5
+    r, r_dot = team.motion.shape(team.formation.target, [t - h, t, t + h])
+    edges = team.formation.edges
+    d, rates = edge_rates(edges, r, r_dot)
+    half_square = 0.5 * np.sum((r[:, edges[:, 0]] - r[:, edges[:, 1]]) ** 2, axis=-1)
+    np.testing.assert_allclose(d[1], np.sqrt(2 * half_square[1]), rtol=1e-12)
+    np.testing.assert_allclose(rates[1], (half_square[2] - half_square[0]) / (2 * h), atol=1e-8)
+
+
+@pytest.mark.parametrize("edges,distances", [
+    ([[0, 1], [1, 2], [2, 3], [0, 3], [0, 2]], RECTANGLE),  # minimally rigid
+    ([[0, 1], [1, 2], [2, 3], [0, 3], [0, 2], [1, 3]], [0.7] * 4 + [float(np.hypot(0.7, 0.7))] * 2),  # one to spare
+])
+def test_the_feed_forward_changes_every_edge_at_its_rate(edges, distances) -> None:
+    """At a realisation, z_k · (ṗ_i − ṗ_j) = d_k ḋ_k for the scaling's and a morph's rates, up to the damping μ."""
+    form = Formation.from_edges(edges, distances, 4)
+    E = np.asarray(form.edges)
+    rng = np.random.default_rng(0)
+    P = form.target + rng.uniform(-1, 1, 2)  # anywhere in the plane
+    target_rate = rng.normal(size=(4, 2))  # a velocity of every vertex: its edge rates are realisable
+    rates = np.sum((P[E[:, 0]] - P[E[:, 1]]) * (target_rate[E[:, 0]] - target_rate[E[:, 1]]), axis=-1)
+    ff = feed_forward(E, P[None], rates[None])[0]
+    realised = np.sum((P[E[:, 0]] - P[E[:, 1]]) * (ff[E[:, 0]] - ff[E[:, 1]]), axis=-1)
+    np.testing.assert_allclose(realised, rates, atol=50 * FEED_FORWARD_DAMPING * np.abs(rates).max())
+    # the least such velocity: no more than the vertices' own
+    assert np.linalg.norm(ff) <= np.linalg.norm(target_rate - target_rate.mean(0)) + 1e-9
+    np.testing.assert_array_equal(feed_forward(E, P[None], np.zeros((1, len(E)))), 0.0)
+
+
+def test_a_table_of_copies_gives_each_its_own_motion() -> None:
+    team = _moving_square()
+    table = MotionTable(3, 4, 5)
+    table.load(0, team.formation.target, team.motion)
+    table.load(1, team.formation.target, None)
+    table.load(2, team.formation.target, team.motion)
+    r, r_dot = table.shape(np.array([60.0, 60.0, 85.0]))
+    one, one_dot = team.motion.shape(team.formation.target, [60.0, 85.0])
+    np.testing.assert_allclose(r[[0, 2]], one, rtol=1e-12)
+    np.testing.assert_allclose(r_dot[[0, 2]], one_dot, rtol=1e-12)
+    np.testing.assert_allclose(r[1], team.formation.target)
+    np.testing.assert_array_equal(r_dot[1], 0.0)
+    with pytest.raises(ValueError, match="a motion with 3 scale keyframes does not fit this env's 2"):
+        MotionTable(1, 4, 2).load(0, team.formation.target, team.motion)
+
+
+@pytest.mark.parametrize(("motion", "message"), [
+    ({"scale": [[0, 1.0], [150, 1.1]]}, r"formation\.motion: the scale keyframes end at 150 s, after the episode's"),
+    ({"scale": [[0, 1.0], [0, 1.1]]}, r"formation\.motion: .*scale_times must be finite, ≥ 0 and increasing"),
+    ({"scale": [[0, -1.0]]}, r"formation\.motion: .*scales must be positive"),
+    ({"scale": "fast"}, r"formation\.motion\.scale: expected a list of \[time, scale\] pairs"),
+    ({"scale": [[0, 1.0]], "speed": 2}, r"formation\.motion\.speed: unknown key"),
+    ({"switch_time": 3.0}, r"formation\.motion\.switch_time: a switch needs switch_distances"),
+    ({"switch_distances": [0.7, 0.8]}, r"formation\.motion\.switch_distances: got 5 edges but 2 distances"),
+    ({"switch_distances": [0.7, 0.7, 0.7, 0.7, 3.0], "switch_time": 1.0},
+     r"formation\.motion\.switch_distances: no planar placement"),
+    ({"switch_distances": RECTANGLE}, r"formation\.motion\.switch_time: missing"),
+    ({"switch_distances": RECTANGLE, "switch_time": 120.0}, r"the switch at 120 s comes after the episode's 100 s"),
+    ({"switch_distances": RECTANGLE, "switch_time": 1.0, "switch_duration": -1.0},
+     r"formation\.motion\.switch_duration: must be non-negative"),
+    ({"scale": [[0, 1.0], [10, 8.0]]}, r"at t = \d.* s the shape puts arms \d and \d .* m apart, farther apart than"),
+    ({"scale": [[0, 1.0], [10, 0.3]]}, r"the shape puts arms \d and \d .* closer than their reach allows"),
+], ids=["keyframe_after_horizon", "keyframes_not_increasing", "negative_scale", "scale_not_pairs", "unknown_key",
+        "switch_without_shape", "switch_distances_count", "switch_unrealisable", "switch_time_missing",
+        "switch_after_horizon", "negative_duration", "out_of_reach_far", "out_of_reach_near"])
+def test_bad_motions_in_a_scenario_file(motion: dict, message: str) -> None:
+    with pytest.raises(scenario.ScenarioError, match=message):
+        scenario.from_dict(_square(motion))
+
+
+def test_a_moving_shape_may_not_shrink_an_edge_to_nothing() -> None:
+    """:data:`MIN_EDGE` is checked on a team whose reach would allow the arms to meet."""
+    data = _square({"scale": [[0, 1.0], [10, MIN_EDGE / 0.8]]})
+    for arm, base in zip(data["arms"], ([0, 0], [1, 0], [1, 1], [0, 1]), strict=True):
+        arm["base"] = base
+    with pytest.raises(scenario.ScenarioError, match=r"an edge of the moving shape is shorter than 0\.01 m"):
+        scenario.from_dict(data)
+
+
+def test_a_scenario_checks_the_motion_it_is_given() -> None:
+    team = _moving_square()
+    import dataclasses
+
+    with pytest.raises(ValueError, match=r"Scenario\.motion: the switch shape has 3 vertices for 4 arms"):
+        dataclasses.replace(team, motion=FormationMotion([0.0], [1.0], team.motion.switch_shape[:3], 1.0))
+    with pytest.raises(ValueError, match="Scenario.motion must be a FormationMotion or None"):
+        dataclasses.replace(team, motion={"scale": [[0, 1]]})
+
+
+def test_random_motion_draws_after_the_team_and_stays_in_reach() -> None:
+    """A moving team is, for most seeds, the seed's still team plus scale keyframes; every arm reaches its scaled
+    vertex of the drawn placement at each keyframe (checked from the arm's own kinematics: the end-effector can be
+    anywhere within its reach annulus), and the keyframes follow the options."""
+    opts = RandomScenarioOptions(formation_scale=(0.8, 1.2), scale_period=20.0)
+    same = 0
+    for seed in range(6):
+        team = random_scenario(np.random.default_rng(seed), opts)
+        still = random_scenario(np.random.default_rng(seed), RandomScenarioOptions())
+        same += all(a == b for a, b in zip(team.arms, still.arms, strict=True))
+        np.testing.assert_array_equal(team.motion.scale_times, [0.0, 20.0, 40.0, 60.0, 80.0, 100.0])
+        assert team.motion.scales[0] == 1.0 and np.all((team.motion.scales >= 0.8) & (team.motion.scales <= 1.2))
+        assert team.motion.switch_shape is None
+    assert same >= 4
+    assert random_scenario(np.random.default_rng(0), RandomScenarioOptions()).motion is None
+
+
+@pytest.mark.parametrize(("options", "message"), [
+    ({"formation_scale": (1.2, 0.8)}, r"formation_scale must have low ≤ high"),
+    ({"formation_scale": (0.0, 1.2)}, r"formation_scale\[0\] must be positive"),
+    ({"formation_scale": 1.1}, r"formation_scale must be a range"),
+    ({"scale_period": 0.0}, r"scale_period must be positive"),
+])
+def test_bad_random_motion_options(options: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        RandomScenarioOptions(**options)
+
+
+def test_success_needs_the_error_held_below_the_tolerance() -> None:
+    """With ``success_hold``, ``is_success`` turns on exactly ``success_hold`` seconds after the error last was at
+    or above the tolerance, and never without it."""
+    team = _moving_square()
+    plain, held = parallel_env(team), parallel_env(team, success_hold=5.0)
+    errors, plain_success, held_success = [], [], []
+    for env, out in ((plain, plain_success), (held, held_success)):
+        obs, _ = env.reset(seed=0)
+        policy = ReferencePolicy(env)
+        for _ in range(1000):
+            obs, _, _, _, infos = env.step(policy(obs))
+            out.append(infos["arm_0"]["is_success"])
+            if env is plain:
+                errors.append(infos["arm_0"]["formation_error"])
+    below = np.array(errors) < 0.01
+    assert below.any() and not below.all()
+    first = int(np.argmax(below))
+    np.testing.assert_array_equal(plain_success, below)
+    assert not any(held_success[: first + 99]) and held_success[first + 100]  # 100 steps of 0.05 s
+    with pytest.raises(ValueError, match="success_hold must be non-negative"):
+        parallel_env(team, success_hold=-1.0)
+    with pytest.warns(UserWarning, match=r"success_hold=200 s is longer than the episode .* no episode can succeed"):
+        parallel_env(team, success_hold=200.0)
+
+
+def test_the_feed_forward_keeps_the_moving_shape() -> None:
+    """Behind the shield, the reference holds the paper square within 1 mm while it grows by a fifth over 20 s and
+    morphs into a rectangle over 10 s; with its feed-forward zeroed the same motion opens errors of more than
+    1 cm (the formation law alone lags the moving lengths)."""
+    team = _moving_square()
+    worst = {}
+    for with_ff in (True, False):
+        env = parallel_env(team, safety_filter=True)
+        policy = ReferencePolicy(env)
+        obs, _ = env.reset(seed=0)
+        if not with_ff:
+            env.task.motion.targets = _without_feed_forward(env.task.motion.targets)
+        errors = []
+        while env.agents:
+            obs, _, _, _, infos = env.step(policy(obs))
+            errors.append(infos["arm_0"]["formation_error"])
+        t = env.control_dt * np.arange(1, len(errors) + 1)
+        worst[with_ff] = np.max(np.array(errors)[t > 52.0])
+        if with_ff:
+            assert np.abs(env.task.distances[0] - 1.2 * np.array(RECTANGLE)).max() < 1e-12
+            assert np.all(obs["arm_0"][-2:] == 0.0)  # still again: no feed-forward
+    assert worst[True] < 1e-3 < 1e-2 < worst[False]
+
+
+def _without_feed_forward(targets):
+    def zero(t, edges, P):
+        d, ff = targets(t, edges, P)
+        return d, np.zeros_like(ff)
+    return zero
+
+
+def _moving_env(**kw):
+    name, args = env_arguments("pan1_env/MovingFormation-v0", kw)
+    return parallel_env(name, **args)
+
+
+def test_the_reference_from_observations_is_the_tasks_law_with_the_feed_forward() -> None:
+    """While the shape moves, the reference policy from observations (its own J̄, the neighbours' errors and the
+    observed ṗ_ff) equals the env's own law from its state, as the residual mode's zero action."""
+    env = _moving_env(action_mode="residual", random_options={"scale_period": 1.0})
+    ref = ReferencePolicy(_moving_env())
+    ref.env = env
+    obs, _ = env.reset(seed=4)
+    rng = np.random.default_rng(2)
+    for _ in range(12):
+        obs, *_ = env.step({a: rng.uniform(-0.5, 0.5, env.action_space(a).shape) for a in env.agents})
+    assert np.abs(env.task.feed_forward).max() > 1e-2
+    segment = env.observation_layout.segments(env.scenario.arms[0].n_links)["formation_velocity"]
+    np.testing.assert_allclose(obs["arm_0"][segment], env.task.feed_forward[0, 0], rtol=1e-6)
+    nominal = env.task.nominal_velocity(env.engine)[0] / env.max_joint_speed
+    for i, agent in enumerate(env.agents):
+        np.testing.assert_allclose(nominal[i, : env.n_actuated[i]], ref.act(agent, obs[agent]), rtol=1e-4, atol=1e-5)
+
+
+def test_reproduce_measures_and_follows_a_moving_formation() -> None:
+    """``pan1-env reproduce``'s loop (:class:`~pan1_env.simulation.Simulation`) records each edge's error against
+    the moving length at the sample's time (recomputed here from the motion and the recorded end-effectors), and
+    its law is the env's: the same lengths and feed-forward at the same clock and state."""
+    from pan1_env.experiment import run
+    from pan1_env.simulation import Simulation
+
+    team = _moving_square(scale=[[0, 1.0], [3, 1.2]], switch_time=4.0, switch_duration=2.0)
+    traj = run(team, "nominal", horizon=8.0, record_dt=1.0).trajectory
+    r, _ = team.motion.shape(team.formation.target, traj["time"])
+    edges, P = team.formation.edges, traj["p_end"]
+    lengths = np.linalg.norm(r[:, edges[:, 0]] - r[:, edges[:, 1]], axis=-1)
+    np.testing.assert_allclose(traj["edge_error"], np.linalg.norm(P[:, edges[:, 0]] - P[:, edges[:, 1]], axis=-1)
+                               - lengths, atol=1e-12)
+    assert traj["time"][-1] == pytest.approx(8.0) and not np.allclose(lengths[-1], team.formation.distances)
+    sim, env = Simulation(team, safety_filter=False), parallel_env(team)
+    env.reset(seed=0)
+    sim.time, env.engine.elapsed[:] = 4.5, 4.5  # within the switch: the shape morphs
+    ff = sim.targets()[1]
+    assert np.abs(ff).max() > 1e-3
+    v_sim, v_env = sim.nominal_velocity(), env.task.nominal_velocity(env.engine)[0]
+    np.testing.assert_allclose(env.task.feed_forward[0], ff, rtol=1e-12)
+    peak = np.maximum(np.nanmax(np.abs(v_sim), axis=1) / env.max_joint_speed, 1.0)  # the env scales to its speed
+    np.testing.assert_allclose(v_env, v_sim / peak[:, None], rtol=1e-10, atol=1e-12)
+
+
+def test_the_moving_env_passes_the_api_tests() -> None:
+    parallel_api_test(_moving_env(max_steps=40, success_hold=1.0), num_cycles=40)
+    env = gymnasium.make("pan1_env:pan1_env/MovingFormation-v0", max_steps=40, success_hold=1.0)
+    from gymnasium.utils.env_checker import check_env
+
+    check_env(env.unwrapped, skip_render_check=True)
+    assert env.unwrapped.observation_layout.motion
+
+
+def test_the_benchmark_reports_the_tracking_error() -> None:
+    from pan1_env.baselines.benchmark import markdown_table, run_benchmark
+
+    rows = run_benchmark(["pan1_env/MovingFormation-v0"], ["reference"], episodes=2, max_steps=40,
+                         env_kwargs={"success_hold": 1.0}, shield_settings=(True,))
+    assert 0.0 < rows[0]["mean_tracking_error_m"] < 1.0
+    assert "mean tracking error [mm]" in markdown_table(rows).splitlines()[0]
+    plain = run_benchmark(["paper_pa3_square"], ["zero"], episodes=1, max_steps=5, shield_settings=(False,))
+    assert "mean_tracking_error_m" not in plain[0] and "tracking" not in markdown_table(plain)
+
+
+def test_a_moving_layout_needs_the_feed_forward() -> None:
+    env = _moving_env()
+    env.reset(seed=1)
+    engine, layout, task = env.engine, env.observation_layout, env.task
+    q, qd = engine.joint_state()
+    args = (q, qd, engine.positions(), engine.bases, np.zeros((1, len(task.edges))), engine.centers, engine.radii,
+            env.max_joint_speed)
+    for velocity in (None, np.zeros((1, 4, 3))):
+        with pytest.raises(ValueError, match=r"observes a moving formation: pass formation_velocity of shape"):
+            layout.build(*args, formation_velocity=velocity)
+
+
+def test_every_copy_of_the_vector_env_follows_its_own_moving_team() -> None:
+    """In the vector env each copy's desired lengths are its own team's moving shape at its own clock (copies
+    reset at different times by autoreset), and its observations carry its feed-forward."""
+    from pan1_env.vector import Pan1VectorEnv
+
+    venv = Pan1VectorEnv("pan1_env/MovingFormation-v0", 3, max_steps=7, success_hold=0.1,
+                         random_options={"scale_period": 0.2})
+    venv.reset(seed=5)
+    venv.step(np.zeros((3, venv.single_action_space.shape[0]), np.float32))
+    venv.core.reset(np.array([1]))  # copy 1 starts a new episode: its clock is behind the others'
+    obs, *_ = venv.step(np.zeros((3, venv.single_action_space.shape[0]), np.float32))
+    core = venv.core
+    clock = core.engine.elapsed
+    assert clock[1] < clock[0] == clock[2]
+    layout = core.layout
+    segment = layout.segments(venv.teams[0].arms[0].n_links)["formation_velocity"]
+    for b, team in enumerate(venv.teams):
+        r, _ = team.motion.shape(team.formation.target, clock[b])
+        lengths = np.linalg.norm(r[0, team.formation.edges[:, 0]] - r[0, team.formation.edges[:, 1]], axis=-1)
+        np.testing.assert_allclose(core.task.distances[b], lengths, rtol=1e-12)
+        np.testing.assert_allclose(obs[b, segment], core.task.feed_forward[b, 0], rtol=1e-6)
+    assert len({tuple(team.motion.scales) for team in venv.teams}) == 3
