@@ -226,17 +226,16 @@ def bench_v1(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
             (f"  ratio of its step time to RandomFormation-v0's at B = {B}", v1 / v0, "ratio")]
 
 
-def bench_faults(repeats: int, B: int = 1024, steps: int = 200) -> list[tuple[str, float, str]]:
-    """FaultFormation-v0 against RandomFormation-v1 (the same teams and filter) in the shielded vector env at B
-    copies, over the first ``steps`` steps after a reset (10 s: a fault comes at 1–10 s to about half the fully
-    actuated arms, 1,000 faults at B = 1024), each round one episode start of each, in alternation; the slowest
-    step of each against its median (a fault must cost no pause: no compilation, no long step)."""
+def _against_v1(env_id: str, repeats: int, B: int, steps: int) -> tuple[dict, dict]:
+    """``env_id`` and RandomFormation-v1 (the same teams and filter) in the shielded vector env at B copies, over the
+    first ``steps`` steps after a reset, each round one episode start of each, in alternation: per id, its
+    arm-steps per second and its slowest step over its median, one per round."""
     from pan1_env.vector import Pan1VectorEnv
 
     envs = {}
-    for env_id in ("pan1_env/RandomFormation-v1", "pan1_env/FaultFormation-v0"):
-        print(f"bench: vector env at B = {B}, {env_id} ...", file=sys.stderr, flush=True)
-        envs[env_id] = venv = Pan1VectorEnv(env_id, B)
+    for name in ("pan1_env/RandomFormation-v1", env_id):
+        print(f"bench: vector env at B = {B}, {name} ...", file=sys.stderr, flush=True)
+        envs[name] = venv = Pan1VectorEnv(name, B)
         step = _vector_stepper(venv)
         for _ in range(30):  # through a first fault: compiles the faulted twin's kernel if need be
             step()
@@ -252,7 +251,15 @@ def bench_faults(repeats: int, B: int = 1024, steps: int = 200) -> list[tuple[st
                 times.append(time.perf_counter() - start)
             rates[name].append(steps * B * venv.engine.n_arms / sum(times))
             spikes[name].append(max(times) / statistics.median(times))
-    v1, faults = (statistics.median(rates[name]) for name in envs)
+    return rates, spikes
+
+
+def bench_faults(repeats: int, B: int = 1024, steps: int = 200) -> list[tuple[str, float, str]]:
+    """FaultFormation-v0 against RandomFormation-v1 over 10 s after a reset (a fault comes at 1–10 s to about half
+    the fully actuated arms, 1,000 faults at B = 1024); the slowest step of each against its median (a fault must
+    cost no pause: no compilation, no long step)."""
+    rates, spikes = _against_v1("pan1_env/FaultFormation-v0", repeats, B, steps)
+    v1, faults = (statistics.median(rates[name]) for name in rates)
     return [(f"FaultFormation-v0, shielded arm-steps per second at B = {B} over its fault window (target ≥ 1,000,000)",
              faults, "rate"),
             (f"  ratio to RandomFormation-v1's at B = {B} (same rounds)", faults / v1, "ratio"),
@@ -260,6 +267,15 @@ def bench_faults(repeats: int, B: int = 1024, steps: int = 200) -> list[tuple[st
              max(spikes["pan1_env/FaultFormation-v0"]), "ratio"),
             ("  RandomFormation-v1's slowest step / its median step", max(spikes["pan1_env/RandomFormation-v1"]),
              "ratio")]
+
+
+def bench_moving(repeats: int, B: int = 1024, steps: int = 200) -> list[tuple[str, float, str]]:
+    """MovingFormation-v0 against RandomFormation-v1: what the moving lengths and the feed-forward's batched
+    solve cost a step."""
+    rates, _ = _against_v1("pan1_env/MovingFormation-v0", repeats, B, steps)
+    v1, moving = (statistics.median(rates[name]) for name in rates)
+    return [(f"MovingFormation-v0, shielded arm-steps per second at B = {B}", moving, "rate"),
+            (f"  ratio to RandomFormation-v1's at B = {B} (same rounds)", moving / v1, "ratio")]
 
 
 def bench_gate(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
@@ -614,8 +630,8 @@ def bench_marl(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
 
 
 #: the groups of rows, in the order they run (``--only`` picks some)
-GROUPS = ("import", "cold_start", "mpe", "acrobot", "vector", "kernel", "v1", "faults", "gate", "whole_arm", "qp",
-          "team_scaling", "marl", "reproduce", "training")
+GROUPS = ("import", "cold_start", "mpe", "acrobot", "vector", "kernel", "v1", "faults", "moving", "gate", "whole_arm",
+          "qp", "team_scaling", "marl", "reproduce", "training")
 
 
 def main() -> int:
@@ -641,6 +657,7 @@ def main() -> int:
         "kernel": lambda: bench_kernel(repeats),
         "v1": lambda: bench_v1(repeats),
         "faults": lambda: bench_faults(repeats),
+        "moving": lambda: bench_moving(repeats),
         "gate": lambda: bench_gate(repeats),
         "whole_arm": lambda: bench_whole_arm(repeats),
         "qp": lambda: bench_qp(300 if args.quick else 2000),

@@ -70,13 +70,17 @@ def test_a_fault_mid_step_equals_a_passive_arm_from_the_faults_state(bodies: str
     for s in range(5):
         rec = faulty.step(tau[s], 10, torque=True)
         if s == 2:
-            plain.step(tau[s], before, torque=True)
+            first = plain.step(tau[s], before, torque=True)
             q, qd = plain.joint_state()
             passive = Engine(_passive(team, {0}), 1, **kw)
             passive.set_state(0, list(q[0]), list(qd[0]))
             passive.elapsed[:] = plain.elapsed  # the moving obstacles where they are
             passive.place_obstacles()
             alone = passive.step(lost_joint(tau[s]), 10 - before, torque=True)
+            # the fault's step: the smallest clearance of its sub-steps before the fault and after it (the twin
+            # must see the obstacles at the step's clock, not where they were when its rows last ran)
+            np.testing.assert_allclose(rec.min_clearance, np.minimum(first.min_clearance, alone.min_clearance),
+                                       rtol=0, atol=1e-12)
         elif s < 2:
             plain.step(tau[s], 10, torque=True)
             np.testing.assert_array_equal(faulty.joint_state()[0], plain.joint_state()[0])
