@@ -130,17 +130,20 @@ class FormationCore:
     @property
     def state_size(self) -> int:
         """Size of :meth:`state`: q, q̇ (padded to the largest n) and p of every arm, centre and radius of every
-        obstacle."""
-        return len(self.agents) * (2 * max(self.n_links) + 2) + 3 * self.engine.radii.shape[1]
+        obstacle, and for a moving formation the desired lengths and every arm's feed-forward."""
+        return (len(self.agents) * (2 * max(self.n_links) + 2) + 3 * self.engine.radii.shape[1]
+                + self.task.target_state(self.engine).shape[1])
 
     def state(self) -> np.ndarray:
         """Every copy's global state ``(B, state_size)`` float32, for centralised critics: every arm's q and q̇
-        (zeros beyond its links) and end-effector, then every obstacle's centre (where it is now) and radius."""
+        (zeros beyond its links) and end-effector, then every obstacle's centre (where it is now) and radius, then
+        for a moving formation (the target moves: a critic needs it) the desired lengths now and every arm's
+        feed-forward ṗ_ff."""
         engine, B = self.engine, self.copies
         q, qd = engine.joint_state(pad=0.0)
         arms = np.concatenate([np.nan_to_num(q, nan=0.0), np.nan_to_num(qd, nan=0.0), engine.positions()], axis=-1)
         obstacles = np.concatenate([engine.centers, engine.radii[..., None]], axis=-1)
-        out = np.concatenate([arms.reshape(B, -1), obstacles.reshape(B, -1)], axis=1)
+        out = np.concatenate([arms.reshape(B, -1), obstacles.reshape(B, -1), self.task.target_state(engine)], axis=1)
         return np.clip(out, -OBS_BOUND, OBS_BOUND).astype(np.float32)
 
     def per_agent(self, mats: list[np.ndarray]) -> list[np.ndarray]:

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["FormationMotion", "MotionTable", "FEED_FORWARD_DAMPING", "MIN_EDGE", "edge_rates", "feed_forward", "align",
-           "check_motion"]
+           "blend_degenerates", "switch_shape", "check_motion"]
 
 FEED_FORWARD_DAMPING = 1e-4  # μ in m²: R Rᵀ + μ I stays invertible where the arms line up
 
@@ -193,34 +193,72 @@ def align(shape: np.ndarray, reference: np.ndarray) -> np.ndarray:
 
 
 MIN_EDGE = 0.01  # m: the shortest edge a moving shape may ask for (its lengths' errors are relative to it)
+BLEND_SAMPLES = 401  # points of a switch's blend at which its rigidity is measured
+BLEND_RIGIDITY = 0.05  # the blend's σ_{2N−3}(R) may fall to this fraction of the smaller of its two ends'
+
+
+def blend_degenerates(edges: np.ndarray, start: np.ndarray, end: np.ndarray) -> float | None:
+    """The first fraction λ of the blend (1 − λ) ``start`` + λ ``end`` (``(N, 2)`` each) at which the edges stop
+    holding the shape firmly: the rigidity matrix's (2N − 3)-th singular value below :data:`BLEND_RIGIDITY` of
+    the smaller of the two ends' (a triangle of the graph that turns over on the way goes through zero area
+    there); None if it never does, at :data:`BLEND_SAMPLES` points."""
+    from .formation import rigidity_matrix
+
+    rank = max(2 * len(start) - 3, 1)
+    lams = np.linspace(0.0, 1.0, BLEND_SAMPLES)
+    sigma = np.array([np.linalg.svd(rigidity_matrix(edges, start + lam * (end - start)), compute_uv=False)[rank - 1]
+                      for lam in lams])
+    weak = sigma < BLEND_RIGIDITY * min(sigma[0], sigma[-1])
+    return float(lams[np.argmax(weak)]) if weak.any() else None
+
+
+def switch_shape(edges: np.ndarray, distances: np.ndarray, start: np.ndarray, tries: int = 20) -> np.ndarray | None:
+    """The shape with lengths ``distances`` on ``edges`` to switch to from the realisation ``start (N, 2)``: a
+    local search from ``start`` (then from ``start`` perturbed, up to ``tries`` searches), turned onto it
+    (:func:`align`), the first whose blend with ``start`` stays rigid (:func:`blend_degenerates`): a graph's
+    lengths have several realisations, and the folded ones turn a triangle over on the way. None if none is."""
+    from .formation import realise
+
+    rng = np.random.default_rng(0)
+    scale = float(np.max(distances))
+    for k in range(tries):
+        near = start if k == 0 else start + rng.normal(0.0, 0.2 * scale, start.shape)
+        shape = realise(edges, distances, len(start), near=near)
+        if shape is not None:
+            shape = align(shape, start)
+            if blend_degenerates(edges, start, shape) is None:
+                return shape
+    return None
 
 
 def check_motion(motion: FormationMotion, start: np.ndarray, edges: np.ndarray, bases: np.ndarray,
                  reaches: np.ndarray, horizon: float) -> None:
     """Raise ``ValueError`` for a motion the team cannot follow from the realisation ``start (N, 2)``: keyframes
     or a switch outside ``[0, horizon]``, a switch shape of the wrong size or one the edges do not hold rigid
-    along the blend, an edge shorter than :data:`MIN_EDGE`, or two arms asked to be farther apart than their
-    bases' distance plus their reaches (or closer than their bases' distance minus them). The last is
-    necessary, not sufficient: a shape that passes may still be out of reach as a whole."""
-    from .formation import is_infinitesimally_rigid
-
+    along the blend (:func:`blend_degenerates`), an edge shorter than :data:`MIN_EDGE`, or two arms asked to be
+    farther apart than their bases' distance plus their reaches (or closer than their bases' distance minus
+    them), at every 0.05 s until the shape stops moving. The last is necessary, not sufficient: a shape that
+    passes may still be out of reach as a whole."""
     N = len(start)
     if motion.scale_times[-1] > horizon:
         raise ValueError(f"the scale keyframes end at {motion.scale_times[-1]:g} s, after the episode's "
                          f"{horizon:g} s")
+    still_from = motion.scale_times[-1]  # the shape does not change after this
     if motion.switch_shape is not None:
         if motion.switch_shape.shape != (N, 2):
             raise ValueError(f"the switch shape has {motion.switch_shape.shape[0]} vertices for {N} arms")
         if motion.switch_time > horizon:
             raise ValueError(f"the switch at {motion.switch_time:g} s comes after the episode's {horizon:g} s")
-        for lam in np.linspace(0.0, 1.0, 51):
-            blend = start + lam * (motion.switch_shape - start)
-            if not is_infinitesimally_rigid(edges, blend):
-                raise ValueError(f"the edges do not hold the shape rigid {lam:.0%} of the way through the switch "
-                                 "(the blend of the two shapes degenerates): choose other lengths")
-    grid = np.unique(np.concatenate([np.arange(0.0, horizon, 0.05), [horizon], motion.scale_times,
-                                     [min(motion.switch_time, horizon), min(motion.switch_time
-                                                                            + motion.switch_duration, horizon)]]))
+        lam = blend_degenerates(edges, start, motion.switch_shape)
+        if lam is not None:
+            raise ValueError(f"the edges stop holding the shape rigid {lam:.0%} of the way through the switch (a "
+                             "triangle of the formation turns over): choose other lengths")
+        still_from = max(still_from, motion.switch_time + motion.switch_duration)
+    still_from = min(still_from, horizon)
+    times = [motion.scale_times, [still_from]]
+    if motion.switch_shape is not None:
+        times.append([motion.switch_time, min(motion.switch_time + motion.switch_duration, horizon)])
+    grid = np.unique(np.concatenate([np.arange(0.0, still_from, 0.05), *times]))
     r, _ = motion.shape(start, grid)
     i, j = np.triu_indices(N, 1)
     apart = np.linalg.norm(r[:, i] - r[:, j], axis=-1)  # (T, pairs)

@@ -92,8 +92,8 @@ class RandomScenarioOptions:
         scale_period: seconds between the scale's keyframes: s = 1 at 0 s, then at every multiple of the
             period within the horizon a scale drawn from ``formation_scale``, linear in between. Drawn after
             the faults, and redrawn (up to 20 times, then a new team) until every arm reaches its vertex of
-            the drawn placement, scaled, at every scale between the lowest and highest keyframe and the
-            scaled vertices stay 5 cm clear of the obstacles.
+            the drawn placement, scaled, at every scale between the lowest and highest keyframe (1 cm inside
+            its reach annulus) and the scaled vertices stay 5 cm clear of the obstacles (where they start).
     """
 
     n_arms: int = 4
@@ -181,7 +181,8 @@ class RandomScenarioOptions:
         if chance > 1:
             raise ValueError(f"RandomScenarioOptions.fault_probability must lie in [0, 1], got {chance!r}")
         object.__setattr__(self, "fault_probability", chance)
-        self._range("fault_time", " in seconds", horizon=self.horizon, non_negative=True)  # within the episode
+        # within the episode, where faults are drawn (the default range need not fit a short horizon without them)
+        self._range("fault_time", " in seconds", horizon=self.horizon if chance > 0 else None, non_negative=True)
         self._range("formation_scale", positive=True)
         object.__setattr__(self, "scale_period", real("RandomScenarioOptions.scale_period", self.scale_period,
                                                       positive=True))
@@ -352,7 +353,7 @@ def _draw_motion(rng: np.random.Generator, opt: RandomScenarioOptions, formation
     """Scale keyframes every ``scale_period`` s (s = 1 at 0 s) such that each arm reaches its vertex of the
     placement ``targets (N, 2)`` (centred on the origin) at every scale between the lowest and the highest,
     and those vertices stay 5 cm clear of the obstacles; None after 20 draws without."""
-    times = np.arange(0.0, opt.horizon + 1e-9, opt.scale_period)
+    times = np.minimum(np.arange(0.0, opt.horizon + 1e-9, opt.scale_period), opt.horizon)  # arange may overshoot
     scale = np.linspace(0.0, 1.0, 21)
     bases = np.array([a.base for a in arms])
     inner = np.array([max(0.0, 2.0 * max(a.lengths) - a.reach) for a in arms])

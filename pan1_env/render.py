@@ -99,8 +99,12 @@ class Renderer:
             ax.plot(*pts[-1], "o", color=col, ms=7)
             ax.annotate(str(i + 1), pts[-1], textcoords="offset points", xytext=(5, 5), fontsize=8)
         f = sc.formation
-        fitted = fit_shape(f.target, P)
-        err = np.abs(np.linalg.norm(P[f.edges[:, 0]] - P[f.edges[:, 1]], axis=-1) - f.distances)
+        shape, distances = f.target, f.distances
+        task = getattr(env, "task", None)
+        if getattr(task, "motion", None) is not None:  # a moving formation: its shape and lengths now
+            shape, distances = task.motion.shape(env.engine.elapsed[:1], np.zeros(1, np.int64))[0][0], task.distances[0]
+        fitted = fit_shape(shape, P)
+        err = np.abs(np.linalg.norm(P[f.edges[:, 0]] - P[f.edges[:, 1]], axis=-1) - distances)
         for (a, b), e in zip(f.edges, err, strict=True):
             ax.plot(*fitted[[a, b]].T, "--", color="0.5", lw=1)
             formed = e < getattr(env, "success_tolerance", SUCCESS_TOLERANCE)

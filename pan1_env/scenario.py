@@ -43,8 +43,8 @@ from .bodies import (
     obstacle_velocities,
 )
 from .dynamics import ArmParams
-from .formation import Formation, FormationError, realise
-from .motion import FormationMotion, align, check_motion
+from .formation import Formation, FormationError
+from .motion import FormationMotion, check_motion, switch_shape
 from .safety import BARRIERS, Obstacles, clearance
 
 if sys.version_info >= (3, 11):
@@ -506,19 +506,22 @@ def _motion(form: Mapping[str, Any], formation: Formation, arms: tuple[ArmParams
     table = _known_keys(form["motion"], "formation.motion", src,
                         {"scale", "switch_distances", "switch_time", "switch_duration"})
     keyframes = table.get("scale", [[0.0, 1.0]])
-    if not isinstance(keyframes, list) or not keyframes or not all(
-            isinstance(k, list) and len(k) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
-                                                        for x in k) for k in keyframes):
+    if not isinstance(keyframes, list) or not keyframes or not all(isinstance(k, list) for k in keyframes):
         raise ScenarioError(src, "formation.motion.scale", f"expected a list of [time, scale] pairs, got {keyframes!r}")
+    keyframes = [_vector(k, src, f"formation.motion.scale[{m}]", size=2) for m, k in enumerate(keyframes)]
     switch = {}
     if "switch_distances" in table:
         distances = _vector(table["switch_distances"], src, "formation.motion.switch_distances")
         try:
-            other = Formation.from_edges(formation.edges.tolist(), distances, formation.n_agents)
+            Formation.from_edges(formation.edges.tolist(), distances, formation.n_agents)
         except FormationError as err:
             raise ScenarioError(src, "formation.motion.switch_distances", str(err)) from None
-        switch = {"switch_shape": align(realise(other.edges, other.distances, other.n_agents, near=formation.target),
-                                        formation.target),
+        shape = switch_shape(formation.edges, distances, formation.target)
+        if shape is None:
+            raise ScenarioError(src, "formation.motion.switch_distances", "every realisation of these lengths found "
+                                "next to the formation turns a triangle over on the way (the blend degenerates): "
+                                "choose lengths closer to the formation's")
+        switch = {"switch_shape": shape,
                   "switch_time": _number(table, "switch_time", src, "formation.motion", positive=False),
                   "switch_duration": _number(table, "switch_duration", src, "formation.motion", positive=False,
                                              default=0.0)}

@@ -78,7 +78,9 @@ class FormationTask:
       as a whole to ``max_joint_speed``. The zero action is the reference controller; any action
       keeps the command from ever ascending V (a positive diagonal re-weighting of −K_P J̄ᵀ ê, before
       the filter and with the velocity tracked exactly) and the formed shape an equilibrium: unlike a
-      residual, a gain cannot point against the law. The effort term penalises the log-gains a.
+      residual, a gain cannot point against the law. The effort term penalises the log-gains a. That holds
+      for a still formation and an arm without drift: the gains multiply the whole command, so they also
+      re-weight a drift's cancellation (§7) and a moving formation's feed-forward (§8).
     """
 
     def __init__(self, config: FormationConfig, copies: int) -> None:
@@ -138,6 +140,14 @@ class FormationTask:
         if self.motion is None:
             return
         self.distances[:], self.feed_forward = self.motion.targets(engine.elapsed, self.edges, engine.positions())
+
+    def target_state(self, engine: Engine) -> np.ndarray:
+        """What of the target a centralised state needs, ``(B, ·)``: for a moving formation the desired lengths now
+        and every arm's feed-forward (``E + 2N``), else nothing (``(B, 0)``)."""
+        if self.motion is None:
+            return np.empty((engine.copies, 0))
+        self.track(engine)
+        return np.concatenate([self.distances, self.feed_forward.reshape(engine.copies, -1)], axis=1)
 
     def nominal_velocity(self, engine: Engine, gain: np.ndarray | None = None) -> np.ndarray:
         """The paper's distributed law for every arm, ``(B, N, k_max)`` rad/s (padding zero):
@@ -326,6 +336,11 @@ class ReachTask:
 
     def load_team(self, b: int, scenario: Scenario) -> None:
         raise ValueError("the reach task keeps its arm")
+
+    @staticmethod
+    def target_state(engine: Engine) -> np.ndarray:
+        """Nothing: the goal is not part of the state (``(B, 0)``)."""
+        return np.empty((engine.copies, 0))
 
     def compose(self, action_mode: str, command: np.ndarray, engine: Engine) -> None:
         """Velocity actions only: the command is the action."""

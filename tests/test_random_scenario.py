@@ -159,8 +159,10 @@ def test_inter_arm_keeps_crowded_random_arms_apart() -> None:
     ({"passive_damping": -0.5}, "RandomScenarioOptions.passive_damping must be non-negative"),
     ({"fault_probability": 1.5}, "RandomScenarioOptions.fault_probability must lie in [0, 1], got 1.5"),
     ({"fault_probability": -0.1}, "RandomScenarioOptions.fault_probability must be non-negative"),
-    ({"fault_time": (3.0, 2.0)}, "RandomScenarioOptions.fault_time must have low ≤ high ≤ horizon (100 s)"),
-    ({"fault_time": (1.0, 200.0)}, "RandomScenarioOptions.fault_time must have low ≤ high ≤ horizon (100 s)"),
+    ({"fault_probability": 0.5, "fault_time": (3.0, 2.0)},
+     "RandomScenarioOptions.fault_time must have low ≤ high ≤ horizon (100 s)"),
+    ({"fault_probability": 0.5, "fault_time": (1.0, 200.0)},
+     "RandomScenarioOptions.fault_time must have low ≤ high ≤ horizon (100 s)"),
     ({"fault_time": 3.0}, "RandomScenarioOptions.fault_time must be a range (low, high) in seconds, got 3.0"),
 ], ids=["bodies_misspelt", "negative_link_radius", "link_radius_without_links", "inter_arm_without_links",
         "inter_arm_not_bool", "speed_range_reversed", "negative_speed", "speed_not_a_range", "zero_path_length",
@@ -257,3 +259,13 @@ def test_options_too_tight_to_draw_raise_runtime_error() -> None:
     options = RandomScenarioOptions(n_obstacles=6, obstacle_radius=(2.0, 2.5))
     with pytest.raises(RuntimeError):
         random_scenario(np.random.default_rng(0), options, max_tries=5)
+
+
+def test_a_short_horizon_needs_no_fault_time_without_faults() -> None:
+    """The default ``fault_time`` (1–10 s) is checked against the horizon only where faults are drawn: a 0.6 s
+    episode without faults is fine, and its moving formation's keyframes stay within it."""
+    team = random_scenario(np.random.default_rng(0), RandomScenarioOptions(horizon=0.6, formation_scale=(0.9, 1.1),
+                                                                           scale_period=0.2))
+    assert team.motion.scale_times.tolist() == [0.0, 0.2, 0.4, 0.6] and team.fault_times is None
+    with pytest.raises(ValueError, match=r"fault_time must have low ≤ high ≤ horizon \(0.6 s\)"):
+        RandomScenarioOptions(horizon=0.6, fault_probability=0.5)
