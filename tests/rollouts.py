@@ -76,3 +76,22 @@ def model_acts_alike_on_both_views(path, scenario: str, seed: int = 3) -> dict[s
     by_agent = sb3_policy(path, penv)(obs)
     np.testing.assert_allclose(flat_policy(flat)[0], np.concatenate([by_agent[a] for a in penv.agents]), atol=1e-6)
     return by_agent
+
+
+def reference_and_law(make_env, seed: int, steps: int, action_seed: int = 0):
+    """A residual-mode env from ``make_env(**kw)`` after ``steps`` steps of seeded uniform actions in [−½, ½], with
+    the reference policy's actions from its observations beside the env's own law from its state (the residual
+    mode's zero action) for every agent: ``(env, observations, [(law, reference), …], policy)``, the law's entries
+    those of the agent's action, and the reference policy (reading ``env``)."""
+    from pan1_env.baselines import ReferencePolicy
+
+    env = make_env(action_mode="residual")
+    ref = ReferencePolicy(make_env())
+    ref.env = env
+    obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(action_seed)
+    for _ in range(steps):
+        obs, *_ = env.step({a: rng.uniform(-0.5, 0.5, env.action_space(a).shape) for a in env.agents})
+    law = env.task.nominal_velocity(env.engine)[0] / env.max_joint_speed
+    pairs = [(law[i, : env.n_actuated[i]], ref.act(agent, obs[agent])) for i, agent in enumerate(env.agents)]
+    return env, obs, pairs, ref

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import tomllib
 from pettingzoo.test import parallel_api_test
+from rollouts import reference_and_law
 
 from pan1_env import scenario
-from pan1_env.baselines import ReferencePolicy
 from pan1_env.environment import parallel_env
 from pan1_env.random_scenario import RandomScenarioOptions, random_scenario
 from pan1_env.registration import env_arguments
@@ -128,20 +128,13 @@ def test_the_flag_shows_a_fault_from_its_sub_step() -> None:
 def test_the_reference_law_through_a_fault_is_the_tasks() -> None:
     """After the faults, the reference policy from observations (the PAn−1 law minus J̄⁺ of the drift, p₁
     from the observed speeds) equals the env's own law from its state, as the residual mode's zero action."""
-    env = _fault_env(action_mode="residual")
-    ref = ReferencePolicy(_fault_env())
-    ref.env = env
-    obs, _ = env.reset(seed=12)
-    rng = np.random.default_rng(1)
-    for _ in range(10):
-        obs, *_ = env.step({a: rng.uniform(-0.5, 0.5, env.action_space(a).shape) for a in env.agents})
+    env, obs, pairs, ref = reference_and_law(_fault_env, seed=12, steps=10, action_seed=1)
     assert env.engine.faulted.any()
     assert np.abs(env.engine.passive_momentum()[env.engine.faulted]).min() > 1e-3
-    nominal = env.task.nominal_velocity(env.engine)[0] / env.max_joint_speed
-    for i, agent in enumerate(env.agents):
-        np.testing.assert_allclose(nominal[i, : env.n_actuated[i]], ref.act(agent, obs[agent]), rtol=1e-4, atol=1e-5)
+    for i, (agent, (law, reference)) in enumerate(zip(env.agents, pairs, strict=True)):
+        np.testing.assert_allclose(law, reference, rtol=1e-4, atol=1e-5)
         if env.engine.faulted[0, i]:
-            assert nominal[i, 0] == 0.0
+            assert law[0] == 0.0
             # a gain per action entry (as a gain-trained model gives): the lost joint's is dropped
             ones = np.ones(env.n_actuated[i])
             np.testing.assert_allclose(ref.act(agent, obs[agent], ones), ref.act(agent, obs[agent]))
@@ -153,30 +146,3 @@ def test_the_fault_env_passes_the_api_tests() -> None:
     from gymnasium.utils.env_checker import check_env
 
     check_env(env.unwrapped, skip_render_check=True)
-
-
-def test_the_benchmark_reports_the_faults() -> None:
-    from pan1_env.baselines.benchmark import markdown_table, run_benchmark
-
-    rows = run_benchmark(["pan1_env/FaultFormation-v0"], ["reference"], episodes=2, max_steps=40,
-                         env_kwargs={"random_options": EARLY}, shield_settings=(True,))
-    assert rows[0]["fault_episodes"] == 2 and 0.0 <= rows[0]["fault_success_rate"] <= 1.0
-    recovered = rows[0]["mean_time_from_fault_s"]
-    assert recovered is None or 0.0 <= recovered <= rows[0]["mean_time_to_formation_s"]
-    assert "time from fault" in markdown_table(rows).splitlines()[0]
-    plain = run_benchmark(["paper_pa3_square"], ["zero"], episodes=1, max_steps=5, shield_settings=(False,))
-    assert "fault_episodes" not in plain[0] and "fault" not in markdown_table(plain)
-
-
-def test_a_fault_layout_needs_the_fault_flags() -> None:
-    env = _fault_env()
-    env.reset(seed=1)
-    engine, layout, task = env.engine, env.observation_layout, env.task
-    q, qd = engine.joint_state()
-    args = (q, qd, engine.positions(), engine.bases, np.zeros((1, len(task.edges))), engine.centers, engine.radii,
-            env.max_joint_speed)
-    for faulted in (None, np.zeros((1, 3), dtype=bool)):
-        with pytest.raises(ValueError, match=r"this layout observes faults: pass faulted of shape \(1, 4\)"):
-            layout.build(*args, faulted=faulted)
-    sizes = [obs.shape[-1] for obs in layout.build(*args, faulted=engine.faulted)]
-    assert sizes == [layout.size(n) for n, _ in layout.groups]

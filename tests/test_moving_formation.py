@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import tomllib
 from pettingzoo.test import parallel_api_test
+from rollouts import reference_and_law
 
 from pan1_env import scenario
 from pan1_env.baselines import ReferencePolicy
@@ -246,19 +247,13 @@ def _moving_env(**kw):
 def test_the_reference_from_observations_is_the_tasks_law_with_the_feed_forward() -> None:
     """While the shape moves, the reference policy from observations (its own J̄, the neighbours' errors and the
     observed ṗ_ff) equals the env's own law from its state, as the residual mode's zero action."""
-    env = _moving_env(action_mode="residual", random_options={"scale_period": 1.0})
-    ref = ReferencePolicy(_moving_env())
-    ref.env = env
-    obs, _ = env.reset(seed=4)
-    rng = np.random.default_rng(2)
-    for _ in range(12):
-        obs, *_ = env.step({a: rng.uniform(-0.5, 0.5, env.action_space(a).shape) for a in env.agents})
+    env, obs, pairs, _ = reference_and_law(lambda **kw: _moving_env(random_options={"scale_period": 1.0}, **kw),
+                                        seed=4, steps=12, action_seed=2)
     assert np.abs(env.task.feed_forward).max() > 1e-2
     segment = env.observation_layout.segments(env.scenario.arms[0].n_links)["formation_velocity"]
     np.testing.assert_allclose(obs["arm_0"][segment], env.task.feed_forward[0, 0], rtol=1e-6)
-    nominal = env.task.nominal_velocity(env.engine)[0] / env.max_joint_speed
-    for i, agent in enumerate(env.agents):
-        np.testing.assert_allclose(nominal[i, : env.n_actuated[i]], ref.act(agent, obs[agent]), rtol=1e-4, atol=1e-5)
+    for law, reference in pairs:
+        np.testing.assert_allclose(law, reference, rtol=1e-4, atol=1e-5)
 
 
 def test_reproduce_measures_and_follows_a_moving_formation() -> None:
@@ -294,29 +289,6 @@ def test_the_moving_env_passes_the_api_tests() -> None:
 
     check_env(env.unwrapped, skip_render_check=True)
     assert env.unwrapped.observation_layout.motion
-
-
-def test_the_benchmark_reports_the_tracking_error() -> None:
-    from pan1_env.baselines.benchmark import markdown_table, run_benchmark
-
-    rows = run_benchmark(["pan1_env/MovingFormation-v0"], ["reference"], episodes=2, max_steps=40,
-                         env_kwargs={"success_hold": 1.0}, shield_settings=(True,))
-    assert 0.0 < rows[0]["mean_tracking_error_m"] < 1.0
-    assert "mean tracking error [mm]" in markdown_table(rows).splitlines()[0]
-    plain = run_benchmark(["paper_pa3_square"], ["zero"], episodes=1, max_steps=5, shield_settings=(False,))
-    assert "mean_tracking_error_m" not in plain[0] and "tracking" not in markdown_table(plain)
-
-
-def test_a_moving_layout_needs_the_feed_forward() -> None:
-    env = _moving_env()
-    env.reset(seed=1)
-    engine, layout, task = env.engine, env.observation_layout, env.task
-    q, qd = engine.joint_state()
-    args = (q, qd, engine.positions(), engine.bases, np.zeros((1, len(task.edges))), engine.centers, engine.radii,
-            env.max_joint_speed)
-    for velocity in (None, np.zeros((1, 4, 3))):
-        with pytest.raises(ValueError, match=r"observes a moving formation: pass formation_velocity of shape"):
-            layout.build(*args, formation_velocity=velocity)
 
 
 def test_every_copy_of_the_vector_env_follows_its_own_moving_team() -> None:
@@ -443,22 +415,16 @@ def test_a_team_that_faults_and_moves_observes_both_and_the_reference_is_the_law
     """Faults and a moving formation together: the feed-forward comes before the fault flag, and the reference
     from observations equals the env's law through both (the drift's cancellation and the feed-forward)."""
     options = {"fault_probability": 1.0, "fault_time": (0.1, 0.3), "passive_damping": 0.5, "scale_period": 1.0}
-    env = _moving_env(action_mode="residual", random_options=options)
-    ref = ReferencePolicy(_moving_env(random_options=options))
-    ref.env = env
-    obs, _ = env.reset(seed=3)
-    rng = np.random.default_rng(4)
-    for _ in range(12):
-        obs, *_ = env.step({a: rng.uniform(-0.5, 0.5, env.action_space(a).shape) for a in env.agents})
+    env, obs, pairs, _ = reference_and_law(lambda **kw: _moving_env(random_options=options, **kw), seed=3, steps=12,
+                                        action_seed=4)
     assert env.engine.faulted.any() and np.abs(env.task.feed_forward).max() > 1e-3
     for i, agent in enumerate(env.agents):
         seg = env.observation_layout.segments(env.scenario.arms[i].n_links)
         assert seg["formation_velocity"].stop == seg["actuator_lost"].start == len(obs[agent]) - 1
         np.testing.assert_allclose(obs[agent][seg["formation_velocity"]], env.task.feed_forward[0, i], rtol=1e-6)
         assert obs[agent][-1] == float(env.engine.faulted[0, i])
-    nominal = env.task.nominal_velocity(env.engine)[0] / env.max_joint_speed
-    for i, agent in enumerate(env.agents):
-        np.testing.assert_allclose(nominal[i, : env.n_actuated[i]], ref.act(agent, obs[agent]), rtol=1e-4, atol=1e-5)
+    for law, reference in pairs:
+        np.testing.assert_allclose(law, reference, rtol=1e-4, atol=1e-5)
 
 
 def test_a_new_episode_holds_its_success_afresh() -> None:

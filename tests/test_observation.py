@@ -82,3 +82,26 @@ def test_multi_threaded_observations_equal_the_serial_ones_and_bad_chunks_are_re
     for bad in (-1, 1.5, True):
         with pytest.raises(ValueError, match="n_chunks"):
             layout.build_with_errors(*args, bad)
+
+
+EARLY_FAULTS = {"fault_probability": 1.0, "fault_time": (0.1, 0.3)}  # every full arm faults within 0.3 s
+
+
+@pytest.mark.parametrize(("env_id", "options", "keyword", "bad", "message"), [
+    ("pan1_env/FaultFormation-v0", EARLY_FAULTS, "faulted", np.zeros((1, 3), dtype=bool),
+     r"this layout observes faults: pass faulted of shape \(1, 4\)"),
+    ("pan1_env/MovingFormation-v0", {}, "formation_velocity", np.zeros((1, 4, 3)),
+     r"this layout observes a moving formation: pass formation_velocity of shape \(1, 4, 2\)"),
+], ids=["faults", "moving"])
+def test_a_layout_needs_what_its_team_observes(env_id, options, keyword, bad, message) -> None:
+    """A layout whose team may fault needs the fault flags, and one whose formation moves the feed-forward:
+    missing or misshapen, a clear error."""
+    env = parallel_env(env_id, random_options=options)
+    env.reset(seed=1)
+    engine, layout, task = env.engine, env.observation_layout, env.task
+    q, qd = engine.joint_state()
+    args = (q, qd, engine.positions(), engine.bases, np.zeros((1, len(task.edges))), engine.centers, engine.radii,
+            env.max_joint_speed)
+    for value in (None, bad):
+        with pytest.raises(ValueError, match=message):
+            layout.build(*args, **{keyword: value})

@@ -252,3 +252,27 @@ def test_vector_adversary_without_obstacles_in_sight_sends_zeros() -> None:
     with pytest.raises(ValueError, match=r"observations of shape \(1, "):
         adversary(obs[:1])
 
+
+
+@pytest.mark.parametrize(("env_id", "kwargs", "column"), [
+    ("pan1_env/FaultFormation-v0", {"random_options": {"fault_probability": 1.0, "fault_time": (0.1, 0.3)}},
+     "time from fault"),
+    ("pan1_env/MovingFormation-v0", {"success_hold": 1.0}, "mean tracking error [mm]"),
+], ids=["faults", "moving"])
+def test_the_benchmark_adds_a_tasks_own_columns(env_id: str, kwargs: dict, column: str) -> None:
+    """On a task whose arms fault: the episodes with a fault, their success and the time from the fault to the
+    formation; on a moving formation: the mean tracking error. Neither column on a task without them."""
+    from pan1_env.baselines.benchmark import markdown_table, run_benchmark
+
+    row = run_benchmark([env_id], ["reference"], episodes=2, max_steps=40, env_kwargs=kwargs,
+                        shield_settings=(True,))[0]
+    if "Fault" in env_id:
+        assert row["fault_episodes"] == 2 and 0.0 <= row["fault_success_rate"] <= 1.0
+        recovered = row["mean_time_from_fault_s"]
+        assert recovered is None or 0.0 <= recovered <= row["mean_time_to_formation_s"]
+    else:
+        assert 0.0 < row["mean_tracking_error_m"] < 1.0
+    assert column in markdown_table([row]).splitlines()[0]
+    plain = run_benchmark(["paper_pa3_square"], ["zero"], episodes=1, max_steps=5, shield_settings=(False,))[0]
+    assert not {"fault_episodes", "mean_tracking_error_m"} & set(plain)
+    assert column not in markdown_table([plain])
