@@ -45,7 +45,8 @@ class Pan1ParallelEnv(CoreView, ParallelEnv):
 
     ``Box(float32)`` per agent, local: own joints, end-effector, graph neighbours and the K nearest
     obstacles (the table: :class:`~pan1_env.observation.ObservationLayout`; :attr:`observation_layout`).
-    ``state()`` is global: every arm's q, q̇ (zero-padded) and p, every obstacle's centre and radius.
+    ``state()`` is global: every arm's q, q̇ (zero-padded) and p, every obstacle's centre and radius (and for a
+    moving formation the desired lengths and every arm's feed-forward).
     Arms with different n have different spaces: pad them for parameter sharing
     (``supersuit.pad_observations_v0``, ``supersuit.pad_action_space_v0``).
 

@@ -197,19 +197,44 @@ BLEND_SAMPLES = 401  # points of a switch's blend at which its rigidity is measu
 BLEND_RIGIDITY = 0.05  # the blend's σ_{2N−3}(R) may fall to this fraction of the smaller of its two ends'
 
 
+def _triangle_flips(edges: np.ndarray, start: np.ndarray, end: np.ndarray) -> float | None:
+    """The first λ in [0, 1] at which a triangle of the graph (three arms joined pairwise by edges) has zero
+    signed area on the blend: the area is a quadratic in λ (each side is linear in it), solved exactly."""
+    linked = {tuple(sorted(e)) for e in edges.tolist()}
+    first = None
+    triangles = [(a, b, c) for (a, b) in linked for c in range(b + 1, len(start))
+                 if (a, c) in linked and (b, c) in linked]
+    for i, j, k in triangles:
+        u0, v0 = start[j] - start[i], start[k] - start[i]
+        du, dv = end[j] - end[i] - u0, end[k] - end[i] - v0
+        c0 = u0[0] * v0[1] - u0[1] * v0[0]
+        c1 = u0[0] * dv[1] - u0[1] * dv[0] + du[0] * v0[1] - du[1] * v0[0]
+        c2 = du[0] * dv[1] - du[1] * dv[0]
+        roots = np.roots([c2, c1, c0]) if (c2 or c1) else np.empty(0)
+        real = roots[np.abs(roots.imag) < 1e-12].real if len(roots) else roots
+        inside = real[(real >= 0.0) & (real <= 1.0)]
+        if len(inside):
+            first = float(inside.min()) if first is None else min(first, float(inside.min()))
+    return first
+
+
 def blend_degenerates(edges: np.ndarray, start: np.ndarray, end: np.ndarray) -> float | None:
     """The first fraction λ of the blend (1 − λ) ``start`` + λ ``end`` (``(N, 2)`` each) at which the edges stop
-    holding the shape firmly: the rigidity matrix's (2N − 3)-th singular value below :data:`BLEND_RIGIDITY` of
-    the smaller of the two ends' (a triangle of the graph that turns over on the way goes through zero area
-    there); None if it never does, at :data:`BLEND_SAMPLES` points."""
+    holding the shape firmly, or None: a triangle of the graph turning over (its signed area through zero,
+    found exactly), or the rigidity matrix's (2N − 3)-th singular value below :data:`BLEND_RIGIDITY` of the
+    smaller of the two ends' at one of :data:`BLEND_SAMPLES` points (for graphs whose rigidity is not all
+    triangles)."""
     from .formation import rigidity_matrix
 
+    flip = _triangle_flips(edges, start, end)
     rank = max(2 * len(start) - 3, 1)
     lams = np.linspace(0.0, 1.0, BLEND_SAMPLES)
     sigma = np.array([np.linalg.svd(rigidity_matrix(edges, start + lam * (end - start)), compute_uv=False)[rank - 1]
                       for lam in lams])
     weak = sigma < BLEND_RIGIDITY * min(sigma[0], sigma[-1])
-    return float(lams[np.argmax(weak)]) if weak.any() else None
+    sampled = float(lams[np.argmax(weak)]) if weak.any() else None
+    found = [lam for lam in (flip, sampled) if lam is not None]
+    return min(found) if found else None
 
 
 def switch_shape(edges: np.ndarray, distances: np.ndarray, start: np.ndarray, tries: int = 20) -> np.ndarray | None:
@@ -237,13 +262,12 @@ def check_motion(motion: FormationMotion, start: np.ndarray, edges: np.ndarray, 
     or a switch outside ``[0, horizon]``, a switch shape of the wrong size or one the edges do not hold rigid
     along the blend (:func:`blend_degenerates`), an edge shorter than :data:`MIN_EDGE`, or two arms asked to be
     farther apart than their bases' distance plus their reaches (or closer than their bases' distance minus
-    them), at every 0.05 s until the shape stops moving. The last is necessary, not sufficient: a shape that
-    passes may still be out of reach as a whole."""
+    them), at each keyframe and through the switch. The last is necessary, not sufficient: a shape that passes
+    may still be out of reach as a whole."""
     N = len(start)
     if motion.scale_times[-1] > horizon:
         raise ValueError(f"the scale keyframes end at {motion.scale_times[-1]:g} s, after the episode's "
                          f"{horizon:g} s")
-    still_from = motion.scale_times[-1]  # the shape does not change after this
     if motion.switch_shape is not None:
         if motion.switch_shape.shape != (N, 2):
             raise ValueError(f"the switch shape has {motion.switch_shape.shape[0]} vertices for {N} arms")
@@ -253,12 +277,13 @@ def check_motion(motion: FormationMotion, start: np.ndarray, edges: np.ndarray, 
         if lam is not None:
             raise ValueError(f"the edges stop holding the shape rigid {lam:.0%} of the way through the switch (a "
                              "triangle of the formation turns over): choose other lengths")
-        still_from = max(still_from, motion.switch_time + motion.switch_duration)
-    still_from = min(still_from, horizon)
-    times = [motion.scale_times, [still_from]]
+    # outside the switch every length is s(t) times a constant and s is linear between keyframes: the extremes
+    # are at the keyframes; through the switch, at BLEND_SAMPLES points of it
+    times = [[0.0], motion.scale_times]
     if motion.switch_shape is not None:
-        times.append([motion.switch_time, min(motion.switch_time + motion.switch_duration, horizon)])
-    grid = np.unique(np.concatenate([np.arange(0.0, still_from, 0.05), *times]))
+        end = motion.switch_time + motion.switch_duration
+        times += [[motion.switch_time, end], np.linspace(motion.switch_time, end, BLEND_SAMPLES)]
+    grid = np.unique(np.clip(np.concatenate(times), 0.0, horizon))
     r, _ = motion.shape(start, grid)
     i, j = np.triu_indices(N, 1)
     apart = np.linalg.norm(r[:, i] - r[:, j], axis=-1)  # (T, pairs)

@@ -357,27 +357,29 @@ def test_a_folded_switch_is_refused() -> None:
     assert blend_degenerates(edges, start, team.motion.switch_shape) is None
 
 
-def test_a_long_episode_checks_its_motion_until_the_shape_stops() -> None:
-    """The reach check samples until the last keyframe or the switch's end: a 10⁶ s episode loads (its samples
-    over the whole horizon would not fit in memory)."""
-    data = _square({"scale": [[0, 1.0], [10, 1.1]]})
-    data["simulation"]["horizon"] = 1e6
-    assert scenario.from_dict(data).motion.scales[-1] == 1.1
+def test_a_long_episode_checks_its_motion_at_its_keyframes() -> None:
+    """The reach check samples the keyframes and the switch, where a length's extremes lie: a 10⁶ s episode with
+    a keyframe at its end loads (samples every 0.05 s of it would not fit in memory)."""
+    for keyframes in ([[0, 1.0], [10, 1.1]], [[0, 1.0], [1e6, 1.1]]):
+        data = _square({"scale": keyframes})
+        data["simulation"]["horizon"] = 1e6
+        assert scenario.from_dict(data).motion.scales[-1] == 1.1
 
 
 def test_the_frame_measures_the_moving_lengths() -> None:
-    """Rendered while the square has grown by a fifth and is held to it, every edge is drawn formed (green) and the
-    fitted grey shape is the grown one."""
+    """Rendered while the square grows (by 12 % at 60 s) and the reference tracks it, every edge is drawn formed
+    (green) and the fitted grey shape is the one at that time."""
     from matplotlib.colors import to_rgb
 
     from pan1_env.render import Renderer
 
-    team = _moving_square(scale=[[0, 1.0], [1, 1.2]], switch_time=99.0)
+    team = _moving_square(scale=[[0, 1.0], [100, 1.2]], switch_time=99.0)  # still growing at 60 s
     env = parallel_env(team, render_mode="rgb_array")
     obs, _ = env.reset(seed=0)
     policy = ReferencePolicy(env)
     for _ in range(1200):
         obs, _, _, _, infos = env.step(policy(obs))
+    assert np.abs(env.task.feed_forward).max() > 0
     assert infos["arm_0"]["formation_error"] < 0.005
     renderer = Renderer()
     try:
@@ -388,7 +390,7 @@ def test_the_frame_measures_the_moving_lengths() -> None:
         assert all(to_rgb(c) == to_rgb("tab:green") for c in edges)
         grey = [line.get_xydata() for line in renderer.ax.lines if line.get_linestyle() == "--"]
         side = np.linalg.norm(grey[0][0] - grey[0][1])
-        assert side == pytest.approx(1.2 * 0.7, rel=1e-6)
+        assert side == pytest.approx(1.12 * 0.7, rel=1e-6)  # s(60 s) = 1.12
     finally:
         renderer.close()
         env.close()
@@ -403,6 +405,11 @@ def test_the_state_carries_the_moving_target() -> None:
         env.step({a: np.zeros(env.action_space(a).shape, np.float32) for a in env.agents})
     state = env.state()
     E, N = len(env.task.edges), 4
+    team = env.scenario
+    r, _ = team.motion.shape(team.formation.target, env.engine.elapsed[0])
+    lengths = np.linalg.norm(r[0, team.formation.edges[:, 0]] - r[0, team.formation.edges[:, 1]], axis=-1)
+    np.testing.assert_allclose(state[-(E + 2 * N):-2 * N], lengths, rtol=1e-6)
+    assert lengths[0] > 1.0001 * 0.7
     assert state.shape == env.state_space.shape
     np.testing.assert_allclose(state[-(E + 2 * N):-2 * N], env.task.distances[0], rtol=1e-6)
     np.testing.assert_allclose(state[-2 * N:], env.task.feed_forward[0].ravel(), rtol=1e-5, atol=1e-7)
@@ -450,3 +457,70 @@ def test_a_new_episode_holds_its_success_afresh() -> None:
         assert infos["arm_0"]["formation_error"] < 1e-9 and not infos["arm_0"]["is_success"]
         success = [env.step(still)[4]["arm_0"]["is_success"] for _ in range(120)]
         assert not any(success[:99]) and all(success[99:])
+
+
+def _triangles(edges: np.ndarray, N: int) -> list[tuple[int, int, int]]:
+    linked = {tuple(sorted(e)) for e in edges.tolist()}
+    return [(i, j, k) for i in range(N) for j in range(i + 1, N) for k in range(j + 1, N)
+            if {(i, j), (i, k), (j, k)} <= linked]
+
+
+def _area(shape: np.ndarray, i: int, j: int, k: int) -> float:
+    u, v = shape[j] - shape[i], shape[k] - shape[i]
+    return float(u[0] * v[1] - u[1] * v[0])
+
+
+def test_a_pentagons_switch_turns_no_triangle_over() -> None:
+    """Five arms, a regular pentagon switching to lengths whose folded realisation turns triangle (0, 3, 4) over
+    through a dip in the rigidity too narrow for the samples: the switch shape kept has every triangle the way
+    round it was along the whole blend, and the folded one is refused (its triangle found exactly)."""
+    import dataclasses
+
+    from pan1_env.motion import blend_degenerates
+
+    data = _square(None)
+    angles = 2 * np.pi * np.arange(5) / 5
+    data["arms"] = [{"base": [float(1.2 * np.cos(a)), float(1.2 * np.sin(a))], "q0": [float(a + np.pi), 0.3, -0.3, 0.2]}
+                    for a in angles]
+    data["formation"] = {"shape": "polygon", "size": 0.5, "motion": {
+        "switch_distances": [0.7004147806421304, 0.23738579930593617, 0.23773842976314924, 0.2883466786229976,
+                             0.5082233790821523, 0.46344275689276887, 0.6159534189974551],
+        "switch_time": 10.0, "switch_duration": 5.0}}
+    data["obstacles"] = [{"center": [5.0, 5.0], "radius": 0.05}]
+    team = scenario.from_dict(data)
+    start, end, edges = team.formation.target, team.motion.switch_shape, team.formation.edges
+    triangles = _triangles(edges, 5)
+    assert (0, 3, 4) in triangles
+    for lam in np.linspace(0.0, 1.0, 2001):
+        blend = start + lam * (end - start)
+        assert all(np.sign(_area(blend, *t)) == np.sign(_area(start, *t)) for t in triangles)
+    folded = end.copy()  # vertex 4 mirrored across the line 0–3: the same lengths, triangle (0, 3, 4) turned over
+    axis = (end[3] - end[0]) / np.linalg.norm(end[3] - end[0])
+    offset = end[4] - end[0]
+    folded[4] = end[0] + 2 * np.dot(offset, axis) * axis - offset
+    np.testing.assert_allclose(np.linalg.norm(folded[edges[:, 0]] - folded[edges[:, 1]], axis=-1),
+                               np.linalg.norm(end[edges[:, 0]] - end[edges[:, 1]], axis=-1), rtol=1e-12)
+    lam = blend_degenerates(edges, start, folded)
+    assert lam is not None
+    assert abs(_area(start + lam * (folded - start), 0, 3, 4)) < 1e-9
+    with pytest.raises(ValueError, match="the edges stop holding the shape rigid"):
+        dataclasses.replace(team, motion=FormationMotion([0.0], [1.0], folded, 10.0, 5.0))
+
+
+def test_the_benchmarks_time_to_formation_is_the_errors_not_the_holds() -> None:
+    """A team that starts formed and is held still: the time to formation is 0 with a 5 s hold as without one,
+    though ``is_success`` turns on only 5 s in."""
+    import dataclasses
+
+    from pan1_env.baselines.benchmark import _episode
+    from pan1_env.dynamics import end_effector
+
+    team = scenario.load("paper_pa3_square")
+    starts = np.array([end_effector(arm, q) for arm, q in zip(team.arms, team.q0, strict=True)])
+    edges = team.formation.edges
+    formed = Formation.from_edges(edges.tolist(), np.linalg.norm(starts[edges[:, 0]] - starts[edges[:, 1]], axis=-1), 4)
+    for hold in (0.0, 5.0):
+        env = parallel_env(dataclasses.replace(team, formation=formed), success_hold=hold, max_steps=120)
+        still = {a: np.zeros(env.action_space(a).shape, np.float32) for a in env.possible_agents}
+        result = _episode(env, lambda obs, still=still: still, 0, False)
+        assert result["success"] and result["time_to_formation"] == 0.0

@@ -105,3 +105,6 @@ def test_a_layout_needs_what_its_team_observes(env_id, options, keyword, bad, me
     for value in (None, bad):
         with pytest.raises(ValueError, match=message):
             layout.build(*args, **{keyword: value})
+    good = {"faulted": engine.faulted, "formation_velocity": task.feed_forward}[keyword]
+    built = layout.build(*args, **{keyword: good})
+    assert [m.shape[-1] for m in built] == [layout.size(n) for n, _ in layout.groups]
