@@ -75,15 +75,16 @@ def formation_gradient(B: np.ndarray, z: np.ndarray, e: np.ndarray) -> np.ndarra
 
 
 def rigidity_matrix(edges: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """Rigidity matrix R (|E| × 2N): row k holds z_kᵀ at vertex i and −z_kᵀ at vertex j."""
+    """Rigidity matrix R (|E| × 2N): row k holds z_kᵀ at vertex i and −z_kᵀ at vertex j; for positions
+    ``(..., N, 2)``, one per leading index, ``(..., |E|, 2N)``."""
     edges = np.asarray(edges, dtype=int).reshape(-1, 2)
     positions = np.asarray(positions, dtype=float)
-    n = positions.shape[0]
-    R = np.zeros((len(edges), n, 2))
-    z = positions[edges[:, 0]] - positions[edges[:, 1]]
-    R[np.arange(len(edges)), edges[:, 0]] = z
-    R[np.arange(len(edges)), edges[:, 1]] = -z
-    return R.reshape(len(edges), 2 * n)
+    lead, n, k = positions.shape[:-2], positions.shape[-2], np.arange(len(edges))
+    R = np.zeros((*lead, len(edges), n, 2))
+    z = positions[..., edges[:, 0], :] - positions[..., edges[:, 1], :]
+    R[..., k, edges[:, 0], :] = z
+    R[..., k, edges[:, 1], :] = -z
+    return R.reshape(*lead, len(edges), 2 * n)
 
 
 def is_infinitesimally_rigid(edges: np.ndarray, positions: np.ndarray, tol: float = 1e-9) -> bool:

@@ -89,7 +89,7 @@ class FormationMotion:
         table = MotionTable(1, len(start), len(self.scale_times))
         table.load(0, start, self)
         t = np.atleast_1d(np.asarray(t, dtype=float))
-        return table.shape(t[:, None], np.zeros(len(t), dtype=np.int64))
+        return table.shape(t, np.zeros(len(t), dtype=np.int64))
 
 
 class MotionTable:
@@ -118,8 +118,8 @@ class MotionTable:
             (motion.switch_time, motion.switch_duration)
 
     def shape(self, t: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """r(t) and ṙ(t), ``(B, N, 2)``, for each copy at its time ``t (B,)`` (``rows``: the copies' rows in the
-        table, default all; ``t`` then has one time per row, or ``(T, 1)`` times of one row)."""
+        """r(t) and ṙ(t), ``(B, N, 2)``, for each copy at its time ``t (B,)`` (``rows``: the table's rows to use,
+        one per time, default all; a row may repeat, to give one copy's shape at several times)."""
         rows = np.arange(len(self.times)) if rows is None else rows
         times, scales = self.times[rows], self.scales[rows]
         t = np.asarray(t, dtype=float).reshape(-1)
@@ -142,7 +142,6 @@ class MotionTable:
         r_dot = rate[:, None, None] * blend + (s * lam_rate)[:, None, None] * (end - start)
         return r, r_dot
 
-
     def targets(self, t: np.ndarray, edges: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Every copy's desired edge lengths d ``(B, E)`` at its time ``t (B,)`` and the feed-forward ṗ_ff
         ``(B, N, 2)`` at its end-effectors ``P (B, N, 2)``."""
@@ -160,19 +159,16 @@ def edge_rates(edges: np.ndarray, r: np.ndarray, r_dot: np.ndarray) -> tuple[np.
 def feed_forward(edges: np.ndarray, P: np.ndarray, rates: np.ndarray) -> np.ndarray:
     """ṗ_ff = Rᵀ (R Rᵀ + μ I)⁻¹ (d ⊙ ḋ) ``(B, N, 2)`` at the end-effectors ``P (B, N, 2)`` for the edge rates
     ``rates (B, E)`` = d ⊙ ḋ (zero where every rate is zero)."""
+    from .formation import rigidity_matrix
+
     out = np.zeros(P.shape)
     moving = np.any(rates != 0, axis=1)
     if not moving.any():
         return out
-    B, N = int(moving.sum()), P.shape[1]
-    E = len(edges)
-    z = P[moving][:, edges[:, 0]] - P[moving][:, edges[:, 1]]  # (B, E, 2)
-    R = np.zeros((B, E, N, 2))
-    R[:, np.arange(E), edges[:, 0]] = z
-    R[:, np.arange(E), edges[:, 1]] = -z
-    R = R.reshape(B, E, 2 * N)
-    gram = R @ R.transpose(0, 2, 1) + FEED_FORWARD_DAMPING * np.eye(E)
-    out[moving] = (R.transpose(0, 2, 1) @ np.linalg.solve(gram, rates[moving][..., None]))[..., 0].reshape(B, N, 2)
+    R = rigidity_matrix(edges, P[moving])  # (B, E, 2N)
+    gram = R @ R.transpose(0, 2, 1) + FEED_FORWARD_DAMPING * np.eye(len(edges))
+    out[moving] = (R.transpose(0, 2, 1) @ np.linalg.solve(gram, rates[moving][..., None]))[..., 0].reshape(
+        -1, *P.shape[1:])
     return out
 
 
@@ -229,8 +225,8 @@ def blend_degenerates(edges: np.ndarray, start: np.ndarray, end: np.ndarray) -> 
     flip = _triangle_flips(edges, start, end)
     rank = max(2 * len(start) - 3, 1)
     lams = np.linspace(0.0, 1.0, BLEND_SAMPLES)
-    sigma = np.array([np.linalg.svd(rigidity_matrix(edges, start + lam * (end - start)), compute_uv=False)[rank - 1]
-                      for lam in lams])
+    blends = start + lams[:, None, None] * (end - start)
+    sigma = np.linalg.svd(rigidity_matrix(edges, blends), compute_uv=False)[:, rank - 1]
     weak = sigma < BLEND_RIGIDITY * min(sigma[0], sigma[-1])
     sampled = float(lams[np.argmax(weak)]) if weak.any() else None
     found = [lam for lam in (flip, sampled) if lam is not None]

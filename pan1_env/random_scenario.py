@@ -328,7 +328,7 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
             fault_times = np.where(faults, rng.uniform(*opt.fault_time, N), np.inf)
         motion = None
         if opt.moving_formation:
-            motion = _draw_motion(rng, opt, formation, targets, arms, np.array(centers).reshape(-1, 2), radii)
+            motion = _draw_motion(rng, opt, targets, arms, np.array(centers).reshape(-1, 2), radii)
             if motion is None:
                 continue
         for q in q0:
@@ -348,8 +348,8 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
     raise RuntimeError(f"no valid random scenario in {max_tries} draws; loosen the options {opt}")
 
 
-def _draw_motion(rng: np.random.Generator, opt: RandomScenarioOptions, formation: Formation, targets: np.ndarray,
-                 arms: list[ArmParams], centers: np.ndarray, radii: list[float]) -> FormationMotion | None:
+def _draw_motion(rng: np.random.Generator, opt: RandomScenarioOptions, targets: np.ndarray, arms: list[ArmParams],
+                 centers: np.ndarray, radii: list[float]) -> FormationMotion | None:
     """Scale keyframes every ``scale_period`` s (s = 1 at 0 s) such that each arm reaches its vertex of the
     placement ``targets (N, 2)`` (centred on the origin) at every scale between the lowest and the highest,
     and those vertices stay 5 cm clear of the obstacles; None after 20 draws without."""
