@@ -98,9 +98,7 @@ class ReferencePolicy:
         if lost or (arm.passive_first_joint and arm.passive_damping > 0):  # p₁ ≠ 0 possible (else exactly 0)
             p1 = passive_momentum(arm, d["q"], d["qd_scaled"] * env.max_joint_speed)
             drift = end_effector_drift(arm, d["q"], p1)
-        if "formation_velocity" in d:  # the moving shape's feed-forward: a drift the other way
-            drift = (0.0 if drift is None else drift) - d["formation_velocity"]
-        v0 = nominal_velocity(reduced_jacobian(arm, d["q"]), e_hat, kp, drift)
+        v0 = nominal_velocity(reduced_jacobian(arm, d["q"]), e_hat, kp, drift, d.get("formation_velocity"))
         if gain is not None:
             gain = np.asarray(gain, dtype=float)
             gain = gain[1:] if lost and gain.shape == (arm.n_links,) else gain  # one per action entry: drop the lost

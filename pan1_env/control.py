@@ -15,12 +15,16 @@ import numpy as np
 __all__ = ["nominal_velocity", "backstepping_torque", "finite_difference"]
 
 
-def nominal_velocity(Jbar: np.ndarray, e_hat: np.ndarray, kp: float, drift: np.ndarray | None = None) -> np.ndarray:
+def nominal_velocity(Jbar: np.ndarray, e_hat: np.ndarray, kp: float, drift: np.ndarray | None = None,
+                     feed_forward: np.ndarray | None = None) -> np.ndarray:
     """v0 = −K_P J̄ᵀ ê for ``J̄ (..., 2, k)`` and ``ê (..., 2)``: shape ``(..., k)``. With a PAn−1 arm's
     end-effector ``drift`` d = J₁ p₁ / M_11 ``(..., 2)``, v0 − J̄⁺ d: the actuated joints cancel what of the drift
     they can (all of it where J̄ has rank 2), so the end-effector moves as the paper's law says
-    (docs/MODEL.md §7)."""
+    (docs/MODEL.md §7). With a moving formation's ``feed_forward`` ṗ_ff ``(..., 2)``, v0 + J̄⁺ (ṗ_ff − d): the
+    end-effector also goes where the moving shape goes (docs/MODEL.md §8)."""
     v0 = -kp * np.einsum("...ck,...c->...k", Jbar, e_hat)
+    if feed_forward is not None:  # to the law, a feed-forward is a drift the other way
+        drift = -feed_forward if drift is None else drift - feed_forward
     if drift is None or not np.any(drift):
         return v0
     return v0 - np.einsum("...kc,...c->...k", np.linalg.pinv(Jbar), drift)

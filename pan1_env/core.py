@@ -132,7 +132,7 @@ class FormationCore:
         """Size of :meth:`state`: q, q̇ (padded to the largest n) and p of every arm, centre and radius of every
         obstacle, and for a moving formation the desired lengths and every arm's feed-forward."""
         return (len(self.agents) * (2 * max(self.n_links) + 2) + 3 * self.engine.radii.shape[1]
-                + self.task.target_state(self.engine).shape[1])
+                + self.task.target_size)
 
     def state(self) -> np.ndarray:
         """Every copy's global state ``(B, state_size)`` float32, for centralised critics: every arm's q and q̇

@@ -110,8 +110,8 @@ class Simulation:
         out = np.zeros((1, self.n_arms, self.k_max))
         for kind in self.engine.kinds:
             terms = self.engine.kind_terms(kind)
-            drift = terms.drift if self.motion is None else (0.0 if terms.drift is None else terms.drift) - ff[kind.ids]
-            kind.to_team(out, nominal_velocity(terms.Jbar, e_hat[kind.ids], self.scenario.kp, drift))
+            kind.to_team(out, nominal_velocity(terms.Jbar, e_hat[kind.ids], self.scenario.kp, terms.drift,
+                                               None if self.motion is None else ff[kind.ids]))
         return out[0]
 
     def step(self, command: np.ndarray, substeps: int, *, torque: bool = False,

@@ -141,9 +141,14 @@ class FormationTask:
             return
         self.distances[:], self.feed_forward = self.motion.targets(engine.elapsed, self.edges, engine.positions())
 
+    @property
+    def target_size(self) -> int:
+        """Columns of :meth:`target_state`: ``E + 2N`` for a moving formation, else 0."""
+        return 0 if self.motion is None else len(self.edges) + 2 * self.feed_forward.shape[1]
+
     def target_state(self, engine: Engine) -> np.ndarray:
-        """What of the target a centralised state needs, ``(B, ·)``: for a moving formation the desired lengths now
-        and every arm's feed-forward (``E + 2N``), else nothing (``(B, 0)``)."""
+        """What of the target a centralised state needs, ``(B, target_size)``: for a moving formation the desired
+        lengths now and every arm's feed-forward, else nothing."""
         if self.motion is None:
             return np.empty((engine.copies, 0))
         self.track(engine)
@@ -164,10 +169,8 @@ class FormationTask:
         for kind in engine.kinds:
             terms = engine.kind_terms(kind)
             e = e_hat[:, kind.ids].reshape(-1, 2)
-            drift = terms.drift
-            if self.motion is not None:  # the motion's feed-forward is a drift the other way
-                drift = (0.0 if drift is None else drift) - self.feed_forward[:, kind.ids].reshape(-1, 2)
-            v0 = nominal_velocity(terms.Jbar, e, np.repeat(self.kp, kind.A)[:, None], drift)
+            ff = None if self.motion is None else self.feed_forward[:, kind.ids].reshape(-1, 2)
+            v0 = nominal_velocity(terms.Jbar, e, np.repeat(self.kp, kind.A)[:, None], terms.drift, ff)
             if gain is not None:
                 v0 *= kind.from_team(gain, kind.k)
             peak = np.abs(v0).max(axis=1, initial=0.0) / self.max_joint_speed
@@ -336,6 +339,8 @@ class ReachTask:
 
     def load_team(self, b: int, scenario: Scenario) -> None:
         raise ValueError("the reach task keeps its arm")
+
+    target_size = 0  # the goal is not part of the state
 
     @staticmethod
     def target_state(engine: Engine) -> np.ndarray:
