@@ -147,6 +147,12 @@ class ArmParams:
         return float(self.lengths.sum())
 
     @property
+    def inner_reach(self) -> float:
+        """Smallest distance from the base the end-effector can reach: max(0, 2 max L_α − Σ L_α) (a longest link
+        folded back by the others)."""
+        return max(0.0, 2.0 * float(self.lengths.max()) - self.reach)
+
+    @property
     def lam(self) -> np.ndarray:
         """The symmetric coefficient matrix λ (n × n) of docs/MODEL.md §1."""
         return self._lambda  # type: ignore[attr-defined]

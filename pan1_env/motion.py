@@ -11,8 +11,14 @@ lengths are the shape's, d_k(t) = ‖r_i(t) − r_j(t)‖, so every d(t) is real
 
     d_k ḋ_k = (r_i − r_j) · (ṙ_i − ṙ_j).
 
-The distances fix a shape only up to a rigid motion, so the formation cannot be told to turn or travel:
-those need a displacement-based graph, which the package does not have.
+The distances fix a shape only up to a rigid motion, so they cannot tell the formation to turn or travel.
+A motion with a ``centre`` **places** the shape as well: every arm gets its own desired point,
+
+    p*_i(t) = c + δ(t) + Rot(θ(t)) (r_i(t) − r̄(t)),      r̄ the shape's centroid,
+
+with θ(t) (a turn, rad) and δ(t) (a path of the centroid from c, m) piecewise linear through keyframes of
+their own. That is a displacement-based target: the lengths are still the shape's, and each arm is also
+pulled to its point.
 
 The **feed-forward** is the smallest set of end-effector velocities that changes every edge at its
 desired rate: with the rigidity matrix R(p) (row k: z_kᵀ at arm i, −z_kᵀ at arm j),
@@ -23,6 +29,11 @@ so that z_k · (ṗ_i − ṗ_j) = d_k ḋ_k where R has full row rank: with it,
 e_k = ‖z_k‖² − d_k² see no disturbance from the motion. μ keeps it bounded where R loses rank (the arms
 in a line); at a formation of side 0.5 m it changes ṗ_ff by about 0.1 %. It needs every end-effector,
 so the env computes it and gives each arm its own share (the observation's ``formation_velocity``).
+A placed shape needs no solve: each arm's share is its point's velocity and a pull to it,
+
+    ṗ_ff,i = ṗ*_i + k_place (p*_i − p_i),     k_place = PLACEMENT_GAIN (1/s),
+
+which only needs the arm's own end-effector and the clock.
 """
 
 from __future__ import annotations
@@ -32,15 +43,34 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FormationMotion", "MotionTable", "FEED_FORWARD_DAMPING", "MIN_EDGE", "edge_rates", "feed_forward", "align",
-           "blend_degenerates", "switch_shape", "check_motion"]
+__all__ = ["FormationMotion", "MotionTable", "FEED_FORWARD_DAMPING", "PLACEMENT_GAIN", "MIN_EDGE", "edge_rates",
+           "feed_forward", "align", "blend_degenerates", "switch_shape", "check_motion"]
 
 FEED_FORWARD_DAMPING = 1e-4  # μ in m²: R Rᵀ + μ I stays invertible where the arms line up
+PLACEMENT_GAIN = 1.0  # k_place in 1/s: a placed arm closes 63 % of its distance to its point in a second
+
+
+def _keyframes(times_name: str, values_name: str, times, values, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Checked, read-only keyframes: their times ``(K,)`` (finite, ≥ 0, increasing) and values ``(K, width)``."""
+    times = np.array(times, dtype=float).reshape(-1)
+    values = np.array(values, dtype=float)
+    if times.size == 0 or values.size != times.size * width:
+        raise ValueError(f"FormationMotion: {times_name} and {values_name} need K ≥ 1 keyframes ({width} value(s) "
+                         f"each), got {times.size} times and {values.size} values")
+    values = values.reshape(len(times), width)
+    if not (np.all(np.isfinite(times)) and np.all(times >= 0) and np.all(np.diff(times) > 0)):
+        raise ValueError(f"FormationMotion.{times_name} must be finite, ≥ 0 and increasing, got {times.tolist()}")
+    if not np.all(np.isfinite(values)):
+        raise ValueError(f"FormationMotion.{values_name} must be finite, got {values.tolist()}")
+    times.setflags(write=False)
+    values.setflags(write=False)
+    return times, values
 
 
 @dataclass(frozen=True)
 class FormationMotion:
-    """How a formation's desired shape moves: scale keyframes and an optional switch to another shape.
+    """How a formation's desired shape moves: scale keyframes, an optional switch to another shape and, with a
+    ``centre``, where the shape is placed (a turn and a path, each through keyframes of its own).
 
     Attributes:
         scale_times: ``(K,)`` s, increasing, K ≥ 1: the keyframes' times.
@@ -48,6 +78,11 @@ class FormationMotion:
         switch_shape: ``(N, 2)`` r_B, the shape switched to (same edges as the formation; None: no switch).
         switch_time: t_s (s) when the switch starts.
         switch_duration: T_s ≥ 0 (s) it takes (0: a step).
+        centre: ``(2,)`` c (m), where the shape's centroid is placed at δ = 0; None: the shape is not placed (the
+            lengths alone are the target, and the turn and path must stay zero).
+        turn_times, turns: ``(K,)`` s and rad, the turn θ(t) of the placed shape from its realisation (default:
+            none). Between keyframes the shape turns at the rate ω = Δθ/Δt.
+        path_times, path: ``(K,)`` s and ``(K, 2)`` m, the offset δ(t) of the placed centroid from ``centre``.
     """
 
     scale_times: np.ndarray
@@ -55,6 +90,11 @@ class FormationMotion:
     switch_shape: np.ndarray | None = None
     switch_time: float = math.inf
     switch_duration: float = 0.0
+    centre: np.ndarray | None = None
+    turn_times: np.ndarray = (0.0,)
+    turns: np.ndarray = (0.0,)
+    path_times: np.ndarray = (0.0,)
+    path: np.ndarray = ((0.0, 0.0),)
 
     def __post_init__(self) -> None:
         times = np.array(self.scale_times, dtype=float).reshape(-1)
@@ -82,56 +122,104 @@ class FormationMotion:
             arr.setflags(write=False)
         object.__setattr__(self, "scale_times", times)
         object.__setattr__(self, "scales", scales)
+        turn_times, turns = _keyframes("turn_times", "turns", self.turn_times, self.turns, 1)
+        path_times, path = _keyframes("path_times", "path", self.path_times, self.path, 2)
+        object.__setattr__(self, "turn_times", turn_times)
+        object.__setattr__(self, "turns", turns[:, 0])
+        object.__setattr__(self, "path_times", path_times)
+        object.__setattr__(self, "path", path)
+        if self.centre is not None:
+            centre = np.array(self.centre, dtype=float).reshape(-1)
+            if centre.shape != (2,) or not np.all(np.isfinite(centre)):
+                raise ValueError(f"FormationMotion.centre must be a finite point (x, y) in m, got {self.centre!r}")
+            centre.setflags(write=False)
+            object.__setattr__(self, "centre", centre)
+        elif np.any(turns != 0) or np.any(path != 0):
+            raise ValueError("FormationMotion: a turn or a path places the shape, so it needs a centre (the point "
+                             "its centroid starts at)")
+
+    @property
+    def keyframes(self) -> int:
+        """The most keyframes any of the motion's three functions of time has (a :class:`MotionTable`'s width)."""
+        return max(len(self.scale_times), len(self.turn_times), len(self.path_times))
 
     def shape(self, start: np.ndarray, t: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """The desired shape r(t) and its velocity ṙ(t), ``(T, N, 2)`` each, from the formation's realisation
         ``start (N, 2)`` at the times ``t (T,)``."""
-        table = MotionTable(1, len(start), len(self.scale_times))
+        return self._table(start).shape(*self._times(t))
+
+    def placement(self, start: np.ndarray, t: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+        """The arms' desired points p*(t) and their velocities, ``(T, N, 2)`` each (the shape itself where the
+        motion has no centre)."""
+        return self._table(start).placement(*self._times(t))
+
+    def _table(self, start: np.ndarray) -> MotionTable:
+        table = MotionTable(1, len(start), self.keyframes)
         table.load(0, start, self)
+        return table
+
+    @staticmethod
+    def _times(t: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         t = np.atleast_1d(np.asarray(t, dtype=float))
-        return table.shape(t, np.zeros(len(t), dtype=np.int64))
+        return t, np.zeros(len(t), dtype=np.int64)
+
+
+def _interpolate(times: np.ndarray, values: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Piecewise-linear keyframes ``times (B, K)``, ``values (B, K, D)`` (held before the first and after the
+    last) at ``t (B,)``: the values ``(B, D)`` and their rates."""
+    seg = np.clip((times <= t[:, None]).sum(axis=1) - 1, 0, times.shape[1] - 2)[:, None]
+    t0, t1 = np.take_along_axis(times, seg, 1)[:, 0], np.take_along_axis(times, seg + 1, 1)[:, 0]
+    v0 = np.take_along_axis(values, seg[..., None], 1)[:, 0]
+    v1 = np.take_along_axis(values, seg[..., None] + 1, 1)[:, 0]
+    inside = ((t >= times[:, 0]) & (t < times[:, -1]))[:, None]
+    rate = np.where(inside, (v1 - v0) / (t1 - t0)[:, None], 0.0)
+    value = v0 + rate * (np.clip(t, times[:, 0], times[:, -1]) - t0)[:, None]
+    return np.where((t >= times[:, -1])[:, None], values[:, -1], value), rate
 
 
 class MotionTable:
     """The moving shapes of B copies, batched: each copy's keyframes (padded by holding the last), its
-    shapes r_A, r_B and its switch, so that one call gives every copy's target at its own clock."""
+    shapes r_A, r_B, its switch and its placement, so that one call gives every copy's target at its own clock."""
 
     def __init__(self, copies: int, n_arms: int, keyframes: int) -> None:
+        K = max(keyframes, 2)
         self.start = np.zeros((copies, n_arms, 2))
         self.end = np.zeros((copies, n_arms, 2))
-        self.times = np.tile(np.arange(max(keyframes, 2), dtype=float), (copies, 1))
-        self.scales = np.ones((copies, max(keyframes, 2)))
+        self.frames = {name: (np.tile(np.arange(K, dtype=float), (copies, 1)), np.full((copies, K, width), fill))
+                       for name, width, fill in (("scale", 1, 1.0), ("turn", 1, 0.0), ("path", 2, 0.0))}
         self.switch = np.tile([math.inf, 0.0], (copies, 1))  # t_s, T_s
+        self.centre = np.zeros((copies, 2))
+        self.placed = np.zeros(copies, dtype=bool)
 
     def load(self, b: int, start: np.ndarray, motion: FormationMotion | None) -> None:
         """Copy ``b`` moves as ``motion`` from the realisation ``start (N, 2)`` (None: holds it)."""
         self.start[b] = start
         self.end[b] = start if motion is None or motion.switch_shape is None else motion.switch_shape
-        K = self.times.shape[1]
-        times = np.zeros(1) if motion is None else motion.scale_times
-        scales = np.ones(1) if motion is None else motion.scales
-        if len(times) > K:
-            raise ValueError(f"a motion with {len(times)} scale keyframes does not fit this env's {K}")
-        self.times[b] = np.concatenate([times, times[-1] + 1.0 + np.arange(K - len(times))])
-        self.scales[b] = np.concatenate([scales, np.full(K - len(scales), scales[-1])])
-        self.switch[b] = (math.inf, 0.0) if motion is None or motion.switch_shape is None else \
-            (motion.switch_time, motion.switch_duration)
+        still = FormationMotion(np.zeros(1), np.ones(1))
+        m = still if motion is None else motion
+        for name, times, values in (("scale", m.scale_times, m.scales), ("turn", m.turn_times, m.turns),
+                                    ("path", m.path_times, m.path)):
+            table_times, table_values = self.frames[name]
+            K = table_times.shape[1]
+            if len(times) > K:
+                raise ValueError(f"a motion with {len(times)} {name} keyframes does not fit this env's {K}")
+            values = np.asarray(values, dtype=float).reshape(len(times), -1)
+            table_times[b] = np.concatenate([times, times[-1] + 1.0 + np.arange(K - len(times))])
+            table_values[b] = np.concatenate([values, np.repeat(values[-1:], K - len(times), axis=0)])
+        self.switch[b] = (math.inf, 0.0) if m.switch_shape is None else (m.switch_time, m.switch_duration)
+        self.placed[b] = m.centre is not None
+        self.centre[b] = 0.0 if m.centre is None else m.centre
+
+    def _at(self, name: str, t: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        times, values = self.frames[name]
+        return _interpolate(times[rows], values[rows], t)
 
     def shape(self, t: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """r(t) and ṙ(t), ``(B, N, 2)``, for each copy at its time ``t (B,)`` (``rows``: the table's rows to use,
         one per time, default all; a row may repeat, to give one copy's shape at several times)."""
-        rows = np.arange(len(self.times)) if rows is None else rows
-        times, scales = self.times[rows], self.scales[rows]
+        rows = np.arange(len(self.start)) if rows is None else rows
         t = np.asarray(t, dtype=float).reshape(-1)
-        seg = np.clip((times <= t[:, None]).sum(axis=1) - 1, 0, times.shape[1] - 2)
-        t0 = np.take_along_axis(times, seg[:, None], 1)[:, 0]
-        t1 = np.take_along_axis(times, seg[:, None] + 1, 1)[:, 0]
-        s0 = np.take_along_axis(scales, seg[:, None], 1)[:, 0]
-        s1 = np.take_along_axis(scales, seg[:, None] + 1, 1)[:, 0]
-        inside = (t >= times[:, 0]) & (t < times[:, -1])
-        rate = np.where(inside, (s1 - s0) / (t1 - t0), 0.0)
-        s = s0 + rate * (np.clip(t, times[:, 0], times[:, -1]) - t0)
-        s = np.where(t >= times[:, -1], scales[:, -1], s)
+        s, rate = (x[:, 0] for x in self._at("scale", t, rows))
         t_s, dur = self.switch[rows, 0], self.switch[rows, 1]
         with np.errstate(divide="ignore", invalid="ignore"):
             lam = np.where(dur > 0, np.clip((t - t_s) / dur, 0.0, 1.0), (t >= t_s).astype(float))
@@ -142,11 +230,42 @@ class MotionTable:
         r_dot = rate[:, None, None] * blend + (s * lam_rate)[:, None, None] * (end - start)
         return r, r_dot
 
-    def targets(self, t: np.ndarray, edges: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Every copy's desired edge lengths d ``(B, E)`` at its time ``t (B,)`` and the feed-forward ṗ_ff
-        ``(B, N, 2)`` at its end-effectors ``P (B, N, 2)``."""
+    def placement(self, t: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """p*(t) = c + δ(t) + Rot(θ(t)) (r(t) − r̄(t)) and its velocity, ``(B, N, 2)``, for each copy at its time
+        ``t (B,)`` (``rows`` as in :meth:`shape`); r(t) and ṙ(t) for copies without a centre."""
+        rows = np.arange(len(self.start)) if rows is None else rows
+        t = np.asarray(t, dtype=float).reshape(-1)
+        r, r_dot = self.shape(t, rows)
+        placed = self.placed[rows]
+        if not placed.any():
+            return r, r_dot
+        theta, omega = (x[:, 0] for x in self._at("turn", t, rows))
+        delta, delta_dot = self._at("path", t, rows)
+        c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
+        arm = r - r.mean(axis=1, keepdims=True)
+        arm_dot = r_dot - r_dot.mean(axis=1, keepdims=True)
+        turned = np.stack([c * arm[..., 0] - s * arm[..., 1], s * arm[..., 0] + c * arm[..., 1]], axis=-1)
+        turned_dot = np.stack([c * arm_dot[..., 0] - s * arm_dot[..., 1], s * arm_dot[..., 0] + c * arm_dot[..., 1]],
+                              axis=-1)
+        spin = omega[:, None, None] * np.stack([-turned[..., 1], turned[..., 0]], axis=-1)  # ω J Rot(θ) (r − r̄)
+        point = (self.centre[rows] + delta)[:, None] + turned
+        velocity = delta_dot[:, None] + spin + turned_dot
+        keep = placed[:, None, None]
+        return np.where(keep, point, r), np.where(keep, velocity, r_dot)
+
+    def targets(self, t: np.ndarray, edges: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every copy's desired edge lengths d ``(B, E)`` at its time ``t (B,)``, the feed-forward ṗ_ff
+        ``(B, N, 2)`` at its end-effectors ``P (B, N, 2)`` and each arm's distance from its point ``(B, N)`` (zero
+        for copies whose shape is not placed)."""
         distances, rates = edge_rates(edges, *self.shape(t))
-        return distances, feed_forward(edges, P, rates)
+        ff = feed_forward(edges, P, np.where(self.placed[:, None], 0.0, rates))
+        misplacement = np.zeros(P.shape[:2])
+        if self.placed.any():
+            point, velocity = self.placement(t)
+            pull = point - P
+            ff = np.where(self.placed[:, None, None], velocity + PLACEMENT_GAIN * pull, ff)
+            misplacement = np.where(self.placed[:, None], np.linalg.norm(pull, axis=-1), 0.0)
+        return distances, ff, misplacement
 
 
 def edge_rates(edges: np.ndarray, r: np.ndarray, r_dot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -190,6 +309,7 @@ def align(shape: np.ndarray, reference: np.ndarray) -> np.ndarray:
 
 MIN_EDGE = 0.01  # m: the shortest edge a moving shape may ask for (its lengths' errors are relative to it)
 BLEND_SAMPLES = 401  # points of a switch's blend at which its rigidity is measured
+PLACE_SAMPLES = 33  # points between two keyframes at which a placed shape's reach is checked
 BLEND_RIGIDITY = 0.05  # the blend's σ_{2N−3}(R) may fall to this fraction of the smaller of its two ends'
 
 
@@ -253,17 +373,20 @@ def switch_shape(edges: np.ndarray, distances: np.ndarray, start: np.ndarray, tr
 
 
 def check_motion(motion: FormationMotion, start: np.ndarray, edges: np.ndarray, bases: np.ndarray,
-                 reaches: np.ndarray, horizon: float) -> None:
+                 reaches: np.ndarray, horizon: float, inner: np.ndarray | None = None) -> None:
     """Raise ``ValueError`` for a motion the team cannot follow from the realisation ``start (N, 2)``: keyframes
     or a switch outside ``[0, horizon]``, a switch shape of the wrong size or one the edges do not hold rigid
     along the blend (:func:`blend_degenerates`), an edge shorter than :data:`MIN_EDGE`, or two arms asked to be
     farther apart than their bases' distance plus their reaches (or closer than their bases' distance minus
     them), at each keyframe and through the switch. The last is necessary, not sufficient: a shape that passes
-    may still be out of reach as a whole."""
+    may still be out of reach as a whole. A placed shape (``motion.centre``) is also checked exactly: every arm's
+    point must lie in its workspace, the ring between ``inner`` (default 0) and ``reaches`` around its base, at
+    the keyframes and at :data:`PLACE_SAMPLES` points between each two (a turning point moves on an arc)."""
     N = len(start)
-    if motion.scale_times[-1] > horizon:
-        raise ValueError(f"the scale keyframes end at {motion.scale_times[-1]:g} s, after the episode's "
-                         f"{horizon:g} s")
+    for name in ("scale", "turn", "path"):
+        end = getattr(motion, f"{name}_times")[-1]
+        if end > horizon:
+            raise ValueError(f"the {name} keyframes end at {end:g} s, after the episode's {horizon:g} s")
     if motion.switch_shape is not None:
         if motion.switch_shape.shape != (N, 2):
             raise ValueError(f"the switch shape has {motion.switch_shape.shape[0]} vertices for {N} arms")
@@ -279,8 +402,15 @@ def check_motion(motion: FormationMotion, start: np.ndarray, edges: np.ndarray, 
     if motion.switch_shape is not None:
         end = motion.switch_time + motion.switch_duration
         times += [[motion.switch_time, end], np.linspace(motion.switch_time, end, BLEND_SAMPLES)]
+    if motion.centre is not None:
+        times += [motion.turn_times, motion.path_times]
+        knots = np.unique(np.concatenate(times))
+        times.append((knots[:-1, None] + np.linspace(0.0, 1.0, PLACE_SAMPLES)[None] * np.diff(knots)[:, None]).ravel())
     grid = np.unique(np.clip(np.concatenate(times), 0.0, horizon))
     r, _ = motion.shape(start, grid)
+    if motion.centre is not None:
+        _check_placed(motion.placement(start, grid)[0], grid, bases, reaches,
+                      np.zeros(len(bases)) if inner is None else inner)
     i, j = np.triu_indices(N, 1)
     apart = np.linalg.norm(r[:, i] - r[:, j], axis=-1)  # (T, pairs)
     bases_apart = np.linalg.norm(bases[i] - bases[j], axis=-1)
@@ -295,3 +425,14 @@ def check_motion(motion: FormationMotion, start: np.ndarray, edges: np.ndarray, 
     if (lengths < MIN_EDGE).any():
         t = int(np.argwhere(lengths < MIN_EDGE)[0, 0])
         raise ValueError(f"at t = {grid[t]:g} s an edge of the moving shape is shorter than {MIN_EDGE} m")
+
+
+def _check_placed(points: np.ndarray, grid: np.ndarray, bases: np.ndarray, outer: np.ndarray,
+                  inner: np.ndarray) -> None:
+    """Raise ``ValueError`` where an arm's point ``points (T, N, 2)`` at the times ``grid`` leaves its workspace."""
+    reach = np.linalg.norm(points - bases, axis=-1)  # (T, N)
+    for bad, bound, word in ((reach > outer + 1e-9, outer, "farther from"), (reach < inner - 1e-9, inner, "closer to")):
+        if bad.any():
+            t, i = np.argwhere(bad)[0]
+            raise ValueError(f"at t = {grid[t]:g} s the placed shape puts arm {i}'s point {reach[t, i]:.3f} m from its "
+                             f"base, {word} it than the arm reaches ({bound[i]:.3f} m)")

@@ -94,6 +94,12 @@ class RandomScenarioOptions:
             the faults, and redrawn (up to 20 times, then a new team) until every arm reaches its vertex of
             the drawn placement, scaled, at every scale between the lowest and highest keyframe (1 cm inside
             its reach annulus) and the scaled vertices stay 5 cm clear of the obstacles (where they start).
+        formation_turn: the range (low, high) in rad of the placed shape's turn from the drawn placement at
+            each keyframe after 0 s (the default (0, 0) places nothing). A turn or a travel places the shape
+            (``FormationMotion.centre``): every arm is then asked to be at its own point, which is checked (1 cm
+            inside its reach annulus, 5 cm clear of the obstacles) at the keyframes and between them.
+        formation_travel: the range (low, high) in m of the placed centroid's distance from where it starts,
+            at each keyframe after 0 s, in a direction drawn uniformly.
     """
 
     n_arms: int = 4
@@ -125,6 +131,8 @@ class RandomScenarioOptions:
     fault_time: tuple[float, float] = (1.0, 10.0)
     formation_scale: tuple[float, float] = (1.0, 1.0)
     scale_period: float = 15.0
+    formation_turn: tuple[float, float] = (0.0, 0.0)
+    formation_travel: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         n_arms = positive_int("RandomScenarioOptions.n_arms", self.n_arms, minimum=2)
@@ -184,6 +192,8 @@ class RandomScenarioOptions:
         # within the episode, where faults are drawn (the default range need not fit a short horizon without them)
         self._range("fault_time", " in seconds", horizon=self.horizon if chance > 0 else None, non_negative=True)
         self._range("formation_scale", positive=True)
+        self._range("formation_turn")
+        self._range("formation_travel", " in m", non_negative=True)
         object.__setattr__(self, "scale_period", real("RandomScenarioOptions.scale_period", self.scale_period,
                                                       positive=True))
 
@@ -209,8 +219,13 @@ class RandomScenarioOptions:
 
     @property
     def moving_formation(self) -> bool:
-        """Whether the drawn formation moves (``formation_scale`` other than (1, 1))."""
-        return self.formation_scale != (1.0, 1.0)
+        """Whether the drawn formation moves (``formation_scale`` other than (1, 1), or :attr:`placed_formation`)."""
+        return self.formation_scale != (1.0, 1.0) or self.placed_formation
+
+    @property
+    def placed_formation(self) -> bool:
+        """Whether the drawn shape is placed (``formation_turn`` or ``formation_travel`` other than (0, 0))."""
+        return self.formation_turn != (0.0, 0.0) or self.formation_travel != (0.0, 0.0)
 
     @property
     def passive(self) -> tuple[bool, ...]:
@@ -328,7 +343,7 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
             fault_times = np.where(faults, rng.uniform(*opt.fault_time, N), np.inf)
         motion = None
         if opt.moving_formation:
-            motion = _draw_motion(rng, opt, targets, arms, np.array(centers).reshape(-1, 2), radii)
+            motion = _draw_motion(rng, opt, targets, arms, np.array(centers).reshape(-1, 2), radii, rot)
             if motion is None:
                 continue
         for q in q0:
@@ -349,26 +364,44 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
 
 
 def _draw_motion(rng: np.random.Generator, opt: RandomScenarioOptions, targets: np.ndarray, arms: list[ArmParams],
-                 centers: np.ndarray, radii: list[float]) -> FormationMotion | None:
-    """Scale keyframes every ``scale_period`` s (s = 1 at 0 s) such that each arm reaches its vertex of the
-    placement ``targets (N, 2)`` (centred on the origin) at every scale between the lowest and the highest,
-    and those vertices stay 5 cm clear of the obstacles; None after 20 draws without."""
+                 centers: np.ndarray, radii: list[float], rot: float) -> FormationMotion | None:
+    """Keyframes every ``scale_period`` s (s = 1, no turn and no travel at 0 s) such that each arm reaches its
+    vertex of the placement ``targets (N, 2)`` (centred on the origin, the formation's realisation turned by
+    ``rot``), scaled, at every scale between the lowest and the highest, and those vertices stay 5 cm clear of
+    the obstacles; for a placed shape, each arm's point at the keyframes and between them. None after 20 draws."""
     times = np.minimum(np.arange(0.0, opt.horizon + 1e-9, opt.scale_period), opt.horizon)  # arange may overshoot
     scale = np.linspace(0.0, 1.0, 21)
     bases = np.array([a.base for a in arms])
-    inner = np.array([max(0.0, 2.0 * max(a.lengths) - a.reach) for a in arms])
+    inner = np.array([a.inner_reach for a in arms])
     outer = np.array([a.reach for a in arms])
+    K = len(times) - 1
     for _ in range(20):
-        scales = np.concatenate([[1.0], rng.uniform(*opt.formation_scale, len(times) - 1)])
-        s = scales.min() + scale * (scales.max() - scales.min())
-        vertices = s[:, None, None] * targets[None]  # (21, N, 2)
+        scales = np.concatenate([[1.0], rng.uniform(*opt.formation_scale, K)])
+        if opt.placed_formation:
+            turns = rot + np.concatenate([[0.0], rng.uniform(*opt.formation_turn, K)])
+            heading = rng.uniform(-np.pi, np.pi, K)
+            travel = rng.uniform(*opt.formation_travel, K)[:, None] * np.stack([np.cos(heading), np.sin(heading)], -1)
+            motion = FormationMotion(times, scales, centre=np.zeros(2), turn_times=times, turns=turns,
+                                     path_times=times, path=np.concatenate([np.zeros((1, 2)), travel]))
+            grid = (times[:-1, None] + np.linspace(0.0, 1.0, 9)[None] * np.diff(times)[:, None]).ravel()
+            vertices = motion.placement(_unturned(targets, rot), grid)[0]  # (T, N, 2)
+        else:
+            motion = FormationMotion(times, scales)
+            s = scales.min() + scale * (scales.max() - scales.min())
+            vertices = s[:, None, None] * targets[None]  # (21, N, 2)
         dist = np.linalg.norm(vertices - bases, axis=-1)
         if np.any(dist > outer - 0.01) or np.any(dist < inner + 0.01):
             continue
         if len(radii) and clearance(vertices.reshape(-1, 2), centers, np.asarray(radii)).min() < 0.05:
             continue
-        return FormationMotion(times, scales)
+        return motion
     return None
+
+
+def _unturned(targets: np.ndarray, rot: float) -> np.ndarray:
+    """The placement ``targets (N, 2)`` turned back by ``rot``: the formation's realisation, centred."""
+    c, s = np.cos(rot), np.sin(rot)
+    return targets @ np.array([[c, -s], [s, c]])
 
 
 def _arms_apart(arms: list[ArmParams], q0: list[np.ndarray], opt: RandomScenarioOptions) -> bool:

@@ -5,7 +5,7 @@ end-effector labelled with the arm's number 1..N (as in the figures and tables; 
 arm i + 1), the obstacles (red disks, where they are now) with the safety filter's boundary (dashed)
 and a moving obstacle's path (thin, dashed), the formation's edges between the end-effectors (green
 when within 1 cm of their length, orange otherwise) and the target shape (grey, dashed) fitted to the
-end-effectors by the best rigid motion. With ``bodies = "links"`` each link is also shaded as the
+end-effectors by the best rigid motion, or where it stands for a placed shape (docs/MODEL.md §8). With ``bodies = "links"`` each link is also shaded as the
 capsule of radius ``link_radius`` that the filter keeps clear, so a frame shows what is protected.
 Matplotlib is imported only when the first frame is drawn; ``rgb_array`` needs no display.
 """
@@ -102,8 +102,10 @@ class Renderer:
         shape, distances = f.target, f.distances
         task = getattr(env, "task", None)
         if getattr(task, "motion", None) is not None:  # a moving formation: its shape and lengths now
-            shape, distances = task.motion.shape(env.engine.elapsed[:1], np.zeros(1, np.int64))[0][0], task.distances[0]
-        fitted = fit_shape(shape, P)
+            shape, distances = task.motion.placement(env.engine.elapsed[:1], np.zeros(1, np.int64))[0][0], \
+                task.distances[0]
+        placed = getattr(task, "motion", None) is not None and task.motion.placed[0]
+        fitted = shape if placed else fit_shape(shape, P)
         err = np.abs(np.linalg.norm(P[f.edges[:, 0]] - P[f.edges[:, 1]], axis=-1) - distances)
         for (a, b), e in zip(f.edges, err, strict=True):
             ax.plot(*fitted[[a, b]].T, "--", color="0.5", lw=1)

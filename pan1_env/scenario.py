@@ -16,7 +16,8 @@ the README ("Scenario files"); in short::
                   passive_damping = 0 (N·m·s/rad at a passive first joint)   (optional)
     [[arms]]      base, q0, and any arm_defaults key to override it
     [formation]   shape = "square" | "polygon" with size,  or  edges + distances (0-based arms)
-    [formation.motion]  scale = [[t, s], ...], switch_distances, switch_time, switch_duration = 0  (optional)
+    [formation.motion]  scale = [[t, s], ...], switch_distances, switch_time, switch_duration = 0, and to place
+                  the shape centre = [x, y], turn = [[t, θ], ...] (rad), path = [[t, dx, dy], ...] (m)  (optional)
     [[obstacles]] center, radius, and for a moving obstacle path_end = [x, y] and speed (m/s)
 
 Angles (``q0``, ``phi``) are numbers in radians or strings such as ``"-3*pi/4"``.
@@ -141,7 +142,7 @@ class Scenario:
             try:
                 check_motion(self.motion, self.formation.target, self.formation.edges,
                              np.array([a.base for a in self.arms]), np.array([a.reach for a in self.arms]),
-                             self.horizon)
+                             self.horizon, inner=np.array([a.inner_reach for a in self.arms]))
             except ValueError as err:
                 raise ValueError(f"Scenario.motion: {err}") from None
 
@@ -495,20 +496,36 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
     )
 
 
+def _keyframe_list(table: Mapping[str, Any], key: str, src: str, what: str, default: list) -> np.ndarray:
+    """``formation.motion.<key>``, a list of keyframes of ``len(default[0])`` numbers each, as ``(K, width)``."""
+    keyframes = table.get(key, default)
+    if not isinstance(keyframes, list) or not keyframes or not all(isinstance(k, list) for k in keyframes):
+        raise ScenarioError(src, f"formation.motion.{key}", f"expected a list of {what}, got {keyframes!r}")
+    width = len(default[0])
+    return np.array([_vector(k, src, f"formation.motion.{key}[{m}]", size=width) for m, k in enumerate(keyframes)])
+
+
 def _motion(form: Mapping[str, Any], formation: Formation, arms: tuple[ArmParams, ...], horizon: float,
             src: str) -> FormationMotion | None:
     """``[formation.motion]`` as :attr:`Scenario.motion` (None without the table): ``scale``, a list of
-    ``[time, scale]`` keyframes (default ``[[0, 1]]``), and for a switch ``switch_distances`` (the edges' new
-    lengths), ``switch_time`` and ``switch_duration``, checked against the team
+    ``[time, scale]`` keyframes (default ``[[0, 1]]``), for a switch ``switch_distances`` (the edges' new
+    lengths), ``switch_time`` and ``switch_duration``, and to place the shape ``centre`` with ``turn``
+    (``[time, angle]``) and ``path`` (``[time, dx, dy]``) keyframes, checked against the team
     (:func:`pan1_env.motion.check_motion`)."""
     if "motion" not in form:
         return None
     table = _known_keys(form["motion"], "formation.motion", src,
-                        {"scale", "switch_distances", "switch_time", "switch_duration"})
-    keyframes = table.get("scale", [[0.0, 1.0]])
-    if not isinstance(keyframes, list) or not keyframes or not all(isinstance(k, list) for k in keyframes):
-        raise ScenarioError(src, "formation.motion.scale", f"expected a list of [time, scale] pairs, got {keyframes!r}")
-    keyframes = [_vector(k, src, f"formation.motion.scale[{m}]", size=2) for m, k in enumerate(keyframes)]
+                        {"scale", "switch_distances", "switch_time", "switch_duration", "centre", "turn", "path"})
+    keyframes = _keyframe_list(table, "scale", src, "[time, scale] pairs", [[0.0, 1.0]])
+    placed = {}
+    if "centre" in table:
+        turn = _keyframe_list(table, "turn", src, "[time, angle] pairs", [[0.0, 0.0]])
+        path = _keyframe_list(table, "path", src, "[time, dx, dy] triples", [[0.0, 0.0, 0.0]])
+        placed = {"centre": _vector(table["centre"], src, "formation.motion.centre", size=2),
+                  "turn_times": turn[:, 0], "turns": turn[:, 1], "path_times": path[:, 0], "path": path[:, 1:]}
+    elif "turn" in table or "path" in table:
+        raise ScenarioError(src, "formation.motion.centre", "a turn or a path places the shape: it needs centre = "
+                            "[x, y], the point (m) where the shape's centroid starts")
     switch = {}
     if "switch_distances" in table:
         distances = _vector(table["switch_distances"], src, "formation.motion.switch_distances")
@@ -529,10 +546,9 @@ def _motion(form: Mapping[str, Any], formation: Formation, arms: tuple[ArmParams
         raise ScenarioError(src, "formation.motion.switch_time", "a switch needs switch_distances (the edges' "
                             "lengths after it)")
     try:
-        motion = FormationMotion(np.array(keyframes, dtype=float)[:, 0], np.array(keyframes, dtype=float)[:, 1],
-                                 **switch)
+        motion = FormationMotion(keyframes[:, 0], keyframes[:, 1], **switch, **placed)
         check_motion(motion, formation.target, formation.edges, np.array([a.base for a in arms]),
-                     np.array([a.reach for a in arms]), horizon)
+                     np.array([a.reach for a in arms]), horizon, inner=np.array([a.inner_reach for a in arms]))
     except ValueError as err:
         raise ScenarioError(src, "formation.motion", str(err)) from None
     return motion

@@ -41,7 +41,7 @@ class Simulation:
         self.engine = Engine(scenario, 1, physics_dt=physics_dt, safety_filter=safety_filter, qp_solver=qp_solver)
         self.motion = None
         if scenario.motion is not None:
-            self.motion = MotionTable(1, scenario.n_arms, len(scenario.motion.scale_times))
+            self.motion = MotionTable(1, scenario.n_arms, scenario.motion.keyframes)
             self.motion.load(0, scenario.formation.target, scenario.motion)
         self.reset()
 
@@ -97,7 +97,7 @@ class Simulation:
         formation = self.scenario.formation
         if self.motion is None:
             return formation.distances, np.zeros((self.n_arms, 2))
-        d, ff = self.motion.targets(np.array([self.time]), formation.edges, self.engine.positions())
+        d, ff, _ = self.motion.targets(np.array([self.time]), formation.edges, self.engine.positions())
         return d[0], ff[0]
 
     def nominal_velocity(self) -> np.ndarray:

@@ -52,7 +52,10 @@ class FormationTask:
     (v_i the commanded, v*_i the filtered velocity of the step's last sub-step); success: every edge
     within ``success_tolerance`` of its length (for ``success_hold`` seconds without a break, if set). With a moving
     formation (``Scenario.motion``) the lengths are the moving shape's at the copy's clock, and the law gets
-    the motion's feed-forward (:mod:`pan1_env.motion`).
+    the motion's feed-forward (:mod:`pan1_env.motion`). A placed shape (a motion with a ``centre``) also asks
+    every end-effector to be at its point p*_i: the formation term adds ``− formation_weight · mean_i ‖p_i − p*_i‖``,
+    ``formation_error`` is the larger of the worst edge's and the worst arm's distance, and success needs both
+    within the tolerance.
     The observation layout (:class:`~pan1_env.observation.ObservationLayout`) is the one public
     description of what each agent sees.
 
@@ -102,10 +105,11 @@ class FormationTask:
         self.below_since = np.zeros(copies)  # the clock when the error last was at or above the tolerance
         self.motion = None
         if layout.motion:
-            self.motion = MotionTable(copies, scenario.n_arms, len(scenario.motion.scale_times))
+            self.motion = MotionTable(copies, scenario.n_arms, scenario.motion.keyframes)
             for b in range(copies):
                 self.motion.load(b, scenario.formation.target, scenario.motion)
         self.feed_forward = np.zeros((copies, scenario.n_arms, 2))  # ṗ_ff (m/s): zero for a still formation
+        self.misplacement = np.zeros((copies, scenario.n_arms))  # m: each arm's distance from a placed shape's point
         self.sizes = [layout.size(n) for n in layout.n]
         self.offsets = np.concatenate([[0], np.cumsum(self.sizes)])
         # every arm in one layout group, in agent order: the flat observation is a reshape
@@ -139,7 +143,8 @@ class FormationTask:
         """With a moving formation, the desired lengths and the feed-forward at every copy's clock and state."""
         if self.motion is None:
             return
-        self.distances[:], self.feed_forward = self.motion.targets(engine.elapsed, self.edges, engine.positions())
+        self.distances[:], self.feed_forward, self.misplacement = self.motion.targets(engine.elapsed, self.edges,
+                                                                                      engine.positions())
 
     @property
     def target_size(self) -> int:
@@ -248,6 +253,10 @@ class FormationTask:
         cost = np.empty(min_clear.shape)
         kernels().formation_outcome(err, min_clear, w_form, self.success_tolerance, formation, formation_error,
                                     success, cost)
+        if self.motion is not None and self.motion.placed.any():  # a placed shape: each arm also at its point
+            formation -= w_form * self.misplacement.mean(axis=1)
+            formation_error = np.maximum(formation_error, self.misplacement.max(axis=1))
+            success &= formation_error < self.success_tolerance
         if self.success_hold > 0:
             clock = engine.elapsed
             self.below_since = np.where(success, self.below_since, clock)

@@ -234,8 +234,8 @@ def test_the_feed_forward_keeps_the_moving_shape() -> None:
 
 def _without_feed_forward(targets):
     def zero(t, edges, P):
-        d, ff = targets(t, edges, P)
-        return d, np.zeros_like(ff)
+        d, ff, misplacement = targets(t, edges, P)
+        return d, np.zeros_like(ff), misplacement
     return zero
 
 
