@@ -12,7 +12,7 @@ Commands:
   a GIF of one env episode.
 * ``train --algo ppo|sac|ppo-lagrangian --scenario S --shield/--no-shield --timesteps T --seed K --out DIR``:
   Stable-Baselines3 training (the ``rl`` extra).
-* ``benchmark --scenarios … --policies reference,zero,random,sb3:PATH --episodes K --seed S``:
+* ``benchmark --scenarios … --policies reference,zero,random,sb3:PATH --episodes K --seed S [--env-kwargs JSON]``:
   the policy comparison (Markdown, JSON and a plot).
 * ``plot RUN_DIR… [--out PATH] [--x timesteps|episodes] [--window N] [--label NAME …]``: learning
   curves of training runs, mean over seeds with a 95 % bootstrap band (a PNG and a CSV).
@@ -170,6 +170,9 @@ def _parser() -> argparse.ArgumentParser:
                        help="run every policy with the safety shield, without it, or both")
     bench.add_argument("--max-steps", type=_positive_int, default=None,
                        help="env steps per episode (default: the env's max_steps)")
+    bench.add_argument("--env-kwargs", type=_json_object, default=None, metavar="JSON",
+                       help="extra env arguments for every scenario, on top of a team id's options, e.g. "
+                            "'{\"random_options\": {\"formation_turn\": [-0.5, 0.5]}}'")
     bench.add_argument("--out", type=Path, default=Path("runs/benchmark"), help="output directory")
 
     plot = sub.add_parser("plot", help="learning curves of training runs: mean over seeds, 95%% bootstrap band",
@@ -437,7 +440,7 @@ def _cmd_benchmark(args) -> int:
     shields = {"both": (True, False), "on": (True,), "off": (False,)}[args.shield]
     rows = run_benchmark([s for s in args.scenarios.split(",") if s], [p for p in args.policies.split(",") if p],
                          episodes=args.episodes, seed=args.seed, shield_settings=shields,
-                         max_steps=args.max_steps, progress=print, bar=True)
+                         max_steps=args.max_steps, env_kwargs=args.env_kwargs, progress=print, bar=True)
     table = markdown_table(rows)
     atomic_write(args.out / "benchmark.md", lambda fh: fh.write(table + "\n"), mode="w")
     atomic_write(args.out / "benchmark.json", lambda fh: fh.write(json.dumps(rows, indent=2) + "\n"), mode="w")

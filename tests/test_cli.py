@@ -181,3 +181,23 @@ def test_benchmark_shows_a_progress_bar_per_row(tmp_path, capsys) -> None:
     assert code == 0
     err = capsys.readouterr().err
     assert "paper_pa_mixed_square / zero / shield on" in err and "0/3" in err and "episode/s" in err
+
+
+def test_benchmark_passes_env_arguments_on_top_of_a_team_ids(tmp_path, capsys) -> None:
+    """``--env-kwargs`` reaches every env (a placed random team's row reports its tracking error), and an option the
+    random teams do not have is one line and exit 2."""
+    import json
+
+    options = ('{"random_options": {"formation_turn": [-0.2, 0.2], "formation_travel": [0, 0.05]}, "max_steps": 5, '
+               '"success_hold": 0.1}')
+    code = main(["benchmark", "--scenarios", "pan1_env/MovingFormation-v0", "--policies", "zero", "--shield", "on",
+                 "--episodes", "1", "--env-kwargs", options, "--out", str(tmp_path)])
+    assert code == 0
+    (row,) = json.loads((tmp_path / "benchmark.json").read_text())
+    assert row["mean_tracking_error_m"] > 0.0
+    capsys.readouterr()
+    code = main(["benchmark", "--scenarios", "pan1_env/MovingFormation-v0", "--policies", "zero", "--episodes", "1",
+                 "--env-kwargs", '{"random_options": {"formation_spin": 1}}', "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert "random_options: unknown option 'formation_spin'" in err
