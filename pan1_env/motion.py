@@ -31,9 +31,10 @@ in a line); at a formation of side 0.5 m it changes ṗ_ff by about 0.1 %. It ne
 so the env computes it and gives each arm its own share (the observation's ``formation_velocity``).
 A placed shape needs no solve: each arm's share is its point's velocity and a pull to it,
 
-    ṗ_ff,i = ṗ*_i + k_place (p*_i − p_i),     k_place = PLACEMENT_GAIN (1/s),
+    ṗ_ff,i = ṗ*_i + min(k_place ‖p*_i − p_i‖, v_place) (p*_i − p_i)/‖p*_i − p_i‖,
 
-which only needs the arm's own end-effector and the clock.
+k_place = PLACEMENT_GAIN (1/s), v_place = PLACEMENT_SPEED (m/s), which only needs the arm's own end-effector and
+the clock.
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ __all__ = ["FormationMotion", "MotionTable", "FEED_FORWARD_DAMPING", "PLACEMENT_
 
 FEED_FORWARD_DAMPING = 1e-4  # μ in m²: R Rᵀ + μ I stays invertible where the arms line up
 PLACEMENT_GAIN = 1.0  # k_place in 1/s: a placed arm closes 63 % of its distance to its point in a second
+PLACEMENT_SPEED = 0.1  # m/s: the pull's largest speed, so that an arm far from its point is not rushed there
 
 
 def _keyframes(times_name: str, values_name: str, times, values, width: int) -> tuple[np.ndarray, np.ndarray]:
@@ -146,22 +148,21 @@ class FormationMotion:
     def shape(self, start: np.ndarray, t: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """The desired shape r(t) and its velocity ṙ(t), ``(T, N, 2)`` each, from the formation's realisation
         ``start (N, 2)`` at the times ``t (T,)``."""
-        return self._table(start).shape(*self._times(t))
+        return self._at_times(start, t, MotionTable.shape)
 
     def placement(self, start: np.ndarray, t: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """The arms' desired points p*(t) and their velocities, ``(T, N, 2)`` each (the shape itself where the
         motion has no centre)."""
-        return self._table(start).placement(*self._times(t))
+        return self._at_times(start, t, MotionTable.placement)
 
-    def _table(self, start: np.ndarray) -> MotionTable:
+    def _at_times(self, start: np.ndarray, t: np.ndarray | float, method) -> tuple[np.ndarray, np.ndarray]:
         table = MotionTable(1, len(start), self.keyframes)
         table.load(0, start, self)
-        return table
-
-    @staticmethod
-    def _times(t: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         t = np.atleast_1d(np.asarray(t, dtype=float))
-        return t, np.zeros(len(t), dtype=np.int64)
+        # one row per time holds every keyframe: in chunks, so that many keyframes at many times fit in memory
+        parts = [method(table, chunk, np.zeros(len(chunk), dtype=np.int64))
+                 for chunk in np.array_split(t, max(1, len(t) * self.keyframes // 2**18))]
+        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 
 def _interpolate(times: np.ndarray, values: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -263,8 +264,10 @@ class MotionTable:
         if self.placed.any():
             point, velocity = self.placement(t)
             pull = point - P
-            ff = np.where(self.placed[:, None, None], velocity + PLACEMENT_GAIN * pull, ff)
-            misplacement = np.where(self.placed[:, None], np.linalg.norm(pull, axis=-1), 0.0)
+            distance = np.linalg.norm(pull, axis=-1, keepdims=True)
+            speed = np.minimum(PLACEMENT_GAIN * distance, PLACEMENT_SPEED)  # far points: approached at a bounded speed
+            ff = np.where(self.placed[:, None, None], velocity + speed * pull / np.maximum(distance, 1e-12), ff)
+            misplacement = np.where(self.placed[:, None], distance[..., 0], 0.0)
         return distances, ff, misplacement
 
 
@@ -379,9 +382,11 @@ def check_motion(motion: FormationMotion, start: np.ndarray, edges: np.ndarray, 
     along the blend (:func:`blend_degenerates`), an edge shorter than :data:`MIN_EDGE`, or two arms asked to be
     farther apart than their bases' distance plus their reaches (or closer than their bases' distance minus
     them), at each keyframe and through the switch. The last is necessary, not sufficient: a shape that passes
-    may still be out of reach as a whole. A placed shape (``motion.centre``) is also checked exactly: every arm's
-    point must lie in its workspace, the ring between ``inner`` (default 0) and ``reaches`` around its base, at
-    the keyframes and at :data:`PLACE_SAMPLES` points between each two (a turning point moves on an arc)."""
+    may still be out of reach as a whole. A placed shape (``motion.centre``) is also checked arm by arm: every
+    arm's point must lie in its workspace, the ring between ``inner`` (default 0) and ``reaches`` around its base,
+    at the keyframes and at :data:`PLACE_SAMPLES` points between each two (a turning point moves on an arc, so a
+    turn of more than about a radian between two keyframes is sampled coarsely). Keyframes so close together
+    that a rate is not finite are refused."""
     N = len(start)
     for name in ("scale", "turn", "path"):
         end = getattr(motion, f"{name}_times")[-1]
@@ -407,10 +412,14 @@ def check_motion(motion: FormationMotion, start: np.ndarray, edges: np.ndarray, 
         knots = np.unique(np.concatenate(times))
         times.append((knots[:-1, None] + np.linspace(0.0, 1.0, PLACE_SAMPLES)[None] * np.diff(knots)[:, None]).ravel())
     grid = np.unique(np.clip(np.concatenate(times), 0.0, horizon))
-    r, _ = motion.shape(start, grid)
+    with np.errstate(over="ignore", invalid="ignore"):  # keyframes too close together: refused just below
+        r, r_dot = motion.placement(start, grid)
+    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(r_dot))):
+        t = grid[np.argmin(np.all(np.isfinite(r) & np.isfinite(r_dot), axis=(1, 2)))]
+        raise ValueError(f"the motion's rate is not finite at t = {t:g} s: two keyframes are too close together")
     if motion.centre is not None:
-        _check_placed(motion.placement(start, grid)[0], grid, bases, reaches,
-                      np.zeros(len(bases)) if inner is None else inner)
+        _check_placed(r, grid, bases, reaches, np.zeros(len(bases)) if inner is None else inner)
+        r, _ = motion.shape(start, grid)
     i, j = np.triu_indices(N, 1)
     apart = np.linalg.norm(r[:, i] - r[:, j], axis=-1)  # (T, pairs)
     bases_apart = np.linalg.norm(bases[i] - bases[j], axis=-1)

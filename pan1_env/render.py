@@ -5,8 +5,9 @@ end-effector labelled with the arm's number 1..N (as in the figures and tables; 
 arm i + 1), the obstacles (red disks, where they are now) with the safety filter's boundary (dashed)
 and a moving obstacle's path (thin, dashed), the formation's edges between the end-effectors (green
 when within 1 cm of their length, orange otherwise) and the target shape (grey, dashed) fitted to the
-end-effectors by the best rigid motion, or where it stands for a placed shape (docs/MODEL.md §8). With ``bodies = "links"`` each link is also shaded as the
-capsule of radius ``link_radius`` that the filter keeps clear, so a frame shows what is protected.
+end-effectors by the best rigid motion, or where it stands for a placed shape (docs/MODEL.md §8). With
+``bodies = "links"`` each link is also shaded as the capsule of radius ``link_radius`` that the filter keeps
+clear, so a frame shows what is protected.
 Matplotlib is imported only when the first frame is drawn; ``rgb_array`` needs no display.
 """
 

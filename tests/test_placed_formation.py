@@ -16,9 +16,10 @@ from rollouts import reference_and_law
 from pan1_env import scenario
 from pan1_env.baselines import ReferencePolicy
 from pan1_env.environment import parallel_env
-from pan1_env.motion import PLACEMENT_GAIN, FormationMotion, MotionTable, check_motion
+from pan1_env.motion import PLACEMENT_GAIN, PLACEMENT_SPEED, FormationMotion, MotionTable, check_motion
 from pan1_env.random_scenario import RandomScenarioOptions, random_scenario
 from pan1_env.registration import env_arguments
+from pan1_env.simulation import Simulation
 
 SQUARE = np.array([[0.0, 0.0], [0.7, 0.0], [0.7, 0.7], [0.0, 0.7]])
 EDGES = np.array([[0, 1], [1, 2], [2, 3], [0, 3], [0, 2]])
@@ -60,8 +61,8 @@ def test_placed_points_are_the_shape_turned_and_carried() -> None:
 
 
 def test_a_placed_copy_is_pulled_to_its_points_and_a_still_one_is_not() -> None:
-    """In one table, the placed copy's feed-forward is ṗ* + k_place (p* − p) and its misplacement ‖p* − p‖; the
-    copy without a centre keeps the lengths' feed-forward and no misplacement."""
+    """In one table, the placed copy's feed-forward is ṗ* + k_place (p* − p), its speed capped at PLACEMENT_SPEED, and
+    its misplacement ‖p* − p‖; the copy without a centre keeps the lengths' feed-forward and no misplacement."""
     table = MotionTable(2, 4, 3)
     motion = _placed()
     table.load(0, SQUARE, motion)
@@ -70,7 +71,11 @@ def test_a_placed_copy_is_pulled_to_its_points_and_a_still_one_is_not() -> None:
     P = np.random.default_rng(0).normal(0.0, 0.1, (2, 4, 2)) + motion.placement(SQUARE, 12.0)[0]
     _, ff, misplacement = table.targets(t, EDGES, P)
     point, velocity = motion.placement(SQUARE, 12.0)
-    np.testing.assert_allclose(ff[0], velocity[0] + PLACEMENT_GAIN * (point[0] - P[0]), atol=1e-12)
+    pull = point[0] - P[0]
+    distance = np.linalg.norm(pull, axis=-1, keepdims=True)
+    assert distance.min() < PLACEMENT_SPEED / PLACEMENT_GAIN < distance.max()  # both sides of the pull's cap
+    expected = velocity[0] + np.minimum(PLACEMENT_GAIN * distance, PLACEMENT_SPEED) * pull / distance
+    np.testing.assert_allclose(ff[0], expected, atol=1e-12)
     np.testing.assert_allclose(misplacement[0], np.linalg.norm(point[0] - P[0], axis=-1), atol=1e-12)
     assert np.all(misplacement[1] == 0.0)
     scaling = MotionTable(1, 4, 2)
@@ -260,3 +265,31 @@ def test_a_formed_shape_away_from_its_points_is_not_a_success() -> None:
     info = infos["arm_0"]
     assert info["formation_error"] == pytest.approx(misplacement.max(), rel=1e-6)
     assert info["reward_formation"] < -misplacement.mean() + 1e-3 and not info["is_success"]
+
+
+def test_reproduce_approaches_far_points_at_a_bounded_speed() -> None:
+    """``Simulation`` (``pan1-env reproduce``) has no joint-speed cap: an arm 0.8 m from its point, pulled at 0.8 m/s
+    through the paper's filter and backstepping, ran its joints away within 0.2 s. The pull's speed is capped, and
+    8 s behind the filter keep every joint below 5 rad/s."""
+    team = scenario.from_dict(_square({"centre": [1.25, 1.0]}))
+    sim = Simulation(team, safety_filter=True)
+    points = team.motion.placement(team.formation.target, 0.0)[0][0]
+    assert np.linalg.norm(sim.positions() - points, axis=-1).max() > 0.5
+    fastest = 0.0
+    for _ in range(8000):
+        sim.step(sim.nominal_velocity(), 1)
+        fastest = max(fastest, float(np.abs(sim.joint_state()[1]).max()))
+    assert fastest < 5.0
+
+
+def test_keyframes_too_close_together_are_refused() -> None:
+    for motion in ({"centre": [1.25, 1.0], "path": [[0, 0, 0], [5e-324, 0.01, 0]]},
+                   {"scale": [[0, 1.0], [5e-324, 1.01]]}):
+        with pytest.raises(scenario.ScenarioError, match=r"the motion's rate is not finite at t = 0 s: two keyframes "
+                                                         r"are too close together"):
+            scenario.from_dict(_square(motion))
+
+
+def test_a_placed_random_team_may_have_a_horizon_shorter_than_its_period() -> None:
+    team = random_scenario(np.random.default_rng(0), RandomScenarioOptions(horizon=10.0, formation_turn=(-0.3, 0.3)))
+    np.testing.assert_array_equal(team.motion.turn_times, [0.0])
