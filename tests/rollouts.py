@@ -95,3 +95,21 @@ def reference_and_law(make_env, seed: int, steps: int, action_seed: int = 0):
     law = env.task.nominal_velocity(env.engine)[0] / env.max_joint_speed
     pairs = [(law[i, : env.n_actuated[i]], ref.act(agent, obs[agent])) for i, agent in enumerate(env.agents)]
     return env, obs, pairs, ref
+
+
+def reference_episode(team, patch=None):
+    """One episode of the reference policy behind the shield on ``team`` (``patch(env)`` applied after the reset,
+    to alter the task): ``(env, last observations, last infos, times (s), formation errors)`` per step."""
+    from pan1_env.baselines import ReferencePolicy
+    from pan1_env.environment import parallel_env
+
+    env = parallel_env(team, safety_filter=True)
+    policy = ReferencePolicy(env)
+    obs, _ = env.reset(seed=0)
+    if patch is not None:
+        patch(env)
+    errors, infos = [], None
+    while env.agents:
+        obs, _, _, _, infos = env.step(policy(obs))
+        errors.append(infos["arm_0"]["formation_error"])
+    return env, obs, infos, env.control_dt * np.arange(1, len(errors) + 1), np.array(errors)

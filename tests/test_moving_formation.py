@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import tomllib
 from pettingzoo.test import parallel_api_test
-from rollouts import reference_and_law
+from rollouts import reference_and_law, reference_episode
 
 from pan1_env import scenario
 from pan1_env.baselines import ReferencePolicy
@@ -215,17 +215,10 @@ def test_the_feed_forward_keeps_the_moving_shape() -> None:
     team = _moving_square()
     worst = {}
     for with_ff in (True, False):
-        env = parallel_env(team, safety_filter=True)
-        policy = ReferencePolicy(env)
-        obs, _ = env.reset(seed=0)
-        if not with_ff:
+        def zero_feed_forward(env):
             env.task.motion.targets = _without_feed_forward(env.task.motion.targets)
-        errors = []
-        while env.agents:
-            obs, _, _, _, infos = env.step(policy(obs))
-            errors.append(infos["arm_0"]["formation_error"])
-        t = env.control_dt * np.arange(1, len(errors) + 1)
-        worst[with_ff] = np.max(np.array(errors)[t > 52.0])
+        env, obs, _, t, errors = reference_episode(team, None if with_ff else zero_feed_forward)
+        worst[with_ff] = np.max(errors[t > 52.0])
         if with_ff:
             assert np.abs(env.task.distances[0] - 1.2 * np.array(RECTANGLE)).max() < 1e-12
             assert np.all(obs["arm_0"][-2:] == 0.0)  # still again: no feed-forward

@@ -11,10 +11,9 @@ import numpy as np
 import pytest
 import tomllib
 from pettingzoo.test import parallel_api_test
-from rollouts import reference_and_law
+from rollouts import reference_and_law, reference_episode
 
 from pan1_env import scenario
-from pan1_env.baselines import ReferencePolicy
 from pan1_env.environment import parallel_env
 from pan1_env.motion import PLACEMENT_GAIN, PLACEMENT_SPEED, FormationMotion, MotionTable, check_motion
 from pan1_env.random_scenario import RandomScenarioOptions, random_scenario
@@ -180,24 +179,16 @@ def test_the_reference_follows_a_turn_and_a_travel() -> None:
     of its point while the square turns by 0.2 rad over 20 s and travels 14 cm over 20 s, and succeeds; with the
     points' velocity zeroed (the pull alone) it lags by more than 3 mm."""
     team = scenario.from_dict(_square(TURN_AND_TRAVEL, obstacles=False))
+
+    def still_points(env):
+        placement = env.task.motion.placement
+        env.task.motion.placement = lambda t, rows=None: (placement(t, rows)[0], np.zeros((1, 4, 2)))
     worst = {}
     for with_velocity in (True, False):
-        env = parallel_env(team, safety_filter=True)
-        policy = ReferencePolicy(env)
-        obs, _ = env.reset(seed=0)
-        if not with_velocity:
-            def still_points(t, rows=None, placement=env.task.motion.placement):
-                return placement(t, rows)[0], np.zeros((1, 4, 2))
-            env.task.motion.placement = still_points
-        errors, success = [], False
-        while env.agents:
-            obs, _, _, _, infos = env.step(policy(obs))
-            errors.append(infos["arm_0"]["formation_error"])
-            success = infos["arm_0"]["is_success"]
-        t = env.control_dt * np.arange(1, len(errors) + 1)
-        worst[with_velocity] = np.max(np.array(errors)[(t > 25.0) & (t < 85.0)])
+        _, _, infos, t, errors = reference_episode(team, None if with_velocity else still_points)
+        worst[with_velocity] = np.max(errors[(t > 25.0) & (t < 85.0)])
         if with_velocity:
-            assert success
+            assert infos["arm_0"]["is_success"]
     assert worst[True] < 2e-3 and worst[False] > 3e-3
 
 
