@@ -312,7 +312,8 @@ def align(shape: np.ndarray, reference: np.ndarray) -> np.ndarray:
 
 MIN_EDGE = 0.01  # m: the shortest edge a moving shape may ask for (its lengths' errors are relative to it)
 BLEND_SAMPLES = 401  # points of a switch's blend at which its rigidity is measured
-PLACE_SAMPLES = 33  # points between two keyframes at which a placed shape's reach is checked
+PLACE_SAMPLES = 33  # points between two keyframes at which a placed shape's reach is checked, at least
+TURN_STEP = 0.02  # rad: the most a placed shape turns between two of those points (a 1 m arm of it: 50 µm off its arc)
 BLEND_RIGIDITY = 0.05  # the blend's σ_{2N−3}(R) may fall to this fraction of the smaller of its two ends'
 
 
@@ -384,9 +385,9 @@ def check_motion(motion: FormationMotion, start: np.ndarray, edges: np.ndarray, 
     them), at each keyframe and through the switch. The last is necessary, not sufficient: a shape that passes
     may still be out of reach as a whole. A placed shape (``motion.centre``) is also checked arm by arm: every
     arm's point must lie in its workspace, the ring between ``inner`` (default 0) and ``reaches`` around its base,
-    at the keyframes and at :data:`PLACE_SAMPLES` points between each two (a turning point moves on an arc, so a
-    turn of more than about a radian between two keyframes is sampled coarsely). Keyframes so close together
-    that a rate is not finite are refused."""
+    at the keyframes and between each two at :data:`PLACE_SAMPLES` points or more, no more than :data:`TURN_STEP`
+    of turn apart (a turning point moves on an arc). Keyframes so close together that a rate is not finite are
+    refused."""
     N = len(start)
     for name in ("scale", "turn", "path"):
         end = getattr(motion, f"{name}_times")[-1]
@@ -407,10 +408,12 @@ def check_motion(motion: FormationMotion, start: np.ndarray, edges: np.ndarray, 
     if motion.switch_shape is not None:
         end = motion.switch_time + motion.switch_duration
         times += [[motion.switch_time, end], np.linspace(motion.switch_time, end, BLEND_SAMPLES)]
-    if motion.centre is not None:
+    if motion.centre is not None:  # between knots, at least PLACE_SAMPLES points and at most TURN_STEP of turn apart
         times += [motion.turn_times, motion.path_times]
-        knots = np.unique(np.concatenate(times))
-        times.append((knots[:-1, None] + np.linspace(0.0, 1.0, PLACE_SAMPLES)[None] * np.diff(knots)[:, None]).ravel())
+        knots = np.unique(np.clip(np.concatenate(times), 0.0, horizon))
+        turned = np.abs(np.diff(np.interp(knots, motion.turn_times, motion.turns)))
+        counts = np.maximum(PLACE_SAMPLES, np.ceil(turned / TURN_STEP).astype(int) + 1)
+        times += [np.linspace(a, b, n) for a, b, n in zip(knots[:-1], knots[1:], counts, strict=True)]
     grid = np.unique(np.clip(np.concatenate(times), 0.0, horizon))
     with np.errstate(over="ignore", invalid="ignore"):  # keyframes too close together: refused just below
         r, r_dot = motion.placement(start, grid)

@@ -20,7 +20,7 @@ the README ("Scenario files"); in short::
                   the shape centre = [x, y], turn = [[t, θ], ...] (rad), path = [[t, dx, dy], ...] (m)  (optional)
     [[obstacles]] center, radius, and for a moving obstacle path_end = [x, y] and speed (m/s)
 
-Angles (``q0``, ``phi``) are numbers in radians or strings such as ``"-3*pi/4"``.
+Angles (``q0``, ``phi``, a turn's angles) are numbers in radians or strings such as ``"-3*pi/4"``.
 """
 
 from __future__ import annotations
@@ -496,13 +496,21 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
     )
 
 
-def _keyframe_list(table: Mapping[str, Any], key: str, src: str, what: str, default: list) -> np.ndarray:
-    """``formation.motion.<key>``, a list of keyframes of ``len(default[0])`` numbers each, as ``(K, width)``."""
+def _keyframe_list(table: Mapping[str, Any], key: str, src: str, what: str, default: list,
+                   angle: bool = False) -> np.ndarray:
+    """``formation.motion.<key>``, a list of keyframes of ``len(default[0])`` numbers each, as ``(K, width)``
+    (with ``angle``, ``[time, angle]`` pairs whose angle may be written as ``q0``'s are, e.g. ``"pi/4"``)."""
     keyframes = table.get(key, default)
     if not isinstance(keyframes, list) or not keyframes or not all(isinstance(k, list) for k in keyframes):
         raise ScenarioError(src, f"formation.motion.{key}", f"expected a list of {what}, got {keyframes!r}")
-    width = len(default[0])
-    return np.array([_vector(k, src, f"formation.motion.{key}[{m}]", size=width) for m, k in enumerate(keyframes)])
+    width, out = len(default[0]), []
+    for m, k in enumerate(keyframes):
+        name = f"formation.motion.{key}[{m}]"
+        if angle and len(k) == 2:
+            out.append([*_vector(k[:1], src, name), _angle(k[1], src, name)])
+        else:
+            out.append(_vector(k, src, name, size=width))
+    return np.array(out, dtype=float)
 
 
 def _motion(form: Mapping[str, Any], formation: Formation, arms: tuple[ArmParams, ...], horizon: float,
@@ -519,7 +527,7 @@ def _motion(form: Mapping[str, Any], formation: Formation, arms: tuple[ArmParams
     keyframes = _keyframe_list(table, "scale", src, "[time, scale] pairs", [[0.0, 1.0]])
     placed = {}
     if "centre" in table:
-        turn = _keyframe_list(table, "turn", src, "[time, angle] pairs", [[0.0, 0.0]])
+        turn = _keyframe_list(table, "turn", src, "[time, angle] pairs", [[0.0, 0.0]], angle=True)
         path = _keyframe_list(table, "path", src, "[time, dx, dy] triples", [[0.0, 0.0, 0.0]])
         placed = {"centre": _vector(table["centre"], src, "formation.motion.centre", size=2),
                   "turn_times": turn[:, 0], "turns": turn[:, 1], "path_times": path[:, 0], "path": path[:, 1:]}

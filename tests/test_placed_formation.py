@@ -97,6 +97,8 @@ TURN_AND_TRAVEL = {"centre": [1.25, 1.0], "turn": [[0, 0.0], [30, 0.0], [50, 0.2
 
 def test_a_scenario_file_places_the_shape() -> None:
     team = scenario.from_dict(_square(TURN_AND_TRAVEL))
+    written = scenario.from_dict(_square(TURN_AND_TRAVEL | {"turn": [[0, 0], [30, "-pi/16"], [50, "pi/16"]]}))
+    np.testing.assert_allclose(written.motion.turns, [0.0, -np.pi / 16, np.pi / 16])
     np.testing.assert_array_equal(team.motion.centre, [1.25, 1.0])
     np.testing.assert_array_equal(team.motion.turn_times, [0, 30, 50])
     np.testing.assert_array_equal(team.motion.turns, [0, 0, 0.2])
@@ -110,13 +112,15 @@ def test_a_scenario_file_places_the_shape() -> None:
     ({"centre": [1.25]}, r"formation\.motion\.centre: expected 2 numbers, got 1"),
     ({"centre": [1.25, 1.0], "turn": [[0, 0.0], [10]]}, r"formation\.motion\.turn\[1\]: expected 2 numbers"),
     ({"centre": [1.25, 1.0], "turn": 0.2}, r"formation\.motion\.turn: expected a list of \[time, angle\] pairs"),
+    ({"centre": [1.25, 1.0], "turn": [[0, 0.0], [10, "quarter"]]}, r"formation\.motion\.turn\[1\]: cannot read angle"),
     ({"centre": [1.25, 1.0], "path": [[0, 0, 0], [0, 1, 1]]}, r"path_times must be finite, ≥ 0 and increasing"),
     ({"centre": [1.25, 1.0], "turn": [[0, 0.0], [150, 0.1]]}, r"the turn keyframes end at 150 s, after the episode's"),
     ({"centre": [1.6, 1.0]}, r"at t = 0 s the placed shape puts arm 0's point 1\.409 m from its base, farther from it "
                              r"than the arm reaches \(1\.400 m\)"),
     ({"centre": [1.25, 1.0], "path": [[0, 0, 0], [20, 0.4, 0]]}, r"at t = 1[0-9.]* s the placed shape puts arm"),
 ], ids=["turn_without_centre", "path_without_centre", "centre_one_number", "turn_keyframe_one_number",
-        "turn_not_pairs", "path_not_increasing", "turn_after_horizon", "centre_out_of_reach", "path_out_of_reach"])
+        "turn_not_pairs", "turn_angle_unreadable", "path_not_increasing", "turn_after_horizon",
+        "centre_out_of_reach", "path_out_of_reach"])
 def test_bad_placements_in_a_scenario_file(motion: dict, message: str) -> None:
     with pytest.raises(scenario.ScenarioError, match=message):
         scenario.from_dict(_square(motion))
@@ -284,3 +288,15 @@ def test_keyframes_too_close_together_are_refused() -> None:
 def test_a_placed_random_team_may_have_a_horizon_shorter_than_its_period() -> None:
     team = random_scenario(np.random.default_rng(0), RandomScenarioOptions(horizon=10.0, formation_turn=(-0.3, 0.3)))
     np.testing.assert_array_equal(team.motion.turn_times, [0.0])
+
+
+def test_a_fast_turn_is_checked_all_the_way_round() -> None:
+    """Turning 32 times in 10 s, a point passes as far from its arm's base as the centroid's distance plus its own
+    radius: a reach 1 mm short of that is refused, and one just beyond it passes (the samples lie at most 0.02 rad
+    of turn apart, so they miss the farthest point by 25 µm at most)."""
+    bases = SQUARE + [[-0.3, -0.3], [0.3, -0.3], [0.3, 0.3], [-0.3, 0.3]]
+    motion = FormationMotion([0.0], [1.0], centre=SQUARE.mean(0), turn_times=[0.0, 10.0], turns=[0.0, 64 * np.pi])
+    farthest = np.linalg.norm(SQUARE.mean(0) - bases[0]) + np.linalg.norm(SQUARE[0] - SQUARE.mean(0))
+    check_motion(motion, SQUARE, EDGES, bases, np.full(4, farthest + 1e-6), 20.0)
+    with pytest.raises(ValueError, match=r"the placed shape puts arm \d's point 1\.41\d m from its base, farther"):
+        check_motion(motion, SQUARE, EDGES, bases, np.full(4, farthest - 1e-3), 20.0)
