@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["FormationMotion", "MotionTable", "FEED_FORWARD_DAMPING", "PLACEMENT_GAIN", "MIN_EDGE", "edge_rates",
-           "feed_forward", "align", "blend_degenerates", "switch_shape", "check_motion"]
+           "feed_forward", "align", "blend_degenerates", "switch_shape", "check_times", "check_motion"]
 
 FEED_FORWARD_DAMPING = 1e-4  # μ in m²: R Rᵀ + μ I stays invertible where the arms line up
 PLACEMENT_GAIN = 1.0  # k_place in 1/s: a placed arm closes 63 % of its distance to its point in a second
@@ -376,6 +376,24 @@ def switch_shape(edges: np.ndarray, distances: np.ndarray, start: np.ndarray, tr
     return None
 
 
+def check_times(motion: FormationMotion, horizon: float) -> np.ndarray:
+    """The times within ``[0, horizon]`` at which :func:`check_motion` looks at ``motion``: 0 and the keyframes (a
+    length is s(t) times a constant outside the switch, with s linear between keyframes, so its extremes lie there),
+    :data:`BLEND_SAMPLES` points of the switch and, for a placed shape, at least :data:`PLACE_SAMPLES` points between
+    each two keyframes, no more than :data:`TURN_STEP` of turn apart (a turning point moves on an arc)."""
+    times = [[0.0], motion.scale_times]
+    if motion.switch_shape is not None:
+        end = motion.switch_time + motion.switch_duration
+        times += [[motion.switch_time, end], np.linspace(motion.switch_time, end, BLEND_SAMPLES)]
+    if motion.centre is not None:
+        times += [motion.turn_times, motion.path_times]
+        knots = np.unique(np.clip(np.concatenate(times), 0.0, horizon))
+        turned = np.abs(np.diff(np.interp(knots, motion.turn_times, motion.turns)))
+        counts = np.maximum(PLACE_SAMPLES, np.ceil(turned / TURN_STEP).astype(int) + 1)
+        times += [np.linspace(a, b, n) for a, b, n in zip(knots[:-1], knots[1:], counts, strict=True)]
+    return np.unique(np.clip(np.concatenate(times), 0.0, horizon))
+
+
 def check_motion(motion: FormationMotion, start: np.ndarray, edges: np.ndarray, bases: np.ndarray,
                  reaches: np.ndarray, horizon: float, inner: np.ndarray | None = None) -> None:
     """Raise ``ValueError`` for a motion the team cannot follow from the realisation ``start (N, 2)``: keyframes
@@ -385,9 +403,7 @@ def check_motion(motion: FormationMotion, start: np.ndarray, edges: np.ndarray, 
     them), at each keyframe and through the switch. The last is necessary, not sufficient: a shape that passes
     may still be out of reach as a whole. A placed shape (``motion.centre``) is also checked arm by arm: every
     arm's point must lie in its workspace, the ring between ``inner`` (default 0) and ``reaches`` around its base,
-    at the keyframes and between each two at :data:`PLACE_SAMPLES` points or more, no more than :data:`TURN_STEP`
-    of turn apart (a turning point moves on an arc). Keyframes so close together that a rate is not finite are
-    refused."""
+    at the times of :func:`check_times`. Keyframes so close together that a rate is not finite are refused."""
     N = len(start)
     for name in ("scale", "turn", "path"):
         end = getattr(motion, f"{name}_times")[-1]
@@ -402,19 +418,7 @@ def check_motion(motion: FormationMotion, start: np.ndarray, edges: np.ndarray, 
         if lam is not None:
             raise ValueError(f"the edges stop holding the shape rigid {lam:.0%} of the way through the switch (a "
                              "triangle of the formation turns over): choose other lengths")
-    # outside the switch every length is s(t) times a constant and s is linear between keyframes: the extremes
-    # are at the keyframes; through the switch, at BLEND_SAMPLES points of it
-    times = [[0.0], motion.scale_times]
-    if motion.switch_shape is not None:
-        end = motion.switch_time + motion.switch_duration
-        times += [[motion.switch_time, end], np.linspace(motion.switch_time, end, BLEND_SAMPLES)]
-    if motion.centre is not None:  # between knots, at least PLACE_SAMPLES points and at most TURN_STEP of turn apart
-        times += [motion.turn_times, motion.path_times]
-        knots = np.unique(np.clip(np.concatenate(times), 0.0, horizon))
-        turned = np.abs(np.diff(np.interp(knots, motion.turn_times, motion.turns)))
-        counts = np.maximum(PLACE_SAMPLES, np.ceil(turned / TURN_STEP).astype(int) + 1)
-        times += [np.linspace(a, b, n) for a, b, n in zip(knots[:-1], knots[1:], counts, strict=True)]
-    grid = np.unique(np.clip(np.concatenate(times), 0.0, horizon))
+    grid = check_times(motion, horizon)
     with np.errstate(over="ignore", invalid="ignore"):  # keyframes too close together: refused just below
         r, r_dot = motion.placement(start, grid)
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(r_dot))):

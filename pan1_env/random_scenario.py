@@ -34,7 +34,7 @@ from .bodies import closest_point_on_segment, inter_arm_clearance, link_clearanc
 from .cascade import reduced_jacobian
 from .dynamics import ArmParams, end_effector, mass_matrix
 from .formation import Formation, shape_positions
-from .motion import PLACE_SAMPLES, FormationMotion
+from .motion import FormationMotion, check_times
 from .safety import BARRIERS, Obstacles, clearance
 from .scenario import BODIES, Scenario
 from .validation import positive_int, real, whole_ratio
@@ -383,9 +383,7 @@ def _draw_motion(rng: np.random.Generator, opt: RandomScenarioOptions, targets: 
             travel = rng.uniform(*opt.formation_travel, K)[:, None] * np.stack([np.cos(heading), np.sin(heading)], -1)
             motion = FormationMotion(times, scales, centre=np.zeros(2), turn_times=times, turns=turns,
                                      path_times=times, path=np.concatenate([np.zeros((1, 2)), travel]))
-            between = (times[:-1, None] + np.linspace(0.0, 1.0, PLACE_SAMPLES)[None] * np.diff(times)[:, None]).ravel()
-            grid = np.concatenate([times, between])  # the keyframes alone where the horizon has only the first
-            vertices = motion.placement(_unturned(targets, rot), grid)[0]  # (T, N, 2)
+            vertices = motion.placement(_unturned(targets, rot), check_times(motion, opt.horizon))[0]  # (T, N, 2)
         else:
             motion = FormationMotion(times, scales)
             s = scales.min() + scale * (scales.max() - scales.min())
