@@ -438,6 +438,8 @@ def _cmd_benchmark(args) -> int:
     from .experiment import atomic_write
 
     shields = {"both": (True, False), "on": (True,), "off": (False,)}[args.shield]
+    if args.env_kwargs and "scenario" in args.env_kwargs:
+        raise ValueError("--env-kwargs cannot set the scenario: name it in --scenarios")
     rows = run_benchmark([s for s in args.scenarios.split(",") if s], [p for p in args.policies.split(",") if p],
                          episodes=args.episodes, seed=args.seed, shield_settings=shields,
                          max_steps=args.max_steps, env_kwargs=args.env_kwargs, progress=print, bar=True)

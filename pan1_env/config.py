@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from .control import MAX_JOINT_SPEED
 from .random_scenario import RandomScenarioOptions, random_scenario
 from .registration import DEFAULT_REACH_STEPS, env_arguments
 from .safety import QP_SOLVERS, FilterParams, filter_parameters
@@ -118,7 +119,7 @@ class FormationConfig:
     intervention_penalty: float = 0.0
     blocked_gate: float = 0.0
     gain_range: float = DEFAULT_GAIN_RANGE
-    max_joint_speed: float = 2.0
+    max_joint_speed: float = MAX_JOINT_SPEED
     max_torque: float = 5.0
     n_obstacle_obs: int = 3
     random_options: RandomScenarioOptions | Mapping[str, Any] | None = None
@@ -245,7 +246,7 @@ class ReachConfig:
     control_dt: float = DEFAULT_CONTROL_DT
     physics_dt: float | None = None
     max_steps: int = DEFAULT_REACH_STEPS
-    max_joint_speed: float = 2.0
+    max_joint_speed: float = MAX_JOINT_SPEED
     safety_filter: bool | FilterParams | None = True
     goal_tolerance: float = 0.02
     goal_spread: float = np.pi / 2

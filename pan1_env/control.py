@@ -30,6 +30,17 @@ def nominal_velocity(Jbar: np.ndarray, e_hat: np.ndarray, kp: float, drift: np.n
     return v0 - np.einsum("...kc,...c->...k", np.linalg.pinv(Jbar), drift)
 
 
+MAX_JOINT_SPEED = 2.0  # rad/s: the envs' default bound on a commanded joint speed (an action of 1)
+
+
+def within_speed(v0: np.ndarray, max_speed: float) -> np.ndarray:
+    """Each arm's command ``v0 (..., k)`` scaled down as a whole, in place, so that no joint exceeds ``max_speed``:
+    the same direction, so a descent direction of the formation's error stays one."""
+    peak = np.abs(v0).max(axis=-1, initial=0.0) / max_speed
+    v0 /= np.maximum(peak, 1.0)[..., None]
+    return v0
+
+
 def backstepping_torque(
     M_comb: np.ndarray,
     H_comb: np.ndarray,

@@ -159,23 +159,27 @@ class FormationMotion:
         table = MotionTable(1, len(start), self.keyframes)
         table.load(0, start, self)
         t = np.atleast_1d(np.asarray(t, dtype=float))
-        # one row per time holds every keyframe: in chunks, so that many keyframes at many times fit in memory
-        parts = [method(table, chunk, np.zeros(len(chunk), dtype=np.int64))
-                 for chunk in np.array_split(t, max(1, len(t) * self.keyframes // 2**18))]
-        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+        return method(table, t, np.zeros(len(t), dtype=np.int64))
 
 
 def _interpolate(times: np.ndarray, values: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Piecewise-linear keyframes ``times (B, K)``, ``values (B, K, D)`` (held before the first and after the
-    last) at ``t (B,)``: the values ``(B, D)`` and their rates."""
-    seg = np.clip((times <= t[:, None]).sum(axis=1) - 1, 0, times.shape[1] - 2)[:, None]
-    t0, t1 = np.take_along_axis(times, seg, 1)[:, 0], np.take_along_axis(times, seg + 1, 1)[:, 0]
-    v0 = np.take_along_axis(values, seg[..., None], 1)[:, 0]
-    v1 = np.take_along_axis(values, seg[..., None] + 1, 1)[:, 0]
-    inside = ((t >= times[:, 0]) & (t < times[:, -1]))[:, None]
+    last) at ``t (B,)``: the values ``(B, D)`` and their rates. One row of keyframes, ``times (K,)`` and
+    ``values (K, D)``, serves every time (a binary search, for one motion at many times)."""
+    if times.ndim == 1:
+        seg = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
+        t0, t1, v0, v1 = times[seg], times[seg + 1], values[seg], values[seg + 1]
+        first, last, held = times[0], times[-1], values[-1]
+    else:
+        seg = np.clip((times <= t[:, None]).sum(axis=1) - 1, 0, times.shape[1] - 2)[:, None]
+        t0, t1 = np.take_along_axis(times, seg, 1)[:, 0], np.take_along_axis(times, seg + 1, 1)[:, 0]
+        v0 = np.take_along_axis(values, seg[..., None], 1)[:, 0]
+        v1 = np.take_along_axis(values, seg[..., None] + 1, 1)[:, 0]
+        first, last, held = times[:, 0], times[:, -1], values[:, -1]
+    inside = ((t >= first) & (t < last))[:, None]
     rate = np.where(inside, (v1 - v0) / (t1 - t0)[:, None], 0.0)
-    value = v0 + rate * (np.clip(t, times[:, 0], times[:, -1]) - t0)[:, None]
-    return np.where((t >= times[:, -1])[:, None], values[:, -1], value), rate
+    value = v0 + rate * (np.clip(t, first, last) - t0)[:, None]
+    return np.where((t >= last)[:, None], held, value), rate
 
 
 class MotionTable:
@@ -213,6 +217,8 @@ class MotionTable:
 
     def _at(self, name: str, t: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         times, values = self.frames[name]
+        if len(rows) > 1 and np.all(rows == rows[0]):  # one copy at many times
+            return _interpolate(times[rows[0]], values[rows[0]], t)
         return _interpolate(times[rows], values[rows], t)
 
     def shape(self, t: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -313,6 +319,9 @@ def align(shape: np.ndarray, reference: np.ndarray) -> np.ndarray:
 MIN_EDGE = 0.01  # m: the shortest edge a moving shape may ask for (its lengths' errors are relative to it)
 BLEND_SAMPLES = 401  # points of a switch's blend at which its rigidity is measured
 PLACE_SAMPLES = 33  # points between two keyframes at which a placed shape's reach is checked, at least
+MAX_CHECK_TIMES = 2_000_000  # samples of a placed shape's reach check, at most
+MAX_TURN_RATE = 1.0  # rad/s: the fastest a placed shape may turn
+MAX_TARGET_SPEED = 0.5  # m/s: the fastest a moving shape's points may move (faster than its arms can follow)
 TURN_STEP = 0.02  # rad: the most a placed shape turns between two of those points (a 1 m arm of it: 50 µm off its arc)
 BLEND_RIGIDITY = 0.05  # the blend's σ_{2N−3}(R) may fall to this fraction of the smaller of its two ends'
 
@@ -389,7 +398,11 @@ def check_times(motion: FormationMotion, horizon: float) -> np.ndarray:
         times += [motion.turn_times, motion.path_times]
         knots = np.unique(np.clip(np.concatenate(times), 0.0, horizon))
         turned = np.abs(np.diff(np.interp(knots, motion.turn_times, motion.turns)))
-        counts = np.maximum(PLACE_SAMPLES, np.ceil(turned / TURN_STEP).astype(int) + 1)
+        counts = np.maximum(PLACE_SAMPLES, np.ceil(turned / TURN_STEP) + 1)
+        if counts.sum() > MAX_CHECK_TIMES:
+            raise ValueError(f"the placed shape turns {turned.sum():.3g} rad in all, more than its reach check "
+                             f"follows ({MAX_CHECK_TIMES:g} samples, {TURN_STEP:g} rad apart): turn it less")
+        counts = counts.astype(int)
         times += [np.linspace(a, b, n) for a, b, n in zip(knots[:-1], knots[1:], counts, strict=True)]
     return np.unique(np.clip(np.concatenate(times), 0.0, horizon))
 
@@ -403,7 +416,9 @@ def check_motion(motion: FormationMotion, start: np.ndarray, edges: np.ndarray, 
     them), at each keyframe and through the switch. The last is necessary, not sufficient: a shape that passes
     may still be out of reach as a whole. A placed shape (``motion.centre``) is also checked arm by arm: every
     arm's point must lie in its workspace, the ring between ``inner`` (default 0) and ``reaches`` around its base,
-    at the times of :func:`check_times`. Keyframes so close together that a rate is not finite are refused."""
+    at the times of :func:`check_times`. A motion whose points move faster than :data:`MAX_TARGET_SPEED` (about
+    their centroid, for a shape that is not placed) or that turns faster than :data:`MAX_TURN_RATE` is refused:
+    keyframes too close together."""
     N = len(start)
     for name in ("scale", "turn", "path"):
         end = getattr(motion, f"{name}_times")[-1]
@@ -418,12 +433,25 @@ def check_motion(motion: FormationMotion, start: np.ndarray, edges: np.ndarray, 
         if lam is not None:
             raise ValueError(f"the edges stop holding the shape rigid {lam:.0%} of the way through the switch (a "
                              "triangle of the formation turns over): choose other lengths")
+    if motion.centre is not None:  # before sampling the turn (check_times' samples grow with it)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            rates = np.abs(np.diff(motion.turns) / np.diff(motion.turn_times))
+        if np.any(~(rates <= MAX_TURN_RATE)):
+            m = int(np.argmax(~(rates <= MAX_TURN_RATE)))
+            raise ValueError(f"the placed shape turns at {rates[m]:.3g} rad/s from t = {motion.turn_times[m]:g} s, "
+                             f"faster than {MAX_TURN_RATE:g} rad/s: spread the turn's keyframes further apart")
     grid = check_times(motion, horizon)
     with np.errstate(over="ignore", invalid="ignore"):  # keyframes too close together: refused just below
         r, r_dot = motion.placement(start, grid)
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(r_dot))):
         t = grid[np.argmin(np.all(np.isfinite(r) & np.isfinite(r_dot), axis=(1, 2)))]
         raise ValueError(f"the motion's rate is not finite at t = {t:g} s: two keyframes are too close together")
+    # a placed point's own speed; a shape's vertices' speed about their centroid (a rigid drift is no motion of it)
+    speed = np.linalg.norm(r_dot if motion.centre is not None else r_dot - r_dot.mean(axis=1, keepdims=True), axis=-1)
+    if speed.max() > MAX_TARGET_SPEED:
+        t = grid[int(np.argmax(speed.max(axis=1)))]
+        raise ValueError(f"at t = {t:g} s the moving shape's points move at {speed.max():.3g} m/s, faster than "
+                         f"{MAX_TARGET_SPEED:g} m/s: spread its keyframes further apart")
     if motion.centre is not None:
         _check_placed(r, grid, bases, reaches, np.zeros(len(bases)) if inner is None else inner)
         r, _ = motion.shape(start, grid)

@@ -34,7 +34,7 @@ from .bodies import closest_point_on_segment, inter_arm_clearance, link_clearanc
 from .cascade import reduced_jacobian
 from .dynamics import ArmParams, end_effector, mass_matrix
 from .formation import Formation, shape_positions
-from .motion import FormationMotion, check_times
+from .motion import FormationMotion, check_motion, check_times
 from .safety import BARRIERS, Obstacles, clearance
 from .scenario import BODIES, Scenario
 from .validation import positive_int, real, whole_ratio
@@ -193,6 +193,9 @@ class RandomScenarioOptions:
         self._range("fault_time", " in seconds", horizon=self.horizon if chance > 0 else None, non_negative=True)
         self._range("formation_scale", positive=True)
         self._range("formation_turn")
+        if max(np.abs(self.formation_turn)) > np.pi:
+            raise ValueError(f"RandomScenarioOptions.formation_turn must lie within ±π (a turn from the drawn "
+                             f"placement, rad), got {self.formation_turn!r}")
         self._range("formation_travel", " in m", non_negative=True)
         object.__setattr__(self, "scale_period", real("RandomScenarioOptions.scale_period", self.scale_period,
                                                       positive=True))
@@ -252,6 +255,11 @@ def zero_momentum_start(arm: ArmParams, q_target: np.ndarray, qa_start: np.ndarr
 
 
 
+class DrawError(RuntimeError, ValueError):
+    """No team satisfies the options: a ``RuntimeError`` (the draw ran out of tries) and a ``ValueError`` (the
+    options are the input at fault), so that the CLI reports it in one line."""
+
+
 def _draw_arm(rng: np.random.Generator, n: int, passive: bool) -> ArmParams:
     lengths = rng.uniform(0.25, 0.5, n)
     masses = rng.uniform(0.2, 0.5, n)
@@ -265,7 +273,7 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
     """Draw a reachable, collision-free, regular scenario from ``rng`` (see the module docstring).
 
     Raises:
-        RuntimeError: no valid draw within ``max_tries`` attempts (options too tight).
+        DrawError: (a ``RuntimeError``) no valid draw within ``max_tries`` attempts (options too tight).
     """
     opt = options or RandomScenarioOptions()
     N = opt.n_arms
@@ -343,7 +351,8 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
             fault_times = np.where(faults, rng.uniform(*opt.fault_time, N), np.inf)
         motion = None
         if opt.moving_formation:
-            motion = _draw_motion(rng, opt, targets, arms, np.array(centers).reshape(-1, 2), radii, rot)
+            motion = _draw_motion(rng, opt, targets, arms, np.array(centers).reshape(-1, 2), radii, rot,
+                                  formation.edges)
             if motion is None:
                 continue
         for q in q0:
@@ -360,15 +369,16 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
             safety_barrier=opt.barrier, safety_decay=opt.decay, safety_gate=opt.gate, fault_times=fault_times,
             motion=motion,
         )
-    raise RuntimeError(f"no valid random scenario in {max_tries} draws; loosen the options {opt}")
+    raise DrawError(f"no valid random scenario in {max_tries} draws; loosen the options {opt}")
 
 
 def _draw_motion(rng: np.random.Generator, opt: RandomScenarioOptions, targets: np.ndarray, arms: list[ArmParams],
-                 centers: np.ndarray, radii: list[float], rot: float) -> FormationMotion | None:
+                 centers: np.ndarray, radii: list[float], rot: float, edges: np.ndarray) -> FormationMotion | None:
     """Keyframes every ``scale_period`` s (s = 1, no turn and no travel at 0 s) such that each arm reaches its
     vertex of the placement ``targets (N, 2)`` (centred on the origin, the formation's realisation turned by
     ``rot``), scaled, at every scale between the lowest and the highest, and those vertices stay 5 cm clear of
-    the obstacles; for a placed shape, each arm's point at the keyframes and between them. None after 20 draws."""
+    the obstacles; for a placed shape, each arm's point at the keyframes and between them; and that the scenario's
+    own check passes (:func:`~pan1_env.motion.check_motion`: the speeds among others). None after 20 draws."""
     times = np.minimum(np.arange(0.0, opt.horizon + 1e-9, opt.scale_period), opt.horizon)  # arange may overshoot
     scale = np.linspace(0.0, 1.0, 21)
     bases = np.array([a.base for a in arms])
@@ -392,6 +402,10 @@ def _draw_motion(rng: np.random.Generator, opt: RandomScenarioOptions, targets: 
         if np.any(dist > outer - 0.01) or np.any(dist < inner + 0.01):
             continue
         if len(radii) and clearance(vertices.reshape(-1, 2), centers, np.asarray(radii)).min() < 0.05:
+            continue
+        try:
+            check_motion(motion, _unturned(targets, rot), edges, bases, outer, opt.horizon, inner=inner)
+        except ValueError:
             continue
         return motion
     return None

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .control import nominal_velocity
+from .control import MAX_JOINT_SPEED, nominal_velocity, within_speed
 from .engine import Engine, StepRecord
 from .formation import edge_errors, edge_vectors, formation_gradient
 from .motion import MotionTable
@@ -102,7 +102,9 @@ class Simulation:
 
     def nominal_velocity(self) -> np.ndarray:
         """The distributed formation law v_i0 = −K_P J̄_iᵀ ê_i (Eq. 39) of every arm, ``(N, k_max)`` (a moving
-        formation's lengths now and J̄⁺ of its feed-forward added, docs/MODEL.md §8)."""
+        formation's lengths now and J̄⁺ of its feed-forward added, docs/MODEL.md §8). The paper's law has no speed
+        bound; with a moving formation each arm's command is scaled down as the envs' is, to at most
+        ``MAX_JOINT_SPEED`` per joint, since J̄⁺ of a moving target grows without bound where J̄ loses rank."""
         formation = self.scenario.formation
         distances, ff = self.targets()
         z = edge_vectors(formation.incidence, self.positions())
@@ -110,8 +112,9 @@ class Simulation:
         out = np.zeros((1, self.n_arms, self.k_max))
         for kind in self.engine.kinds:
             terms = self.engine.kind_terms(kind)
-            kind.to_team(out, nominal_velocity(terms.Jbar, e_hat[kind.ids], self.scenario.kp, terms.drift,
-                                               None if self.motion is None else ff[kind.ids]))
+            v0 = nominal_velocity(terms.Jbar, e_hat[kind.ids], self.scenario.kp, terms.drift,
+                                  None if self.motion is None else ff[kind.ids])
+            kind.to_team(out, v0 if self.motion is None else within_speed(v0, MAX_JOINT_SPEED))
         return out[0]
 
     def step(self, command: np.ndarray, substeps: int, *, torque: bool = False,

@@ -14,7 +14,7 @@ import numpy as np
 
 from .compiled import kernels
 from .config import FormationConfig, ReachConfig
-from .control import nominal_velocity
+from .control import nominal_velocity, within_speed
 from .dynamics import end_effector
 from .engine import Engine, StepRecord
 from .formation import edge_errors, edge_length_errors, edge_vectors, formation_gradient, incidence_matrix
@@ -178,9 +178,7 @@ class FormationTask:
             v0 = nominal_velocity(terms.Jbar, e, np.repeat(self.kp, kind.A)[:, None], terms.drift, ff)
             if gain is not None:
                 v0 *= kind.from_team(gain, kind.k)
-            peak = np.abs(v0).max(axis=1, initial=0.0) / self.max_joint_speed
-            v0 /= np.maximum(peak, 1.0)[:, None]
-            kind.to_team(out, v0)
+            kind.to_team(out, within_speed(v0, self.max_joint_speed))
         return out
 
     def compose(self, action_mode: str, command: np.ndarray, engine: Engine) -> None:

@@ -79,13 +79,18 @@ def float_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ constructor keywords
+class UnknownArgumentError(TypeError, ValueError):
+    """An unknown keyword: a ``TypeError`` as Python's own, and a ``ValueError`` so that the CLI, which reports bad
+    input (``ValueError``) in one line, reports it too."""
+
+
 def _refuse_unknown(owner: str, kwargs: Iterable[str], known: Iterable[str], listed: list[str]) -> None:
     """TypeError for the first keyword not in ``known``, with difflib's closest match ("did you mean")."""
     known = set(known)
     for key in kwargs:
         if key not in known:
             hint = difflib.get_close_matches(key, listed, n=1)
-            raise TypeError(f"{owner} got an unknown argument {key!r}"
+            raise UnknownArgumentError(f"{owner} got an unknown argument {key!r}"
                             + (f"; did you mean {hint[0]!r}?" if hint else "")
                             + f" Arguments: {', '.join(listed)}")
 

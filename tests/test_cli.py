@@ -5,6 +5,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from pan1_env.cli import main
 
@@ -201,3 +202,15 @@ def test_benchmark_passes_env_arguments_on_top_of_a_team_ids(tmp_path, capsys) -
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1
     assert "random_options: unknown option 'formation_spin'" in err
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ('{"frobnicate": 1}', "Pan1ParallelEnv got an unknown argument 'frobnicate'"),
+    ('{"scenario": "random"}', "--env-kwargs cannot set the scenario: name it in --scenarios"),
+    ('{"random_options": {"formation_travel": [3, 4]}}', "no valid random scenario in 200 draws; loosen the options"),
+], ids=["unknown_argument", "scenario", "options_too_tight"])
+def test_benchmark_reports_bad_env_arguments_in_one_line(tmp_path, capsys, kwargs: str, message: str) -> None:
+    code = main(["benchmark", "--scenarios", "pan1_env/MovingFormation-v0", "--policies", "zero", "--episodes", "1",
+                 "--env-kwargs", kwargs, "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and message in err

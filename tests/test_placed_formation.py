@@ -172,7 +172,8 @@ def test_random_placed_teams_keep_their_seed_and_start_at_the_drawn_placement() 
     ({"formation_turn": (0.3, -0.3)}, r"formation_turn must have low ≤ high"),
     ({"formation_travel": (-0.1, 0.1)}, r"formation_travel\[0\] must be non-negative"),
     ({"formation_travel": 0.1}, r"formation_travel must be a range \(low, high\) in m"),
-], ids=["turn_reversed", "travel_negative", "travel_not_a_range"])
+    ({"formation_turn": (-4.0, 0.0)}, r"formation_turn must lie within ±π"),
+], ids=["turn_reversed", "travel_negative", "travel_not_a_range", "turn_beyond_half_a_revolution"])
 def test_bad_random_placement_options(options: dict, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         RandomScenarioOptions(**options)
@@ -262,16 +263,19 @@ def test_a_formed_shape_away_from_its_points_is_not_a_success() -> None:
     assert info["reward_formation"] < -misplacement.mean() + 1e-3 and not info["is_success"]
 
 
-def test_reproduce_approaches_far_points_at_a_bounded_speed() -> None:
-    """``Simulation`` (``pan1-env reproduce``) has no joint-speed cap: an arm 0.8 m from its point, pulled at 0.8 m/s
-    through the paper's filter and backstepping, ran its joints away within 0.2 s. The pull's speed is capped, and
-    8 s behind the filter keep every joint below 5 rad/s."""
-    team = scenario.from_dict(_square({"centre": [1.25, 1.0]}))
+@pytest.mark.parametrize(("motion", "obstacles"), [
+    ({"centre": [1.25, 1.0]}, True),
+    ({"centre": [1.25, 1.0], "path": [[0, 0, 0], [10, 0, 0], [10.4, 0.18, 0.0], [14, 0.18, 0.0]]}, False),
+], ids=["far_from_its_point", "a_fast_path"])
+def test_reproduce_keeps_its_joints_bounded(motion: dict, obstacles: bool) -> None:
+    """``Simulation`` (``pan1-env reproduce``) runs the paper's law, which has no speed bound, through the filter and
+    backstepping. Far from its point (0.8 m, pulled at 0.8 m/s before the pull was capped) an arm ran its joints
+    away within 0.2 s; on a path at 0.45 m/s, one passed 100 rad/s at 13 s. With a moving formation the law's
+    command is bounded as the envs' is, and 14 s keep every joint below 5 rad/s."""
+    team = scenario.from_dict(_square(motion, obstacles=obstacles))
     sim = Simulation(team, safety_filter=True)
-    points = team.motion.placement(team.formation.target, 0.0)[0][0]
-    assert np.linalg.norm(sim.positions() - points, axis=-1).max() > 0.5
     fastest = 0.0
-    for _ in range(8000):
+    for _ in range(14000):
         sim.step(sim.nominal_velocity(), 1)
         fastest = max(fastest, float(np.abs(sim.joint_state()[1]).max()))
     assert fastest < 5.0
@@ -290,13 +294,31 @@ def test_a_placed_random_team_may_have_a_horizon_shorter_than_its_period() -> No
     np.testing.assert_array_equal(team.motion.turn_times, [0.0])
 
 
-def test_a_fast_turn_is_checked_all_the_way_round() -> None:
-    """Turning 32 times in 10 s, a point passes as far from its arm's base as the centroid's distance plus its own
+def test_a_long_turn_is_checked_all_the_way_round() -> None:
+    """Turning 32 times in 240 s, a point passes as far from its arm's base as the centroid's distance plus its own
     radius: a reach 1 mm short of that is refused, and one just beyond it passes (the samples lie at most 0.02 rad
     of turn apart, so they miss the farthest point by 25 µm at most)."""
     bases = SQUARE + [[-0.3, -0.3], [0.3, -0.3], [0.3, 0.3], [-0.3, 0.3]]
-    motion = FormationMotion([0.0], [1.0], centre=SQUARE.mean(0), turn_times=[0.0, 10.0], turns=[0.0, 64 * np.pi])
+    motion = FormationMotion([0.0], [1.0], centre=SQUARE.mean(0), turn_times=[0.0, 240.0], turns=[0.0, 64 * np.pi])
     farthest = np.linalg.norm(SQUARE.mean(0) - bases[0]) + np.linalg.norm(SQUARE[0] - SQUARE.mean(0))
-    check_motion(motion, SQUARE, EDGES, bases, np.full(4, farthest + 1e-6), 20.0)
+    check_motion(motion, SQUARE, EDGES, bases, np.full(4, farthest + 1e-6), 300.0)
     with pytest.raises(ValueError, match=r"the placed shape puts arm \d's point 1\.41\d m from its base, farther"):
-        check_motion(motion, SQUARE, EDGES, bases, np.full(4, farthest - 1e-3), 20.0)
+        check_motion(motion, SQUARE, EDGES, bases, np.full(4, farthest - 1e-3), 300.0)
+
+
+@pytest.mark.parametrize(("kw", "message"), [
+    ({"turn_times": [0.0, 1.0], "turns": [0.0, 1e9]}, r"the placed shape turns at 1e\+09 rad/s from t = 0 s, faster "
+                                                      r"than 1 rad/s"),
+    ({"turn_times": [0.0, 2e5], "turns": [0.0, 1e5]}, r"the placed shape turns 1e\+05 rad in all, more than its reach "
+                                                      r"check follows"),
+    ({"path_times": [0.0, 1e-6], "path": [[0.0, 0.0], [0.01, 0.0]]}, r"at t = 0 s the moving shape's points move at "
+                                                                     r"1e\+04 m/s, faster than 0\.5 m/s"),
+    ({"scale_times": [0.0, 1e-3], "scales": [1.0, 1.01], "centre": None}, r"points move at 4\.95 m/s, faster"),
+], ids=["turn_too_fast", "turn_too_long", "path_too_fast", "scale_too_fast"])
+def test_motions_faster_than_arms_follow_are_refused(kw: dict, message: str) -> None:
+    """Keyframes close together ask for speeds no arm follows: ``reproduce``, whose law has no joint-speed cap, ran
+    its joints up to 1e152 rad/s on a path of 1 cm in 1 µs. Turning too far is refused before it is sampled."""
+    base = {"scale_times": [0.0], "scales": [1.0], "centre": SQUARE.mean(0)}
+    bases = SQUARE * 2.0 - SQUARE.mean(0)
+    with pytest.raises(ValueError, match=message):
+        check_motion(FormationMotion(**(base | kw)), SQUARE, EDGES, bases, np.full(4, 1.5), 1e6)
