@@ -319,7 +319,7 @@ def align(shape: np.ndarray, reference: np.ndarray) -> np.ndarray:
 MIN_EDGE = 0.01  # m: the shortest edge a moving shape may ask for (its lengths' errors are relative to it)
 BLEND_SAMPLES = 401  # points of a switch's blend at which its rigidity is measured
 PLACE_SAMPLES = 33  # points between two keyframes at which a placed shape's reach is checked, at least
-MAX_CHECK_TIMES = 2_000_000  # samples of a placed shape's reach check, at most
+MAX_CHECK_TIMES = 500_000  # samples of a placed shape's reach check, at most (about 0.5 GB)
 MAX_TURN_RATE = 1.0  # rad/s: the fastest a placed shape may turn
 MAX_TARGET_SPEED = 0.5  # m/s: the fastest a moving shape's points may move (faster than its arms can follow)
 TURN_STEP = 0.02  # rad: the most a placed shape turns between two of those points (a 1 m arm of it: 50 µm off its arc)
@@ -388,23 +388,26 @@ def switch_shape(edges: np.ndarray, distances: np.ndarray, start: np.ndarray, tr
 def check_times(motion: FormationMotion, horizon: float) -> np.ndarray:
     """The times within ``[0, horizon]`` at which :func:`check_motion` looks at ``motion``: 0 and the keyframes (a
     length is s(t) times a constant outside the switch, with s linear between keyframes, so its extremes lie there),
-    :data:`BLEND_SAMPLES` points of the switch and, for a placed shape, at least :data:`PLACE_SAMPLES` points between
-    each two keyframes, no more than :data:`TURN_STEP` of turn apart (a turning point moves on an arc)."""
+    just before each of them (a rate's value at a segment's end), :data:`BLEND_SAMPLES` points of the switch and,
+    for a placed shape, at least :data:`PLACE_SAMPLES` points between each two keyframes, no more than
+    :data:`TURN_STEP` of turn apart (a turning point moves on an arc). ``ValueError`` past :data:`MAX_CHECK_TIMES`."""
     times = [[0.0], motion.scale_times]
     if motion.switch_shape is not None:
         end = motion.switch_time + motion.switch_duration
         times += [[motion.switch_time, end], np.linspace(motion.switch_time, end, BLEND_SAMPLES)]
     if motion.centre is not None:
         times += [motion.turn_times, motion.path_times]
-        knots = np.unique(np.clip(np.concatenate(times), 0.0, horizon))
+    knots = np.unique(np.clip(np.concatenate(times), 0.0, horizon))
+    times.append(knots[1:] - 1e-9 * np.diff(knots))
+    if motion.centre is not None:
         turned = np.abs(np.diff(np.interp(knots, motion.turn_times, motion.turns)))
         counts = np.maximum(PLACE_SAMPLES, np.ceil(turned / TURN_STEP) + 1)
         if counts.sum() > MAX_CHECK_TIMES:
-            raise ValueError(f"the placed shape turns {turned.sum():.3g} rad in all, more than its reach check "
-                             f"follows ({MAX_CHECK_TIMES:g} samples, {TURN_STEP:g} rad apart): turn it less")
-        counts = counts.astype(int)
-        times += [np.linspace(a, b, n) for a, b, n in zip(knots[:-1], knots[1:], counts, strict=True)]
-    return np.unique(np.clip(np.concatenate(times), 0.0, horizon))
+            raise ValueError(f"checking where the placed shape's points go takes {counts.sum():.3g} samples "
+                             f"({len(knots)} keyframes, {turned.sum():.3g} rad of turn), more than "
+                             f"{MAX_CHECK_TIMES:g}: use fewer keyframes or turn less")
+        times += [np.linspace(a, b, n) for a, b, n in zip(knots[:-1], knots[1:], counts.astype(int), strict=True)]
+    return np.unique(np.concatenate(times))
 
 
 def check_motion(motion: FormationMotion, start: np.ndarray, edges: np.ndarray, bases: np.ndarray,
@@ -447,11 +450,13 @@ def check_motion(motion: FormationMotion, start: np.ndarray, edges: np.ndarray, 
         t = grid[np.argmin(np.all(np.isfinite(r) & np.isfinite(r_dot), axis=(1, 2)))]
         raise ValueError(f"the motion's rate is not finite at t = {t:g} s: two keyframes are too close together")
     # a placed point's own speed; a shape's vertices' speed about their centroid (a rigid drift is no motion of it)
-    speed = np.linalg.norm(r_dot if motion.centre is not None else r_dot - r_dot.mean(axis=1, keepdims=True), axis=-1)
-    if speed.max() > MAX_TARGET_SPEED:
+    with np.errstate(over="ignore", invalid="ignore"):
+        speed = np.linalg.norm(r_dot if motion.centre is not None else r_dot - r_dot.mean(axis=1, keepdims=True),
+                               axis=-1)
+    if not speed.max() <= MAX_TARGET_SPEED:
         t = grid[int(np.argmax(speed.max(axis=1)))]
         raise ValueError(f"at t = {t:g} s the moving shape's points move at {speed.max():.3g} m/s, faster than "
-                         f"{MAX_TARGET_SPEED:g} m/s: spread its keyframes further apart")
+                         f"{MAX_TARGET_SPEED:g} m/s: spread its keyframes further apart, or lengthen its switch")
     if motion.centre is not None:
         _check_placed(r, grid, bases, reaches, np.zeros(len(bases)) if inner is None else inner)
         r, _ = motion.shape(start, grid)

@@ -393,7 +393,10 @@ def _draw_motion(rng: np.random.Generator, opt: RandomScenarioOptions, targets: 
             travel = rng.uniform(*opt.formation_travel, K)[:, None] * np.stack([np.cos(heading), np.sin(heading)], -1)
             motion = FormationMotion(times, scales, centre=np.zeros(2), turn_times=times, turns=turns,
                                      path_times=times, path=np.concatenate([np.zeros((1, 2)), travel]))
-            vertices = motion.placement(_unturned(targets, rot), check_times(motion, opt.horizon))[0]  # (T, N, 2)
+            try:
+                vertices = motion.placement(_unturned(targets, rot), check_times(motion, opt.horizon))[0]  # (T, N, 2)
+            except ValueError:  # too many samples to check: as any other motion the scenario would refuse
+                continue
         else:
             motion = FormationMotion(times, scales)
             s = scales.min() + scale * (scales.max() - scales.min())

@@ -309,12 +309,14 @@ def test_a_long_turn_is_checked_all_the_way_round() -> None:
 @pytest.mark.parametrize(("kw", "message"), [
     ({"turn_times": [0.0, 1.0], "turns": [0.0, 1e9]}, r"the placed shape turns at 1e\+09 rad/s from t = 0 s, faster "
                                                       r"than 1 rad/s"),
-    ({"turn_times": [0.0, 2e5], "turns": [0.0, 1e5]}, r"the placed shape turns 1e\+05 rad in all, more than its reach "
-                                                      r"check follows"),
+    ({"turn_times": [0.0, 2e5], "turns": [0.0, 1e5]}, r"checking where the placed shape's points go takes 5e\+06 "
+                                                      r"samples \(2 keyframes, 1e\+05 rad of turn\)"),
+    ({"path_times": np.arange(20000.0), "path": np.zeros((20000, 2))}, r"takes 6\.6e\+05 samples \(20000 keyframes, "
+                                                                       r"0 rad of turn\), more than 500000"),
     ({"path_times": [0.0, 1e-6], "path": [[0.0, 0.0], [0.01, 0.0]]}, r"at t = 0 s the moving shape's points move at "
                                                                      r"1e\+04 m/s, faster than 0\.5 m/s"),
     ({"scale_times": [0.0, 1e-3], "scales": [1.0, 1.01], "centre": None}, r"points move at 4\.95 m/s, faster"),
-], ids=["turn_too_fast", "turn_too_long", "path_too_fast", "scale_too_fast"])
+], ids=["turn_too_fast", "turn_too_long", "too_many_keyframes", "path_too_fast", "scale_too_fast"])
 def test_motions_faster_than_arms_follow_are_refused(kw: dict, message: str) -> None:
     """Keyframes close together ask for speeds no arm follows: ``reproduce``, whose law has no joint-speed cap, ran
     its joints up to 1e152 rad/s on a path of 1 cm in 1 µs. Turning too far is refused before it is sampled."""
@@ -322,3 +324,26 @@ def test_motions_faster_than_arms_follow_are_refused(kw: dict, message: str) -> 
     bases = SQUARE * 2.0 - SQUARE.mean(0)
     with pytest.raises(ValueError, match=message):
         check_motion(FormationMotion(**(base | kw)), SQUARE, EDGES, bases, np.full(4, 1.5), 1e6)
+
+
+def test_a_speed_peaking_at_a_keyframe_is_caught_just_before_it() -> None:
+    """Growing threefold while turning 0.6 rad in a second, a square of side 0.263 m has its points' speed peak at the
+    segment's end (0.5004 m/s), where the next segment's rate already holds: the check looks just before it."""
+    side = np.array([[0.0, 0.0], [0.263, 0.0], [0.263, 0.263], [0.0, 0.263]])
+    motion = FormationMotion([0.0, 1.0], [1.0, 3.0], centre=side.mean(0), turn_times=[0.0, 1.0], turns=[0.0, 0.6])
+    with pytest.raises(ValueError, match=r"at t = 1 s the moving shape's points move at 0\.5 m/s, faster than 0\.5"):
+        check_motion(motion, side, EDGES, side * 5.0, np.full(4, 3.0), 10.0)
+
+
+def test_a_switch_too_short_is_refused_and_a_step_is_not() -> None:
+    """A switch's blend moves the points at (its lengths' change) / T_s: refused when that passes 0.5 m/s, with a hint
+    to lengthen it; a step (T_s = 0) asks for no motion at all and loads."""
+    bases = SQUARE * 2.0 - SQUARE.mean(0)
+    switch = {"switch_shape": SQUARE * [1.0, 1.2], "switch_time": 1.0}
+    for duration in (0.0, 10.0):
+        check_motion(FormationMotion([0.0], [1.0], switch_duration=duration, **switch), SQUARE, EDGES, bases,
+                     np.full(4, 1.5), 20.0)
+    with pytest.raises(ValueError, match=r"faster than 0\.5 m/s: spread its keyframes further apart, or lengthen its "
+                                         r"switch"):
+        check_motion(FormationMotion([0.0], [1.0], switch_duration=0.05, **switch), SQUARE, EDGES, bases,
+                     np.full(4, 1.5), 20.0)
