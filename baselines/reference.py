@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from pan1_env.cascade import end_effector_drift, passive_momentum, reduced_jacobian
-from pan1_env.control import nominal_velocity
+from pan1_env.control import nominal_velocity, within_speed
 from pan1_env.dynamics import faulted
 from pan1_env.formation import edge_errors, formation_gradient
 from pan1_env.observation import NEIGHBOUR_FEATURES, OBSTACLE_FEATURES, ObservationLayout
@@ -105,10 +105,7 @@ class ReferencePolicy:
             if gain.shape != v0.shape or not np.all(gain > 0):
                 raise ValueError(f"gain for {agent} must be {v0.shape[0]} positive numbers, got {gain.tolist()}")
             v0 = v0 * gain
-        a = v0 / env.max_joint_speed
-        peak = np.max(np.abs(a)) if a.size else 0.0
-        if peak > 1.0:
-            a = a / peak
+        a = within_speed(v0, env.max_joint_speed) / env.max_joint_speed
         if lost:  # the action keeps the full arm's shape; the lost joint's entry is ignored
             a = np.concatenate([[0.0], a])
         return a.astype(np.float32)
