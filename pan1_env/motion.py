@@ -99,15 +99,9 @@ class FormationMotion:
     path: np.ndarray = ((0.0, 0.0),)
 
     def __post_init__(self) -> None:
-        times = np.array(self.scale_times, dtype=float).reshape(-1)
-        scales = np.array(self.scales, dtype=float).reshape(-1)
-        if times.size == 0 or times.shape != scales.shape:
-            raise ValueError(f"FormationMotion: scale_times and scales need the same K ≥ 1 entries, got "
-                             f"{times.size} and {scales.size}")
-        if not (np.all(np.isfinite(times)) and np.all(times >= 0) and np.all(np.diff(times) > 0)):
-            raise ValueError(f"FormationMotion.scale_times must be finite, ≥ 0 and increasing, got {times.tolist()}")
-        if not (np.all(np.isfinite(scales)) and np.all(scales > 0)):
-            raise ValueError(f"FormationMotion.scales must be positive, got {scales.tolist()}")
+        times, scales = _keyframes("scale_times", "scales", self.scale_times, self.scales, 1)
+        if not np.all(scales > 0):
+            raise ValueError(f"FormationMotion.scales must be positive, got {scales[:, 0].tolist()}")
         if self.switch_shape is not None:
             shape = np.array(self.switch_shape, dtype=float)
             if shape.ndim != 2 or shape.shape[1] != 2 or not np.all(np.isfinite(shape)):
@@ -120,10 +114,8 @@ class FormationMotion:
         if not (math.isfinite(self.switch_duration) and self.switch_duration >= 0):
             raise ValueError(f"FormationMotion.switch_duration must be finite and ≥ 0 (s), got "
                              f"{self.switch_duration!r}")
-        for arr in (times, scales):
-            arr.setflags(write=False)
         object.__setattr__(self, "scale_times", times)
-        object.__setattr__(self, "scales", scales)
+        object.__setattr__(self, "scales", scales[:, 0])
         turn_times, turns = _keyframes("turn_times", "turns", self.turn_times, self.turns, 1)
         path_times, path = _keyframes("path_times", "path", self.path_times, self.path, 2)
         object.__setattr__(self, "turn_times", turn_times)
@@ -200,8 +192,7 @@ class MotionTable:
         """Copy ``b`` moves as ``motion`` from the realisation ``start (N, 2)`` (None: holds it)."""
         self.start[b] = start
         self.end[b] = start if motion is None or motion.switch_shape is None else motion.switch_shape
-        still = FormationMotion(np.zeros(1), np.ones(1))
-        m = still if motion is None else motion
+        m = FormationMotion(np.zeros(1), np.ones(1)) if motion is None else motion
         for name, times, values in (("scale", m.scale_times, m.scales), ("turn", m.turn_times, m.turns),
                                     ("path", m.path_times, m.path)):
             table_times, table_values = self.frames[name]
@@ -242,18 +233,20 @@ class MotionTable:
         ``t (B,)`` (``rows`` as in :meth:`shape`); r(t) and ṙ(t) for copies without a centre."""
         rows = np.arange(len(self.start)) if rows is None else rows
         t = np.asarray(t, dtype=float).reshape(-1)
-        r, r_dot = self.shape(t, rows)
+        return self._placed(t, rows, *self.shape(t, rows))
+
+    def _placed(self, t: np.ndarray, rows: np.ndarray, r: np.ndarray, r_dot: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`placement` from the shapes ``r`` and ``r_dot`` at those times."""
         placed = self.placed[rows]
         if not placed.any():
             return r, r_dot
         theta, omega = (x[:, 0] for x in self._at("turn", t, rows))
         delta, delta_dot = self._at("path", t, rows)
-        c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
-        arm = r - r.mean(axis=1, keepdims=True)
-        arm_dot = r_dot - r_dot.mean(axis=1, keepdims=True)
-        turned = np.stack([c * arm[..., 0] - s * arm[..., 1], s * arm[..., 0] + c * arm[..., 1]], axis=-1)
-        turned_dot = np.stack([c * arm_dot[..., 0] - s * arm_dot[..., 1], s * arm_dot[..., 0] + c * arm_dot[..., 1]],
-                              axis=-1)
+        c, s = np.cos(theta), np.sin(theta)
+        turn = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)  # (B, 2, 2)
+        turned = np.einsum("bij,bnj->bni", turn, r - r.mean(axis=1, keepdims=True))
+        turned_dot = np.einsum("bij,bnj->bni", turn, r_dot - r_dot.mean(axis=1, keepdims=True))
         spin = omega[:, None, None] * np.stack([-turned[..., 1], turned[..., 0]], axis=-1)  # ω J Rot(θ) (r − r̄)
         point = (self.centre[rows] + delta)[:, None] + turned
         velocity = delta_dot[:, None] + spin + turned_dot
@@ -264,11 +257,13 @@ class MotionTable:
         """Every copy's desired edge lengths d ``(B, E)`` at its time ``t (B,)``, the feed-forward ṗ_ff
         ``(B, N, 2)`` at its end-effectors ``P (B, N, 2)`` and each arm's distance from its point ``(B, N)`` (zero
         for copies whose shape is not placed)."""
-        distances, rates = edge_rates(edges, *self.shape(t))
+        t = np.asarray(t, dtype=float).reshape(-1)
+        r, r_dot = self.shape(t)
+        distances, rates = edge_rates(edges, r, r_dot)
         ff = feed_forward(edges, P, np.where(self.placed[:, None], 0.0, rates))
         misplacement = np.zeros(P.shape[:2])
         if self.placed.any():
-            point, velocity = self.placement(t)
+            point, velocity = self._placed(t, np.arange(len(self.start)), r, r_dot)
             pull = point - P
             distance = np.linalg.norm(pull, axis=-1, keepdims=True)
             speed = np.minimum(PLACEMENT_GAIN * distance, PLACEMENT_SPEED)  # far points: approached at a bounded speed

@@ -100,12 +100,12 @@ class Renderer:
             ax.plot(*pts[-1], "o", color=col, ms=7)
             ax.annotate(str(i + 1), pts[-1], textcoords="offset points", xytext=(5, 5), fontsize=8)
         f = sc.formation
-        shape, distances = f.target, f.distances
+        shape, distances, placed = f.target, f.distances, False
         task = getattr(env, "task", None)
-        if getattr(task, "motion", None) is not None:  # a moving formation: its shape and lengths now
-            shape, distances = task.motion.placement(env.engine.elapsed[:1], np.zeros(1, np.int64))[0][0], \
-                task.distances[0]
-        placed = getattr(task, "motion", None) is not None and task.motion.placed[0]
+        motion = getattr(task, "motion", None)
+        if motion is not None:  # a moving formation: its shape (where it stands, if placed) and lengths now
+            shape = motion.placement(env.engine.elapsed[:1], np.zeros(1, np.int64))[0][0]
+            distances, placed = task.distances[0], motion.placed[0]
         fitted = shape if placed else fit_shape(shape, P)
         err = np.abs(np.linalg.norm(P[f.edges[:, 0]] - P[f.edges[:, 1]], axis=-1) - distances)
         for (a, b), e in zip(f.edges, err, strict=True):

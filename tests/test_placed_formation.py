@@ -185,9 +185,9 @@ def test_the_reference_follows_a_turn_and_a_travel() -> None:
     points' velocity zeroed (the pull alone) it lags by more than 3 mm."""
     team = scenario.from_dict(_square(TURN_AND_TRAVEL, obstacles=False))
 
-    def still_points(env):
-        placement = env.task.motion.placement
-        env.task.motion.placement = lambda t, rows=None: (placement(t, rows)[0], np.zeros((1, 4, 2)))
+    def still_points(env):  # the points where they are, their velocity zero (what the feed-forward reads)
+        placed = env.task.motion._placed
+        env.task.motion._placed = lambda *args: (placed(*args)[0], np.zeros((1, 4, 2)))
     worst = {}
     for with_velocity in (True, False):
         _, _, infos, t, errors = reference_episode(team, None if with_velocity else still_points)
