@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["nominal_velocity", "backstepping_torque", "finite_difference"]
+__all__ = ["nominal_velocity", "within_speed", "MAX_JOINT_SPEED", "backstepping_torque", "finite_difference"]
 
 
 def nominal_velocity(Jbar: np.ndarray, e_hat: np.ndarray, kp: float, drift: np.ndarray | None = None,

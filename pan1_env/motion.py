@@ -44,8 +44,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FormationMotion", "MotionTable", "FEED_FORWARD_DAMPING", "PLACEMENT_GAIN", "MIN_EDGE", "edge_rates",
-           "feed_forward", "align", "blend_degenerates", "switch_shape", "check_times", "check_motion"]
+__all__ = ["FormationMotion", "MotionTable", "FEED_FORWARD_DAMPING", "PLACEMENT_GAIN", "PLACEMENT_SPEED",
+           "MAX_TARGET_SPEED", "MAX_TURN_RATE", "MIN_EDGE", "edge_rates", "feed_forward", "align", "blend_degenerates",
+           "switch_shape", "check_times", "check_motion"]
 
 FEED_FORWARD_DAMPING = 1e-4  # μ in m²: R Rᵀ + μ I stays invertible where the arms line up
 PLACEMENT_GAIN = 1.0  # k_place in 1/s: a placed arm closes 63 % of its distance to its point in a second

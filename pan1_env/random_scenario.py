@@ -39,7 +39,7 @@ from .safety import BARRIERS, Obstacles, clearance
 from .scenario import BODIES, Scenario
 from .validation import positive_int, real, whole_ratio
 
-__all__ = ["RandomScenarioOptions", "random_scenario", "zero_momentum_start", "BASE_MARGIN"]
+__all__ = ["RandomScenarioOptions", "random_scenario", "zero_momentum_start", "BASE_MARGIN", "DrawError"]
 
 BASE_MARGIN = 0.05  # m: how far every obstacle (and, moving, its whole path) stays outside each base, plus ρ
 

@@ -20,7 +20,7 @@ from typing import Any, ParamSpec, TypeVar
 import numpy as np
 
 __all__ = ["real", "positive_int", "whole_ratio", "float_array", "hints_unknown_keywords", "forwards_keywords",
-           "forwarded_signature", "refuse_unknown"]
+           "forwarded_signature", "refuse_unknown", "UnknownArgumentError"]
 
 _P = ParamSpec("_P")
 _R = TypeVar("_R")
