@@ -27,7 +27,8 @@ from pan1_env.safety import FilterParams
 
 __all__ = ["evaluate", "summarise", "model_policy", "law_policy", "EVAL_SEEDS", "TOLERANCES", "eval_callback"]
 
-EVAL_SEEDS = range(1_000_000, 1_000_064)  # held out: training copies draw from the streams of seeds 0 … B−1
+# held out: one-copy seeds, which no training copy's spawned stream is (pan1_env.core.copy_generator)
+EVAL_SEEDS = range(1_000_000, 1_000_064)
 # m: success at 1 cm is the task's; 2 and 5 cm show how close the rest came
 TOLERANCES = (SUCCESS_TOLERANCE, 0.02, 0.05)
 EVAL_FIELDS = ("timesteps", "success_1cm", "success_2cm", "success_5cm", "median_final_error_m", "mean_return",

@@ -75,7 +75,8 @@ PPO_DEFAULTS = {"n_steps": 64, "batch_size": 2048, "n_epochs": 5}
 def make_training_env(scenario: str, shield: bool, seed: int, n_envs: int = DEFAULT_N_ENVS,
                       param_sharing: bool = False, env_kwargs: dict[str, Any] | None = None,
                       centralised_critic: bool = False):
-    """The SB3 ``VecEnv`` to train on (see the module docstring); copy b is seeded ``seed + b``."""
+    """The SB3 ``VecEnv`` to train on (see the module docstring); its copies are seeded with independent streams
+    spawned from ``seed`` (:func:`pan1_env.core.copy_generator`)."""
     from stable_baselines3.common.vec_env import VecMonitor
 
     from .vec_env import SB3ArmVecEnv, SB3VecEnv

@@ -1,10 +1,12 @@
 """Stable-Baselines3 ``VecEnv`` views of :class:`~pan1_env.vector.Pan1VectorEnv` (the ``rl`` extra): B copies
 advance in one compiled call, ``PPO("MlpPolicy", SB3VecEnv("paper_pa3_square", num_envs=64)).learn(100_000)``
 (shielded by default); :class:`SB3ArmVecEnv` makes each arm an env of its own. SB3's conventions hold:
-``reset()`` returns observations only (infos in ``reset_infos``), ``seed(s)`` seeds the next reset (copy b
-gets ``s + b``), an ended copy is reset in the same step with its last observation in
-``infos[b]["terminal_observation"]`` and ``TimeLimit.truncated`` set on truncation, and each info carries
-``cost``, ``min_clearance``, ``formation_error``, ``is_success`` (and the shield flags).
+``reset()`` returns observations only (infos in ``reset_infos``), ``seed(s)`` seeds the next reset (every copy
+an independent stream spawned from s, as ``Pan1VectorEnv.reset(seed=s)``: not SB3's ``s + b``, which would give
+runs with seeds s and s + 1 the same teams in all copies but one), an ended copy is reset in the same step
+with its last observation in ``infos[b]["terminal_observation"]`` and ``TimeLimit.truncated`` set on
+truncation, and each info carries ``cost``, ``min_clearance``, ``formation_error``, ``is_success`` (and the
+shield flags).
 """
 
 from __future__ import annotations
@@ -39,13 +41,22 @@ class SB3VecEnv(VecEnv):
             self.venv = Pan1VectorEnv(scenario, num_envs, **kwargs)
         super().__init__(*self._spaces())
         self._actions: np.ndarray | None = None
+        self._batch_seed: int | None = None
+
+    def seed(self, seed: int | None = None) -> list[int | None]:
+        """Seed the next reset: every copy gets an independent stream spawned from ``seed``
+        (:func:`pan1_env.core.copy_generator`); returns that seed once per sub-env."""
+        if seed is None:
+            seed = int(np.random.randint(0, 2**31 - 1))  # noqa: NPY002 - SB3's own convention for no seed
+        self._batch_seed = seed
+        return [seed] * self.num_envs
 
     def _spaces(self) -> tuple[int, gymnasium.Space, gymnasium.Space]:
         return self.venv.num_envs, self.venv.single_observation_space, self.venv.single_action_space
 
     def reset(self) -> np.ndarray:
-        seeds = self._seeds if any(s is not None for s in self._seeds) else None
-        obs, infos = self.venv.reset(seed=seeds)
+        seed, self._batch_seed = self._batch_seed, None
+        obs, infos = self.venv.reset(seed=seed)
         self._reset_seeds()
         self._reset_options()
         self.reset_infos = self._split_infos(infos)
@@ -110,7 +121,7 @@ class SB3ArmVecEnv(SB3VecEnv):
     is arm i of copy b: its observation is the arm's, zero-padded to the largest arm's (``local_size``), its
     action the largest arm's size (the arm applies its first k_i entries), its reward and info (``cost``,
     ``min_clearance``, shield flags) its own beside its copy's ``formation_error`` and ``is_success``. A
-    copy's arms start and end together; ``seed(s)`` seeds copy b with ``s + b``, as the vector env does.
+    copy's arms start and end together; ``seed(s)`` seeds the copies as :class:`SB3VecEnv` does.
     ``critic_state=True`` appends the copy's global state (:meth:`~pan1_env.core.FormationCore.state`) to
     each row, for MAPPO's critic (:class:`~pan1_env.baselines.mappo.LocalActorPolicy`'s actor reads only
     the first ``local_size`` entries). Other arguments as :class:`SB3VecEnv`; ``num_envs`` counts copies.
@@ -134,17 +145,10 @@ class SB3ArmVecEnv(SB3VecEnv):
         action = gymnasium.spaces.Box(-1.0, 1.0, (core.k_max,), np.float32)
         return self.venv.num_envs * self._arms, observation, action
 
-    def seed(self, seed: int | None = None) -> list[int | None]:
-        """Seed the next reset: copy b gets ``seed + b`` (each of its arms' sub-envs reports that seed)."""
-        if seed is None:
-            seed = int(np.random.randint(0, 2**31 - 1))  # noqa: NPY002 - SB3's own convention for no seed
-        copies = self.venv.num_envs
-        self._seeds = [seed + b for b in range(copies) for _ in range(self._arms)]
-        return list(self._seeds)
-
     def reset(self) -> np.ndarray:
-        core, first = self.venv.core, self._seeds[0]
-        core.reset(seeds=None if first is None else self._seeds[:: self._arms], options=self._options[0] or None)
+        core, seed = self.venv.core, self._batch_seed
+        self._batch_seed = None
+        core.reset(seeds=seed, options=self._options[0] or None)
         self._reset_seeds()
         self._reset_options()
         mats, infos = core.start()

@@ -43,7 +43,7 @@ from .random_scenario import random_scenario
 from .tasks import FormationTask, ReachTask
 from .validation import positive_int
 
-__all__ = ["FormationCore", "CoreStep", "CoreView", "config_attributes", "per_arm", "FAULT"]
+__all__ = ["FormationCore", "CoreStep", "copy_generator", "CoreView", "config_attributes", "per_arm", "FAULT"]
 
 FAULT = "non-finite state in the physics step; episode truncated"
 TASKS = {FormationConfig: FormationTask, ReachConfig: ReachTask}
@@ -202,9 +202,16 @@ class FormationCore:
             self._command.reshape(self.copies, -1)[:, self._columns] = flat
         return self._command
 
-    def seed(self, seeds: list[int | None]) -> None:
-        """A fresh generator for every copy given a seed (``None``: keep the copy's generator), Gymnasium's:
-        ``np_random(seed)`` (a non-negative int; ``gymnasium.error.Error`` otherwise)."""
+    def seed(self, seeds: int | list[int | None]) -> None:
+        """Fresh generators. One int ``s``: every copy gets an independent stream spawned from ``s``
+        (:func:`copy_generator`), so runs with different seeds share no copy's teams, and no copy's stream is
+        the stream of a one-copy env's ``reset(seed=...)`` (the held-out evaluation teams). A list: copy b
+        gets Gymnasium's ``np_random(seeds[b])``, the team a one-copy env draws with that seed (``None``: keep
+        the copy's generator). A seed is a non-negative int (``gymnasium.error.Error`` otherwise)."""
+        if isinstance(seeds, (int, np.integer)):
+            np_random(int(seeds))  # Gymnasium's check of the seed, before anything changes
+            self.rngs = [copy_generator(int(seeds), b) for b in range(self.copies)]
+            return
         if len(seeds) != self.copies:
             raise ValueError(f"reset(seed=...) needs an int or {self.copies} seeds, got {len(seeds)}")
         fresh = {b: np_random(s)[0] for b, s in enumerate(seeds) if s is not None}  # all checked, then set
@@ -212,9 +219,9 @@ class FormationCore:
             self.rngs[b] = rng
 
     def reset(self, which: np.ndarray | None = None, options: dict | None = None,
-              seeds: list[int | None] | None = None) -> None:
-        """Start a new episode in the copies ``which`` (default: all): with ``seeds`` (one per copy, or None)
-        fresh generators first, then a new team from the copy's generator for random scenarios, every arm at
+              seeds: int | list[int | None] | None = None) -> None:
+        """Start a new episode in the copies ``which`` (default: all): with ``seeds`` (as :meth:`seed`) fresh
+        generators first, then a new team from the copy's generator for random scenarios, every arm at
         rest at its start, the task's state (``options``: the task's reset options) and the clock at zero. A
         bad option or seed changes nothing."""
         which = np.arange(self.copies) if which is None else np.asarray(which, dtype=np.int64)
@@ -392,6 +399,14 @@ class FormationCore:
 _TEAM_RULES = {"cost": "sum", "qp_counts": "sum", "min_clearance": "min", "shield_min_barrier": "min",
                "shield_intervened": "any", "shield_fallback": "any", "shield_status": "max", "shield_applied": "flat",
                "actuator_lost": "sum"}
+
+
+def copy_generator(seed: int, copy: int) -> np.random.Generator:
+    """Copy ``copy``'s generator in a batch seeded with the one int ``seed``: the stream numpy spawns as child
+    ``copy`` of ``SeedSequence(seed)``. Children of different seeds, or of one seed, are independent streams,
+    and none is a one-copy env's ``np_random(s)`` (a sequence with no spawn key): training copies never draw
+    the held-out teams."""
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(seed, spawn_key=(copy,))))
 
 
 def _team_rule(key: str) -> str | None:

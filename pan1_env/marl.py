@@ -23,8 +23,9 @@ Keys (batch size ``[B]``; every arm of a copy starts and ends its episode togeth
   filter on ``shield_intervened``, ``shield_fallback``, ``shield_status``, ``shield_min_barrier``; and
   ``("info", key) [B]`` for the per-copy ones (``formation_error``, ``is_success``).
 
-A reset honours TorchRL's ``"_reset"`` mask (only the copies it marks start again). ``set_seed(s)`` seeds
-copy b with s + b, as :class:`~pan1_env.vector.Pan1VectorEnv` does, so the two give the same episodes.
+A reset honours TorchRL's ``"_reset"`` mask (only the copies it marks start again). ``set_seed(s)`` gives every
+copy an independent stream spawned from s, as :class:`~pan1_env.vector.Pan1VectorEnv`'s ``reset(seed=s)`` does, so
+the two give the same episodes (:func:`pan1_env.core.copy_generator`).
 """
 
 from __future__ import annotations
@@ -92,7 +93,7 @@ class Pan1TorchRLEnv(EnvBase):
 
     def _set_seed(self, seed: int | None) -> None:
         if seed is not None:
-            self.core.seed([seed + b for b in range(self.core.copies)])
+            self.core.seed(seed)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
         which = None  # every copy, unless a reset mask (the root's or the group's, as TorchRL writes them) says

@@ -55,7 +55,9 @@ class Pan1VectorEnv(CoreView, VectorEnv):
 
     As the parallel env: the scenario's configuration at rest, or for ``scenario="random"`` a new
     team drawn per copy at every reset of that copy from the copy's own generator
-    (``reset(seed=s)`` seeds copy b with ``s + b``; a list of seeds gives one per copy).
+    (``reset(seed=s)`` gives every copy an independent stream spawned from s,
+    :func:`pan1_env.core.copy_generator`; a list of seeds gives copy b the team a one-copy env draws with
+    ``reset(seed=seeds[b])``).
 
     ## Episode End
 
@@ -116,10 +118,11 @@ class Pan1VectorEnv(CoreView, VectorEnv):
         return self.core.engine.threads
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
-        """Reset every copy. ``seed``: an int (copy b gets ``seed + b``) or one seed (or None) per copy."""
-        if isinstance(seed, (int, np.integer)):
-            seed = [seed + b for b in range(self.num_envs)]
-        self.core.reset(options=options, seeds=None if seed is None else list(seed))
+        """Reset every copy. ``seed``: an int (independent streams spawned from it, one per copy) or one seed (or
+        None) per copy (copy b then meets the team of a one-copy env reset with ``seeds[b]``)."""
+        if seed is not None and not isinstance(seed, (int, np.integer)):
+            seed = list(seed)
+        self.core.reset(options=options, seeds=seed)
         self._needs_reset = False
         mats, infos = self.core.start()
         return self.core.flat_observations(mats), _masked(self.core.team_infos(infos))

@@ -27,7 +27,7 @@ def test_each_arm_sees_what_supersuit_padding_gives_the_parallel_env(scenario, k
     assert arms.num_envs == 2 * N
     assert arms.observation_space == twin.observation_space(agents[0])
     assert arms.action_space.shape == twin.action_space(agents[0]).shape
-    arms.seed(5)
+    arms.venv.core.seed([5, None])  # copy 0: the one-copy env's generator of seed 5 (an int seed would spawn)
     obs = arms.reset()
     twin_obs, _ = twin.reset(seed=5)
     rng = np.random.default_rng(0)
@@ -50,7 +50,7 @@ def test_each_arm_sees_what_supersuit_padding_gives_the_parallel_env(scenario, k
 
 
 def test_the_view_reshapes_the_team_vector_env_and_converts_its_rows_both_ways() -> None:
-    """The same copies as Pan1VectorEnv (copy b seeded s + b): its flat observations are the arm rows, and
+    """The same copies as Pan1VectorEnv (seeded alike): its flat observations are the arm rows, and
     the arm actions, turned into team actions, step it to the same observations and rewards."""
     kwargs = {"random_options": {"links": (2, 3, 4, 3)}, "action_mode": "gain"}
     arms = SB3ArmVecEnv("random", 3, **kwargs)

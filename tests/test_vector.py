@@ -24,11 +24,11 @@ def test_vector_env_equals_independent_copies(scenario: str, threads: bool, mode
     B, kw = 3, dict(max_steps=7, action_mode=mode, effort_weight=0.3, collision_penalty=2.0)
     venv = Pan1VectorEnv(scenario, B, threads=threads, **kw)
     singles = _singles(scenario, B, **kw)
-    obs, info = venv.reset(seed=5)
+    obs, info = venv.reset(seed=[5, 6, 7])
     assert isinstance(venv, gymnasium.vector.VectorEnv)
     assert venv.observation_space.contains(obs)
     for b, e in enumerate(singles):
-        o, _ = e.reset(seed=5 + b)
+        o, _ = e.reset(seed=[5, 6, 7][b])
         np.testing.assert_array_equal(obs[b], o)
     rng = np.random.default_rng(1)
     for t in range(10):  # crosses the end of the 7-step episodes: autoreset in the same step
