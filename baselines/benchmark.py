@@ -38,7 +38,8 @@ from tqdm import tqdm
 
 from .policies import BUILTIN_POLICIES, check_policy_name, make_policy
 
-__all__ = ["run_benchmark", "markdown_table", "plot_benchmark", "benchmark_figure", "make_policy", "BUILTIN_POLICIES"]
+__all__ = ["run_benchmark", "markdown_table", "marl_eval_rows", "plot_benchmark", "benchmark_figure", "make_policy",
+           "BUILTIN_POLICIES"]
 
 
 def _episode(env, policy, seed: int, shield: bool) -> dict[str, Any]:
@@ -135,11 +136,24 @@ def run_benchmark(scenarios: Sequence[str], policies: Sequence[str], episodes: i
             row["mean_time_from_fault_s"] = float(np.mean(recovered)) if recovered else None
         if env.unwrapped.observation_layout.motion:
             row["mean_tracking_error_m"] = float(np.mean([r["tracking_error"] for r in results]))
+        row["per_episode"] = {key: [_finite_or_none(float(r[key])) for r in results]
+                              for key in ("success", "return", "cost", "min_clearance")}
         rows.append(row)
         if progress is not None:
             progress(f"{scenario} / {name} / shield {'on' if shield else 'off'}: "
                      f"success {row['success_rate']:.0%}, cost {row['total_cost']:g}")
     return rows
+
+
+def marl_eval_rows(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """The rows' episodes in marl-eval's raw-data layout (:func:`~pan1_env.baselines.report.marl_eval_data`): a
+    task per scenario (``<scenario> (no shield)`` unshielded), an algorithm per policy, one ``seed_0`` (a
+    benchmark row is one policy, not a set of training seeds) whose ``absolute_metrics`` hold one value per
+    episode: success (0/1), return, cost (arm-steps inside an obstacle) and min clearance (m)."""
+    from .report import marl_eval_data
+
+    return marl_eval_data((r["scenario"] + ("" if r["shield"] else " (no shield)"), r["policy"], 0,
+                           {"absolute_metrics": r["per_episode"]}) for r in rows)
 
 
 def _finite_or_none(x: float) -> float | None:

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import csv
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +40,7 @@ from scipy import stats
 from .curves import group_labels, group_runs, run_arguments
 from .evaluation import TOLERANCES, evaluate, law_policy, model_policy
 
-__all__ = ["report", "iqm", "iqm_interval", "markdown", "marl_eval_json", "METRICS", "HELD_OUT_FIRST"]
+__all__ = ["report", "iqm", "iqm_interval", "markdown", "marl_eval_json", "marl_eval_data", "METRICS", "HELD_OUT_FIRST"]
 
 METRICS = ("success", "time_to_formation", "time_ratio", "return", "cost")
 HELD_OUT_FIRST, HELD_OUT_TEAMS = 2_000_000, 200
@@ -174,12 +174,10 @@ def marl_eval_json(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
     each run with ``absolute_metrics`` (one value per held-out episode) and a ``step_<k>`` per evaluation of its
     ``eval.csv`` (marl-eval's per-episode lists hold the evaluation's mean there). Unshielded groups are a task of
     their own (``<scenario> (no shield)``)."""
-    data: dict[str, Any] = {}
+    entries = []
     for row in rows:
-        tasks = data.setdefault("pan1_env", {})
         shielded = row["meta"].get("shield", True)
-        algorithms = tasks.setdefault(row["meta"]["scenario"] + ("" if shielded else " (no shield)"), {})
-        entry = algorithms.setdefault(row["label"], {})
+        task = row["meta"]["scenario"] + ("" if shielded else " (no shield)")
         for i, (run, result) in enumerate(row["episodes"].items()):
             formed = result["final_error"] < TOLERANCES[0]
             record: dict[str, Any] = {}
@@ -194,9 +192,19 @@ def marl_eval_json(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
                 "success": formed.astype(float).tolist(), "return": result["return"].tolist(),
                 "cost": result["cost"].tolist()}  # no time: undefined where an episode did not form
             seed = json.loads((Path(run) / "run.json").read_text()).get("seed", i) if run != "reference" else 0
-            entry[f"seed_{seed}"] = record
+            entries.append((task, row["label"], seed, record))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=1) + "\n")
+    path.write_text(json.dumps(marl_eval_data(entries), indent=1) + "\n")
     return path
+
+
+def marl_eval_data(entries: Iterable[tuple[str, str, int, dict[str, Any]]]) -> dict[str, Any]:
+    """marl-eval's raw-data layout, ``{"pan1_env": {task: {algorithm: {"seed_<s>": record}}}}``, of ``(task,
+    algorithm, seed, record)`` entries; a record holds ``absolute_metrics`` (metric → one value per episode)
+    and, for a trained run, ``step_<k>`` evaluations."""
+    data: dict[str, Any] = {"pan1_env": {}}
+    for task, algorithm, seed, record in entries:
+        data["pan1_env"].setdefault(task, {}).setdefault(algorithm, {})[f"seed_{seed}"] = record
+    return data
 

@@ -16,7 +16,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from .core import CoreView, FormationCore
+from .core import CoreView, FormationCore, view_repr
 from .registration import RENDER_FPS, RENDER_MODES
 from .validation import float_array, forwards_keywords
 
@@ -29,6 +29,12 @@ class OneCopyGymEnv(gymnasium.Env):
     core and call :meth:`_flat_spaces`."""
 
     core: FormationCore
+
+    def __repr__(self) -> str:
+        return view_repr(self)
+
+    def __str__(self) -> str:  # Gymnasium's wrappers print the env's str: the filter's switch shows through them
+        return f"<{view_repr(self)}>"
 
     @property
     def num_steps(self) -> int:

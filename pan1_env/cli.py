@@ -434,7 +434,7 @@ def _cmd_train(args) -> int:
 
 
 def _cmd_benchmark(args) -> int:
-    from .baselines.benchmark import markdown_table, plot_benchmark, run_benchmark
+    from .baselines.benchmark import markdown_table, marl_eval_rows, plot_benchmark, run_benchmark
     from .experiment import atomic_write
 
     shields = {"both": (True, False), "on": (True,), "off": (False,)}[args.shield]
@@ -446,8 +446,11 @@ def _cmd_benchmark(args) -> int:
     table = markdown_table(rows)
     atomic_write(args.out / "benchmark.md", lambda fh: fh.write(table + "\n"), mode="w")
     atomic_write(args.out / "benchmark.json", lambda fh: fh.write(json.dumps(rows, indent=2) + "\n"), mode="w")
+    marl_eval = json.dumps(marl_eval_rows(rows), indent=1) + "\n"
+    atomic_write(args.out / "benchmark_marl_eval.json", lambda fh: fh.write(marl_eval), mode="w")
     plot_benchmark(rows, args.out / "benchmark.png")
-    print("\n" + table + f"\n\nbenchmark.md, benchmark.json and benchmark.png under {args.out}/")
+    print("\n" + table + f"\n\nbenchmark.md, benchmark.json (marl-eval's layout: benchmark_marl_eval.json) and "
+          f"benchmark.png under {args.out}/")
     return 0
 
 
@@ -499,4 +502,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return handlers[args.command](args)
     except (ScenarioError, ValueError) as err:
         print(f"pan1-env: error: {err}", file=sys.stderr)
+        return 2
+    except ImportError as err:  # an optional library a command or policy needs: its message names the extra
+        hint = "" if "extra" in str(err) else " (an optional dependency: the README's Install section lists the extras)"
+        print(f"pan1-env: error: {err}{hint}".replace("\n", " "), file=sys.stderr)
         return 2

@@ -43,7 +43,8 @@ from .random_scenario import random_scenario
 from .tasks import FormationTask, ReachTask
 from .validation import positive_int
 
-__all__ = ["FormationCore", "CoreStep", "copy_generator", "CoreView", "config_attributes", "per_arm", "FAULT"]
+__all__ = ["FormationCore", "CoreStep", "copy_generator", "CoreView", "config_attributes", "per_arm", "FAULT",
+           "view_repr"]
 
 FAULT = "non-finite state in the physics step; episode truncated"
 TASKS = {FormationConfig: FormationTask, ReachConfig: ReachTask}
@@ -438,6 +439,9 @@ class CoreView:
 
     core: FormationCore
 
+    def __repr__(self) -> str:
+        return view_repr(self)
+
     @property
     def config(self) -> FormationConfig | ReachConfig:
         return self.core.config
@@ -497,6 +501,18 @@ class CoreView:
     @property
     def action_scale(self) -> float:
         return self.core.config.action_scale
+
+
+def view_repr(view: Any) -> str:
+    """A view's repr: its class, its scenario as given, copies, arms and whether the safety filter is on. Views
+    differ in that default (off in the parallel, Gymnasium team and TorchRL envs; on in the vector, SB3 and
+    reach envs and the BenchMARL task), so the repr says it."""
+    c = view.core
+    scenario = getattr(c.config, "arguments", {}).get("scenario", c.config.scenario)
+    scenario = getattr(scenario, "name", scenario)  # a Scenario object by its name
+    return (f"{type(view).__name__}({str(scenario)!r}, copies={c.copies}, arms={len(c.agents)}, "
+            f"safety_filter={'on' if c.engine.filter is not None else 'off'}, "
+            f"action_mode={getattr(c.config, 'action_mode', 'velocity')!r})")
 
 
 def config_attributes(view: type, config: type, skip: tuple[str, ...] = ()) -> type:

@@ -214,3 +214,33 @@ def test_benchmark_reports_bad_env_arguments_in_one_line(tmp_path, capsys, kwarg
                  "--env-kwargs", kwargs, "--out", str(tmp_path)])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and message in err
+
+
+def test_benchmark_writes_its_episodes_in_marl_evals_layout(tmp_path, capsys) -> None:
+    import json
+
+    code = main(["benchmark", "--scenarios", "paper_pa_mixed_square", "--policies", "zero,reference",
+                 "--shield", "both", "--episodes", "2", "--max-steps", "5", "--out", str(tmp_path)])
+    assert code == 0 and "benchmark_marl_eval.json" in capsys.readouterr().out
+    rows = json.loads((tmp_path / "benchmark.json").read_text())
+    tasks = json.loads((tmp_path / "benchmark_marl_eval.json").read_text())["pan1_env"]
+    assert set(tasks) == {"paper_pa_mixed_square", "paper_pa_mixed_square (no shield)"}
+    for row in rows:
+        task = row["scenario"] + ("" if row["shield"] else " (no shield)")
+        metrics = tasks[task][row["policy"]]["seed_0"]["absolute_metrics"]
+        assert set(metrics) == {"success", "return", "cost", "min_clearance"}
+        assert all(len(values) == 2 for values in metrics.values())
+        assert np.mean(metrics["success"]) == row["success_rate"] and sum(metrics["cost"]) == row["total_cost"]
+        assert np.mean(metrics["return"]) == pytest.approx(row["mean_return"])
+
+
+def test_a_policy_whose_extra_is_missing_exits_2_in_one_line(tmp_path, capsys, monkeypatch) -> None:
+    """``--policies marl`` (a shipped SB3 model) in a venv without Stable-Baselines3: one line naming the extra."""
+    import sys
+
+    monkeypatch.setitem(sys.modules, "stable_baselines3", None)  # import stable_baselines3 now fails
+    code = main(["benchmark", "--scenarios", "paper_pa3_square", "--policies", "marl", "--episodes", "1",
+                 "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "rl extra" in err, err
+    assert not (tmp_path / "benchmark.json").exists()

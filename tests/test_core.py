@@ -265,3 +265,20 @@ def test_one_copy_team_info_equals_the_batched_one_for_large_teams_and_nan() -> 
         for key, value in core.team_info(infos, b).items():
             np.testing.assert_array_equal(value, team[key][b], err_msg=key)
     assert np.isnan(core.team_info(infos, 1)["min_clearance"])
+
+
+def test_every_view_says_in_its_repr_whether_the_filter_is_on() -> None:
+    """Views differ in the filter's default; the repr (and Gymnasium's wrappers' repr) shows the switch."""
+    from pan1_env.reach import PAReachEnv
+    from pan1_env.wrappers import SafetyShield
+
+    expected = [(parallel_env("paper_pa3_square"), "off"), (CentralizedEnv("paper_pa3_square"), "off"),
+                (Pan1VectorEnv("paper_pa3_square", 2), "on"), (PAReachEnv(), "on"),
+                (parallel_env("paper_pa3_square", safety_filter=True), "on"),
+                (gymnasium.make("pan1_env:pan1_env/PaperPA3Square-v0"), "off")]
+    for env, state in expected:
+        assert f"safety_filter={state}" in repr(env), repr(env)
+    shielded = SafetyShield(parallel_env("paper_pa3_square"))
+    shielded.reset(seed=0)
+    assert "safety_filter=on" in repr(shielded.unwrapped)
+    assert "'pan1_env/RandomFormation-v1', copies=3" in repr(Pan1VectorEnv("pan1_env/RandomFormation-v1", 3))

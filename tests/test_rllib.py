@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-if os.environ.get("PAN1_REQUIRE_RAY"):  # set by `make test` in .venv-pinned: a missing Ray is then a failure
+if os.environ.get("PAN1_REQUIRE_RAY"):  # set by `make test`: a missing Ray is then a failure
     import ray.rllib  # noqa: F401
 else:
     pytest.importorskip("ray.rllib")
