@@ -1,15 +1,21 @@
 """The env as TorchRL's batched multi-agent environment: B copies × N arms in one call, one group ``arms``.
 
-``torchrl_env(scenario, num_envs=B, **env_kwargs)`` builds a :class:`torchrl.envs.EnvBase` over the env
-core (:class:`~pan1_env.core.FormationCore`), the same engine and task as every other view, with no
-per-copy Python loop. Needs the ``marl`` extra (``pip install -e ".[marl]"``, PyTorch's CPU wheel first:
-see the README); ``import pan1_env`` does not import torch.
+``torchrl_env(scenario, num_envs=B, device=..., **env_kwargs)`` builds a :class:`torchrl.envs.EnvBase` over the
+env core (:class:`~pan1_env.core.FormationCore`), the same engine and task as every other view, with no per-copy
+Python loop. Needs the ``marl`` extra (``pip install -e ".[marl]"``, PyTorch's CPU wheel first: see the README);
+``import pan1_env`` does not import torch.
 
-Keys (batch size ``[B]``; every arm of a copy starts and ends its episode together):
+Shaped like TorchRL's other multi-agent envs (``VmasEnv``, ``PettingZooWrapper``): ``env.group_map`` is
+``{"arms": ["arm_0", …]}``, ``env.n_agents`` is N, and ``env.reward_key``, ``env.action_key`` and ``env.done_key``
+(the copy's ``"done"``: every arm of a copy ends with it) name the standard entries. ``device`` is where the
+tensors live: the engine itself always steps on the CPU (numba), so on another device every step copies the
+actions to the CPU and the results back. An unknown keyword gets a "did you mean", as in ``parallel_env``.
 
-* ``("arms", "observation") [B, N, obs]`` float32: each arm's local observation, zero-padded at its end to
-  the largest arm's size; ``("arms", "action_mask") [B, N, k_max]`` bool: which action entries the arm
-  uses; ``"state" [B, state_size]``: the global state, for centralised critics.
+Keys (batch size ``[B]``; every arm of a copy starts and ends its episode together; every float is float32):
+
+* ``("arms", "observation") [B, N, obs]``: each arm's local observation, zero-padded at its end to the largest
+  arm's size; ``("arms", "action_mask") [B, N, k_max]`` bool: which action entries the arm uses; ``"state"
+  [B, state_size]``: the global state, for centralised critics.
 * ``("arms", "action") [B, N, k_max]`` in [−1, 1]: an arm applies its own first k_i entries, the rest is
   ignored. Arms of different kinds (link counts, PA or fully actuated) are padded into one group rather
   than split into one group per kind, so that one shared network (BenchMARL's default,
@@ -22,6 +28,13 @@ Keys (batch size ``[B]``; every arm of a copy starts and ends its episode togeth
   for ``shield_applied``, ``[B, N, 3]`` for ``qp_counts``): ``min_clearance``, ``reward_<term>``, and with the
   filter on ``shield_intervened``, ``shield_fallback``, ``shield_status``, ``shield_min_barrier``; and
   ``("info", key) [B]`` for the per-copy ones (``formation_error``, ``is_success``).
+
+**Padded action entries.** In a team of mixed kinds an arm's entries past its own k_i are ignored by the env, but
+a policy still samples them, and a plain ``TanhNormal`` over all k_max entries counts them in its log-prob and
+entropy: PPO's ratio and entropy bonus then move parameters that change nothing. Mask them: a policy whose
+distribution is :class:`MaskedTanhNormal`, reading ``("arms", "action_mask")`` beside its ``loc`` and ``scale``
+(``ProbabilisticActor(in_keys={"loc": …, "scale": …, "mask": ("arms", "action_mask")}, …)``), sums the log-prob
+over the entries an arm applies only (``examples/torchrl_mappo.py``). In a uniform team the mask is all True.
 
 A reset honours TorchRL's ``"_reset"`` mask (only the copies it marks start again). ``set_seed(s)`` gives every
 copy an independent stream spawned from s, as :class:`~pan1_env.vector.Pan1VectorEnv`'s ``reset(seed=s)`` does, so
@@ -37,35 +50,43 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
+from torchrl.modules import TanhNormal
 
-from .config import FormationConfig
+from .config import FormationConfig, config_arguments
 from .core import FormationCore, per_arm
+from .validation import hints_unknown_keywords
 
-__all__ = ["torchrl_env", "Pan1TorchRLEnv"]
+__all__ = ["torchrl_env", "Pan1TorchRLEnv", "MaskedTanhNormal"]
 
 GROUP = "arms"
 
 
+@hints_unknown_keywords
+@config_arguments(FormationConfig)
 def torchrl_env(scenario: Any = "paper_pa3_square", num_envs: int = 1, *, threads: bool | str = "auto",
-                **env_kwargs: Any) -> Pan1TorchRLEnv:
+                device: torch.device | str = "cpu", **env_kwargs: Any) -> Pan1TorchRLEnv:
     """B copies of ``scenario`` (a built-in name, a ``.toml`` path, ``"random"`` or a registered id) as one
-    TorchRL environment; ``env_kwargs`` are :class:`~pan1_env.config.FormationConfig`'s (``safety_filter``
-    among them: off by default, as in the parallel env)."""
-    return Pan1TorchRLEnv(FormationCore(FormationConfig(scenario, **env_kwargs), num_envs, threads=threads))
+    TorchRL environment whose tensors live on ``device`` (the engine steps on the CPU); ``env_kwargs`` are
+    :class:`~pan1_env.config.FormationConfig`'s (``safety_filter`` among them: off by default, as in the
+    parallel env)."""
+    return Pan1TorchRLEnv(FormationCore(FormationConfig(scenario, **env_kwargs), num_envs, threads=threads),
+                          device=device)
 
 
 class Pan1TorchRLEnv(EnvBase):
-    """A TorchRL view of a :class:`~pan1_env.core.FormationCore` (see the module docstring)."""
+    """A TorchRL view of a :class:`~pan1_env.core.FormationCore` (see the module docstring); ``device`` is where
+    its tensors live, the core steps on the CPU."""
 
     batch_locked = True
 
-    def __init__(self, core: FormationCore) -> None:
+    def __init__(self, core: FormationCore, device: torch.device | str = "cpu") -> None:
         B, N, k = core.copies, len(core.agents), core.k_max
-        super().__init__(device="cpu", batch_size=torch.Size([B]))
+        super().__init__(device=device, batch_size=torch.Size([B]))
         self.core = core
         low, high = core.padded_observation_bounds()
         size = low.shape[1]
-        self._mask = torch.from_numpy(np.arange(k) < np.asarray(core.n_actuated)[:, None]).expand(B, N, k)
+        mask = torch.from_numpy(np.arange(k) < np.asarray(core.n_actuated)[:, None])
+        self._mask = mask.expand(B, N, k)
         core.reset()
         _, infos = core.start()  # the info keys and shapes, the same after every reset and step
         self._arm_keys = [key for key in infos if per_arm(key) and key != "cost"]
@@ -91,6 +112,26 @@ class Pan1TorchRLEnv(EnvBase):
         arm_flag = {name: Bounded(False, True, shape=(B, N, 1), dtype=torch.bool) for name in flag}
         self.done_spec = Composite({**flag, GROUP: Composite(arm_flag, shape=(B, N))}, shape=(B,))
 
+    @property
+    def group_map(self) -> dict[str, list[str]]:
+        """The agents of each group, as TorchRL's multi-agent envs give it: ``{"arms": ["arm_0", …]}``."""
+        return {GROUP: list(self.core.agents)}
+
+    @property
+    def agent_names(self) -> list[str]:
+        return list(self.core.agents)
+
+    @property
+    def n_agents(self) -> int:
+        """N, the arms of a team."""
+        return len(self.core.agents)
+
+    @property
+    def done_key(self) -> str:
+        """``"done"``, a copy's end, which every arm shares (``("arms", "done")`` repeats it per arm, and TorchRL's
+        default accessor would refuse to choose among the six done entries)."""
+        return "done"
+
     def _set_seed(self, seed: int | None) -> None:
         if seed is not None:
             self.core.seed(seed)
@@ -99,14 +140,14 @@ class Pan1TorchRLEnv(EnvBase):
         which = None  # every copy, unless a reset mask (the root's or the group's, as TorchRL writes them) says
         for key in ("_reset", (GROUP, "_reset")):
             if tensordict is not None and key in tensordict.keys(include_nested=True):
-                marked = tensordict.get(key).reshape(self.core.copies, -1).any(-1).numpy()
+                marked = tensordict.get(key).reshape(self.core.copies, -1).any(-1).cpu().numpy()
                 which = marked if which is None else which | marked
         self.core.reset(None if which is None else which.nonzero()[0])
         mats, infos = self.core.start()
-        return self._observations(mats, infos)
+        return self._observations(mats, infos).to(self.device)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        actions = tensordict.get((GROUP, "action")).detach().cpu().numpy().astype(np.float64)
+        actions = tensordict.get((GROUP, "action")).detach().to("cpu", torch.float64).numpy()
         out = self.core.step(actions)
         td = self._observations(out.observations, out.infos)
         B, N = out.reward.shape
@@ -117,7 +158,7 @@ class Pan1TorchRLEnv(EnvBase):
         for name, value in (("done", done), ("terminated", terminated), ("truncated", truncated)):
             td.set(name, value)
             td.set((GROUP, name), value[:, None].expand(B, N, 1).clone())
-        return td
+        return td.to(self.device)
 
     def _observations(self, mats: list[np.ndarray], infos: dict[str, np.ndarray]) -> TensorDictBase:
         B, N = self.core.copies, len(self.core.agents)
@@ -128,14 +169,50 @@ class Pan1TorchRLEnv(EnvBase):
             GROUP: TensorDict({"observation": torch.from_numpy(obs), "action_mask": self._mask.clone(), "cost": cost,
                                "info": TensorDict(arm_info, batch_size=(B, N))}, batch_size=(B, N)),
             "state": torch.from_numpy(self.core.state()),
-            "info": TensorDict({key: torch.from_numpy(infos[key].copy()) for key in self._copy_keys}, batch_size=(B,)),
+            "info": TensorDict({key: _tensor(infos[key]) for key in self._copy_keys}, batch_size=(B,)),
         }, batch_size=(B,))
 
 
+class MaskedTanhNormal(torch.distributions.Distribution):
+    """TorchRL's ``TanhNormal`` over an arm's padded action whose log-prob sums over the entries ``mask`` keeps.
+
+    Batch shape ``loc.shape[:-1]`` (copies, arms), event shape ``loc.shape[-1:]`` (k_max), as a ``TanhNormal`` over
+    the action: each entry is drawn from its own ``TanhNormal`` (``low``, ``high`` and the other keywords are
+    ``TanhNormal``'s), and an arm's padding entries (``("arms", "action_mask")`` False) are still sampled, and
+    ignored by the env, but count in no log-prob, so neither in PPO's ratio nor in its sampled entropy estimate
+    (``entropy()`` has no closed form, as for ``TanhNormal``)."""
+
+    arg_constraints: dict = {}
+    has_rsample = True
+
+    def __init__(self, loc: torch.Tensor, scale: torch.Tensor, mask: torch.Tensor, **kwargs: Any) -> None:
+        self.entries = TanhNormal(loc, scale, event_dims=0, **kwargs)  # each entry alone
+        self.mask = mask.to(torch.bool)
+        super().__init__(loc.shape[:-1], loc.shape[-1:], validate_args=False)
+
+    def rsample(self, sample_shape: tuple[int, ...] = ()) -> torch.Tensor:
+        return self.entries.rsample(sample_shape)
+
+    def log_prob(self, value: torch.Tensor) -> torch.Tensor:
+        entries = self.entries.log_prob(value)
+        return torch.where(self.mask, entries, torch.zeros_like(entries)).sum(-1)
+
+    @property
+    def deterministic_sample(self) -> torch.Tensor:
+        """The action a deterministic policy takes (``TanhNormal``'s: the squashed ``loc``)."""
+        return self.entries.deterministic_sample
+
+    @property
+    def mode(self) -> torch.Tensor:
+        return self.entries.deterministic_sample
+
+
 def _tensor(value: np.ndarray) -> torch.Tensor:
-    """A tensor of its own (the core's arrays and broadcast views are not the env's to hand out)."""
-    return torch.from_numpy(np.array(value))
+    """A tensor of its own (the core's arrays and broadcast views are not the env's to hand out), float32 where
+    the core's is a float, as every other float of the env."""
+    out = np.array(value)
+    return torch.from_numpy(out.astype(np.float32) if out.dtype.kind == "f" else out)
 
 
 def _dtype(value: np.ndarray) -> torch.dtype:
-    return torch.from_numpy(np.zeros(1, dtype=value.dtype)).dtype
+    return _tensor(value[..., :0]).dtype
