@@ -17,9 +17,10 @@ import torch  # noqa: E402
 from tensordict import TensorDict  # noqa: E402
 from torchrl.envs.libs.pettingzoo import PettingZooWrapper  # noqa: E402
 from torchrl.envs.utils import check_env_specs, step_mdp  # noqa: E402
+from torchrl.modules import TanhNormal  # noqa: E402
 
 from pan1_env.environment import parallel_env  # noqa: E402
-from pan1_env.marl import torchrl_env  # noqa: E402
+from pan1_env.marl import MaskedTanhNormal, torchrl_env  # noqa: E402
 from pan1_env.vector import Pan1VectorEnv  # noqa: E402
 from pan1_env.wrappers import PadToLargestArm, SafetyShield  # noqa: E402
 
@@ -180,3 +181,43 @@ def test_moving_task_specs_hold() -> None:
     check_env_specs(native, seed=0)
     env = PadToLargestArm(SafetyShield(parallel_env("pan1_env/MovingFormation-v0", max_steps=12, success_hold=0.2)))
     check_env_specs(PettingZooWrapper(env=env, use_mask=False, return_state=True), seed=0)
+
+
+def test_native_env_is_shaped_like_torchrl_multi_agent_envs() -> None:
+    """``group_map``, ``n_agents`` and the standard key accessors, as VmasEnv and PettingZooWrapper have them; a
+    ``device``; every float entry float32."""
+    env = torchrl_env("paper_pa_mixed_square", num_envs=2, max_steps=4, safety_filter=True, device=torch.device("cpu"))
+    assert env.group_map == {"arms": ["arm_0", "arm_1", "arm_2", "arm_3"]} and env.n_agents == 4
+    assert (env.done_key, env.reward_key, env.action_key) == ("done", ("arms", "reward"), ("arms", "action"))
+    assert env.device == torch.device("cpu") and torchrl_env(num_envs=1, device="cpu").device == torch.device("cpu")
+    rollout = env.rollout(4, break_when_any_done=False)
+    assert rollout["next", env.done_key][:, -1].all()
+    floats = {key: value.dtype for key, value in rollout.items(True, True) if value.is_floating_point()}
+    assert ("next", "arms", "info", "min_clearance") in floats and set(floats.values()) == {torch.float32}
+
+
+def test_an_unknown_argument_gets_a_did_you_mean() -> None:
+    with pytest.raises(TypeError, match="torchrl_env got an unknown argument 'max_step'; did you mean 'max_steps'"):
+        torchrl_env("paper_pa3_square", max_step=10)
+    with pytest.raises(TypeError, match="did you mean 'device'"):
+        torchrl_env("paper_pa3_square", devices="cpu")
+
+
+def test_the_masked_distribution_leaves_padding_out_of_the_log_prob() -> None:
+    """``MaskedTanhNormal``: the arm's padding entries change neither its log-prob nor its gradient; with nothing
+    masked it is TorchRL's ``TanhNormal`` over the whole action."""
+    gen = torch.Generator().manual_seed(0)
+    loc = torch.randn(5, 4, 3, generator=gen).requires_grad_()
+    scale = torch.rand(5, 4, 3, generator=gen) + 0.2
+    mask = torch.tensor([True, True, False]).expand(5, 4, 3)
+    dist = MaskedTanhNormal(loc, scale, mask)
+    assert (dist.batch_shape, dist.event_shape) == ((5, 4), (3,))
+    action = dist.sample()
+    moved = action.clone()
+    moved[..., 2] = -moved[..., 2]
+    torch.testing.assert_close(dist.log_prob(moved), dist.log_prob(action))
+    dist.log_prob(action).sum().backward()
+    assert (loc.grad[..., 2] == 0).all() and (loc.grad[..., :2] != 0).all()
+    whole = MaskedTanhNormal(loc, scale, torch.ones(5, 4, 3, dtype=torch.bool))
+    torch.testing.assert_close(whole.log_prob(action), TanhNormal(loc, scale, event_dims=1).log_prob(action))
+    assert dist.rsample((7,)).shape == (7, 5, 4, 3) and dist.log_prob(dist.rsample((7,))).shape == (7, 5, 4)
