@@ -9,8 +9,14 @@ on while the policies learn). :data:`TASKS` gives the standard tasks with their 
 
 What BenchMARL sees: one group ``arms``; the models' input is each arm's own observation (the policy acts on
 local observations; a MAPPO critic may also read the global ``state``); the per-arm ``cost`` and the shield's
-report are infos, which :meth:`Pan1Task.log_info` logs as the mean cost per arm-step and the share of
-arm-steps the filter changed. Needs BenchMARL (the ``benchmarl`` extra, with its own TorchRL pin).
+report are infos, which :meth:`Pan1Task.log_info` logs for every collected batch: the mean cost per arm-step, the
+share of arm-steps the filter changed, the success rate of the episodes that ended in the batch and the least
+clearance. BenchMARL's evaluation logs the return only; pass :class:`Pan1EvaluationMetrics` among the experiment's
+callbacks (``Experiment(..., callbacks=[Pan1EvaluationMetrics()])``, as ``examples/benchmarl_mappo.py`` does) and
+each evaluation also logs, and writes into BenchMARL's JSON beside the return, per episode: ``success`` (formed at
+the episode's end), ``cost`` (arm-steps inside an obstacle), ``min_clearance`` (m, the least over the arms and
+steps) and ``intervention_rate`` (the share of arm-steps the filter changed; with the filter on). Needs BenchMARL
+(the ``benchmarl`` extra, with its own TorchRL pin).
 """
 
 from __future__ import annotations
@@ -19,14 +25,18 @@ import copy
 from pathlib import Path
 from typing import Any
 
+import torch
 from benchmarl.environments.common import TaskClass
+from benchmarl.experiment.callback import Callback
 from tensordict import TensorDictBase
 from torchrl.data import Composite
 from torchrl.envs import EnvBase
 
+from .config import ARGUMENTS
 from .marl import GROUP, torchrl_env
+from .validation import refuse_unknown
 
-__all__ = ["Pan1Task", "TASKS", "YAML_DIR"]
+__all__ = ["Pan1Task", "Pan1EvaluationMetrics", "episode_metrics", "TASKS", "YAML_DIR"]
 
 #: the standard tasks, shielded: the paper's two squares, and the random and whole-arm teams behind the paper's
 #: filter (v0) and behind the v1 filter, which holds no arm still far from the obstacles (docs/ENVIRONMENTS.md)
@@ -49,6 +59,8 @@ class Pan1Task(TaskClass):
     without slashes (``pan1_env_RandomFormation-v1``)."""
 
     def __init__(self, name: str = "random", config: dict[str, Any] | None = None) -> None:
+        refuse_unknown("Pan1Task config", config or {}, [key for key in ARGUMENTS if key != "scenario"],
+                       error=TypeError)
         self.scenario = name
         super().__init__(name.replace("/", "_"), {"safety_filter": True, **(config or {})})
 
@@ -66,10 +78,10 @@ class Pan1Task(TaskClass):
         name, config = self.scenario, copy.deepcopy(self.config)
 
         def make() -> EnvBase:
-            env = torchrl_env(name, num_envs=num_envs, **config)
+            env = torchrl_env(name, num_envs=num_envs, device=device, **config)
             if seed is not None:
                 env.set_seed(seed)
-            return env.to(device)
+            return env
 
         return make
 
@@ -113,9 +125,45 @@ class Pan1Task(TaskClass):
 
     @staticmethod
     def log_info(batch: TensorDictBase) -> dict[str, float]:
-        """The collected batch's mean cost per arm-step and, with the shield, the share of arm-steps it changed."""
-        out = {"cost_per_arm_step": batch.get(("next", GROUP, "cost")).float().mean().item()}
-        intervened = ("next", GROUP, "info", "shield_intervened")
-        if intervened in batch.keys(True, True):
-            out["shield_intervention_rate"] = batch.get(intervened).float().mean().item()
+        """The collected batch's mean cost per arm-step, least clearance (m), success rate of the episodes that
+        ended in it (NaN if none did) and, with the shield, the share of arm-steps it changed."""
+        nxt = batch.get("next")
+        ended = nxt.get("done").squeeze(-1)
+        out = {"cost_per_arm_step": nxt.get((GROUP, "cost")).float().mean().item(),
+               "min_clearance": nxt.get((GROUP, "info", "min_clearance")).min().item(),
+               "success_rate": nxt.get(("info", "is_success"))[ended].float().mean().item()}
+        if (GROUP, "info", "shield_intervened") in nxt.keys(True, True):
+            out["shield_intervention_rate"] = nxt.get((GROUP, "info", "shield_intervened")).float().mean().item()
         return out
+
+
+def episode_metrics(episode: TensorDictBase) -> dict[str, torch.Tensor]:
+    """An episode's numbers, from its steps (``[T]``, ending where the episode ends): ``success`` (1.0 if formed at
+    its last step), ``cost`` (arm-steps inside an obstacle), ``min_clearance`` (m, the least over arms and steps) and,
+    with the filter on, ``intervention_rate`` (the share of arm-steps it changed). Each value is a 0-dim float."""
+    nxt = episode.get("next")
+    out = {"success": nxt.get(("info", "is_success"))[-1].float(),
+           "cost": nxt.get((GROUP, "cost")).sum().float(),
+           "min_clearance": nxt.get((GROUP, "info", "min_clearance")).min().float()}
+    if (GROUP, "info", "shield_intervened") in nxt.keys(True, True):
+        out["intervention_rate"] = nxt.get((GROUP, "info", "shield_intervened")).float().mean()
+    return out
+
+
+class Pan1EvaluationMetrics(Callback):
+    """A BenchMARL callback: after each evaluation, the evaluation episodes' :func:`episode_metrics`, logged as
+    ``eval/<name>`` (the mean over the episodes) and written per episode into BenchMARL's JSON beside the return."""
+
+    def on_evaluation_end(self, rollouts: list[TensorDictBase]) -> None:
+        # BenchMARL has cut each rollout at its episode's end (Logger.log_evaluation) before calling back
+        episodes = [episode_metrics(rollout) for rollout in rollouts]
+        if not episodes:
+            return
+        metrics = {name: torch.stack([episode[name] for episode in episodes]) for name in episodes[0]}
+        experiment = self.experiment
+        experiment.logger.log({f"eval/{name}": values.mean().item() for name, values in metrics.items()},
+                              step=experiment.n_iters_performed)
+        writer = experiment.logger.json_writer
+        if writer is not None:  # the same evaluation step as BenchMARL's own entry, which this one extends
+            writer.write(total_frames=experiment.total_frames, metrics=metrics,
+                         evaluation_step=experiment.total_frames // experiment.config.evaluation_interval)

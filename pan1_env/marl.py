@@ -50,10 +50,10 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
-from torchrl.modules import TanhNormal
 
 from .config import FormationConfig, config_arguments
 from .core import FormationCore, per_arm
+from .masked_distribution import MaskedTanhNormal
 from .validation import hints_unknown_keywords
 
 __all__ = ["torchrl_env", "Pan1TorchRLEnv", "MaskedTanhNormal"]
@@ -119,6 +119,7 @@ class Pan1TorchRLEnv(EnvBase):
 
     @property
     def agent_names(self) -> list[str]:
+        """The arms' names, in the order of the ``arms`` dimension."""
         return list(self.core.agents)
 
     @property
@@ -171,40 +172,6 @@ class Pan1TorchRLEnv(EnvBase):
             "state": torch.from_numpy(self.core.state()),
             "info": TensorDict({key: _tensor(infos[key]) for key in self._copy_keys}, batch_size=(B,)),
         }, batch_size=(B,))
-
-
-class MaskedTanhNormal(torch.distributions.Distribution):
-    """TorchRL's ``TanhNormal`` over an arm's padded action whose log-prob sums over the entries ``mask`` keeps.
-
-    Batch shape ``loc.shape[:-1]`` (copies, arms), event shape ``loc.shape[-1:]`` (k_max), as a ``TanhNormal`` over
-    the action: each entry is drawn from its own ``TanhNormal`` (``low``, ``high`` and the other keywords are
-    ``TanhNormal``'s), and an arm's padding entries (``("arms", "action_mask")`` False) are still sampled, and
-    ignored by the env, but count in no log-prob, so neither in PPO's ratio nor in its sampled entropy estimate
-    (``entropy()`` has no closed form, as for ``TanhNormal``)."""
-
-    arg_constraints: dict = {}
-    has_rsample = True
-
-    def __init__(self, loc: torch.Tensor, scale: torch.Tensor, mask: torch.Tensor, **kwargs: Any) -> None:
-        self.entries = TanhNormal(loc, scale, event_dims=0, **kwargs)  # each entry alone
-        self.mask = mask.to(torch.bool)
-        super().__init__(loc.shape[:-1], loc.shape[-1:], validate_args=False)
-
-    def rsample(self, sample_shape: tuple[int, ...] = ()) -> torch.Tensor:
-        return self.entries.rsample(sample_shape)
-
-    def log_prob(self, value: torch.Tensor) -> torch.Tensor:
-        entries = self.entries.log_prob(value)
-        return torch.where(self.mask, entries, torch.zeros_like(entries)).sum(-1)
-
-    @property
-    def deterministic_sample(self) -> torch.Tensor:
-        """The action a deterministic policy takes (``TanhNormal``'s: the squashed ``loc``)."""
-        return self.entries.deterministic_sample
-
-    @property
-    def mode(self) -> torch.Tensor:
-        return self.entries.deterministic_sample
 
 
 def _tensor(value: np.ndarray) -> torch.Tensor:

@@ -1,8 +1,11 @@
 """The BenchMARL task: BenchMARL's own Experiment runs MAPPO on it for a few thousand frames, behind the
-shield, and logs the cost and the shield's work (skipped without BenchMARL; `make test` runs it in a venv of its
+shield, prints a finite return, and logs the cost, the shield's work, success and clearance, in its evaluation and
+its JSON too (skipped without BenchMARL; `make test` runs it in a venv of its
 own, .venv-pinned, where a missing BenchMARL is a failure)."""
 
 import importlib.util
+import json
+import math
 import os
 from pathlib import Path
 
@@ -35,6 +38,11 @@ def test_the_task_builds_envs_benchmarl_can_use(name: str) -> None:
         task.get_env_fun(num_envs=1, continuous_actions=False, seed=0, device="cpu")
 
 
+def test_an_unknown_task_keyword_gets_a_did_you_mean() -> None:
+    with pytest.raises(TypeError, match="unknown argument 'max_step'; did you mean 'max_steps'"):
+        Pan1Task("paper_pa3_square", {"max_step": 20})
+
+
 def test_the_yaml_files_name_the_standard_tasks() -> None:
     names = {Pan1Task.from_yaml(path).scenario for path in YAML_DIR.glob("*.yaml")}
     assert names == set(TASKS)
@@ -42,13 +50,33 @@ def test_the_yaml_files_name_the_standard_tasks() -> None:
 
 @pytest.mark.slow
 def test_mappo_runs_a_few_thousand_frames_and_logs_the_cost(tmp_path: Path) -> None:
+    """The example's batches hold whole episodes, so every iteration has a finite return; each evaluation logs, and
+    writes into BenchMARL's JSON beside the return, every episode's success, cost, clearance and interventions."""
     spec = importlib.util.spec_from_file_location("benchmarl_mappo", EXAMPLE)
     example = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(example)
-    experiment = example.main(["--task", str(YAML_DIR / "random_v1.yaml"), "--frames", "3000", "--batch", "1000",
-                               "--copies", "10", "--epochs", "1", "--out", str(tmp_path)])
+    experiment = example.main(["--task", str(YAML_DIR / "random_v1.yaml"), "--frames", "3000", "--max-steps", "100",
+                               "--copies", "10", "--epochs", "1", "--eval-episodes", "3", "--out", str(tmp_path)])
     assert experiment.total_frames >= 3000 and experiment.n_iters_performed == 3
+    assert math.isfinite(experiment.mean_return)
     scalars = next(tmp_path.rglob("scalars"))
     costs = (scalars / "cost_per_arm_step.csv").read_text().split()
     assert len(costs) == 3 and all(float(row.split(",")[-1]) == 0.0 for row in costs)  # behind the shield
     assert (scalars / "shield_intervention_rate.csv").exists()
+    for name in ("success", "cost", "min_clearance", "intervention_rate"):
+        assert len((scalars / f"eval_{name}.csv").read_text().split()) == 3  # after every iteration
+    steps = [value for key, value in _run_data(next(tmp_path.rglob("*.json"))).items() if key.startswith("step_")]
+    assert len(steps) == 3
+    for step in steps:
+        assert {"return", "success", "cost", "min_clearance", "intervention_rate"} <= set(step)
+        assert len(step["success"]) == 3 and all(math.isfinite(value) for value in step["return"])
+        assert step["cost"] == [0.0] * 3 and all(0 < clearance < 10 for clearance in step["min_clearance"])
+
+
+def _run_data(path: Path) -> dict:
+    """The one run's entry of BenchMARL's JSON (environment → task → algorithm → seed)."""
+    (tasks,) = json.loads(path.read_text()).values()
+    (algorithms,) = tasks.values()
+    (seeds,) = algorithms.values()
+    (run,) = seeds.values()
+    return run
