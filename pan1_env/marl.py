@@ -85,8 +85,7 @@ class Pan1TorchRLEnv(EnvBase):
         self.core = core
         low, high = core.padded_observation_bounds()
         size = low.shape[1]
-        mask = torch.from_numpy(np.arange(k) < np.asarray(core.n_actuated)[:, None])
-        self._mask = mask.expand(B, N, k)
+        self._mask = torch.from_numpy(np.arange(k) < np.asarray(core.n_actuated)[:, None]).expand(B, N, k)
         core.reset()
         _, infos = core.start()  # the info keys and shapes, the same after every reset and step
         self._arm_keys = [key for key in infos if per_arm(key) and key != "cost"]

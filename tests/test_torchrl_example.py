@@ -4,6 +4,7 @@ tests/test_torchrl.py)."""
 
 import importlib.util
 import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -25,6 +26,7 @@ def test_a_few_iterations_of_mappo_form_the_square_better_at_no_cost() -> None:
     hardware's rounding (another training trajectory) passes, and a policy that learned nothing fails."""
     spec = importlib.util.spec_from_file_location("torchrl_mappo", EXAMPLE)
     example = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = example  # its dataclass looks its module up there
     spec.loader.exec_module(example)
     before, after = example.main(["--scenario", "paper_pa3_square", "--iterations", "12", "--copies", "32",
                                   "--max-steps", "25", "--epochs", "4", "--minibatch", "400", "--lr", "3e-3",
