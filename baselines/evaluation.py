@@ -94,7 +94,7 @@ def model_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], 
     norm = meta.get("observation_normalization")
     arms = None
     if meta.get("param_sharing"):  # a model shared by the arms: each arm acts on its own observation
-        from .vec_env import SB3ArmVecEnv
+        from .arm_vec_env import SB3ArmVecEnv
 
         arms = SB3ArmVecEnv(meta["scenario"], 1, **meta.get("env_kwargs", {}))
 
@@ -117,7 +117,7 @@ def law_policy(scenario: str, env_kwargs: dict[str, Any]) -> Callable[[np.ndarra
 
 def _team_policy(predict: Callable[[np.ndarray], np.ndarray], arms, normalise: Callable[[np.ndarray], np.ndarray]):
     """A model's ``predict`` as a policy on the team views' flat observations: normalised first, and for a model
-    shared by the arms (``arms``: its :class:`~pan1_env.baselines.vec_env.SB3ArmVecEnv`) cut into each arm's
+    shared by the arms (``arms``: its :class:`~pan1_env.baselines.arm_vec_env.SB3ArmVecEnv`) cut into each arm's
     observation, its per-arm actions joined into the team's."""
     def policy(obs: np.ndarray) -> np.ndarray:
         if arms is not None:
@@ -151,7 +151,7 @@ def eval_callback(out: Path, every: int, scenario: str, shield: bool, env_kwargs
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from .vec_env import SB3ArmVecEnv
+    from .arm_vec_env import SB3ArmVecEnv
 
     class EvalCallback(BaseCallback):
         def _on_training_start(self) -> None:

@@ -1,4 +1,4 @@
-"""MAPPO on :class:`~pan1_env.baselines.vec_env.SB3ArmVecEnv`: a shared actor on each arm's own observation and
+"""MAPPO on :class:`~pan1_env.baselines.arm_vec_env.SB3ArmVecEnv`: a shared actor on each arm's own observation and
 a centralised critic that also reads the team's global state (needs the ``rl`` extra).
 
 The view with ``critic_state=True`` gives every arm the row ``[own padded observation, global state]``.

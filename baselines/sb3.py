@@ -67,7 +67,7 @@ def sb3_policy(path: Path, env) -> Callable[[Mapping[str, np.ndarray]], dict[str
     per-arm model (``pan1-env train --param-sharing``: one network shared by the arms) acts for each arm on
     its own observation, padded with zeros at the end to the largest arm's size and normalised with the
     per-arm statistics of ``model.json``, and the arm takes the first k entries of its action (the padding of
-    :class:`~pan1_env.baselines.vec_env.SB3ArmVecEnv`, on which it was trained; a MAPPO model acts through its
+    :class:`~pan1_env.baselines.arm_vec_env.SB3ArmVecEnv`, on which it was trained; a MAPPO model acts through its
     actor alone). ``model.json`` beside the model
     (written by :func:`~pan1_env.baselines.training.train`) gives its observation normalisation
     (``observation_normalization``: ``mean``, ``var`` of the model's input vector, ``epsilon``, ``clip``)

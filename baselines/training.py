@@ -3,7 +3,7 @@
 :func:`train` trains PPO or SAC either on the batched vector env (one policy for the whole team,
 concatenated observations and actions: the Gymnasium view's spaces, B copies stepped in one engine
 through :class:`~pan1_env.baselines.vec_env.SB3VecEnv`) or, with ``param_sharing=True``, on every arm
-of the same batched engine through :class:`~pan1_env.baselines.vec_env.SB3ArmVecEnv` (one policy shared by
+of the same batched engine through :class:`~pan1_env.baselines.arm_vec_env.SB3ArmVecEnv` (one policy shared by
 every arm, acting on the arm's own observation; observations and actions padded to the largest arm). It
 writes into ``out``:
 
@@ -79,7 +79,8 @@ def make_training_env(scenario: str, shield: bool, seed: int, n_envs: int = DEFA
     spawned from ``seed`` (:func:`pan1_env.core.copy_generator`)."""
     from stable_baselines3.common.vec_env import VecMonitor
 
-    from .vec_env import SB3ArmVecEnv, SB3VecEnv
+    from .arm_vec_env import SB3ArmVecEnv
+    from .vec_env import SB3VecEnv
 
     kwargs = {"safety_filter": bool(shield), **dict(env_kwargs or {})}
     if centralised_critic:

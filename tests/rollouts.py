@@ -72,7 +72,7 @@ def model_acts_alike_on_both_views(path, scenario: str, seed: int = 3) -> dict[s
     flat_policy, env_kwargs = model_policy(path)
     penv = parallel_env(scenario, **env_kwargs)
     obs, _ = penv.reset(seed=seed)
-    flat, _ = Pan1VectorEnv(scenario, 1, **env_kwargs).reset(seed=seed)
+    flat, _ = Pan1VectorEnv(scenario, 1, **env_kwargs).reset(seed=[seed])
     by_agent = sb3_policy(path, penv)(obs)
     np.testing.assert_allclose(flat_policy(flat)[0], np.concatenate([by_agent[a] for a in penv.agents]), atol=1e-6)
     return by_agent

@@ -55,7 +55,7 @@ def test_no_compiled_function_is_longer_than_a_screen_or_two() -> None:
 
 #: the views of the env core: each only reshapes what the core returns
 VIEWS = ("pan1_env/environment.py", "pan1_env/centralized.py", "pan1_env/vector.py", "pan1_env/reach.py",
-         "pan1_env/marl.py", "baselines/vec_env.py", "wrappers/padding.py")
+         "pan1_env/marl.py", "baselines/vec_env.py", "baselines/arm_vec_env.py", "wrappers/padding.py")
 MAX_VIEW_LINES = 200
 
 

@@ -9,7 +9,7 @@ import pytest
 pytest.importorskip("stable_baselines3")
 ss = pytest.importorskip("supersuit")
 
-from pan1_env.baselines.vec_env import SB3ArmVecEnv  # noqa: E402
+from pan1_env.baselines.arm_vec_env import SB3ArmVecEnv  # noqa: E402
 from pan1_env.environment import parallel_env  # noqa: E402
 from pan1_env.vector import Pan1VectorEnv  # noqa: E402
 from pan1_env.wrappers import SafetyShield  # noqa: E402

@@ -14,8 +14,8 @@ pytest.importorskip("stable_baselines3")
 import torch  # noqa: E402
 from stable_baselines3 import PPO  # noqa: E402
 
+from pan1_env.baselines.arm_vec_env import SB3ArmVecEnv  # noqa: E402
 from pan1_env.baselines.mappo import ActorOnly, LocalActorPolicy  # noqa: E402
-from pan1_env.baselines.vec_env import SB3ArmVecEnv  # noqa: E402
 from pan1_env.cli import main  # noqa: E402
 from pan1_env.environment import parallel_env  # noqa: E402
 
@@ -23,7 +23,7 @@ MIXED = {"random_options": {"links": (2, 3, 4, 3)}}
 
 
 def test_each_row_is_the_arm_observation_then_its_copy_global_state_through_an_episode_end() -> None:
-    """Copy 1 of the critic view against the parallel env seeded as copy 1 (s + 1), stepped with its arms'
+    """Copy 1 of the critic view against the parallel env seeded as copy 1 (a list of seeds), stepped with its arms'
     actions: the rows' first entries are the plain view's, the rest the parallel env's ``state()``, and at the
     episode's end the terminal rows carry the last step's state, not the next episode's."""
     arms = SB3ArmVecEnv("random", 2, critic_state=True, max_steps=4, safety_filter=True, **MIXED)
@@ -31,8 +31,8 @@ def test_each_row_is_the_arm_observation_then_its_copy_global_state_through_an_e
     twin = parallel_env("random", max_steps=4, safety_filter=True, **MIXED)
     agents, N, local = twin.possible_agents, len(twin.possible_agents), plain.observation_space.shape[0]
     assert arms.local_size == local and arms.observation_space.shape == (local + twin.state_space.shape[0],)
-    arms.seed(7)
-    plain.seed(7)
+    arms.venv.core.seed([7, 8])  # copy b: the one-copy env's team of seed 7 + b
+    plain.venv.core.seed([7, 8])
     obs, plain_obs = arms.reset(), plain.reset()
     twin.reset(seed=8)
     rng = np.random.default_rng(2)
@@ -101,7 +101,7 @@ def test_a_trained_mappo_model_acts_per_agent_on_the_parallel_env_as_on_the_team
     with (out / "checkpoints" / "state_512_steps.pkl").open("rb") as fh:
         stats = pickle.load(fh)["normalize"]["obs_rms"]
     view = SB3ArmVecEnv("random", 1, critic_state=True, **meta["env_kwargs"])
-    view.seed(3)
+    view.venv.core.seed([3])  # the one-copy env's team of seed 3
     rows = np.clip((view.reset() - stats.mean) / np.sqrt(stats.var + 1e-8), -10.0, 10.0).astype(np.float32)
     trained = PPO.load(out / "model.zip", device="cpu")
     assert isinstance(trained.policy, LocalActorPolicy)
