@@ -52,7 +52,7 @@ from torchrl.data import Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from .config import FormationConfig, config_arguments
-from .core import FormationCore, per_arm
+from .core import FormationCore, per_arm, view_repr
 from .masked_distribution import MaskedTanhNormal
 from .validation import hints_unknown_keywords
 
@@ -78,6 +78,9 @@ class Pan1TorchRLEnv(EnvBase):
     its tensors live, the core steps on the CPU."""
 
     batch_locked = True
+
+    def __repr__(self) -> str:  # the scenario, copies, arms and the filter's switch, as every view's repr
+        return view_repr(self)
 
     def __init__(self, core: FormationCore, device: torch.device | str = "cpu") -> None:
         B, N, k = core.copies, len(core.agents), core.k_max
