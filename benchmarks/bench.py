@@ -20,7 +20,8 @@ Prints a Markdown table of medians (each over several repeats) and the ratios th
   CPU) at B = 1024, in agent-steps per second (needs the ``marl`` and ``bench`` extras);
 * ``pan1-env reproduce`` of each paper scenario (the simulation loop, nominal and safe);
 * ``import pan1_env`` in a fresh interpreter; the cold start of an arm kind and of a 5p + 2f team (empty
-  numba cache: first step and peak memory).
+  numba cache: first step and peak memory); ``pan1-env warmup`` of the built-in kinds into an empty numba
+  cache, and again once they are cached (``benchmarks/compile_times.py``).
 
 Absolute times on shared machines are noise; read the ratios. The pairs compared are measured in
 alternation (one batch of steps each, repeated), so a slow spell of the machine hits both.
@@ -37,6 +38,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # compile_times.py is a script beside this one
+from compile_times import bench_cold_start, bench_warmup  # noqa: E402
 
 
 def _sample_times(fn, repeats: int, inner: int) -> list[float]:
@@ -471,48 +475,6 @@ def bench_import() -> list[tuple[str, float, str]]:
             (f"heavy modules imported by it: {heavy}", float("nan"), "note")]
 
 
-_COLD_START = r"""
-import resource, sys, time
-t = time.perf_counter()
-import pan1_env
-team = TEAM
-env = pan1_env.parallel_env("random", random_options=team)
-env.reset(seed=0)
-env.step({a: env.action_space(a).sample() for a in env.agents})
-print(time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
-"""
-
-
-def _cold_team(kinds: tuple[str, ...]) -> dict:
-    """``random_options`` of a team with one arm of each kind (two of a single kind), PA arms first."""
-    kinds = tuple(sorted(kinds, key=lambda kind: kind[-1] != "p")) * (2 if len(kinds) == 1 else 1)
-    passive = sum(kind[-1] == "p" for kind in kinds)
-    return {"n_arms": len(kinds), "links": tuple(int(kind[:-1]) for kind in kinds),
-            "passive_fraction": passive / len(kinds)}
-
-
-def bench_cold_start(kinds: tuple[str, ...] = ("2f", "4p", "5p"),
-                     teams: tuple[tuple[str, ...], ...] = (("5p", "2f"),)) -> list[tuple[str, float, str]]:
-    """The first step of a two-arm team of one arm kind (and of each team of ``teams``) in a fresh
-    interpreter with an empty numba cache: everything compiled (the generic sub-step kernel, which
-    stands in for the kinds' own while a background process compiles them, and the observation
-    kernels), and the process's peak memory (targets: ≤ 10 s and ≤ 400 MB). The process ends
-    after the step, ending the background compilation with it."""
-    import tempfile
-
-    rows = []
-    for team in [(kind,) for kind in kinds] + [tuple(t) for t in teams]:
-        code = _COLD_START.replace("TEAM", repr(_cold_team(team)))
-        env = {key: value for key, value in os.environ.items() if key != "PAN1_ENV_KERNELS"}  # the default
-        with tempfile.TemporaryDirectory() as cache:
-            out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                                 env=dict(env, NUMBA_CACHE_DIR=cache)).stdout.split()
-        what = f"arm kind {team[0]}" if len(team) == 1 else "team " + " + ".join(team)
-        rows.append((f"cold start, {what}: first step with an empty numba cache", float(out[0]), ""))
-        rows.append(("  peak memory of that process [MB] (target ≤ 400)", float(out[1]), "count"))
-    return rows
-
-
 def _format(rows: list[tuple[str, float, str]]) -> str:
     lines = ["| measurement | median |", "|---|---|"]
     for label, value, kind in rows:
@@ -630,8 +592,8 @@ def bench_marl(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
 
 
 #: the groups of rows, in the order they run (``--only`` picks some)
-GROUPS = ("import", "cold_start", "mpe", "acrobot", "vector", "kernel", "v1", "faults", "moving", "gate", "whole_arm",
-          "qp", "team_scaling", "marl", "reproduce", "training")
+GROUPS = ("import", "cold_start", "warmup", "mpe", "acrobot", "vector", "kernel", "v1", "faults", "moving", "gate",
+          "whole_arm", "qp", "team_scaling", "marl", "reproduce", "training")
 
 
 def main() -> int:
@@ -651,6 +613,7 @@ def main() -> int:
     runs = {
         "import": bench_import,
         "cold_start": lambda: bench_cold_start(("4p",) if args.quick else ("2f", "4p", "5p")),
+        "warmup": bench_warmup,
         "mpe": lambda: bench_env_vs_mpe(repeats, inner),
         "acrobot": lambda: bench_one_arm_vs_acrobot(repeats, inner),
         "vector": lambda: bench_vector(repeats, (1, 64, 1024) if args.quick else (1, 64, 1024, 16384)),

@@ -7,7 +7,8 @@ Commands:
 * ``paper [--out DIR] [--horizon S]``: the paper's whole Section 5 (both scenarios, both
   controllers), the Figure-8 overlays, and a Markdown table of the metrics (``summary.md``).
 * ``scenarios``: list the built-in scenarios, ``random`` and the Gymnasium ids.
-* ``warmup [--kinds 4p 2f …] [--scenario NAME …] [--threaded]``: compile the kernels ahead of time.
+* ``warmup [--kinds 4p 2f …] [--scenario NAME …] [--no-threaded]``: compile the kernels ahead of time (the
+  multi-threaded ones too, unless ``--no-threaded``).
 * ``animate SCENARIO --policy reference|zero|random|adversarial|pretrained|marl|sb3:PATH [--no-shield] --out FILE.gif``:
   a GIF of one env episode.
 * ``train --algo ppo|sac|ppo-lagrangian --scenario S --shield/--no-shield --timesteps T --seed K --out DIR``:
@@ -86,8 +87,9 @@ def _parser() -> argparse.ArgumentParser:
                       help="arm kinds: LINKS followed by p (passive first joint) or f (fully actuated), e.g. 4p 2f")
     warm.add_argument("--scenario", action="append", metavar="NAME",
                       help="a built-in scenario, a .toml path or 'random' (repeatable)")
-    warm.add_argument("--threaded", action="store_true",
-                      help="also compile the multi-threaded kernel the vector env uses for large batches")
+    warm.add_argument("--threaded", action=argparse.BooleanOptionalAction, default=True,
+                      help="also compile the multi-threaded kernels a vector or TorchRL env uses from 256 arms of "
+                           "a kind (default; --no-threaded: the serial kernels only)")
 
     anim = sub.add_parser("animate", help="write a GIF of one episode of the environment")
     anim.add_argument("scenario", help="built-in scenario name, path to a .toml file, 'random' or a team id of "

@@ -43,10 +43,12 @@ def _kinds_team(kinds: Sequence[tuple[int, bool]]) -> dict[str, Any]:
 
 
 def warm_up(kinds: Iterable[str] | None = None, scenarios: Iterable[str | Path] | None = None, *,
-            threaded: bool = False, say: Callable[[str], None] = print) -> float:
+            threaded: bool = True, say: Callable[[str], None] = print) -> float:
     """Compile (or load from numba's cache) every kernel the envs use for the given arm kinds and
-    scenarios; with neither, for :data:`DEFAULT_SCENARIOS`. ``threaded=True`` also compiles the
-    multi-threaded kernel the vector env uses from 256 arms of a kind. Returns the seconds it took."""
+    scenarios; with neither, for :data:`DEFAULT_SCENARIOS`: each kind's own serial kernel and, unless
+    ``threaded=False``, the multi-threaded kernels a vector or TorchRL env runs from
+    :data:`~pan1_env.engine.PARALLEL_THRESHOLD` arms of a kind (the sub-step, geometry and observation
+    kernels' ``_parallel`` twins). Returns the seconds it took."""
     kinds = [parse_kind(k) for k in (kinds or ())]
     teams: list[tuple[str, str, dict[str, Any]]] = [(str(s), str(s), {}) for s in (scenarios or ())]
     if kinds:

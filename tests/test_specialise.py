@@ -122,16 +122,16 @@ print("child", specialise._child)
 
 _ONE_KIND = {"n_arms": 2, "links": 2, "passive_fraction": 0.0}  # two fully actuated 2-link arms: one kind
 
-# steps a new kind twice (the background compilation starts at the second step) and exits at once
+# steps a new kind once, as the quickstart does, and exits at once: its background compilation starts at
+# the exit (a second step would have started it)
 _EARLY = r"""
 import numpy as np
 from pan1_env.environment import parallel_env
 from pan1_env.kernels import specialise
 env = parallel_env("random", random_options=KIND)
 env.reset(seed=0)
-for _ in range(2):
-    env.step({a: np.zeros(env.action_space(a).shape) for a in env.agents})
-print(specialise._child.pid, flush=True)
+env.step({a: np.zeros(env.action_space(a).shape) for a in env.agents})
+print([kind.specialised for kind in env.unwrapped.engine.kinds], specialise._child, flush=True)
 """.replace("KIND", repr(_ONE_KIND))
 
 # a next process: one step, then whether its kind steps with its own kernel and how many children it started
@@ -168,6 +168,23 @@ def _cache_env(tmp_path) -> dict:
     return env
 
 
+def _background_compilations(cache: str) -> list[int]:
+    """The pids of the background compilations (:func:`pan1_env.kernels.specialise._main`) that compile
+    into ``cache`` (their NUMBA_CACHE_DIR), found in /proc: detached, they are no test's children."""
+    found = []
+    for entry in os.listdir("/proc"):
+        try:
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                command = f.read()
+            with open(f"/proc/{entry}/environ", "rb") as f:
+                environ = f.read().split(b"\0")
+        except (OSError, ValueError):  # not a process, gone, or not ours to read
+            continue
+        if b"specialise import _main" in command and f"NUMBA_CACHE_DIR={cache}".encode() in environ:
+            found.append(int(entry))
+    return found
+
+
 def _alive(pid: int) -> bool:
     """Whether ``pid`` runs (a zombie does not count)."""
     try:
@@ -192,20 +209,63 @@ linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="re
 @linux_only
 @pytest.mark.slow
 def test_a_short_script_leaves_the_kernel_cached(tmp_path) -> None:
-    """A script that steps a new kind twice and exits at once neither waits for its background
-    compilation nor ends it; that finishes on its own, and the next process steps the kind with its
-    own kernel from the cache, starting no compilation."""
+    """A script that steps a new kind once (the quickstart) and exits at once starts its background
+    compilation at its exit and neither waits for it nor ends it; that finishes on its own, and the
+    next process steps the kind with its own kernel from the cache, starting no compilation and printing
+    no notice."""
     env = _cache_env(tmp_path)
     run = subprocess.run([sys.executable, "-c", _EARLY], env=env, capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout.split("\n")[0] == "[False] None", "generic kernel, no child before the exit: " + run.stdout
     assert "cached for later runs even if this process ends first" in run.stderr
-    pid = int(run.stdout.split()[-1])
-    assert _alive(pid), "the script ended (or waited for) its background compilation"
-    assert _wait_for(lambda: not _alive(pid), specialise.LIMIT + 60), "the child outlived its bound"
+    children = _background_compilations(env["NUMBA_CACHE_DIR"])
+    assert len(children) == 1, f"one child started at the exit, found {children}"
+    assert _wait_for(lambda: not _alive(children[0]), specialise.LIMIT + 60), "the child outlived its bound"
     again = subprocess.run([sys.executable, "-c", _NEXT], env=env, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr[-2000:]
     assert again.stdout.split("\n")[0] == "[True] 0", again.stdout + again.stderr[-2000:]
-    assert "sub-step kernel for arms" not in again.stderr, again.stderr[-2000:]
+    assert "pan1_env:" not in again.stderr, "a notice after a finished compilation: " + again.stderr[-2000:]
+
+
+def test_kinds_still_waiting_start_at_the_exit(monkeypatch, tmp_path) -> None:
+    """The kinds asked for but not started when the process ends (a script that stepped once, or a
+    second kind queued behind a running child) each get a child at the exit, registered with atexit;
+    a kind another process's child holds the claim of gets none."""
+    if specialise.fcntl is None:
+        pytest.skip("no detached children, hence nothing started at the exit, without fcntl")
+    monkeypatch.setattr(specialise, "_index_file", lambda dispatcher: str(tmp_path / "group_advance-1.py3.nbi"))
+    monkeypatch.setattr(specialise, "_in_disk_cache", lambda dispatcher, sig: False)
+    spawned = []
+    monkeypatch.setattr(specialise, "_spawn", lambda sigs, claim, limit=0: spawned.append(sigs) or object())
+    running = object()
+    for name, value in (("_pending", []), ("_requested", set()), ("_watching", {}), ("_child", running)):
+        monkeypatch.setattr(specialise, name, value)
+    waiting = [specialise._signature(_args(n, True)) for n in (5, 6, 7)]
+    specialise._pending.extend(waiting)
+    held = specialise._take_claim(specialise._claim_file(waiting[2]))  # another process's child compiles 7 links
+    try:
+        specialise._start_at_exit()
+    finally:
+        os.close(held)
+    assert spawned == [[waiting[0]], [waiting[1]]] and specialise._pending == []
+    assert list(specialise._watching) == [waiting[2]]
+
+
+# a process that exits with a kind waiting for its background compilation (the spawn only reported)
+_EXIT_WAITING = r"""
+from pan1_env.kernels import specialise
+specialise._spawn = lambda sigs, claim, limit=0: print("spawned", len(sigs), claim is not None, flush=True)
+specialise._in_disk_cache = lambda dispatcher, sig: False
+specialise._pending.append("a kind")
+specialise._claim_file = lambda sig: None  # no claim: the cache of this test is not touched
+"""
+
+
+@linux_only
+def test_the_exit_starts_the_kinds_left_waiting() -> None:
+    run = subprocess.run([sys.executable, "-c", _EXIT_WAITING], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout == "spawned 1 False\n"
 
 
 @linux_only

@@ -19,8 +19,12 @@ uses it) or ``generic`` (always the generic kernel, where it applies; for tests)
 (closed after them) and compiles them into the same cache (``NUMBA_CACHE_DIR`` is inherited), one kind
 per process, at a low CPU priority (nice 10; at 19 a busy machine starved it for minutes). It is
 detached: its own session (so a Ctrl-C at the terminal does not reach it), no parent-death signal,
-not ended when the asking process exits, which neither waits for it; a short script that steps a new
-kind once and exits therefore still leaves the kernel cached for the next run. While the asking
+not ended when the asking process exits, which neither waits for it. A kind's child starts at the
+asking process's next step (:func:`start_background`), or at its exit if none comes
+(:func:`_start_at_exit`: before it, a script that stepped a new kind once, as the quickstart does, never
+started one, and the next process stepped on the generic kernel again); so a short script that steps a
+new kind and exits still leaves the kernel cached for the next run (not one killed by a signal: no
+exit handler runs then, and the next process asks again). While the asking
 process lives, a thread of it reaps the child as soon as it exits (no zombie); after, init does. The
 child bounds itself: ``signal.alarm(LIMIT)`` (:data:`LIMIT`, 15 minutes, some 30 times the slowest
 compilation measured) is set before it even imports the package, and SIGALRM's default action ends
@@ -358,8 +362,21 @@ def start_background() -> None:
     """Start the background compilation of the next kind asked for, unless one is running. The engine
     calls it at the start of a step, so the first child starts at a new kind's second step and its
     start (an interpreter importing numba) does not compete with the first step's compilation; later
-    children start as earlier ones end."""
+    children start as earlier ones end, and those still waiting when the process ends start then
+    (:func:`_start_at_exit`)."""
     _start_next()
+
+
+def _start_at_exit() -> None:
+    """At the interpreter's exit, start a child for every kind still waiting for one, side by side: a
+    script that steps a new kind once (the quickstart) never reached the step that would have started
+    its child, nor one that stepped several new kinds the steps that would have started the later
+    ones, and the notice promised them a kernel cached for the next run. The children are detached and
+    outlive this process; a kind another process's child holds the claim of is left to that child."""
+    global _child
+    while _pending:
+        _child = None  # a running child goes on, detached; the next starts beside it
+        _start_next()
 
 
 def background_generation() -> int:
@@ -435,7 +452,8 @@ def _spawn(sigs: list, claim: int | None, limit: int = LIMIT) -> subprocess.Pope
     detach = {"start_new_session": True, "pass_fds": () if claim is None else (claim,)} if fcntl is not None else {}
     child = subprocess.Popen([sys.executable, "-c", _CHILD, str(int(limit))], stdin=subprocess.PIPE,
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, **detach)
-    threading.Thread(target=child.wait, name="pan1_env background compilation", daemon=True).start()
+    with contextlib.suppress(RuntimeError):  # no new thread at interpreter shutdown (newer Pythons): init reaps it
+        threading.Thread(target=child.wait, name="pan1_env background compilation", daemon=True).start()
     try:
         child.stdin.write(pickle.dumps(sigs))
     finally:
@@ -481,6 +499,8 @@ def _forget_in_fork() -> None:
 
 if fcntl is None:  # not detached (Windows): ended with its process, as before
     atexit.register(stop_background)
+else:
+    atexit.register(_start_at_exit)
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forget_in_fork)
 
