@@ -30,6 +30,7 @@ from .kinds import Kind
 from .piqp_filter import PiqpFilter
 from .safety import QP_SOLVERS, FilterParams, clearance, filter_parameters
 from .scenario import Scenario
+from .team_draw import TeamDraws, Teams
 from .validation import real
 
 __all__ = ["Engine", "KernelQP", "FilterParams", "KindTerms", "StepRecord", "filter_parameters", "PARALLEL_THRESHOLD",
@@ -145,7 +146,7 @@ class Engine:
         # one kind in team order: its (B·N, ·) state arrays reshaped are the team arrays
         self.team_order = len(self.kinds) == 1 and self.kinds[0].ids.tolist() == list(range(self.n_arms))
         B, O = self.copies, len(scenario.obstacles)
-        self.teams: list[Scenario] = [scenario] * B
+        self.teams = Teams([scenario] * B)  # each copy's Scenario (a drawn team's built when read)
         self.bases, self.centers, self.radii = np.empty((B, self.n_arms, 2)), np.empty((B, O, 2)), np.empty((B, O))
         # whole-arm safety (links, other arms, moving obstacles): the kernel's capsule path; the
         # obstacles' motion per copy, and each copy's time since its reset
@@ -191,7 +192,7 @@ class Engine:
             self.whole_arm = True
             self._whole_arm_setup()
             for b, team in enumerate(self.teams):
-                self._load_capsules(b, team, team.obstacle_mask())
+                self._load_team_capsules(b, team, team.obstacle_mask())
         for kind in self.kinds:
             if kind.whole is not None:
                 kind.whole = self.whole_arm_args(kind)
@@ -222,7 +223,26 @@ class Engine:
         self.path_ends[b], self.speeds[b] = scenario.obstacle_motion()
         self.velocities[b] = scenario.obstacle_velocities(0.0)
         if self.whole_arm:
-            self._load_capsules(b, scenario, mask)
+            self._load_team_capsules(b, scenario, mask)
+
+    def load_teams(self, copies: np.ndarray, draws: TeamDraws) -> None:
+        """:meth:`load_team` for the drawn teams of ``copies`` at once (``draws``: one team per copy, drawn from the
+        options of the engine's first team, so their structure matches it); each copy's :class:`Scenario` is built
+        only when read from :attr:`teams`."""
+        copies = np.asarray(copies, dtype=np.int64)
+        mask = draws.obstacle_mask()
+        for kind in self.kinds:
+            kind.load_drawn(copies, draws, mask)
+        for c, b in enumerate(copies.tolist()):
+            self.teams.put(b, draws, c)
+        self.fault_times[copies] = draws.fault_times
+        self.bases[copies] = draws.bases
+        self.centers[copies], self.radii[copies] = draws.centers, draws.radii
+        self.start_centers[copies] = draws.centers
+        self.path_ends[copies], self.speeds[copies] = draws.path_ends, draws.speeds
+        self.velocities[copies] = obstacle_velocities(draws.centers, draws.path_ends, draws.speeds, 0.0)
+        if self.whole_arm:
+            self._load_capsules(copies, mask, draws.bases, draws.reach)
 
     def _whole_arm_setup(self) -> None:
         """Capsule arrays per kind (:mod:`pan1_env.kernels.capsules`): the world obstacles, then, with
@@ -274,33 +294,41 @@ class Engine:
                         gate=0.0 if self.filter is None else self.filter.gate, skin=SKIN, joints=kind.joints,
                         n_world=self.radii.shape[1], angles=kind.angles, carried=False, finish=True)
 
-    def _load_capsules(self, b: int, scenario: Scenario, mask: np.ndarray) -> None:
-        """Copy b's capsules: its obstacles (start, path, radius, share 1) and the other arms' link slots
-        (radius ρ, share ½, considered when the two arms' reaches can meet; segments set every step)."""
+    def _load_team_capsules(self, b: int, scenario: Scenario, mask: np.ndarray) -> None:
+        """Copy b's capsules (:meth:`_load_capsules`) from its ``scenario`` and obstacle ``mask (N, O)``."""
+        self._load_capsules(np.array([b]), mask[None], np.array([a.base for a in scenario.arms])[None],
+                            np.array([a.reach for a in scenario.arms])[None])
+
+    def _load_capsules(self, copies: np.ndarray, mask: np.ndarray, bases: np.ndarray, reach: np.ndarray) -> None:
+        """The capsules of ``copies`` (``mask (C, N, O)``, their arms' ``bases (C, N, 2)`` and ``reach (C, N)``): their
+        obstacles (start, path, radius, share 1) and the other arms' link slots (radius ρ, share ½, considered when the
+        two arms' reaches can meet; segments set every step)."""
         K = kernels().capsules
         O, L = self.radii.shape[1], self.n_max
-        step = self.path_ends[b] - self.start_centers[b]
+        step = self.path_ends[copies] - self.start_centers[copies]  # (C, O, 2)
         length = np.linalg.norm(step, axis=-1)
-        unit = step / np.where(length > 0, length, 1.0)[:, None]
+        unit = step / np.where(length > 0, length, 1.0)[..., None]
         for kind in self.kinds:
-            caps = kind.caps.reshape(self.copies, kind.A, *kind.caps.shape[1:])[b]
-            caps[:] = 0.0
-            caps[:, :O, [K.CAP_AX, K.CAP_AY]] = caps[:, :O, [K.CAP_BX, K.CAP_BY]] = self.start_centers[b]
-            caps[:, :O, K.CAP_RADIUS] = self.radii[b]
-            caps[:, :O, K.CAP_SHARE] = 1.0
-            caps[:, :O, [K.CAP_UX, K.CAP_UY]] = unit
-            caps[:, :O, K.CAP_PATH], caps[:, :O, K.CAP_SPEED] = length, self.speeds[b]
-            caps[:, :O, K.CAP_ACTIVE] = mask[kind.ids]
-            caps[:, :O, K.CAP_ARM] = -1.0
-            if not self.inter_arm:
-                continue
-            for r, i in enumerate(kind.ids):
-                for slot, j in enumerate(self.others[i]):
-                    cols = slice(O + slot * L, O + slot * L + self.n_links[j])
-                    near = np.linalg.norm(scenario.arms[i].base - scenario.arms[j].base) <= \
-                        scenario.arms[i].reach + scenario.arms[j].reach + 2.0 * self.link_radius
-                    caps[r, cols, K.CAP_RADIUS], caps[r, cols, K.CAP_SHARE] = self.link_radius, 0.5
-                    caps[r, cols, K.CAP_ACTIVE], caps[r, cols, K.CAP_ARM] = float(near), float(j)
+            caps = kind.caps.reshape(self.copies, kind.A, *kind.caps.shape[1:])
+            block = np.zeros((len(copies), kind.A, *caps.shape[2:]))
+            block[:, :, :O, K.CAP_AX] = block[:, :, :O, K.CAP_BX] = self.start_centers[copies][:, None, :, 0]
+            block[:, :, :O, K.CAP_AY] = block[:, :, :O, K.CAP_BY] = self.start_centers[copies][:, None, :, 1]
+            block[:, :, :O, K.CAP_RADIUS] = self.radii[copies][:, None]
+            block[:, :, :O, K.CAP_SHARE] = 1.0
+            block[:, :, :O, K.CAP_UX], block[:, :, :O, K.CAP_UY] = unit[:, None, :, 0], unit[:, None, :, 1]
+            block[:, :, :O, K.CAP_PATH] = length[:, None]
+            block[:, :, :O, K.CAP_SPEED] = self.speeds[copies][:, None]
+            block[:, :, :O, K.CAP_ACTIVE] = mask[:, kind.ids]
+            block[:, :, :O, K.CAP_ARM] = -1.0
+            if self.inter_arm:
+                for r, i in enumerate(kind.ids):
+                    for slot, j in enumerate(self.others[i]):
+                        cols = slice(O + slot * L, O + slot * L + self.n_links[j])
+                        near = np.linalg.norm(bases[:, i] - bases[:, j], axis=-1) <= \
+                            reach[:, i] + reach[:, j] + 2.0 * self.link_radius
+                        block[:, r, cols, K.CAP_RADIUS], block[:, r, cols, K.CAP_SHARE] = self.link_radius, 0.5
+                        block[:, r, cols, K.CAP_ACTIVE], block[:, r, cols, K.CAP_ARM] = near[:, None], float(j)
+            caps[copies] = block
 
     def reset(self, copies: np.ndarray | None = None, q0: list[np.ndarray] | None = None) -> None:
         """Put the ``copies`` (default: all) at rest at their team's start (or, for one copy, at ``q0``)."""

@@ -12,12 +12,17 @@ filtered velocities sit one column further in the team's ``(B, N, k_max)`` array
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .cascade import passive_momentum
 from .compiled import kernel_sizes
 from .dynamics import ArmBatch
 from .scenario import Scenario
+
+if TYPE_CHECKING:
+    from .team_draw import TeamDraws
 
 
 def kind_rows(team: np.ndarray) -> np.ndarray:
@@ -98,6 +103,19 @@ class Kind:
         self.radii[sl] = scenario.obstacles.radii[None]
         self.mask[sl] = mask[self.ids]
         self.q0[sl] = np.array([scenario.q0[i] for i in self.ids])
+
+    def load_drawn(self, copies: np.ndarray, draws: TeamDraws, mask: np.ndarray) -> None:
+        """:meth:`load` for the drawn teams of ``copies`` at once (``mask (C, N, O)``: each copy's obstacle mask)."""
+        rows, ids, n = self.rows(copies), self.ids, self.n
+        self.lam[rows] = draws.lam[:, ids, :n, :n].reshape(-1, n, n)
+        self.lengths[rows] = draws.lengths[:, ids, :n].reshape(-1, n)
+        self.base[rows] = draws.bases[:, ids].reshape(-1, 2)
+        self.phi[rows] = 0.0
+        self.damping[rows] = draws.options.passive_damping
+        self.centers[rows] = np.repeat(draws.centers, self.A, axis=0)
+        self.radii[rows] = np.repeat(draws.radii, self.A, axis=0)
+        self.mask[rows] = mask[:, ids].reshape(len(rows), -1)
+        self.q0[rows] = draws.q0[:, ids, :n].reshape(-1, n)
 
     def from_team(self, team: np.ndarray, width: int | None = None, *, first: int | None = None) -> np.ndarray:
         """Its rows of a team array ``(B, N)`` or ``(B, N, ·)`` (``width`` columns from ``first``, default
