@@ -405,7 +405,7 @@ def _draw_motion(rng: np.random.Generator, opt: RandomScenarioOptions, targets: 
             except ValueError:  # too many samples to check: as any other motion the scenario would refuse
                 continue
         else:
-            motion = FormationMotion(times, scales)
+            motion = None  # built once the scales pass the checks below (a validated motion costs a millisecond)
             s = scales.min() + scale * (scales.max() - scales.min())
             vertices = s[:, None, None] * targets[None]  # (21, N, 2)
         dist = np.linalg.norm(vertices - bases, axis=-1)
@@ -414,6 +414,7 @@ def _draw_motion(rng: np.random.Generator, opt: RandomScenarioOptions, targets: 
         if len(radii) and clearance(vertices.reshape(-1, 2), centers, np.asarray(radii)).min() < 0.05:
             continue
         try:
+            motion = FormationMotion(times, scales) if motion is None else motion
             check_motion(motion, _unturned(targets, rot), edges, bases, outer, opt.horizon, inner=inner)
         except ValueError:
             continue

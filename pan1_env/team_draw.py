@@ -116,6 +116,9 @@ class Teams(list):
     def __iter__(self):
         return (self[i] for i in range(len(self)))
 
+    def __reduce__(self):  # a copy or pickle keeps the teams not yet built as they are
+        return Teams, (list(super().__iter__()),)
+
 
 def _shape_unit(opt: RandomScenarioOptions) -> tuple[np.ndarray, float]:
     """The shape's vertices for side ``divisor`` (polygon: the unit circle's, divisor 2 sin(π/N); else side 1)."""
