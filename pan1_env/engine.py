@@ -28,7 +28,7 @@ from .bodies import capsule_clearance, obstacle_velocities
 from .compiled import WholeArm, kernels, plain
 from .kinds import Kind
 from .piqp_filter import PiqpFilter
-from .safety import QP_SOLVERS, FilterParams, clearance, filter_parameters
+from .safety import QP_SOLVERS, FilterParams, check_gate, clearance, filter_parameters
 from .scenario import Scenario
 from .team_draw import TeamDraws, Teams
 from .validation import real
@@ -185,7 +185,8 @@ class Engine:
         :class:`FilterParams`); it acts from the next sub-step."""
         params = filter_parameters(safety_filter, self.teams[0])
         if params is not None and params.gate > 0.0:
-            self._check_gate(params)
+            reach = max(float(kind.lengths.sum(axis=-1).max()) for kind in self.kinds)
+            check_gate(params, self.whole_arm, self.max_speed, reach, self.physics_dt)
         self.filter = params
         sensing = None if self.filter is None else self.filter.sensing_radius
         if sensing is not None and not self.whole_arm:  # the end-effector as the body of the whole-arm rows
@@ -272,20 +273,6 @@ class Engine:
             first += rows
         self._team_joints, self._team_caps, self._team_start_time = joints, caps, start_time
 
-    def _check_gate(self, params: FilterParams) -> None:
-        """A smooth gate acts on the whole-arm rows' sensing range, relaxes rows towards the speed box, and is
-        a gate only if it is wider than what a body covers in a sub-step (docs/MODEL.md §5, *Activation*)."""
-        if not self.whole_arm and params.sensing_radius is None:
-            raise ValueError("FilterParams.gate widens a sensing range: it needs whole-arm bodies or a sensing_radius")
-        if not np.isfinite(self.max_speed):
-            raise ValueError("FilterParams.gate relaxes rows towards the speed box: it needs a finite max_speed")
-        reach = max(float(kind.lengths.sum(axis=-1).max()) for kind in self.kinds)
-        travel = self.max_speed * reach * self.physics_dt  # an arm turning at the speed bound, its far end
-        if params.gate < travel:
-            raise ValueError(f"FilterParams.gate must be 0 (a hard range) or at least one sub-step's travel, "
-                             f"{travel:.4g} m (max_speed {self.max_speed:g} rad/s × reach {reach:.3g} m × physics_dt "
-                             f"{self.physics_dt:g} s), got {params.gate:g}")
-
     def whole_arm_args(self, kind: Kind) -> WholeArm:
         """The kernel's ``whole`` argument for a kind (:func:`pan1_env.kernels.substep.group_advance`)."""
         sensing = None if self.filter is None else self.filter.sensing_radius
@@ -301,34 +288,24 @@ class Engine:
 
     def _load_capsules(self, copies: np.ndarray, mask: np.ndarray, bases: np.ndarray, reach: np.ndarray) -> None:
         """The capsules of ``copies`` (``mask (C, N, O)``, their arms' ``bases (C, N, 2)`` and ``reach (C, N)``): their
-        obstacles (start, path, radius, share 1) and the other arms' link slots (radius ρ, share ½, considered when the
-        two arms' reaches can meet; segments set every step)."""
+        obstacles (start, path, radius, share 1) and, with ``inter_arm``, the other arms' link slots (each kind's
+        :meth:`~pan1_env.kinds.Kind.load_capsules`)."""
         K = kernels().capsules
-        O, L = self.radii.shape[1], self.n_max
-        step = self.path_ends[copies] - self.start_centers[copies]  # (C, O, 2)
+        starts = self.start_centers[copies]
+        step = self.path_ends[copies] - starts
         length = np.linalg.norm(step, axis=-1)
-        unit = step / np.where(length > 0, length, 1.0)[..., None]
+        obstacles = np.zeros((*starts.shape[:2], K.CAPSULE_COLUMNS))
+        obstacles[..., [K.CAP_AX, K.CAP_AY]] = obstacles[..., [K.CAP_BX, K.CAP_BY]] = starts
+        obstacles[..., [K.CAP_UX, K.CAP_UY]] = step / np.where(length > 0, length, 1.0)[..., None]
+        obstacles[..., K.CAP_RADIUS], obstacles[..., K.CAP_SHARE] = self.radii[copies], 1.0
+        obstacles[..., K.CAP_PATH], obstacles[..., K.CAP_SPEED] = length, self.speeds[copies]
+        obstacles[..., K.CAP_ARM] = -1.0
+        near = None  # which pairs of arms' reaches can meet
+        if self.inter_arm:
+            apart = np.linalg.norm(bases[:, :, None] - bases[:, None], axis=-1)
+            near = apart <= reach[:, :, None] + reach[:, None] + 2.0 * self.link_radius
         for kind in self.kinds:
-            caps = kind.caps.reshape(self.copies, kind.A, *kind.caps.shape[1:])
-            block = np.zeros((len(copies), kind.A, *caps.shape[2:]))
-            block[:, :, :O, K.CAP_AX] = block[:, :, :O, K.CAP_BX] = self.start_centers[copies][:, None, :, 0]
-            block[:, :, :O, K.CAP_AY] = block[:, :, :O, K.CAP_BY] = self.start_centers[copies][:, None, :, 1]
-            block[:, :, :O, K.CAP_RADIUS] = self.radii[copies][:, None]
-            block[:, :, :O, K.CAP_SHARE] = 1.0
-            block[:, :, :O, K.CAP_UX], block[:, :, :O, K.CAP_UY] = unit[:, None, :, 0], unit[:, None, :, 1]
-            block[:, :, :O, K.CAP_PATH] = length[:, None]
-            block[:, :, :O, K.CAP_SPEED] = self.speeds[copies][:, None]
-            block[:, :, :O, K.CAP_ACTIVE] = mask[:, kind.ids]
-            block[:, :, :O, K.CAP_ARM] = -1.0
-            if self.inter_arm:
-                for r, i in enumerate(kind.ids):
-                    for slot, j in enumerate(self.others[i]):
-                        cols = slice(O + slot * L, O + slot * L + self.n_links[j])
-                        near = np.linalg.norm(bases[:, i] - bases[:, j], axis=-1) <= \
-                            reach[:, i] + reach[:, j] + 2.0 * self.link_radius
-                        block[:, r, cols, K.CAP_RADIUS], block[:, r, cols, K.CAP_SHARE] = self.link_radius, 0.5
-                        block[:, r, cols, K.CAP_ACTIVE], block[:, r, cols, K.CAP_ARM] = near[:, None], float(j)
-            caps[copies] = block
+            kind.load_capsules(copies, obstacles, mask, near, self.others, self.n_links, self.link_radius)
 
     def reset(self, copies: np.ndarray | None = None, q0: list[np.ndarray] | None = None) -> None:
         """Put the ``copies`` (default: all) at rest at their team's start (or, for one copy, at ``q0``)."""

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .cascade import passive_momentum
-from .compiled import kernel_sizes
+from .compiled import kernel_sizes, kernels
 from .dynamics import ArmBatch
 from .scenario import Scenario
 
@@ -116,6 +116,24 @@ class Kind:
         self.radii[rows] = np.repeat(draws.radii, self.A, axis=0)
         self.mask[rows] = mask[:, ids].reshape(len(rows), -1)
         self.q0[rows] = draws.q0[:, ids, :n].reshape(-1, n)
+
+    def load_capsules(self, copies: np.ndarray, obstacles: np.ndarray, mask: np.ndarray, near: np.ndarray | None,
+                      others: np.ndarray, n_links: list[int], link_radius: float) -> None:
+        """Its capsules in ``copies``: the obstacles' columns ``obstacles (C, O, ·)``, active for its arms where
+        ``mask (C, N, O)`` is; with ``near (C, N, N)`` (inter-arm) the slots of every other arm's links (radius ρ,
+        share ½, active where the two arms' reaches can meet; the segments are set every step)."""
+        K = kernels().capsules
+        O, slot = obstacles.shape[1], self.joints.shape[1] - 1  # the team's n_max links per slot
+        block = np.zeros((len(copies), self.A, *self.caps.shape[1:]))
+        block[:, :, :O] = obstacles[:, None]
+        block[:, :, :O, K.CAP_ACTIVE] = mask[:, self.ids]
+        if near is not None:
+            for r, i in enumerate(self.ids):
+                for s, j in enumerate(others[i]):
+                    cols = slice(O + s * slot, O + s * slot + n_links[j])
+                    block[:, r, cols, K.CAP_RADIUS], block[:, r, cols, K.CAP_SHARE] = link_radius, 0.5
+                    block[:, r, cols, K.CAP_ACTIVE], block[:, r, cols, K.CAP_ARM] = near[:, i, j, None], float(j)
+        self.caps.reshape(self.copies, self.A, *self.caps.shape[1:])[copies] = block
 
     def from_team(self, team: np.ndarray, width: int | None = None, *, first: int | None = None) -> np.ndarray:
         """Its rows of a team array ``(B, N)`` or ``(B, N, ·)`` (``width`` columns from ``first``, default
