@@ -9,7 +9,7 @@ in ``BitGenerator.capsule``) in the reference's order, with the reference's dist
 and the generator state it leaves, depend on its generator only, and equal the reference's up to floating-point
 rounding in the geometry (the formulas are the same; sums and products run in another order, so the last bits
 can differ: tests/test_team_draw.py compares the two on hundreds of seeds). The formation's motion, when the
-options move it, stays with the reference (:func:`pan1_env.random_scenario._draw_motion`): the caller draws it
+options move it, stays with the reference (:func:`pan1_env.random_scenario.draw_motion`): the caller draws it
 after the kernel, and asks the kernel for a new team if it fails.
 
 Importing this module imports numba; :mod:`pan1_env` imports it only when an env draws teams. It lives outside

@@ -39,8 +39,8 @@ from .safety import BARRIERS, Obstacles, clearance
 from .scenario import BODIES, Scenario
 from .validation import positive_int, real, whole_ratio
 
-__all__ = ["RandomScenarioOptions", "random_scenario", "drawn_scenario", "zero_momentum_start", "BASE_MARGIN",
-           "DrawError"]
+__all__ = ["RandomScenarioOptions", "random_scenario", "drawn_scenario", "draw_motion", "zero_momentum_start",
+           "BASE_MARGIN", "DrawError"]
 
 BASE_MARGIN = 0.05  # m: how far every obstacle (and, moving, its whole path) stays outside each base, plus ρ
 
@@ -352,7 +352,7 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
             fault_times = np.where(faults, rng.uniform(*opt.fault_time, N), np.inf)
         motion = None
         if opt.moving_formation:
-            motion = _draw_motion(rng, opt, targets, bases, np.array([a.inner_reach for a in arms]),
+            motion = draw_motion(rng, opt, targets, bases, np.array([a.inner_reach for a in arms]),
                                   np.array([a.reach for a in arms]), np.array(centers).reshape(-1, 2), radii, rot,
                                   formation.edges)
             if motion is None:
@@ -380,7 +380,7 @@ def drawn_scenario(opt: RandomScenarioOptions, arms: list[ArmParams], q0: list[n
     )
 
 
-def _draw_motion(rng: np.random.Generator, opt: RandomScenarioOptions, targets: np.ndarray, bases: np.ndarray,
+def draw_motion(rng: np.random.Generator, opt: RandomScenarioOptions, targets: np.ndarray, bases: np.ndarray,
                  inner: np.ndarray, outer: np.ndarray, centers: np.ndarray, radii: list[float], rot: float,
                  edges: np.ndarray) -> FormationMotion | None:
     """Keyframes every ``scale_period`` s (s = 1, no turn and no travel at 0 s) such that each arm reaches its

@@ -19,7 +19,7 @@ import numpy as np
 from .bodies import closest_point_on_segment
 from .dynamics import ArmParams
 from .formation import Formation, shape_positions
-from .random_scenario import DrawError, RandomScenarioOptions, _draw_motion, drawn_scenario
+from .random_scenario import DrawError, RandomScenarioOptions, draw_motion, drawn_scenario
 from .scenario import Scenario
 
 __all__ = ["TeamDraws", "Teams", "draw_teams"]
@@ -212,7 +212,7 @@ def _motion(rng: np.random.Generator, c: int, used: int, max_tries: int, arrays:
         lengths = one["lengths"][0]
         outer = lengths.sum(axis=-1)
         inner = np.maximum(0.0, 2.0 * lengths.max(axis=-1) - outer)  # ArmParams.inner_reach (unused links are 0)
-        motion = _draw_motion(rng, opt, one["targets"][0], one["bases"][0], inner, outer, one["centers"][0],
+        motion = draw_motion(rng, opt, one["targets"][0], one["bases"][0], inner, outer, one["centers"][0],
                               list(one["radii"][0]), one["size_rot"][0, 1], edges)
         if motion is not None:
             return motion, used

@@ -35,13 +35,13 @@ def _assert_same_team(ours, ref) -> None:
         assert a.passive_first_joint == b.passive_first_joint and a.passive_damping == b.passive_damping
         for name in ("masses", "lengths", "com", "inertias", "base", "lam"):
             np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-12, atol=1e-12, err_msg=name)
-        np.testing.assert_allclose(qa, qb, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(qa, qb, rtol=0, atol=1e-12)
     np.testing.assert_allclose(ours.formation.distances, ref.formation.distances, rtol=1e-12)
-    np.testing.assert_allclose(ours.obstacles.centers, ref.obstacles.centers, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(ours.obstacles.centers, ref.obstacles.centers, rtol=0, atol=1e-12)
     np.testing.assert_allclose(ours.obstacles.radii, ref.obstacles.radii, rtol=1e-12)
     assert (ours.obstacle_paths is None) == (ref.obstacle_paths is None)
     if ref.obstacle_paths is not None:
-        np.testing.assert_allclose(ours.obstacle_paths, ref.obstacle_paths, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(ours.obstacle_paths, ref.obstacle_paths, rtol=0, atol=1e-12)
         np.testing.assert_allclose(ours.obstacle_speeds, ref.obstacle_speeds, rtol=1e-12)
     assert (ours.fault_times is None) == (ref.fault_times is None)
     if ref.fault_times is not None:
