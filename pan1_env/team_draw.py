@@ -172,7 +172,10 @@ def _empty(C: int, opt: RandomScenarioOptions) -> dict[str, np.ndarray]:
 
 def _run(rngs: list[np.random.Generator], tries: np.ndarray, arrays: dict[str, np.ndarray],
          opt: RandomScenarioOptions) -> np.ndarray:
+    from .compile_notice import install
     from .draw_kernel import draw_teams as kernel
+
+    install()  # the first use compiles the kernel: say so
 
     real, flags, links, passive, unit = _kernel_options(opt)
     a = arrays
