@@ -1,4 +1,4 @@
-"""Random-team resets against steps (``python benchmarks/bench.py --only reset``): issue 48, item 4.
+"""Random-team resets against steps (``python benchmarks/bench.py --only reset``).
 
 A reset of all B copies of a random-team env draws B teams; under autoreset every episode's end draws one. The rows
 give the reset of all B = 1024 copies (from the copies' own generators, no reseeding: what autoreset does) in steps
