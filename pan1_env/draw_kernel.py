@@ -31,17 +31,17 @@ from .random_scenario import BASE_MARGIN
 
 __all__ = ["draw_teams", "REAL_OPTIONS", "FLAG_OPTIONS"]
 
-#: the kernel's real options, in order (:func:`pan1_env.team_draw.kernel_options` packs them)
+#: the kernel's real options, in order (``pan1_env.team_draw._kernel_options`` packs them)
 REAL_OPTIONS = ("size_lo", "size_hi", "radius_lo", "radius_hi", "start_clearance", "min_sigma", "link_radius",
                 "speed_lo", "speed_hi", "path_lo", "path_hi", "fault_probability", "fault_lo", "fault_hi",
                 "shape_divisor")
 #: the kernel's integer options, in order
-FLAG_OPTIONS = ("n_obstacles", "links_bodies", "inter_arm", "moving", "max_tries")
+FLAG_OPTIONS = ("n_obstacles", "links_bodies", "inter_arm", "moving")
 _R = {name: i for i, name in enumerate(REAL_OPTIONS)}
 _F = {name: i for i, name in enumerate(FLAG_OPTIONS)}
 SIZE_LO, SIZE_HI, RAD_LO, RAD_HI, CLEAR, SIGMA, RHO = (_R[n] for n in REAL_OPTIONS[:7])
 SPEED_LO, SPEED_HI, PATH_LO, PATH_HI, FAULT_P, FAULT_LO, FAULT_HI, DIVISOR = (_R[n] for n in REAL_OPTIONS[7:])
-N_OBST, LINKS, INTER_ARM, MOVING, MAX_TRIES = (_F[n] for n in FLAG_OPTIONS)
+N_OBST, LINKS, INTER_ARM, MOVING = (_F[n] for n in FLAG_OPTIONS)
 _STEPS = 200  # zero_momentum_start's trapezoid steps
 _JIT = {"cache": True, "error_model": "numpy"}  # no fast-math: the reference's rounding as far as possible
 

@@ -154,7 +154,7 @@ def _kernel_options(opt: RandomScenarioOptions) -> tuple[np.ndarray, np.ndarray,
               "fault_probability": opt.fault_probability, "fault_lo": opt.fault_time[0], "fault_hi": opt.fault_time[1],
               "shape_divisor": divisor}
     flags = {"n_obstacles": opt.n_obstacles, "links_bodies": opt.bodies == "links", "inter_arm": opt.inter_arm,
-             "moving": opt.moving, "max_tries": 0}
+             "moving": opt.moving}
     return (np.array([values[n] for n in REAL_OPTIONS], dtype=float),
             np.array([flags[n] for n in FLAG_OPTIONS], dtype=np.int64),
             np.array(opt.links, dtype=np.int64), np.array(opt.passive, dtype=np.bool_), np.ascontiguousarray(unit))
@@ -216,7 +216,7 @@ def _motion(rng: np.random.Generator, c: int, used: int, max_tries: int, arrays:
         outer = lengths.sum(axis=-1)
         inner = np.maximum(0.0, 2.0 * lengths.max(axis=-1) - outer)  # ArmParams.inner_reach (unused links are 0)
         motion = draw_motion(rng, opt, one["targets"][0], one["bases"][0], inner, outer, one["centers"][0],
-                              list(one["radii"][0]), one["size_rot"][0, 1], edges)
+                             list(one["radii"][0]), one["size_rot"][0, 1], edges)
         if motion is not None:
             return motion, used
         if used == max_tries:
