@@ -14,6 +14,8 @@ Prints a Markdown table of medians (each over several repeats) and the ratios th
   physics arm-steps per second, against B separate shielded Gymnasium envs stepped in a loop;
 * whole-arm safety (link capsules, other arms, moving obstacles) against end-effector safety, per
   arm-sub-step of the shielded vector env at B = 1024 on the same random teams;
+* random-team resets (RandomFormation-v1, WholeArmStaticFormation-v1) at B = 1024, in steps of the same batch
+  (benchmarks/reset.py), and the per-copy reference path they replaced;
 * the exact compiled QP against qpsolvers + PIQP, per solve, on the same random filter problems;
 * the shielded step for teams of 4, 16 and 64 arms (random polygons of PA3 arms), and 64 against 4;
 * the batched TorchRL env (``pan1_env.marl``, shielded random teams) against VMAS ``navigation`` (4 agents,
@@ -38,6 +40,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from reset import bench_reset  # benchmarks/ is the script's directory
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # compile_times.py is a script beside this one
 from compile_times import bench_cold_start, bench_warmup  # noqa: E402
@@ -593,7 +596,7 @@ def bench_marl(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
 
 #: the groups of rows, in the order they run (``--only`` picks some)
 GROUPS = ("import", "cold_start", "warmup", "mpe", "acrobot", "vector", "kernel", "v1", "faults", "moving", "gate",
-          "whole_arm", "qp", "team_scaling", "marl", "reproduce", "training")
+          "whole_arm", "reset", "qp", "team_scaling", "marl", "reproduce", "training")
 
 
 def main() -> int:
@@ -623,6 +626,7 @@ def main() -> int:
         "moving": lambda: bench_moving(repeats),
         "gate": lambda: bench_gate(repeats),
         "whole_arm": lambda: bench_whole_arm(repeats),
+        "reset": lambda: bench_reset(repeats),
         "qp": lambda: bench_qp(300 if args.quick else 2000),
         "team_scaling": lambda: bench_team_scaling(repeats, inner),
         "marl": lambda: bench_marl(repeats),

@@ -9,7 +9,7 @@ every kind; the same results, slower) and compiles the kind's own in a backgroun
 even if the process that asked has ended. :func:`install` listens to
 numba's compile events (``numba.core.event``, which fire only for a real compilation, not for a cache
 load) and says which kernel is being compiled, that it happens once, how long it took and where the
-cache lives.
+cache lives; and, once, the whole-arm geometry helpers and the random-team draw (:mod:`pan1_env.draw_kernel`).
 
 The notice goes to the ``pan1_env`` logger at level INFO when the application's logging shows that
 logger's INFO messages, and to standard error otherwise (:func:`notify`).
@@ -103,8 +103,18 @@ class _KernelCompileNotice(numba_event.Listener):
                    f"a few seconds; cached in {_cache_dir(dispatcher)} for later runs")
         return True
 
+    @staticmethod
+    def _draw(event) -> bool:
+        """Whether the event compiles the random-team draw (:mod:`pan1_env.draw_kernel`); says so."""
+        func = getattr(event.data.get("dispatcher"), "py_func", None)
+        if getattr(func, "__name__", "") != "draw_teams" or getattr(func, "__module__", "") != "pan1_env.draw_kernel":
+            return False
+        notify(f"compiling the random-team draw: once, about 15 s on a quiet 2-core machine, longer on a busy one; "
+               f"cached in {_cache_dir(event.data['dispatcher'])} for later runs")
+        return True
+
     def on_start(self, event) -> None:
-        if self._geometry(event):
+        if self._geometry(event) or self._draw(event):
             return
         found = self._kind(event)
         if found is None:

@@ -39,8 +39,8 @@ from .compiled import kernels
 from .config import FormationConfig, ReachConfig
 from .engine import Engine, StepRecord
 from .observation import OBS_BOUND, ObservationLayout
-from .random_scenario import random_scenario
 from .tasks import FormationTask, ReachTask
+from .team_draw import draw_teams
 from .validation import positive_int
 
 __all__ = ["FormationCore", "CoreStep", "copy_generator", "CoreView", "config_attributes", "per_arm", "FAULT",
@@ -229,11 +229,10 @@ class FormationCore:
         options = self.task.reset_options(options)
         if seeds is not None:
             self.seed(seeds)
-        if self.config.random:
-            for b in which.tolist():
-                team = random_scenario(self.rngs[b], self.config.random_options)
-                self.engine.load_team(b, team)
-                self.task.load_team(b, team)
+        if self.config.random and len(which):
+            draws = draw_teams([self.rngs[b] for b in which.tolist()], self.config.random_options)
+            self.engine.load_teams(which, draws)
+            self.task.load_teams(which, draws)
         self.steps[which] = 0
         self.engine.reset(which)
         self.task.reset(which, self.rngs, self.engine, options)

@@ -28,8 +28,9 @@ from .bodies import capsule_clearance, obstacle_velocities
 from .compiled import WholeArm, kernels, plain
 from .kinds import Kind
 from .piqp_filter import PiqpFilter
-from .safety import QP_SOLVERS, FilterParams, clearance, filter_parameters
+from .safety import QP_SOLVERS, FilterParams, check_gate, clearance, filter_parameters
 from .scenario import Scenario
+from .team_draw import TeamDraws, Teams
 from .validation import real
 
 __all__ = ["Engine", "KernelQP", "FilterParams", "KindTerms", "StepRecord", "filter_parameters", "PARALLEL_THRESHOLD",
@@ -145,7 +146,7 @@ class Engine:
         # one kind in team order: its (B·N, ·) state arrays reshaped are the team arrays
         self.team_order = len(self.kinds) == 1 and self.kinds[0].ids.tolist() == list(range(self.n_arms))
         B, O = self.copies, len(scenario.obstacles)
-        self.teams: list[Scenario] = [scenario] * B
+        self.teams = Teams([scenario] * B)  # each copy's Scenario (a drawn team's built when read)
         self.bases, self.centers, self.radii = np.empty((B, self.n_arms, 2)), np.empty((B, O, 2)), np.empty((B, O))
         # whole-arm safety (links, other arms, moving obstacles): the kernel's capsule path; the
         # obstacles' motion per copy, and each copy's time since its reset
@@ -184,14 +185,15 @@ class Engine:
         :class:`FilterParams`); it acts from the next sub-step."""
         params = filter_parameters(safety_filter, self.teams[0])
         if params is not None and params.gate > 0.0:
-            self._check_gate(params)
+            reach = max(float(kind.lengths.sum(axis=-1).max()) for kind in self.kinds)
+            check_gate(params, self.whole_arm, self.max_speed, reach, self.physics_dt)
         self.filter = params
         sensing = None if self.filter is None else self.filter.sensing_radius
         if sensing is not None and not self.whole_arm:  # the end-effector as the body of the whole-arm rows
             self.whole_arm = True
             self._whole_arm_setup()
             for b, team in enumerate(self.teams):
-                self._load_capsules(b, team, team.obstacle_mask())
+                self._load_team_capsules(b, team, team.obstacle_mask())
         for kind in self.kinds:
             if kind.whole is not None:
                 kind.whole = self.whole_arm_args(kind)
@@ -222,7 +224,26 @@ class Engine:
         self.path_ends[b], self.speeds[b] = scenario.obstacle_motion()
         self.velocities[b] = scenario.obstacle_velocities(0.0)
         if self.whole_arm:
-            self._load_capsules(b, scenario, mask)
+            self._load_team_capsules(b, scenario, mask)
+
+    def load_teams(self, copies: np.ndarray, draws: TeamDraws) -> None:
+        """:meth:`load_team` for the drawn teams of ``copies`` at once (``draws``: one team per copy, drawn from the
+        options of the engine's first team, so their structure matches it); each copy's :class:`Scenario` is built
+        only when read from :attr:`teams`."""
+        copies = np.asarray(copies, dtype=np.int64)
+        mask = draws.obstacle_mask()
+        for kind in self.kinds:
+            kind.load_drawn(copies, draws, mask)
+        for c, b in enumerate(copies.tolist()):
+            self.teams.put(b, draws, c)
+        self.fault_times[copies] = draws.fault_times
+        self.bases[copies] = draws.bases
+        self.centers[copies], self.radii[copies] = draws.centers, draws.radii
+        self.start_centers[copies] = draws.centers
+        self.path_ends[copies], self.speeds[copies] = draws.path_ends, draws.speeds
+        self.velocities[copies] = obstacle_velocities(draws.centers, draws.path_ends, draws.speeds, 0.0)
+        if self.whole_arm:
+            self._load_capsules(copies, mask, draws.bases, draws.reach)
 
     def _whole_arm_setup(self) -> None:
         """Capsule arrays per kind (:mod:`pan1_env.kernels.capsules`): the world obstacles, then, with
@@ -252,20 +273,6 @@ class Engine:
             first += rows
         self._team_joints, self._team_caps, self._team_start_time = joints, caps, start_time
 
-    def _check_gate(self, params: FilterParams) -> None:
-        """A smooth gate acts on the whole-arm rows' sensing range, relaxes rows towards the speed box, and is
-        a gate only if it is wider than what a body covers in a sub-step (docs/MODEL.md §5, *Activation*)."""
-        if not self.whole_arm and params.sensing_radius is None:
-            raise ValueError("FilterParams.gate widens a sensing range: it needs whole-arm bodies or a sensing_radius")
-        if not np.isfinite(self.max_speed):
-            raise ValueError("FilterParams.gate relaxes rows towards the speed box: it needs a finite max_speed")
-        reach = max(float(kind.lengths.sum(axis=-1).max()) for kind in self.kinds)
-        travel = self.max_speed * reach * self.physics_dt  # an arm turning at the speed bound, its far end
-        if params.gate < travel:
-            raise ValueError(f"FilterParams.gate must be 0 (a hard range) or at least one sub-step's travel, "
-                             f"{travel:.4g} m (max_speed {self.max_speed:g} rad/s × reach {reach:.3g} m × physics_dt "
-                             f"{self.physics_dt:g} s), got {params.gate:g}")
-
     def whole_arm_args(self, kind: Kind) -> WholeArm:
         """The kernel's ``whole`` argument for a kind (:func:`pan1_env.kernels.substep.group_advance`)."""
         sensing = None if self.filter is None else self.filter.sensing_radius
@@ -274,33 +281,31 @@ class Engine:
                         gate=0.0 if self.filter is None else self.filter.gate, skin=SKIN, joints=kind.joints,
                         n_world=self.radii.shape[1], angles=kind.angles, carried=False, finish=True)
 
-    def _load_capsules(self, b: int, scenario: Scenario, mask: np.ndarray) -> None:
-        """Copy b's capsules: its obstacles (start, path, radius, share 1) and the other arms' link slots
-        (radius ρ, share ½, considered when the two arms' reaches can meet; segments set every step)."""
+    def _load_team_capsules(self, b: int, scenario: Scenario, mask: np.ndarray) -> None:
+        """Copy b's capsules (:meth:`_load_capsules`) from its ``scenario`` and obstacle ``mask (N, O)``."""
+        self._load_capsules(np.array([b]), mask[None], np.array([a.base for a in scenario.arms])[None],
+                            np.array([a.reach for a in scenario.arms])[None])
+
+    def _load_capsules(self, copies: np.ndarray, mask: np.ndarray, bases: np.ndarray, reach: np.ndarray) -> None:
+        """The capsules of ``copies`` (``mask (C, N, O)``, their arms' ``bases (C, N, 2)`` and ``reach (C, N)``): their
+        obstacles (start, path, radius, share 1) and, with ``inter_arm``, the other arms' link slots (each kind's
+        :meth:`~pan1_env.kinds.Kind.load_capsules`)."""
         K = kernels().capsules
-        O, L = self.radii.shape[1], self.n_max
-        step = self.path_ends[b] - self.start_centers[b]
+        starts = self.start_centers[copies]
+        step = self.path_ends[copies] - starts
         length = np.linalg.norm(step, axis=-1)
-        unit = step / np.where(length > 0, length, 1.0)[:, None]
+        obstacles = np.zeros((*starts.shape[:2], K.CAPSULE_COLUMNS))
+        obstacles[..., [K.CAP_AX, K.CAP_AY]] = obstacles[..., [K.CAP_BX, K.CAP_BY]] = starts
+        obstacles[..., [K.CAP_UX, K.CAP_UY]] = step / np.where(length > 0, length, 1.0)[..., None]
+        obstacles[..., K.CAP_RADIUS], obstacles[..., K.CAP_SHARE] = self.radii[copies], 1.0
+        obstacles[..., K.CAP_PATH], obstacles[..., K.CAP_SPEED] = length, self.speeds[copies]
+        obstacles[..., K.CAP_ARM] = -1.0
+        near = None  # which pairs of arms' reaches can meet
+        if self.inter_arm:
+            apart = np.linalg.norm(bases[:, :, None] - bases[:, None], axis=-1)
+            near = apart <= reach[:, :, None] + reach[:, None] + 2.0 * self.link_radius
         for kind in self.kinds:
-            caps = kind.caps.reshape(self.copies, kind.A, *kind.caps.shape[1:])[b]
-            caps[:] = 0.0
-            caps[:, :O, [K.CAP_AX, K.CAP_AY]] = caps[:, :O, [K.CAP_BX, K.CAP_BY]] = self.start_centers[b]
-            caps[:, :O, K.CAP_RADIUS] = self.radii[b]
-            caps[:, :O, K.CAP_SHARE] = 1.0
-            caps[:, :O, [K.CAP_UX, K.CAP_UY]] = unit
-            caps[:, :O, K.CAP_PATH], caps[:, :O, K.CAP_SPEED] = length, self.speeds[b]
-            caps[:, :O, K.CAP_ACTIVE] = mask[kind.ids]
-            caps[:, :O, K.CAP_ARM] = -1.0
-            if not self.inter_arm:
-                continue
-            for r, i in enumerate(kind.ids):
-                for slot, j in enumerate(self.others[i]):
-                    cols = slice(O + slot * L, O + slot * L + self.n_links[j])
-                    near = np.linalg.norm(scenario.arms[i].base - scenario.arms[j].base) <= \
-                        scenario.arms[i].reach + scenario.arms[j].reach + 2.0 * self.link_radius
-                    caps[r, cols, K.CAP_RADIUS], caps[r, cols, K.CAP_SHARE] = self.link_radius, 0.5
-                    caps[r, cols, K.CAP_ACTIVE], caps[r, cols, K.CAP_ARM] = float(near), float(j)
+            kind.load_capsules(copies, obstacles, mask, near, self.others, self.n_links, self.link_radius)
 
     def reset(self, copies: np.ndarray | None = None, q0: list[np.ndarray] | None = None) -> None:
         """Put the ``copies`` (default: all) at rest at their team's start (or, for one copy, at ``q0``)."""

@@ -12,12 +12,17 @@ filtered velocities sit one column further in the team's ``(B, N, k_max)`` array
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .cascade import passive_momentum
-from .compiled import kernel_sizes
+from .compiled import kernel_sizes, kernels
 from .dynamics import ArmBatch
 from .scenario import Scenario
+
+if TYPE_CHECKING:
+    from .team_draw import TeamDraws
 
 
 def kind_rows(team: np.ndarray) -> np.ndarray:
@@ -98,6 +103,37 @@ class Kind:
         self.radii[sl] = scenario.obstacles.radii[None]
         self.mask[sl] = mask[self.ids]
         self.q0[sl] = np.array([scenario.q0[i] for i in self.ids])
+
+    def load_drawn(self, copies: np.ndarray, draws: TeamDraws, mask: np.ndarray) -> None:
+        """:meth:`load` for the drawn teams of ``copies`` at once (``mask (C, N, O)``: each copy's obstacle mask)."""
+        rows, ids, n = self.rows(copies), self.ids, self.n
+        self.lam[rows] = draws.lam[:, ids, :n, :n].reshape(-1, n, n)
+        self.lengths[rows] = draws.lengths[:, ids, :n].reshape(-1, n)
+        self.base[rows] = draws.bases[:, ids].reshape(-1, 2)
+        self.phi[rows] = 0.0
+        self.damping[rows] = draws.options.passive_damping
+        self.centers[rows] = np.repeat(draws.centers, self.A, axis=0)
+        self.radii[rows] = np.repeat(draws.radii, self.A, axis=0)
+        self.mask[rows] = mask[:, ids].reshape(len(rows), -1)
+        self.q0[rows] = draws.q0[:, ids, :n].reshape(-1, n)
+
+    def load_capsules(self, copies: np.ndarray, obstacles: np.ndarray, mask: np.ndarray, near: np.ndarray | None,
+                      others: np.ndarray, n_links: list[int], link_radius: float) -> None:
+        """Its capsules in ``copies``: the obstacles' columns ``obstacles (C, O, ·)``, active for its arms where
+        ``mask (C, N, O)`` is; with ``near (C, N, N)`` (inter-arm) the slots of every other arm's links (radius ρ,
+        share ½, active where the two arms' reaches can meet; the segments are set every step)."""
+        K = kernels().capsules
+        O, slot = obstacles.shape[1], self.joints.shape[1] - 1  # the team's n_max links per slot
+        block = np.zeros((len(copies), self.A, *self.caps.shape[1:]))
+        block[:, :, :O] = obstacles[:, None]
+        block[:, :, :O, K.CAP_ACTIVE] = mask[:, self.ids]
+        if near is not None:
+            for r, i in enumerate(self.ids):
+                for s, j in enumerate(others[i]):
+                    cols = slice(O + s * slot, O + s * slot + n_links[j])
+                    block[:, r, cols, K.CAP_RADIUS], block[:, r, cols, K.CAP_SHARE] = link_radius, 0.5
+                    block[:, r, cols, K.CAP_ACTIVE], block[:, r, cols, K.CAP_ARM] = near[:, i, j, None], float(j)
+        self.caps.reshape(self.copies, self.A, *self.caps.shape[1:])[copies] = block
 
     def from_team(self, team: np.ndarray, width: int | None = None, *, first: int | None = None) -> np.ndarray:
         """Its rows of a team array ``(B, N)`` or ``(B, N, ·)`` (``width`` columns from ``first``, default

@@ -39,7 +39,8 @@ from .safety import BARRIERS, Obstacles, clearance
 from .scenario import BODIES, Scenario
 from .validation import positive_int, real, whole_ratio
 
-__all__ = ["RandomScenarioOptions", "random_scenario", "zero_momentum_start", "BASE_MARGIN", "DrawError"]
+__all__ = ["RandomScenarioOptions", "random_scenario", "drawn_scenario", "draw_motion", "zero_momentum_start",
+           "BASE_MARGIN", "DrawError"]
 
 BASE_MARGIN = 0.05  # m: how far every obstacle (and, moving, its whole path) stays outside each base, plus ρ
 
@@ -351,39 +352,45 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
             fault_times = np.where(faults, rng.uniform(*opt.fault_time, N), np.inf)
         motion = None
         if opt.moving_formation:
-            motion = _draw_motion(rng, opt, targets, arms, np.array(centers).reshape(-1, 2), radii, rot,
+            motion = draw_motion(rng, opt, targets, bases, np.array([a.inner_reach for a in arms]),
+                                  np.array([a.reach for a in arms]), np.array(centers).reshape(-1, 2), radii, rot,
                                   formation.edges)
             if motion is None:
                 continue
         for q in q0:
             q.setflags(write=False)
-        return Scenario(
-            name="random", description="drawn by pan1_env.random_scenario.random_scenario",
-            arms=tuple(arms), q0=tuple(q0), formation=formation,
-            obstacles=Obstacles(np.array(centers).reshape(-1, 2), np.array(radii)),
-            kp=opt.kp, ke=opt.ke, kappa=opt.kappa, epsilon=opt.epsilon, physics_dt=opt.physics_dt,
-            control_dt=opt.control_dt, horizon=opt.horizon, source="<random>", bodies=opt.bodies,
-            link_radius=opt.link_radius, inter_arm=opt.inter_arm,
-            obstacle_paths=np.array(paths).reshape(-1, 2) if opt.moving else None,
-            obstacle_speeds=np.array(speeds) if opt.moving else None,
-            safety_barrier=opt.barrier, safety_decay=opt.decay, safety_gate=opt.gate, fault_times=fault_times,
-            motion=motion,
-        )
+        paths_or_none = np.array(paths).reshape(-1, 2) if opt.moving else None
+        return drawn_scenario(opt, arms, q0, formation, np.array(centers).reshape(-1, 2), np.array(radii),
+                              paths_or_none, np.array(speeds) if opt.moving else None, fault_times, motion)
     raise DrawError(f"no valid random scenario in {max_tries} draws; loosen the options {opt}")
 
 
-def _draw_motion(rng: np.random.Generator, opt: RandomScenarioOptions, targets: np.ndarray, arms: list[ArmParams],
-                 centers: np.ndarray, radii: list[float], rot: float, edges: np.ndarray) -> FormationMotion | None:
+def drawn_scenario(opt: RandomScenarioOptions, arms: list[ArmParams], q0: list[np.ndarray], formation: Formation,
+                   centers: np.ndarray, radii: np.ndarray, paths: np.ndarray | None, speeds: np.ndarray | None,
+                   fault_times: np.ndarray | None, motion: FormationMotion | None) -> Scenario:
+    """The :class:`~pan1_env.scenario.Scenario` of a drawn team (the reference's and the envs' batched draw's)."""
+    return Scenario(
+        name="random", description="drawn by pan1_env.random_scenario.random_scenario",
+        arms=tuple(arms), q0=tuple(q0), formation=formation, obstacles=Obstacles(centers, radii),
+        kp=opt.kp, ke=opt.ke, kappa=opt.kappa, epsilon=opt.epsilon, physics_dt=opt.physics_dt,
+        control_dt=opt.control_dt, horizon=opt.horizon, source="<random>", bodies=opt.bodies,
+        link_radius=opt.link_radius, inter_arm=opt.inter_arm, obstacle_paths=paths, obstacle_speeds=speeds,
+        safety_barrier=opt.barrier, safety_decay=opt.decay, safety_gate=opt.gate, fault_times=fault_times,
+        motion=motion,
+    )
+
+
+def draw_motion(rng: np.random.Generator, opt: RandomScenarioOptions, targets: np.ndarray, bases: np.ndarray,
+                 inner: np.ndarray, outer: np.ndarray, centers: np.ndarray, radii: list[float], rot: float,
+                 edges: np.ndarray) -> FormationMotion | None:
     """Keyframes every ``scale_period`` s (s = 1, no turn and no travel at 0 s) such that each arm reaches its
     vertex of the placement ``targets (N, 2)`` (centred on the origin, the formation's realisation turned by
     ``rot``), scaled, at every scale between the lowest and the highest, and those vertices stay 5 cm clear of
     the obstacles; for a placed shape, each arm's point at the keyframes and between them; and that the scenario's
-    own check passes (:func:`~pan1_env.motion.check_motion`: the speeds among others). None after 20 draws."""
+    own check passes (:func:`~pan1_env.motion.check_motion`: the speeds among others). ``bases (N, 2)``, ``inner``
+    and ``outer (N,)``: the arms' bases and reach annuli. None after 20 draws."""
     times = np.minimum(np.arange(0.0, opt.horizon + 1e-9, opt.scale_period), opt.horizon)  # arange may overshoot
     scale = np.linspace(0.0, 1.0, 21)
-    bases = np.array([a.base for a in arms])
-    inner = np.array([a.inner_reach for a in arms])
-    outer = np.array([a.reach for a in arms])
     K = len(times) - 1
     for _ in range(20):
         scales = np.concatenate([[1.0], rng.uniform(*opt.formation_scale, K)])
@@ -398,7 +405,7 @@ def _draw_motion(rng: np.random.Generator, opt: RandomScenarioOptions, targets: 
             except ValueError:  # too many samples to check: as any other motion the scenario would refuse
                 continue
         else:
-            motion = FormationMotion(times, scales)
+            motion = None  # built once the scales pass the checks below (a validated motion costs a millisecond)
             s = scales.min() + scale * (scales.max() - scales.min())
             vertices = s[:, None, None] * targets[None]  # (21, N, 2)
         dist = np.linalg.norm(vertices - bases, axis=-1)
@@ -407,6 +414,7 @@ def _draw_motion(rng: np.random.Generator, opt: RandomScenarioOptions, targets: 
         if len(radii) and clearance(vertices.reshape(-1, 2), centers, np.asarray(radii)).min() < 0.05:
             continue
         try:
+            motion = FormationMotion(times, scales) if motion is None else motion
             check_motion(motion, _unturned(targets, rot), edges, bases, outer, opt.horizon, inner=inner)
         except ValueError:
             continue

@@ -85,6 +85,7 @@ __all__ = [
     "QP_SOLVERS",
     "FilterParams",
     "filter_parameters",
+    "check_gate",
 ]
 
 QP_SOLVERS = ("active_set", "piqp")
@@ -590,6 +591,21 @@ def _checked(
         real(f"{owner}: decay", decay, non_negative=True),
         real(f"{owner}: gate", gate, non_negative=True),
     )
+
+
+def check_gate(params: FilterParams, whole_arm: bool, max_speed: float, reach: float, physics_dt: float) -> None:
+    """A smooth gate acts on the whole-arm rows' sensing range, relaxes rows towards the speed box, and is a gate only
+    if it is wider than what a body covers in a sub-step (an arm of ``reach`` m turning at ``max_speed``, its far end;
+    docs/MODEL.md §5, *Activation*). ValueError otherwise."""
+    if not whole_arm and params.sensing_radius is None:
+        raise ValueError("FilterParams.gate widens a sensing range: it needs whole-arm bodies or a sensing_radius")
+    if not np.isfinite(max_speed):
+        raise ValueError("FilterParams.gate relaxes rows towards the speed box: it needs a finite max_speed")
+    travel = max_speed * reach * physics_dt
+    if params.gate < travel:
+        raise ValueError(f"FilterParams.gate must be 0 (a hard range) or at least one sub-step's travel, "
+                         f"{travel:.4g} m (max_speed {max_speed:g} rad/s × reach {reach:.3g} m × physics_dt "
+                         f"{physics_dt:g} s), got {params.gate:g}")
 
 
 def filter_parameters(safety_filter: bool | FilterParams | None, scenario: Scenario) -> FilterParams | None:

@@ -23,6 +23,7 @@ from .observation import OBS_BOUND, OBSTACLE_FEATURES, ObservationLayout
 from .random_scenario import zero_momentum_start
 from .safety import clearance
 from .scenario import Scenario
+from .team_draw import TeamDraws
 
 __all__ = ["FormationTask", "ReachTask", "Outcome"]
 
@@ -138,6 +139,14 @@ class FormationTask:
         self.kp[b] = scenario.kp
         if self.motion is not None:
             self.motion.load(b, scenario.formation.target, scenario.motion)
+
+    def load_teams(self, copies: np.ndarray, draws: TeamDraws) -> None:
+        """:meth:`load_team` for the drawn teams of ``copies`` at once."""
+        self.distances[copies] = draws.distances(self.edges)
+        self.kp[copies] = draws.options.kp
+        if self.motion is not None:
+            for c, b in enumerate(np.asarray(copies).tolist()):
+                self.motion.load(b, draws.realisation(c), draws.motions[c])
 
     def track(self, engine: Engine) -> None:
         """With a moving formation, the desired lengths and the feed-forward at every copy's clock and state."""
@@ -345,6 +354,9 @@ class ReachTask:
                            "lower goal_clearance")
 
     def load_team(self, b: int, scenario: Scenario) -> None:
+        raise ValueError("the reach task keeps its arm")
+
+    def load_teams(self, copies: np.ndarray, draws: TeamDraws) -> None:
         raise ValueError("the reach task keeps its arm")
 
     target_size = 0  # the goal is not part of the state
