@@ -1,7 +1,7 @@
 """The BenchMARL task: BenchMARL's own Experiment runs MAPPO on it for a few thousand frames, behind the
 shield, prints a finite return, and logs the cost, the shield's work, success and clearance, in its evaluation and
-its JSON too (skipped without BenchMARL; `make test` runs it in a venv of its
-own, .venv-pinned, where a missing BenchMARL is a failure)."""
+its JSON too (skipped without BenchMARL; `make test` sets PAN1_REQUIRE_BENCHMARL, so a missing BenchMARL is a
+failure there)."""
 
 import importlib.util
 import json
