@@ -149,11 +149,18 @@ def marl_eval_rows(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """The rows' episodes in marl-eval's raw-data layout (:func:`~pan1_env.baselines.report.marl_eval_data`): a
     task per scenario (``<scenario> (no shield)`` unshielded), an algorithm per policy, one ``seed_0`` (a
     benchmark row is one policy, not a set of training seeds) whose ``absolute_metrics`` hold one value per
-    episode: success (0/1), return, cost (arm-steps inside an obstacle) and min clearance (m)."""
+    episode: success (0/1), return, cost (arm-steps inside an obstacle) and min clearance (m; left out where an
+    episode has none: no obstacle)."""
     from .report import marl_eval_data
 
     return marl_eval_data((r["scenario"] + ("" if r["shield"] else " (no shield)"), r["policy"], 0,
-                           {"absolute_metrics": r["per_episode"]}) for r in rows)
+                           {"absolute_metrics": _numeric(r["per_episode"])}) for r in rows)
+
+
+def _numeric(per_episode: dict[str, list]) -> dict[str, list]:
+    """The metrics every episode has a number for: a team with no obstacle has no clearance (None), and
+    marl-eval's aggregation takes numbers only."""
+    return {key: values for key, values in per_episode.items() if None not in values}
 
 
 def _finite_or_none(x: float) -> float | None:

@@ -7,8 +7,9 @@ shield) on a pan1-env task.
     python examples/benchmarl_mappo.py --task paper_pa3_square --algorithm ippo --frames 12000
 
 ``--task`` is any scenario or registered id (:data:`pan1_env.benchmarl_task.TASKS` lists the standard ones) or a
-task YAML file (``pan1_env/benchmarl_tasks/*.yaml``). Every batch holds whole episodes: ``--copies`` copies of
-``--max-steps`` steps each (6,000 frames by default), so every iteration ends episodes and reports a finite return.
+task YAML file (``pan1_env/benchmarl_tasks/*.yaml``). A batch is as long as an episode of every copy: ``--copies``
+copies of ``--max-steps`` steps each (6,000 frames by default), so every iteration ends episodes (a copy whose
+episode ends early starts another in the batch) and reports a finite return.
 After every ``--eval-every`` iterations (and the first), BenchMARL evaluates the deterministic policy on
 ``--eval-episodes`` episodes. Under ``--out`` it writes its CSV logs, including per batch the mean cost per
 arm-step, the shield's intervention rate, the success rate and the least clearance (``Pan1Task.log_info``), and its

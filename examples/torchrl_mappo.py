@@ -108,7 +108,7 @@ def evaluate(env: TransformedEnv, policy: ProbabilisticActor, seed: int) -> Eval
 
 def train(env: TransformedEnv, policy: ProbabilisticActor, critic: TensorDictModule, args: argparse.Namespace) -> None:
     """The tutorial's loop: collect a batch, compute GAE, then epochs of minibatch PPO updates."""
-    frames = args.copies * args.max_steps  # whole episodes: every copy starts and ends within the batch
+    frames = args.copies * args.max_steps  # an episode's length of every copy: each iteration ends episodes
     collector = Collector(env, policy, frames_per_batch=frames, total_frames=frames * args.iterations)
     buffer = ReplayBuffer(storage=LazyTensorStorage(frames), sampler=SamplerWithoutReplacement(),
                           batch_size=args.minibatch)

@@ -89,7 +89,7 @@ def _parser() -> argparse.ArgumentParser:
                       help="a built-in scenario, a .toml path or 'random' (repeatable)")
     warm.add_argument("--threaded", action=argparse.BooleanOptionalAction, default=True,
                       help="also compile the multi-threaded kernels a vector or TorchRL env uses from 256 arms of "
-                           "a kind (default; --no-threaded: the serial kernels only)")
+                           "a kind (default: %(default)s; --no-threaded: the serial kernels only)")
 
     anim = sub.add_parser("animate", help="write a GIF of one episode of the environment")
     anim.add_argument("scenario", help="built-in scenario name, path to a .toml file, 'random' or a team id of "
@@ -505,7 +505,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ScenarioError, ValueError) as err:
         print(f"pan1-env: error: {err}", file=sys.stderr)
         return 2
-    except ImportError as err:  # an optional library a command or policy needs: its message names the extra
-        hint = "" if "extra" in str(err) else " (an optional dependency: the README's Install section lists the extras)"
-        print(f"pan1-env: error: {err}{hint}".replace("\n", " "), file=sys.stderr)
+    except ImportError as err:
+        if not _missing_extra(err):
+            raise  # a bug inside pan1_env: its traceback, not a hint to install something
+        hint = "" if "extra" in str(err) else " (an optional library: the README's Install section lists the extras)"
+        print(f"pan1-env: error: {err}".replace("\n", " ") + hint, file=sys.stderr)
         return 2
+
+
+def _missing_extra(err: ImportError) -> bool:
+    """An optional library a command or policy needs is missing: the package's own message naming the extra (a
+    plain ``ImportError`` saying so), or a module not found outside ``pan1_env``."""
+    if isinstance(err, ModuleNotFoundError):
+        return not (err.name or "").startswith("pan1_env")
+    return "extra" in str(err)

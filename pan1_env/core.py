@@ -503,7 +503,8 @@ class CoreView:
 
 
 def view_repr(view: Any) -> str:
-    """A view's repr: its class, its scenario as given, copies, arms and whether the safety filter is on. Views
+    """A view's repr: its class, its scenario as given, copies, arms, whether the safety filter is on and the
+    action mode. Views
     differ in that default (off in the parallel, Gymnasium team and TorchRL envs; on in the vector, SB3 and
     reach envs and the BenchMARL task), so the repr says it."""
     c = view.core

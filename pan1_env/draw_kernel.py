@@ -27,20 +27,18 @@ from numba import njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .random_scenario import BASE_MARGIN
-
-__all__ = ["draw_teams", "REAL_OPTIONS", "FLAG_OPTIONS"]
+__all__ = ["draw_teams", "stream_sample", "REAL_OPTIONS", "FLAG_OPTIONS"]
 
 #: the kernel's real options, in order (``pan1_env.team_draw._kernel_options`` packs them)
 REAL_OPTIONS = ("size_lo", "size_hi", "radius_lo", "radius_hi", "start_clearance", "min_sigma", "link_radius",
                 "speed_lo", "speed_hi", "path_lo", "path_hi", "fault_probability", "fault_lo", "fault_hi",
-                "shape_divisor")
+                "shape_divisor", "base_margin")
 #: the kernel's integer options, in order
 FLAG_OPTIONS = ("n_obstacles", "links_bodies", "inter_arm", "moving")
 _R = {name: i for i, name in enumerate(REAL_OPTIONS)}
 _F = {name: i for i, name in enumerate(FLAG_OPTIONS)}
 SIZE_LO, SIZE_HI, RAD_LO, RAD_HI, CLEAR, SIGMA, RHO = (_R[n] for n in REAL_OPTIONS[:7])
-SPEED_LO, SPEED_HI, PATH_LO, PATH_HI, FAULT_P, FAULT_LO, FAULT_HI, DIVISOR = (_R[n] for n in REAL_OPTIONS[7:])
+SPEED_LO, SPEED_HI, PATH_LO, PATH_HI, FAULT_P, FAULT_LO, FAULT_HI, DIVISOR, MARGIN = (_R[n] for n in REAL_OPTIONS[7:])
 N_OBST, LINKS, INTER_ARM, MOVING = (_F[n] for n in FLAG_OPTIONS)
 _STEPS = 200  # zero_momentum_start's trapezoid steps
 _JIT = {"cache": True, "error_model": "numpy"}  # no fast-math: the reference's rounding as far as possible
@@ -91,6 +89,20 @@ def _sign(gen):
 
 
 @njit(**_JIT)
+def stream_sample(gen, uniforms, signs, doubles):
+    """Fill the arrays with ``_uniform(gen, 0.3, 1.2)``, ``_sign(gen)`` and ``_next_double(gen)`` in turn (k of each,
+    in this order), as the reference draws them with ``uniform``, ``choice([−1, 1])`` and ``random``: the check that
+    this numpy's distributions are still the ones the kernel reproduces (``pan1_env.team_draw``)."""
+    k = len(uniforms)
+    for i in range(k):
+        uniforms[i] = _uniform(gen, 0.3, 1.2)
+    for i in range(k):
+        signs[i] = _sign(gen)
+    for i in range(k):
+        doubles[i] = _next_double(gen)
+
+
+@njit(**_JIT)
 def _tip(lengths, q, n, base):
     """End-effector p0 + Σ L_α [sin θ_α, cos θ_α], θ = cumsum(q) (φ = 0), as (x, y)."""
     theta, x, y = 0.0, 0.0, 0.0
@@ -132,6 +144,8 @@ def _first_row(lam, q, n, cos, row):
 
 @njit(**_JIT)
 def _row_from_cos(lam, n, cos, row):
+    """``row[j] = Σ_a Σ_{b ≥ j} λ_ab cos_ab`` for the ``n`` joints: the mass matrix's first row M₁ⱼ at the
+    cosines ``cos`` of the angle differences, whose ratio −M₁ₐ/M₁₁ is the passive joint's slope along the path."""
     for j in range(n):
         total = 0.0
         for a in range(n - 1, -1, -1):
@@ -309,7 +323,7 @@ def _place_obstacles(gen, real, flags, links, passive, starts, targets, joints, 
     """The reference's obstacle rejection loop; False if it ran out of candidates."""
     N, O = len(links), flags[N_OBST]
     lengths, base, centers, radii, ends, speeds = out[0], out[5], out[7], out[8], out[9], out[10]
-    rho, clear = real[RHO], real[CLEAR]
+    rho, clear, margin = real[RHO], real[CLEAR], real[MARGIN]
     lo_x = min(starts[:, 0].min(), targets[:, 0].min()) - 0.2
     lo_y = min(starts[:, 1].min(), targets[:, 1].min()) - 0.2
     hi_x = max(starts[:, 0].max(), targets[:, 0].max()) + 0.2
@@ -324,7 +338,7 @@ def _place_obstacles(gen, real, flags, links, passive, starts, targets, joints, 
         for i in range(N):
             if (math.sqrt((starts[i, 0] - cx) ** 2 + (starts[i, 1] - cy) ** 2) - r < clear
                     or math.sqrt((targets[i, 0] - cx) ** 2 + (targets[i, 1] - cy) ** 2) < r + 0.05
-                    or math.sqrt((base[i, 0] - cx) ** 2 + (base[i, 1] - cy) ** 2) < r + BASE_MARGIN + rho):
+                    or math.sqrt((base[i, 0] - cx) ** 2 + (base[i, 1] - cy) ** 2) < r + margin + rho):
                 ok = False
         for o in range(placed):
             if math.sqrt((cx - centers[o, 0]) ** 2 + (cy - centers[o, 1]) ** 2) < r + radii[o]:
@@ -348,7 +362,7 @@ def _place_obstacles(gen, real, flags, links, passive, starts, targets, joints, 
             ex, ey = cx + length * math.cos(angle), cy + length * math.sin(angle)
             for i in range(N):
                 sweep = lengths[i, 0] if passive[i] else 0.0
-                if _point_segment_distance(cx, cy, ex, ey, base[i, 0], base[i, 1]) < r + BASE_MARGIN + rho + sweep:
+                if _point_segment_distance(cx, cy, ex, ey, base[i, 0], base[i, 1]) < r + margin + rho + sweep:
                     ok = False
             if not ok:
                 continue

@@ -33,6 +33,9 @@ class MaskedTanhNormal(torch.distributions.Distribution):
         return self.entries.rsample(sample_shape)
 
     def log_prob(self, value: torch.Tensor) -> torch.Tensor:
+        # padded entries are set to 0 before the log-prob, not only masked after: at ±1 an entry's log-prob is
+        # infinite, and a masked infinity still sends NaN back through the gradient
+        value = torch.where(self.mask, value, torch.zeros_like(value))
         entries = self.entries.log_prob(value)
         return torch.where(self.mask, entries, torch.zeros_like(entries)).sum(-1)
 

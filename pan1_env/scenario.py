@@ -53,7 +53,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["Scenario", "ScenarioError", "load", "from_dict", "builtin_names", "BODIES"]
+__all__ = ["Scenario", "ScenarioError", "load", "from_dict", "builtin_names", "reachable_obstacles", "BODIES"]
 
 #: What the ``[safety]`` table's ``bodies`` key may protect: the end-effectors (the paper) or every link.
 BODIES = ("end_effector", "links")
@@ -200,14 +200,21 @@ class Scenario:
         arm: it can never be hit, and its RCBF row would only slow the arm down far from it
         (docs/PAPER_REPRODUCTION.md, Section 5.2).
         """
-        mask = np.ones((self.n_arms, len(self.obstacles)), dtype=bool)
-        if self.ignore_unreachable_obstacles:
-            centers, ends = self.obstacles.centers, self.obstacle_motion()[0]
-            for i, arm in enumerate(self.arms):
-                nearest, _ = closest_point_on_segment(centers, ends, arm.base)
-                dist = np.linalg.norm(nearest - arm.base, axis=-1)
-                mask[i] = dist <= arm.reach + self.obstacles.radii + self.link_radius
-        return mask
+        if not self.ignore_unreachable_obstacles:
+            return np.ones((self.n_arms, len(self.obstacles)), dtype=bool)
+        bases, reach = np.array([arm.base for arm in self.arms]), np.array([arm.reach for arm in self.arms])
+        return reachable_obstacles(bases, reach, self.obstacles.centers, self.obstacle_motion()[0],
+                                   self.obstacles.radii, self.link_radius)
+
+
+def reachable_obstacles(bases: np.ndarray, reach: np.ndarray, centers: np.ndarray, ends: np.ndarray,
+                        radii: np.ndarray, link_radius: float) -> np.ndarray:
+    """``(…, N, O)``: whether obstacle o comes, anywhere on its path from ``centers`` to ``ends`` ``(…, O, 2)``,
+    within arm i's ``reach (…, N)`` plus its radius (``radii (…, O)``) and ``link_radius`` of the arm's base
+    (``bases (…, N, 2)``), batched over any leading axes (:meth:`Scenario.obstacle_mask`, the envs' drawn teams)."""
+    at = bases[..., :, None, :]  # (…, N, 1, 2)
+    nearest, _ = closest_point_on_segment(centers[..., None, :, :], ends[..., None, :, :], at)
+    return np.linalg.norm(nearest - at, axis=-1) <= reach[..., None] + radii[..., None, :] + link_radius
 
 
 _TOP_KEYS = {"name", "description", "simulation", "controller", "safety", "arm_defaults", "arms",

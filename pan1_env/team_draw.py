@@ -11,18 +11,17 @@ The engine and the task load the arrays for all the copies at once (:meth:`pan1_
 
 from __future__ import annotations
 
-import ctypes
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 
-from .bodies import closest_point_on_segment
 from .dynamics import ArmParams
 from .formation import Formation, shape_positions
-from .random_scenario import DrawError, RandomScenarioOptions, draw_motion, drawn_scenario
-from .scenario import Scenario
+from .random_scenario import BASE_MARGIN, DrawError, RandomScenarioOptions, draw_motion, drawn_scenario
+from .scenario import Scenario, reachable_obstacles
 
-__all__ = ["TeamDraws", "Teams", "draw_teams"]
+__all__ = ["TeamDraws", "Teams", "draw_teams", "check_numpy_streams"]
 
 
 @dataclass
@@ -60,10 +59,8 @@ class TeamDraws:
     def obstacle_mask(self) -> np.ndarray:
         """:meth:`Scenario.obstacle_mask <pan1_env.scenario.Scenario.obstacle_mask>` of every copy, ``(C, N, O)``
         (drawn scenarios ignore unreachable obstacles)."""
-        bases = self.bases[:, :, None]  # (C, N, 1, 2)
-        nearest, _ = closest_point_on_segment(self.centers[:, None], self.path_ends[:, None], bases)
-        dist = np.linalg.norm(nearest - bases, axis=-1)
-        return dist <= self.reach[..., None] + self.radii[:, None] + self.options.link_radius
+        return reachable_obstacles(self.bases, self.reach, self.centers, self.path_ends, self.radii,
+                                   self.options.link_radius)
 
     def distances(self, edges: np.ndarray) -> np.ndarray:
         """The formation's desired lengths on ``edges (E, 2)`` for every copy, ``(C, E)``, as
@@ -129,17 +126,26 @@ def _shape_unit(opt: RandomScenarioOptions) -> tuple[np.ndarray, float]:
     return shape_positions(opt.shape, 1.0, N)[0], 1.0
 
 
+@cache
+def check_numpy_streams(k: int = 8) -> None:
+    """Raise ``RuntimeError`` unless the kernel draws what this numpy's ``Generator.uniform``, ``choice([−1, 1])``
+    and ``random`` draw, leaving the generator in the same state (checked once per process). numpy may change a
+    distribution between releases; the envs' teams would then part from the reference's without a word."""
+    from .draw_kernel import stream_sample
+
+    kernel, numpy = np.random.default_rng(20261127), np.random.default_rng(20261127)
+    drawn = np.empty(k), np.empty(k), np.empty(k)
+    stream_sample(_addresses([kernel])[0], *drawn)
+    expected = numpy.uniform(0.3, 1.2, k), numpy.choice([-1.0, 1.0], k), numpy.random(k)
+    same = all(np.array_equal(a, b) for a, b in zip(drawn, expected, strict=True))
+    if not same or kernel.bit_generator.state != numpy.bit_generator.state:
+        raise RuntimeError(f"numpy {np.__version__} draws uniform, choice or random differently from what "
+                           "pan1_env's team-draw kernel reproduces: random teams cannot be drawn; please report it")
+
+
 def _addresses(rngs: list[np.random.Generator]) -> np.ndarray:
     """The address of each generator's ``bitgen_t`` (numpy's C API: its state and functions), ``(C,)`` int64."""
-    get = _capsule_pointer()
-    return np.array([get(rng.bit_generator.capsule, b"BitGenerator") for rng in rngs], dtype=np.int64)
-
-
-def _capsule_pointer():
-    """``PyCapsule_GetPointer`` through ctypes: the pointer a capsule holds, as an int."""
-    get = ctypes.pythonapi.PyCapsule_GetPointer
-    get.restype, get.argtypes = ctypes.c_void_p, [ctypes.py_object, ctypes.c_char_p]
-    return get
+    return np.array([rng.bit_generator.ctypes.bit_generator.value for rng in rngs], dtype=np.int64)
 
 
 def _kernel_options(opt: RandomScenarioOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -152,7 +158,7 @@ def _kernel_options(opt: RandomScenarioOptions) -> tuple[np.ndarray, np.ndarray,
               "link_radius": opt.link_radius, "speed_lo": opt.obstacle_speed[0], "speed_hi": opt.obstacle_speed[1],
               "path_lo": opt.obstacle_path_length[0], "path_hi": opt.obstacle_path_length[1],
               "fault_probability": opt.fault_probability, "fault_lo": opt.fault_time[0], "fault_hi": opt.fault_time[1],
-              "shape_divisor": divisor}
+              "shape_divisor": divisor, "base_margin": BASE_MARGIN}  # an argument: a cached kernel keeps no constant
     flags = {"n_obstacles": opt.n_obstacles, "links_bodies": opt.bodies == "links", "inter_arm": opt.inter_arm,
              "moving": opt.moving}
     return (np.array([values[n] for n in REAL_OPTIONS], dtype=float),
@@ -161,6 +167,7 @@ def _kernel_options(opt: RandomScenarioOptions) -> tuple[np.ndarray, np.ndarray,
 
 
 def _empty(C: int, opt: RandomScenarioOptions) -> dict[str, np.ndarray]:
+    """The kernel's output arrays for ``C`` copies (zeros; no fault: ``inf``)."""
     N, O, n = opt.n_arms, opt.n_obstacles, max(opt.links)
     arrays = {name: np.zeros((C, N, n)) for name in ("lengths", "masses", "com", "inertias", "q0")}
     arrays |= {"lam": np.zeros((C, N, n, n)), "bases": np.zeros((C, N, 2)), "targets": np.zeros((C, N, 2)),
@@ -172,10 +179,12 @@ def _empty(C: int, opt: RandomScenarioOptions) -> dict[str, np.ndarray]:
 
 def _run(rngs: list[np.random.Generator], tries: np.ndarray, arrays: dict[str, np.ndarray],
          opt: RandomScenarioOptions) -> np.ndarray:
+    """Run the compiled draw for every generator into ``arrays``; returns each copy's attempts (−1: none valid)."""
     from .compile_notice import install
     from .draw_kernel import draw_teams as kernel
 
     install()  # the first use compiles the kernel: say so
+    check_numpy_streams()
 
     real, flags, links, passive, unit = _kernel_options(opt)
     a = arrays

@@ -33,13 +33,19 @@ def test_runs_with_different_seeds_share_no_copy_and_the_same_seed_repeats() -> 
 
 
 def test_no_copy_of_a_seeded_batch_meets_a_one_copy_seed() -> None:
-    """The held-out teams are one-copy seeds: a batch's copies are none of them (here: seeds 0 … 2 B)."""
+    """The held-out teams are one-copy seeds: a batch's copies are none of them (the seeds s + b the old convention
+    gave them, and the first held-out seeds of evaluation and of ``report``)."""
+    from pan1_env.baselines.evaluation import EVAL_SEEDS
+    from pan1_env.baselines.report import HELD_OUT_FIRST
+
+    held_out = [*range(2 * B), *EVAL_SEEDS[:B], *range(HELD_OUT_FIRST, HELD_OUT_FIRST + B)]
     batch = _first_teams(0)
     single = CentralizedEnv("random")
-    singles = {single.reset(seed=s)[0].tobytes() for s in range(2 * B)}
+    singles = {single.reset(seed=s)[0].tobytes() for s in held_out}
     assert not batch & singles
     streams = {copy_generator(s, b).random() for s in range(5) for b in range(64)}
-    one_copy = {np_random(s)[0].random() for s in range(100_000)}
+    one_copy_seeds = [*range(100_000), *EVAL_SEEDS, *range(HELD_OUT_FIRST, HELD_OUT_FIRST + 200)]
+    one_copy = {np_random(s)[0].random() for s in one_copy_seeds}
     assert len(streams) == 5 * 64 and not streams & one_copy
 
 

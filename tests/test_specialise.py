@@ -229,8 +229,8 @@ def test_a_short_script_leaves_the_kernel_cached(tmp_path) -> None:
 
 def test_kinds_still_waiting_start_at_the_exit(monkeypatch, tmp_path) -> None:
     """The kinds asked for but not started when the process ends (a script that stepped once, or a
-    second kind queued behind a running child) each get a child at the exit, registered with atexit;
-    a kind another process's child holds the claim of gets none."""
+    second kind queued behind a running child) get one child at the exit, registered with atexit, which
+    compiles them one after another; a kind another process's child holds the claim of is left to it."""
     if specialise.fcntl is None:
         pytest.skip("no detached children, hence nothing started at the exit, without fcntl")
     monkeypatch.setattr(specialise, "_index_file", lambda dispatcher: str(tmp_path / "group_advance-1.py3.nbi"))
@@ -247,16 +247,15 @@ def test_kinds_still_waiting_start_at_the_exit(monkeypatch, tmp_path) -> None:
         specialise._start_at_exit()
     finally:
         os.close(held)
-    assert spawned == [[waiting[0]], [waiting[1]]] and specialise._pending == []
-    assert list(specialise._watching) == [waiting[2]]
+    assert spawned == [[waiting[0], waiting[1]]] and specialise._pending == []
 
 
 # a process that exits with a kind waiting for its background compilation (the spawn only reported)
 _EXIT_WAITING = r"""
 from pan1_env.kernels import specialise
-specialise._spawn = lambda sigs, claim, limit=0: print("spawned", len(sigs), claim is not None, flush=True)
+specialise._spawn = lambda sigs, claims, limit=0: print("spawned", len(sigs), len(claims), limit, flush=True)
 specialise._in_disk_cache = lambda dispatcher, sig: False
-specialise._pending.append("a kind")
+specialise._pending.extend(["a kind", "another kind"])
 specialise._claim_file = lambda sig: None  # no claim: the cache of this test is not touched
 """
 
@@ -265,7 +264,8 @@ specialise._claim_file = lambda sig: None  # no claim: the cache of this test is
 def test_the_exit_starts_the_kinds_left_waiting() -> None:
     run = subprocess.run([sys.executable, "-c", _EXIT_WAITING], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr[-2000:]
-    assert run.stdout == "spawned 1 False\n"
+    # one child compiles both, one after the other, with a bound for each
+    assert run.stdout == f"spawned 2 0 {2 * specialise.LIMIT}\n"
 
 
 @linux_only
@@ -275,7 +275,7 @@ def test_the_child_is_detached_bounded_and_reaped(tmp_path, monkeypatch) -> None
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))  # nothing cached: it would compile
     # a bound long enough that the child is still there when its session is read, even on a busy machine
     # (it imports numba and then compiles for longer than that)
-    child = specialise._spawn([specialise._signature(_args(5, True))], None, limit=10)
+    child = specialise._spawn([specialise._signature(_args(5, True))], limit=10)
     try:
         assert os.getsid(child.pid) == child.pid
         assert _wait_for(lambda: child.returncode is not None, 120), "not reaped (a zombie, or still running)"
@@ -504,7 +504,7 @@ def test_no_claim_key_and_no_readable_cache(monkeypatch) -> None:
     sig = specialise._signature(args)
     assert not specialise.specialised_ready(args)
     specialise.start_background()
-    assert spawned == [([sig], None)]
+    assert spawned == [([sig], ())]
     assert not specialise.specialised_ready(args), "still compiling"
     child.returncode = 0
     specialise.background_generation()

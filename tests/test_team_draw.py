@@ -115,7 +115,8 @@ def test_options_no_team_satisfies_raise_a_draw_error() -> None:
         draw_teams([np.random.default_rng(0), np.random.default_rng(1)], options, max_tries=3)
 
 
-@pytest.mark.parametrize("env_id", ["pan1_env/WholeArmFormation-v1", "pan1_env/FaultFormation-v0"])
+@pytest.mark.parametrize("env_id", ["pan1_env/WholeArmFormation-v1", "pan1_env/FaultFormation-v0",
+                                    "pan1_env/MovingFormation-v0"])
 def test_the_engine_and_task_hold_what_load_team_gives_the_references_teams(env_id: str) -> None:
     from pan1_env.vector import Pan1VectorEnv
 
@@ -139,5 +140,27 @@ def test_the_engine_and_task_hold_what_load_team_gives_the_references_teams(env_
     for name in ("fault_times", "bases", "centers", "radii", "start_centers", "path_ends", "speeds", "velocities"):
         np.testing.assert_allclose(getattr(ours, name), getattr(ref, name), rtol=1e-9, atol=1e-10, err_msg=name)
     np.testing.assert_allclose(batched.core.task.distances, single.core.task.distances, rtol=1e-12)
+    np.testing.assert_array_equal(batched.core.task.kp, single.core.task.kp)
+    if single.core.task.motion is not None:  # a moving formation's shape mid-episode, as the reference's motion
+        t = np.full(6, 7.5)
+        for ours_shape, ref_shape in zip(batched.core.task.motion.shape(t), single.core.task.motion.shape(t),
+                                         strict=True):
+            np.testing.assert_allclose(ours_shape, ref_shape, rtol=1e-9, atol=1e-12)
     for b in range(6):  # a copy's Scenario, built when read, is the reference's team
         _assert_same_team(ours.teams[b], ref.teams[b])
+
+
+def test_the_kernel_draws_as_this_numpy_and_refuses_a_numpy_that_does_not(monkeypatch) -> None:
+    """The once-per-process check passes here, and fails when the kernel's stream parts from numpy's."""
+    from pan1_env import draw_kernel, team_draw
+
+    team_draw.check_numpy_streams.__wrapped__()
+    kernel = draw_kernel.stream_sample
+
+    def shifted(gen, uniforms, signs, doubles):  # a kernel whose uniform rounds otherwise
+        kernel(gen, uniforms, signs, doubles)
+        uniforms[0] += 1e-12
+
+    monkeypatch.setattr(draw_kernel, "stream_sample", shifted)
+    with pytest.raises(RuntimeError, match="draws uniform, choice or random differently"):
+        team_draw.check_numpy_streams.__wrapped__()

@@ -368,15 +368,30 @@ def start_background() -> None:
 
 
 def _start_at_exit() -> None:
-    """At the interpreter's exit, start a child for every kind still waiting for one, side by side: a
-    script that steps a new kind once (the quickstart) never reached the step that would have started
-    its child, nor one that stepped several new kinds the steps that would have started the later
-    ones, and the notice promised them a kernel cached for the next run. The children are detached and
-    outlive this process; a kind another process's child holds the claim of is left to that child."""
-    global _child
-    while _pending:
-        _child = None  # a running child goes on, detached; the next starts beside it
-        _start_next()
+    """At the interpreter's exit, start one child for every kind still waiting, compiling them one after
+    another: a script that steps a new kind once (the quickstart) never reached the step that would have
+    started its child, nor one that stepped several new kinds the steps that would have started the later
+    ones, and the notice promised them a kernel cached for the next run. One child, not one per kind: side
+    by side they would share the cores and each hold a compiler's memory. It is detached and outlives this
+    process (a running child goes on too); a kind another process's child holds the claim of is left to it."""
+    sigs, claims = [], []
+    try:
+        while _pending:
+            sig = _pending.pop(0)
+            path, claim = _claim(sig)
+            if (path is not None and claim is None) or (claim is not None and _in_disk_cache(group_advance, sig)):
+                if claim is not None:
+                    _close(claim)
+                continue  # compiling elsewhere, or cached since it was asked for
+            sigs.append(sig)
+            claims.extend([] if claim is None else [claim])
+        if sigs:
+            _spawn(sigs, tuple(claims), limit=LIMIT * len(sigs))
+    except OSError:
+        pass  # nothing to tell at exit: the next process compiles in the background again
+    finally:
+        for claim in claims:
+            _close(claim)  # the child holds its own copies, or nobody
 
 
 def background_generation() -> int:
@@ -417,14 +432,7 @@ def _start_next() -> None:
     global _child, _child_sigs, _generation, _started
     while _child is None and _pending:
         sig = _pending.pop(0)  # one kind per child: each switches when it is ready
-        claim = path = None
-        try:
-            path = _claim_file(sig)
-            claim = _take_claim(path) if path is not None else None
-        except Exception:  # noqa: BLE001 -- a claim file we cannot use (OSError) or numba's private key
-            # gone (AttributeError, …): compile without a claim, as where there are none; never raise
-            # into Engine.step
-            path = claim = None
+        path, claim = _claim(sig)
         if path is not None and claim is None:  # another process's child compiles it
             _watching[sig] = path
             continue
@@ -433,7 +441,7 @@ def _start_next() -> None:
                 _generation += 1
                 continue
             _child_sigs = [sig]
-            _child = _spawn(_child_sigs, claim)
+            _child = _spawn(_child_sigs, () if claim is None else (claim,))
             _started += 1
         except OSError as error:
             compile_notice.notify(f"could not start the background compilation ({error}); the generic kernel "
@@ -444,12 +452,23 @@ def _start_next() -> None:
                 _close(claim)  # the child holds it now (its own copy of the descriptor), or nobody
 
 
-def _spawn(sigs: list, claim: int | None, limit: int = LIMIT) -> subprocess.Popen:
-    """Start a background process compiling ``sigs``, holding the claim descriptor ``claim``, ending
+def _claim(sig) -> tuple[str | None, int | None]:
+    """The claim file of kind ``sig`` and, if this process took it, its descriptor: ``(path, None)`` when
+    another process's child holds it, ``(None, None)`` where there are no claims or one cannot be used."""
+    try:
+        path = _claim_file(sig)
+        return path, (_take_claim(path) if path is not None else None)
+    except Exception:  # noqa: BLE001 -- a claim file we cannot use (OSError) or numba's private key gone
+        # (AttributeError, …): compile without a claim, as where there are none; never raise into Engine.step
+        return None, None
+
+
+def _spawn(sigs: list, claims: tuple[int, ...] = (), limit: int = LIMIT) -> subprocess.Popen:
+    """Start a background process compiling ``sigs``, holding the claim descriptors ``claims``, ending
     itself after ``limit`` s; a daemon thread reaps it when it exits (no zombie while this process
     lives, and none waits for it at exit)."""
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
-    detach = {"start_new_session": True, "pass_fds": () if claim is None else (claim,)} if fcntl is not None else {}
+    detach = {"start_new_session": True, "pass_fds": claims} if fcntl is not None else {}
     child = subprocess.Popen([sys.executable, "-c", _CHILD, str(int(limit))], stdin=subprocess.PIPE,
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, **detach)
     with contextlib.suppress(RuntimeError):  # no new thread at interpreter shutdown (newer Pythons): init reaps it
