@@ -504,9 +504,8 @@ class CoreView:
 
 def view_repr(view: Any) -> str:
     """A view's repr: its class, its scenario as given, copies, arms, whether the safety filter is on and the
-    action mode. Views
-    differ in that default (off in the parallel, Gymnasium team and TorchRL envs; on in the vector, SB3 and
-    reach envs and the BenchMARL task), so the repr says it."""
+    action mode. Views differ in the filter's default (off in the parallel, Gymnasium team and TorchRL envs; on in
+    the vector, SB3 and reach envs and the BenchMARL task), so the repr says it."""
     c = view.core
     scenario = getattr(c.config, "arguments", {}).get("scenario", c.config.scenario)
     scenario = getattr(scenario, "name", scenario)  # a Scenario object by its name
