@@ -31,6 +31,7 @@ from torchrl.envs import RewardSum, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import MultiAgentMLP, ProbabilisticActor
 from torchrl.objectives import ClipPPOLoss, ValueEstimators
+from tqdm import tqdm
 
 from pan1_env.marl import GROUP, MaskedTanhNormal, torchrl_env
 
@@ -114,7 +115,9 @@ def train(env: TransformedEnv, policy: ProbabilisticActor, critic: TensorDictMod
                           batch_size=args.minibatch)
     loss = build_loss(policy, critic, env, args)
     optimiser = torch.optim.Adam(loss.parameters(), args.lr)
-    for iteration, batch in enumerate(collector):
+    name = "IPPO" if args.ippo else "MAPPO"
+    bar = tqdm(collector, total=args.iterations, desc=f"{name} iterations", unit="iteration")  # minutes: say so
+    for batch in bar:
         with torch.no_grad():
             loss.value_estimator(batch, params=loss.critic_network_params,
                                  target_params=loss.target_critic_network_params)
@@ -128,10 +131,9 @@ def train(env: TransformedEnv, policy: ProbabilisticActor, critic: TensorDictMod
                 optimiser.step()
                 optimiser.zero_grad()
         collector.update_policy_weights_()
-        if args.verbose:
-            done = batch["next", "done"].squeeze(-1)
-            print(f"iteration {iteration}: episode return "
-                  f"{batch['next', GROUP, 'episode_reward'][done].mean().item():.3f}")
+        done = batch["next", "done"].squeeze(-1)
+        if done.any():  # the mean return of the episodes that ended in this batch
+            bar.set_postfix(episode_return=f"{batch['next', GROUP, 'episode_reward'][done].mean().item():.3f}")
     collector.shutdown()
 
 
@@ -154,7 +156,6 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--no-shield", action="store_true", help="train without the safety filter")
     parser.add_argument("--eval-copies", type=int, default=4)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--verbose", action="store_true")
     return parser.parse_args(argv)
 
 
