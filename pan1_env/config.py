@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from .control import MAX_JOINT_SPEED
+from .formation import RING_DEGREE
 from .random_scenario import RandomScenarioOptions, random_scenario
 from .registration import DEFAULT_REACH_STEPS, env_arguments
 from .safety import QP_SOLVERS, FilterParams, filter_parameters
@@ -202,10 +203,12 @@ class FormationConfig:
 
     @property
     def neighbour_slots(self) -> int:
-        """D, neighbour slots per observation: N − 1 for random teams (any graph), else the largest degree."""
+        """D, neighbour slots per observation: for random teams the most neighbours their shape can give an arm
+        (a ring: 4 whatever N, so that the observation's size does not depend on the team's; a polygon: N − 1),
+        else the largest degree of the scenario's graph."""
         team = self.team
         if self.random:
-            return team.n_arms - 1
+            return RING_DEGREE if self.random_options.shape == "ring" else team.n_arms - 1
         return int(np.bincount(team.formation.edges.ravel(), minlength=team.n_arms).max())
 
     def replace(self, **changes: Any) -> FormationConfig:

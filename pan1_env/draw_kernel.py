@@ -34,12 +34,12 @@ REAL_OPTIONS = ("size_lo", "size_hi", "radius_lo", "radius_hi", "start_clearance
                 "speed_lo", "speed_hi", "path_lo", "path_hi", "fault_probability", "fault_lo", "fault_hi",
                 "shape_divisor", "base_margin")
 #: the kernel's integer options, in order
-FLAG_OPTIONS = ("n_obstacles", "links_bodies", "inter_arm", "moving")
+FLAG_OPTIONS = ("n_obstacles", "links_bodies", "inter_arm", "moving", "arm_redraws")
 _R = {name: i for i, name in enumerate(REAL_OPTIONS)}
 _F = {name: i for i, name in enumerate(FLAG_OPTIONS)}
 SIZE_LO, SIZE_HI, RAD_LO, RAD_HI, CLEAR, SIGMA, RHO = (_R[n] for n in REAL_OPTIONS[:7])
 SPEED_LO, SPEED_HI, PATH_LO, PATH_HI, FAULT_P, FAULT_LO, FAULT_HI, DIVISOR, MARGIN = (_R[n] for n in REAL_OPTIONS[7:])
-N_OBST, LINKS, INTER_ARM, MOVING = (_F[n] for n in FLAG_OPTIONS)
+N_OBST, LINKS, INTER_ARM, MOVING, REDRAWS = (_F[n] for n in FLAG_OPTIONS)
 _STEPS = 200  # zero_momentum_start's trapezoid steps
 _JIT = {"cache": True, "error_model": "numpy"}  # no fast-math: the reference's rounding as far as possible
 
@@ -308,13 +308,8 @@ def _draw_arm(gen, i, n, passive, target, outward, out, q_t):
 def _arms_apart(links, joints, N, rho, clear):
     """Every pair of arms' link capsules at least ``clear`` apart (segment distance − 2ρ)."""
     for i in range(N):
-        for j in range(i):
-            for a in range(links[i]):
-                for b in range(links[j]):
-                    d = _segment_distance(joints[i, a, 0], joints[i, a, 1], joints[i, a + 1, 0], joints[i, a + 1, 1],
-                                          joints[j, b, 0], joints[j, b, 1], joints[j, b + 1, 0], joints[j, b + 1, 1])
-                    if d - 2.0 * rho < clear:
-                        return False
+        if not _apart_from_earlier(i, links, joints, rho, clear):
+            return False
     return True
 
 
@@ -375,6 +370,29 @@ def _place_obstacles(gen, real, flags, links, passive, starts, targets, joints, 
 
 
 @njit(**_JIT)
+def _start(i, n, passive, out, q_target, mats, scratch, starts, joints):
+    """Arm i's start: a PA arm's q₁ from its zero-momentum path, then its end-effector and joint positions."""
+    q0 = out[6][i]
+    if passive:
+        q0[0] = _zero_momentum_q1(out[4][i], q_target, q0[1:], n, mats[0], mats[1], mats[2], mats[3], scratch[2])
+    starts[i, 0], starts[i, 1] = _tip(out[0][i], q0, n, out[5][i])
+    _joints(out[0][i], q0, n, out[5][i], joints[i])
+
+
+@njit(**_JIT)
+def _apart_from_earlier(i, links, joints, rho, clear):
+    """Arm i's link capsules at least ``clear`` from those of arms 0 … i − 1 (segment distance − 2ρ)."""
+    for j in range(i):
+        for a in range(links[i]):
+            for b in range(links[j]):
+                d = _segment_distance(joints[i, a, 0], joints[i, a, 1], joints[i, a + 1, 0], joints[i, a + 1, 1],
+                                      joints[j, b, 0], joints[j, b, 1], joints[j, b + 1, 0], joints[j, b + 1, 1])
+                if d - 2.0 * rho < clear:
+                    return False
+    return True
+
+
+@njit(**_JIT)
 def _attempt(gen, real, flags, links, passive, unit, out, work):
     """One of random_scenario's attempts into ``out``; True if it passed every check. ``work``: scratch."""
     scratch, mats, q_targets = work
@@ -398,27 +416,32 @@ def _attempt(gen, real, flags, links, passive, unit, out, work):
         cy += targets[i, 1]
     cx, cy = cx / N, cy / N
     outward = np.empty(2)
+    starts, joints, redraws = np.empty((N, 2)), out[13], flags[REDRAWS]
     for i in range(N):
         ox, oy = targets[i, 0] - cx, targets[i, 1] - cy
         norm = math.sqrt(ox * ox + oy * oy) + 1e-12
         outward[0], outward[1] = ox / norm, oy / norm
-        _draw_arm(gen, i, links[i], passive[i], targets[i], outward, out, q_targets[i])
-    ok = True  # σ_min first: it needs no q₁, the costliest part of the start
-    for i in range(N):
-        if _sigma_min(out[4][i], out[0][i], out[6][i], links[i], passive[i], scratch, mats[0]) < real[SIGMA]:
-            ok = False
-    if not ok:
-        return False
-    starts, joints = np.empty((N, 2)), out[13]
-    for i in range(N):
-        n, q0 = links[i], out[6][i]
-        if passive[i]:
-            q0[0] = _zero_momentum_q1(out[4][i], q_targets[i], q0[1:], n, mats[0], mats[1], mats[2], mats[3],
-                                      scratch[2])
-        starts[i, 0], starts[i, 1] = _tip(out[0][i], q0, n, out[5][i])
-        _joints(out[0][i], q0, n, out[5][i], joints[i])
-    if flags[INTER_ARM] and not _arms_apart(links, joints, N, real[RHO], real[CLEAR]):
-        return False
+        passed = False
+        for _ in range(redraws + 1):
+            _draw_arm(gen, i, links[i], passive[i], targets[i], outward, out, q_targets[i])
+            if redraws == 0:
+                passed = True
+                break
+            if _sigma_min(out[4][i], out[0][i], out[6][i], links[i], passive[i], scratch, mats[0]) >= real[SIGMA]:
+                _start(i, links[i], passive[i], out, q_targets[i], mats, scratch, starts, joints)
+                if not flags[INTER_ARM] or _apart_from_earlier(i, links, joints, real[RHO], real[CLEAR]):
+                    passed = True
+                    break
+        if not passed:
+            return False
+    if redraws == 0:
+        for i in range(N):  # σ_min first: it needs no q₁, the costliest part of the start
+            if _sigma_min(out[4][i], out[0][i], out[6][i], links[i], passive[i], scratch, mats[0]) < real[SIGMA]:
+                return False
+        for i in range(N):
+            _start(i, links[i], passive[i], out, q_targets[i], mats, scratch, starts, joints)
+        if flags[INTER_ARM] and not _arms_apart(links, joints, N, real[RHO], real[CLEAR]):
+            return False
     return _place_obstacles(gen, real, flags, links, passive, starts, targets, joints, out)
 
 

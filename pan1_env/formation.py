@@ -31,9 +31,11 @@ __all__ = [
     "shape_positions",
     "realise",
     "SHAPES",
+    "RING_DEGREE",
 ]
 
-SHAPES = ("square", "polygon")
+SHAPES = ("square", "polygon", "ring")
+RING_DEGREE = 4  # a ring arm's neighbours: the two nearest on each side
 
 
 class FormationError(ValueError):
@@ -125,7 +127,11 @@ def shape_positions(shape: str, size: float, n_agents: int) -> tuple[np.ndarray,
 
     ``square``: 4 vertices, the 4 sides plus the diagonal (0, 2) (the paper's graph, Eq. 67).
     ``polygon``: a regular N-gon, its N sides plus the fan of diagonals from vertex 0 (2N − 3 edges,
-    infinitesimally rigid). Vertex i is agent i.
+    infinitesimally rigid; vertex 0 has N − 1 neighbours).
+    ``ring``: the same N-gon, its sides plus the chords that skip one vertex (i, i + 2): the square of the cycle,
+    2N edges (the complete graph up to N = 4), no vertex with more than :data:`RING_DEGREE` neighbours
+    whatever N, each edge local (an arm's nearest two on each side), and rigid with every single edge removed
+    (tests/test_formation.py checks both up to N = 33). Vertex i is agent i.
     """
     if shape == "square":
         if n_agents != 4:
@@ -133,17 +139,20 @@ def shape_positions(shape: str, size: float, n_agents: int) -> tuple[np.ndarray,
         pos = size * np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
         edges = np.array([[0, 1], [1, 2], [2, 3], [0, 3], [0, 2]])
         return pos, edges
-    if shape == "polygon":
+    if shape in ("polygon", "ring"):
         if n_agents < 2:
-            raise FormationError(f"shape 'polygon' needs at least 2 arms, got {n_agents}")
+            raise FormationError(f"shape {shape!r} needs at least 2 arms, got {n_agents}")
         if n_agents == 2:
             return np.array([[0.0, 0.0], [size, 0.0]]), np.array([[0, 1]])
         radius = size / (2.0 * np.sin(np.pi / n_agents))
         ang = 2.0 * np.pi * np.arange(n_agents) / n_agents
         pos = radius * np.stack([np.cos(ang), np.sin(ang)], axis=-1)
         sides = [[i, (i + 1) % n_agents] for i in range(n_agents)]
-        fan = [[0, j] for j in range(2, n_agents - 1)]
-        return pos, np.array(sides + fan)
+        if shape == "polygon":
+            return pos, np.array(sides + [[0, j] for j in range(2, n_agents - 1)])
+        # chords (i, i + 2), each once: for N = 4 the two diagonals, for N = 3 none (the sides already join all)
+        chords = [[i, (i + 2) % n_agents] for i in range({3: 0, 4: 2}.get(n_agents, n_agents))]
+        return pos, np.array(sides + chords)
     raise FormationError(f"unknown formation shape {shape!r}; choose one of {SHAPES}")
 
 

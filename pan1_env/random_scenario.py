@@ -33,7 +33,7 @@ import numpy as np
 from .bodies import closest_point_on_segment, inter_arm_clearance, link_clearance
 from .cascade import reduced_jacobian
 from .dynamics import ArmParams, end_effector, mass_matrix
-from .formation import Formation, shape_positions
+from .formation import SHAPES, Formation, shape_positions
 from .motion import FormationMotion, check_motion, check_times
 from .safety import BARRIERS, Obstacles, clearance
 from .scenario import BODIES, Scenario
@@ -58,7 +58,13 @@ class RandomScenarioOptions:
         passive_fraction: fraction of arms whose first joint is passive: arms
             ``0 … round(passive_fraction · n_arms) − 1`` are PA arms, the rest fully actuated.
         n_obstacles: number of disk obstacles.
-        shape: ``"polygon"`` (regular N-gon with fan diagonals) or ``"square"`` (N = 4).
+        shape: ``"polygon"`` (regular N-gon with the fan of diagonals from arm 0, whose degree is N − 1),
+            ``"ring"`` (the same N-gon with the chords that skip one arm: at most 4 neighbours per arm whatever
+            N; :func:`pan1_env.formation.shape_positions`) or ``"square"`` (N = 4).
+        arm_redraws: 0 (the default): an arm that fails its checks (σ_min(J̄), clearance to the other arms)
+            fails the team's attempt, and the whole team is drawn again. k > 0: an arm failing its checks (against
+            the arms drawn before it) is drawn again, up to k more times, keeping the arms that passed, so that a
+            team of 32 arms is found at a cost that grows with N rather than exponentially. It changes the draws.
         size: range of the formation's side length, metres.
         obstacle_radius: range of obstacle radii, metres.
         start_clearance: smallest clearance of a starting end-effector, metres.
@@ -108,6 +114,7 @@ class RandomScenarioOptions:
     passive_fraction: float = 0.5
     n_obstacles: int = 3
     shape: str = "polygon"
+    arm_redraws: int = 0
     size: tuple[float, float] = (0.5, 0.9)
     obstacle_radius: tuple[float, float] = (0.05, 0.12)
     start_clearance: float = 0.05
@@ -150,10 +157,11 @@ class RandomScenarioOptions:
         if fraction > 1:
             raise ValueError(f"RandomScenarioOptions.passive_fraction must lie in [0, 1], got {fraction!r}")
         object.__setattr__(self, "passive_fraction", fraction)
-        object.__setattr__(self, "n_obstacles",
-                           positive_int("RandomScenarioOptions.n_obstacles", self.n_obstacles, minimum=0))
-        if self.shape not in ("polygon", "square"):
-            raise ValueError(f"RandomScenarioOptions.shape must be 'polygon' or 'square', got {self.shape!r}")
+        for name in ("n_obstacles", "arm_redraws"):
+            object.__setattr__(self, name, positive_int(f"RandomScenarioOptions.{name}", getattr(self, name),
+                                                        minimum=0))
+        if self.shape not in SHAPES:
+            raise ValueError(f"RandomScenarioOptions.shape must be one of {SHAPES}, got {self.shape!r}")
         if self.shape == "square" and n_arms != 4:
             raise ValueError("RandomScenarioOptions.shape 'square' needs n_arms = 4")
         for name in ("size", "obstacle_radius"):
@@ -254,8 +262,6 @@ def zero_momentum_start(arm: ArmParams, q_target: np.ndarray, qa_start: np.ndarr
     return np.concatenate([[q1], qa_start])
 
 
-
-
 class DrawError(RuntimeError, ValueError):
     """No team satisfies the options: a ``RuntimeError`` (the draw ran out of tries) and a ``ValueError`` (the
     options are the input at fault), so that the CLI reports it in one line."""
@@ -284,35 +290,14 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
         rot = rng.uniform(-np.pi, np.pi)
         R = np.array([[np.cos(rot), -np.sin(rot)], [np.sin(rot), np.cos(rot)]])
         targets = (pos - pos.mean(0)) @ R.T
-        arms, q0 = [], []
-        centroid = targets.mean(0)
-        for i in range(N):
-            n, passive = opt.links[i], opt.passive[i]
-            proto = _draw_arm(rng, n, passive)
-            # target configuration: a bent arm; the base goes where its end-effector meets vertex i
-            q_t = rng.uniform(-np.pi, np.pi, n)
-            q_t[1:] = rng.uniform(0.3, 1.2, n - 1) * rng.choice([-1.0, 1.0], n - 1)
-            reach_vec = end_effector(proto, q_t) - proto.base
-            outward = targets[i] - centroid
-            outward /= np.linalg.norm(outward) + 1e-12
-            # rotate the whole arm (through q_t[0]) so its base lies outside the formation
-            ang_now = np.arctan2(reach_vec[0], reach_vec[1])
-            ang_want = np.arctan2(-outward[0], -outward[1]) + rng.uniform(-0.6, 0.6)
-            q_t[0] += ang_want - ang_now
-            reach_vec = end_effector(proto, q_t) - proto.base
-            base = targets[i] - reach_vec
-            arm = ArmParams(proto.masses, proto.lengths, proto.com, proto.inertias, base=base,
-                            passive_first_joint=passive, passive_damping=opt.passive_damping)
-            qa_start = q_t[1:] + rng.uniform(-1.0, 1.0, n - 1) if passive else \
-                q_t + rng.uniform(-1.0, 1.0, n)
-            arms.append(arm)
-            q0.append(zero_momentum_start(arm, q_t, qa_start))
-        starts = np.array([end_effector(a, q) for a, q in zip(arms, q0, strict=True)])
-        sig = [np.linalg.svd(reduced_jacobian(a, q), compute_uv=False).min()
-               for a, q in zip(arms, q0, strict=True)]
-        if min(sig) < opt.min_sigma:
+        drawn = _draw_arms(rng, opt, targets)
+        if drawn is None:
             continue
-        if opt.inter_arm and not _arms_apart(arms, q0, opt):
+        arms, q0 = drawn
+        starts = np.array([end_effector(a, q) for a, q in zip(arms, q0, strict=True)])
+        if not opt.arm_redraws and not all(_arm_passes(i, arms, q0, opt, earlier=False) for i in range(N)):
+            continue
+        if not opt.arm_redraws and opt.inter_arm and not _arms_apart(arms, q0, opt):
             continue
         bases = np.array([a.base for a in arms])
         lo = np.minimum(starts.min(0), targets.min(0)) - 0.2
@@ -363,6 +348,58 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
         return drawn_scenario(opt, arms, q0, formation, np.array(centers).reshape(-1, 2), np.array(radii),
                               paths_or_none, np.array(speeds) if opt.moving else None, fault_times, motion)
     raise DrawError(f"no valid random scenario in {max_tries} draws; loosen the options {opt}")
+
+
+def _draw_arms(rng: np.random.Generator, opt: RandomScenarioOptions, targets: np.ndarray
+               ) -> tuple[list[ArmParams], list[np.ndarray]] | None:
+    """Every arm built around its vertex of ``targets (N, 2)``, with its start; with ``arm_redraws`` each arm
+    drawn again while it fails :func:`_arm_passes` against the arms before it (None: one never passed)."""
+    arms: list[ArmParams] = []
+    q0: list[np.ndarray] = []
+    centroid = targets.mean(0)
+    for i in range(opt.n_arms):
+        for _ in range(opt.arm_redraws + 1):
+            arm, q = _placed_arm(rng, opt, i, targets[i], centroid)
+            if not opt.arm_redraws or _arm_passes(i, [*arms, arm], [*q0, q], opt, earlier=True):
+                break
+        else:
+            return None
+        arms.append(arm)
+        q0.append(q)
+    return arms, q0
+
+
+def _placed_arm(rng: np.random.Generator, opt: RandomScenarioOptions, i: int, target: np.ndarray,
+                centroid: np.ndarray) -> tuple[ArmParams, np.ndarray]:
+    """Arm i drawn, its base placed so that its end-effector meets ``target`` in a drawn bent configuration
+    turned away from the formation's ``centroid``, and its start near that configuration."""
+    n, passive = opt.links[i], opt.passive[i]
+    proto = _draw_arm(rng, n, passive)
+    q_t = rng.uniform(-np.pi, np.pi, n)
+    q_t[1:] = rng.uniform(0.3, 1.2, n - 1) * rng.choice([-1.0, 1.0], n - 1)
+    reach_vec = end_effector(proto, q_t) - proto.base
+    outward = target - centroid
+    outward /= np.linalg.norm(outward) + 1e-12
+    # rotate the whole arm (through q_t[0]) so its base lies outside the formation
+    ang_now = np.arctan2(reach_vec[0], reach_vec[1])
+    ang_want = np.arctan2(-outward[0], -outward[1]) + rng.uniform(-0.6, 0.6)
+    q_t[0] += ang_want - ang_now
+    reach_vec = end_effector(proto, q_t) - proto.base
+    arm = ArmParams(proto.masses, proto.lengths, proto.com, proto.inertias, base=target - reach_vec,
+                    passive_first_joint=passive, passive_damping=opt.passive_damping)
+    qa_start = q_t[1:] + rng.uniform(-1.0, 1.0, n - 1) if passive else q_t + rng.uniform(-1.0, 1.0, n)
+    return arm, zero_momentum_start(arm, q_t, qa_start)
+
+
+def _arm_passes(i: int, arms: list[ArmParams], q0: list[np.ndarray], opt: RandomScenarioOptions,
+                earlier: bool) -> bool:
+    """Arm i regular at its start (σ_min(J̄) ≥ ``min_sigma``) and, if ``earlier`` and ``inter_arm``, its capsules
+    ``start_clearance`` clear of arms 0 … i − 1's."""
+    if np.linalg.svd(reduced_jacobian(arms[i], q0[i]), compute_uv=False).min() < opt.min_sigma:
+        return False
+    return not (earlier and opt.inter_arm) or all(
+        inter_arm_clearance(arms[i], q0[i], arms[j], q0[j], opt.link_radius).min() >= opt.start_clearance
+        for j in range(i))
 
 
 def drawn_scenario(opt: RandomScenarioOptions, arms: list[ArmParams], q0: list[np.ndarray], formation: Formation,

@@ -15,6 +15,10 @@
   b = 0.5 N·m·s/rad: docs/ENVIRONMENTS.md),
 * ``pan1_env/MovingFormation-v0`` (RandomFormation-v1's teams, whose formation scales between 0.8 and 1.2
   through keyframes 15 s apart; success is the error below 1 cm for the last 5 s: docs/ENVIRONMENTS.md),
+* ``pan1_env/RandomFormation-v2`` (RandomFormation-v1's task on a ring: each arm joined to the two nearest on
+  each side, so at most 4 neighbours and an observation whose size does not depend on the team's; arms redrawn
+  one by one, so that ``random_options={"n_arms": 32}`` draws at once: docs/ENVIRONMENTS.md),
+* ``pan1_env/LargeFormation-v0`` (RandomFormation-v2 with 16 arms and 12 obstacles),
 
 as :class:`~pan1_env.centralized.CentralizedEnv` (one agent controlling every arm), and the one-arm task
 ``pan1_env/PAReach-v0`` (:class:`~pan1_env.reach.PAReachEnv`). The envs truncate their episodes
@@ -34,6 +38,7 @@ _WHOLE_ARM = {"bodies": "links", "link_radius": 0.03, "inter_arm": True}
 _V1_FILTER = {"barrier": "distance", "decay": 50.0, "kappa": 0.5, "epsilon": 5.0}  # docs/ENVIRONMENTS.md says why
 _FAULTS = {"fault_probability": 0.5, "fault_time": (1.0, 10.0), "passive_damping": 0.5}
 _MOVING = {"formation_scale": (0.8, 1.2), "scale_period": 15.0}
+_RING = {"shape": "ring", "arm_redraws": 20}
 MOVING_SUCCESS_HOLD = 5.0  # s: MovingFormation-v0's success is the error below tolerance for this long
 ENV_IDS = {
     "pan1_env/PaperPA3Square-v0": {"scenario": "paper_pa3_square"},
@@ -51,6 +56,9 @@ ENV_IDS = {
     "pan1_env/FaultFormation-v0": {"scenario": "random", "random_options": _V1_FILTER | _FAULTS},
     "pan1_env/MovingFormation-v0": {"scenario": "random", "random_options": _V1_FILTER | _MOVING,
                                     "success_hold": MOVING_SUCCESS_HOLD},
+    "pan1_env/RandomFormation-v2": {"scenario": "random", "random_options": _V1_FILTER | _RING},
+    "pan1_env/LargeFormation-v0": {"scenario": "random",
+                                   "random_options": _V1_FILTER | _RING | {"n_arms": 16, "n_obstacles": 12}},
 }
 REACH_ENV_ID = "pan1_env/PAReach-v0"
 DEFAULT_REACH_STEPS = 200  # PAReach-v0: 10 s at the default control_dt of 0.05 s

@@ -120,7 +120,7 @@ class Teams(list):
 def _shape_unit(opt: RandomScenarioOptions) -> tuple[np.ndarray, float]:
     """The shape's vertices for side ``divisor`` (polygon: the unit circle's, divisor 2 sin(π/N); else side 1)."""
     N = opt.n_arms
-    if opt.shape == "polygon" and N > 2:
+    if opt.shape in ("polygon", "ring") and N > 2:
         ang = 2.0 * np.pi * np.arange(N) / N
         return np.stack([np.cos(ang), np.sin(ang)], axis=-1), 2.0 * np.sin(np.pi / N)
     return shape_positions(opt.shape, 1.0, N)[0], 1.0
@@ -160,7 +160,7 @@ def _kernel_options(opt: RandomScenarioOptions) -> tuple[np.ndarray, np.ndarray,
               "fault_probability": opt.fault_probability, "fault_lo": opt.fault_time[0], "fault_hi": opt.fault_time[1],
               "shape_divisor": divisor, "base_margin": BASE_MARGIN}  # an argument: a cached kernel keeps no constant
     flags = {"n_obstacles": opt.n_obstacles, "links_bodies": opt.bodies == "links", "inter_arm": opt.inter_arm,
-             "moving": opt.moving}
+             "moving": opt.moving, "arm_redraws": opt.arm_redraws}
     return (np.array([values[n] for n in REAL_OPTIONS], dtype=float),
             np.array([flags[n] for n in FLAG_OPTIONS], dtype=np.int64),
             np.array(opt.links, dtype=np.int64), np.array(opt.passive, dtype=np.bool_), np.ascontiguousarray(unit))

@@ -188,6 +188,33 @@ def test_polygon_shape_is_rigid_with_2n_minus_3_edges(n_agents: int) -> None:
     np.testing.assert_allclose(sides, size, rtol=1e-12)
 
 
+@pytest.mark.parametrize("n_agents", [2, 3, 4, 5, 6, 7, 8, 16, 32, 33])
+def test_ring_has_bounded_degree_and_is_globally_rigid(n_agents: int) -> None:
+    """The ring's degree stays at most 4 whatever N, and its distances fix the shape: it is rigid with any one
+    edge removed (redundantly rigid) and stays connected with any two arms removed (3-connected), which in the
+    plane makes a graph globally rigid (Jackson and Jordán 2005), unlike the polygon's fan, whose triangles can
+    fold over a diagonal. Connectivity is scipy's, rigidity the rank of the hand-built matrix above."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    form = Formation.from_shape("ring", 0.7, n_agents)
+    edges = form.edges.tolist()
+    assert np.bincount(form.edges.ravel(), minlength=n_agents).max() <= min(4, n_agents - 1)
+    assert len({tuple(sorted(e)) for e in edges}) == len(edges)
+    assert _rank_rigid(edges, form.target)
+    if n_agents < 4:
+        assert len(edges) == n_agents * (n_agents - 1) // 2  # the complete graph
+        return
+    assert all(_rank_rigid(edges[:k] + edges[k + 1:], form.target) for k in range(len(edges)))
+    for gone in itertools.combinations(range(n_agents), 2):
+        kept = [e for e in edges if not set(e) & set(gone)]
+        i, j = np.array(kept).T
+        graph = coo_matrix((np.ones(len(kept)), (i, j)), shape=(n_agents, n_agents))
+        assert connected_components(graph, directed=False)[0] == 1 + len(gone)  # the two removed stand alone
+    # every edge joins arms at most two apart around the ring
+    assert all(min((i - j) % n_agents, (j - i) % n_agents) <= 2 for i, j in edges)
+
+
 def test_square_shape_is_the_papers_graph() -> None:
     form = Formation.from_shape("square", 0.7, 4)
     assert {tuple(sorted(e)) for e in form.edges.tolist()} == {(0, 1), (1, 2), (2, 3), (0, 3), (0, 2)}

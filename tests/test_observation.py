@@ -47,6 +47,8 @@ def _reference(env) -> dict[str, np.ndarray]:
     dict(scenario="paper_pa3_square", n_obstacle_obs=1),
     dict(scenario="paper_pa_mixed_square"),
     dict(scenario="random", random_options=dict(n_arms=5, links=(2, 3, 4, 3, 2), n_obstacles=4)),
+    dict(scenario="pan1_env/RandomFormation-v2", random_options=dict(n_arms=7)),  # every ring slot used
+    dict(scenario="pan1_env/RandomFormation-v2", random_options=dict(n_arms=3)),  # two of four slots padded
 ])
 def test_observations_match_the_per_agent_reference(kwargs) -> None:
     env = parallel_env(**kwargs)
@@ -108,3 +110,20 @@ def test_a_layout_needs_what_its_team_observes(env_id, options, keyword, bad, me
     good = {"faulted": engine.faulted, "formation_velocity": task.feed_forward}[keyword]
     built = layout.build(*args, **{keyword: good})
     assert [m.shape[-1] for m in built] == [layout.size(n) for n, _ in layout.groups]
+
+
+@pytest.mark.parametrize("env_id", ["pan1_env/RandomFormation-v2", "pan1_env/LargeFormation-v0"])
+def test_a_rings_observation_has_the_same_size_for_every_team_size(env_id: str) -> None:
+    """On the ring an arm's observation has 4 neighbour slots whatever N, so one shared policy's input fits
+    a team of any size; the slots present are the arm's neighbours in the formation graph."""
+    sizes = {}
+    for n_arms in (2, 3, 4, 8, 32):
+        env = parallel_env(env_id, random_options={"n_arms": n_arms, "n_obstacles": max(3, 3 * n_arms // 4)})
+        obs, _ = env.reset(seed=n_arms)
+        layout = env.observation_layout
+        sizes[n_arms] = {env.observation_space(a).shape for a in env.agents}
+        degree = np.bincount(env.scenario.formation.edges.ravel(), minlength=n_arms)
+        for i, agent in enumerate(env.agents):
+            present = obs[agent][layout.segments(3)["neighbours"]][::4]
+            assert present.sum() == degree[i] == len(env.scenario.formation.neighbours(i))
+    assert len(set().union(*sizes.values())) == 1, sizes

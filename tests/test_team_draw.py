@@ -25,6 +25,11 @@ OPTIONS = {
     # odd numbers of signs per arm leave a 32-bit half in the generator's buffer between arms and attempts
     "mixed": {"n_arms": 5, "links": (2, 3, 4, 3, 2), "passive_fraction": 0.6, "n_obstacles": 4},
     "square": {"shape": "square", "links": 2, "passive_fraction": 0.25},
+    # arms drawn again alone: the ring's larger teams, and with whole-arm clearances between the arms
+    "ring_redraws": ENV_IDS["pan1_env/RandomFormation-v1"]["random_options"] | {"shape": "ring", "n_arms": 8,
+                                                                               "n_obstacles": 6, "arm_redraws": 20},
+    "whole_arm_redraws": ENV_IDS["pan1_env/WholeArmStaticFormation-v1"]["random_options"]
+    | {"shape": "ring", "n_arms": 6, "arm_redraws": 5},
 }
 
 
@@ -107,6 +112,29 @@ def test_the_guarantees_hold_on_hundreds_of_draws_by_independent_geometry() -> N
             for arm in team.arms:
                 sweep = arm.lengths[0] if arm.passive_first_joint else 0.0
                 assert point_segment_distance(arm.base, centre, end) >= r + BASE_MARGIN + rho + sweep - 1e-9
+
+
+@pytest.mark.parametrize("env_id", ["pan1_env/RandomFormation-v2", "pan1_env/WholeArmStaticFormation-v1"])
+def test_teams_of_32_arms_draw_when_arms_are_redrawn_alone(env_id: str) -> None:
+    """Drawing the whole team again while any arm fails its checks finds no 32-arm team in 200 attempts; redrawing
+    only the failing arm does, and the teams keep the guarantees (independent geometry)."""
+    base = ENV_IDS[env_id]["random_options"] | {"n_arms": 32, "n_obstacles": 24, "shape": "ring"}
+    with pytest.raises(DrawError):
+        draw_teams([np.random.default_rng(0)], RandomScenarioOptions(**(base | {"arm_redraws": 0})))
+    options = RandomScenarioOptions(**(base | {"arm_redraws": 20}))
+    draws = draw_teams([np.random.default_rng(500 + s) for s in range(8)], options)
+    rho, clear = options.link_radius, options.start_clearance
+    for c in range(8):
+        team = draws.scenario(c)
+        arm_joints = [joints(q, a.lengths, a.base, a.phi) for a, q in zip(team.arms, team.q0, strict=True)]
+        if options.bodies == "links":
+            assert min(cl.min() for cl in inter_arm_clearances(arm_joints, rho).values()) >= clear - 1e-9
+        tips = np.array([j[-1] for j in arm_joints])
+        centers, radii = team.obstacles.centers, team.obstacles.radii
+        assert len(radii) == 24
+        assert (np.linalg.norm(tips[:, None] - centers[None], axis=-1) - radii).min() >= clear - 1e-9
+        for arm, q in zip(team.arms, team.q0, strict=True):
+            assert np.linalg.svd(reduced_jacobian(arm, q), compute_uv=False).min() >= options.min_sigma - 1e-9
 
 
 def test_options_no_team_satisfies_raise_a_draw_error() -> None:
