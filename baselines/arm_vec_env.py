@@ -50,6 +50,12 @@ class SB3ArmVecEnv(SB3VecEnv):
         action = gymnasium.spaces.Box(-1.0, 1.0, (core.k_max,), np.float32)
         return self.venv.num_envs * self._arms, observation, action
 
+    @property
+    def teams(self) -> list[range]:
+        """The sub-envs of each copy's team: its arms."""
+        N = self._arms
+        return [range(b * N, (b + 1) * N) for b in range(self.num_envs // N)]
+
     def reset(self) -> np.ndarray:
         core, seed = self.venv.core, self._batch_seed
         self._batch_seed = None

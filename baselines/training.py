@@ -74,9 +74,10 @@ PPO_DEFAULTS = {"n_steps": 64, "batch_size": 2048, "n_epochs": 5}
 
 def make_training_env(scenario: str, shield: bool, seed: int, n_envs: int = DEFAULT_N_ENVS,
                       param_sharing: bool = False, env_kwargs: dict[str, Any] | None = None,
-                      centralised_critic: bool = False):
+                      centralised_critic: bool = False, team_sizes: list[int] | None = None):
     """The SB3 ``VecEnv`` to train on (see the module docstring); its copies are seeded with independent streams
-    spawned from ``seed`` (:func:`pan1_env.core.copy_generator`)."""
+    spawned from ``seed`` (:func:`pan1_env.core.copy_generator`). With ``team_sizes``, ``n_envs`` copies of each
+    size (:class:`~pan1_env.baselines.mixed_vec_env.SB3MixedArmVecEnv`, parameter sharing)."""
     from stable_baselines3.common.vec_env import VecMonitor
 
     from .arm_vec_env import SB3ArmVecEnv
@@ -85,7 +86,12 @@ def make_training_env(scenario: str, shield: bool, seed: int, n_envs: int = DEFA
     kwargs = {"safety_filter": bool(shield), **dict(env_kwargs or {})}
     if centralised_critic:
         kwargs["critic_state"] = True
-    venv = (SB3ArmVecEnv if param_sharing else SB3VecEnv)(scenario, n_envs, **kwargs)
+    if team_sizes:
+        from .mixed_vec_env import SB3MixedArmVecEnv
+
+        venv = SB3MixedArmVecEnv(scenario, team_sizes, n_envs, **kwargs)
+    else:
+        venv = (SB3ArmVecEnv if param_sharing else SB3VecEnv)(scenario, n_envs, **kwargs)
     venv.seed(seed)
     return VecMonitor(venv)
 
@@ -104,7 +110,7 @@ def latest_checkpoint(out: Path) -> tuple[Path, int] | None:
 
 
 def _callbacks(out: Path, checkpoint_every: int, algo: str, total: int, progress: bool,
-               initial_costs: np.ndarray | None, sidecar, team_size: int = 1):
+               initial_costs: np.ndarray | None, sidecar, teams: list[range]):
     import torch
     from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
@@ -113,9 +119,9 @@ def _callbacks(out: Path, checkpoint_every: int, algo: str, total: int, progress
     class EpisodeLog(BaseCallback):
         """Appends a CSV row per finished episode with its return, length, cost and success.
 
-        With parameter sharing each arm is a sub-env of its own (``team_size`` consecutive sub-envs per
-        team, ending together): a team's episode is one row, its return the mean of its arms' returns
-        (the benchmark's convention) and its cost the sum of its arms' costs."""
+        With parameter sharing each arm is a sub-env of its own (``teams``: each team's consecutive sub-envs,
+        ending together): a team's episode is one row, its return the mean of its arms' returns (the
+        benchmark's convention) and its cost the sum of its arms' costs."""
 
         def _on_training_start(self) -> None:
             self.path = out / "episodes.csv"
@@ -137,8 +143,7 @@ def _callbacks(out: Path, checkpoint_every: int, algo: str, total: int, progress
             infos = self.locals["infos"]
             for i, info in enumerate(infos):
                 self.costs[i] += float(info.get("cost", 0.0))
-            for first in range(0, len(infos), team_size):
-                team = range(first, first + team_size)
+            for team in teams:
                 ended = [i for i in team if "episode" in infos[i]]
                 if not ended:
                     continue
@@ -271,7 +276,8 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
           progress: bool = True,
           env_kwargs: dict[str, Any] | None = None, algo_kwargs: dict[str, Any] | None = None,
           normalize: bool = True, eval_every: int | None = None, critic_warmup: int = 0,
-          extra_callbacks: list | None = None, cost_limit: float = 1.0, lagrangian_lr: float = 0.01) -> dict[str, Any]:
+          extra_callbacks: list | None = None, cost_limit: float = 1.0, lagrangian_lr: float = 0.01,
+          team_sizes: list[int] | None = None) -> dict[str, Any]:
     """Train and return a summary (see the module docstring). Raises ValueError on bad arguments."""
     from pan1_env.registration import env_arguments
 
@@ -287,6 +293,9 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
         raise ValueError(f"centralised_critic (--centralised-critic, MAPPO) is the critic of an actor the arms share: "
                          f"it needs param_sharing (--param-sharing) and ppo or ppo-lagrangian; got algo={algo!r}, "
                          f"param_sharing={param_sharing}")
+    if team_sizes and not param_sharing:
+        raise ValueError("team_sizes (--team-sizes) trains one network the arms share on teams of several sizes: "
+                         "it needs param_sharing (--param-sharing)")
     if critic_warmup and algo == "sac":
         raise ValueError("critic_warmup is for PPO's actor and critic; SAC has no warm-up here")
     max_steps = _check_env_kwargs(scenario, env_kwargs)
@@ -301,7 +310,8 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
     out = Path(out)
 
     def build_env():
-        venv = make_training_env(scenario, shield, seed, n_envs, param_sharing, env_kwargs, centralised_critic)
+        venv = make_training_env(scenario, shield, seed, n_envs, param_sharing, env_kwargs, centralised_critic,
+                                 team_sizes)
         if algo == "ppo-lagrangian":
             from .lagrangian import CostPenalisedVecEnv
 
@@ -362,9 +372,10 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
                 (out / log_name).unlink()
     chunk = _steps_per_collection(model)
     requested, timesteps = timesteps, max(chunk, int(timesteps / chunk + 0.5) * chunk)  # the nearest whole count
-    team_size = venv.num_envs // n_envs  # SB3 envs per copy: the arms with parameter sharing, else 1
+    teams = venv.unwrapped.teams  # each copy's SB3 envs: its arms with parameter sharing, else itself
+    team_size = max(len(t) for t in teams)
     if timesteps != requested:
-        _say(f"--timesteps {requested:,} rounded to {timesteps:,}: {_collection_text(model, team_size)}; "
+        _say(f"--timesteps {requested:,} rounded to {timesteps:,}: {_collection_text(model, len(teams))}; "
              "the progress bar, num_timesteps and the last checkpoint all stop there")
     first_end = max_steps * venv.num_envs
     if first_end > timesteps and previous is None:
@@ -378,6 +389,8 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
             "algo_kwargs": algo_kwargs or {}, "normalize": normalize}
     if critic_warmup:
         meta["critic_warmup"] = critic_warmup
+    if team_sizes:
+        meta["team_sizes"] = list(venv.unwrapped.team_sizes)
     if centralised_critic:
         meta["centralised_critic"] = True
     if algo == "ppo-lagrangian":
@@ -406,8 +419,7 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
     if remaining > 0:
         from stable_baselines3.common.callbacks import CallbackList
 
-        callbacks = [_callbacks(out, checkpoint_every, algo, timesteps, progress, initial_costs, sidecar,
-                                team_size)]
+        callbacks = [_callbacks(out, checkpoint_every, algo, timesteps, progress, initial_costs, sidecar, teams)]
         if eval_every:
             from .evaluation import EVAL_SEEDS, eval_callback
 
@@ -552,10 +564,10 @@ def _steps_per_collection(model) -> int:
     return model.n_envs * (freq.frequency if freq.unit == TrainFrequencyUnit.STEP else 1)
 
 
-def _collection_text(model, team_size: int) -> str:
+def _collection_text(model, copies: int) -> str:
     from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
-    envs = f"{model.n_envs:,} SB3 envs ({model.n_envs // team_size:,} copies × {team_size} arms)" if team_size > 1 \
+    envs = f"{model.n_envs:,} SB3 envs (the arms of {copies:,} copies)" if model.n_envs > copies \
         else f"{model.n_envs:,} copies"
     if isinstance(model, OnPolicyAlgorithm):
         return f"PPO collects whole rollouts of {model.n_steps:,} steps × {envs} = {_steps_per_collection(model):,}"

@@ -53,6 +53,11 @@ class SB3VecEnv(VecEnv):
     def _spaces(self) -> tuple[int, gymnasium.Space, gymnasium.Space]:
         return self.venv.num_envs, self.venv.single_observation_space, self.venv.single_action_space
 
+    @property
+    def teams(self) -> list[range]:
+        """The sub-envs of each copy's team (here each copy is one sub-env)."""
+        return [range(b, b + 1) for b in range(self.num_envs)]
+
     def reset(self) -> np.ndarray:
         seed, self._batch_seed = self._batch_seed, None
         obs, infos = self.venv.reset(seed=seed)

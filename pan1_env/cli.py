@@ -132,6 +132,10 @@ def _parser() -> argparse.ArgumentParser:
     tr.add_argument("--centralised-critic", action="store_true",
                     help="with --param-sharing and ppo: a critic that also reads the team's global state while "
                          "each arm acts on its own observation (MAPPO; MAPPO-Lagrangian with ppo-lagrangian)")
+    tr.add_argument("--team-sizes", type=_team_sizes, default=None, metavar="N,N,…",
+                    help="with --param-sharing: train on --n-envs copies of each of these team sizes at once "
+                         "(random_options n_arms), e.g. 3,4,5,6,7,8 on pan1_env/RandomFormation-v2, whose arm "
+                         "observation has the same size for every team")
     tr.add_argument("--checkpoint-every", type=_positive_int, default=10_000, help="steps between checkpoints")
     tr.add_argument("--max-steps", type=_positive_int, default=None,
                     help="env steps per episode (default: the env's max_steps)")
@@ -213,6 +217,13 @@ def _json_object(text: str) -> dict:
     if not isinstance(value, dict):
         raise argparse.ArgumentTypeError(f"expected a JSON object such as '{{\"gamma\": 0.995}}', got {text!r}")
     return value
+
+
+def _team_sizes(text: str) -> list[int]:
+    sizes = [_positive_int(part.strip()) for part in text.split(",") if part.strip()]
+    if not sizes or min(sizes) < 2 or len(set(sizes)) != len(sizes):
+        raise argparse.ArgumentTypeError(f"expected distinct team sizes ≥ 2 separated by commas, got {text!r}")
+    return sizes
 
 
 def _positive_int(text: str) -> int:
@@ -430,7 +441,7 @@ def _cmd_train(args) -> int:
                     checkpoint_every=args.checkpoint_every, progress=not args.no_progress,
                     env_kwargs=env_kwargs, normalize=args.normalize, algo_kwargs=args.algo_kwargs,
                     eval_every=args.eval_every, critic_warmup=args.critic_warmup, cost_limit=args.cost_limit,
-                    lagrangian_lr=args.lagrangian_lr)
+                    lagrangian_lr=args.lagrangian_lr, team_sizes=args.team_sizes)
     print(json.dumps(summary, indent=2))
     return 0
 

@@ -91,6 +91,9 @@ class FormationCore:
         self.n_links = [a.n_links for a in team.arms]
         self.n_actuated = [a.n_actuated for a in team.arms]
         self.rngs = [np.random.default_rng() for _ in range(B)]
+        # where these copies start in a larger batch seeded with one int (several cores trained as one: the
+        # mixed team sizes of pan1_env.baselines), so that each copy's stream is its own
+        self.first_copy = 0
         self.steps = np.zeros(B, dtype=np.int64)
         self.record: StepRecord | None = None
         self._k_rows = np.tile(np.asarray(self.n_actuated), B)
@@ -205,13 +208,14 @@ class FormationCore:
 
     def seed(self, seeds: int | list[int | None]) -> None:
         """Fresh generators. One int ``s``: every copy gets an independent stream spawned from ``s``
-        (:func:`copy_generator`), so runs with different seeds share no copy's teams, and no copy's stream is
-        the stream of a one-copy env's ``reset(seed=...)`` (the held-out evaluation teams). A list: copy b
-        gets Gymnasium's ``np_random(seeds[b])``, the team a one-copy env draws with that seed (``None``: keep
-        the copy's generator). A seed is a non-negative int (``gymnasium.error.Error`` otherwise)."""
+        (:func:`copy_generator`, copy b's number ``first_copy + b``), so runs with different seeds share no copy's
+        teams, and no copy's stream is the stream of a one-copy env's ``reset(seed=...)`` (the held-out evaluation
+        teams). A list: copy b gets Gymnasium's ``np_random(seeds[b])``, the team a one-copy env draws with that
+        seed (``None``: keep the copy's generator). A seed is a non-negative int (``gymnasium.error.Error``
+        otherwise)."""
         if isinstance(seeds, (int, np.integer)):
             np_random(int(seeds))  # Gymnasium's check of the seed, before anything changes
-            self.rngs = [copy_generator(int(seeds), b) for b in range(self.copies)]
+            self.rngs = [copy_generator(int(seeds), self.first_copy + b) for b in range(self.copies)]
             return
         if len(seeds) != self.copies:
             raise ValueError(f"reset(seed=...) needs an int or {self.copies} seeds, got {len(seeds)}")

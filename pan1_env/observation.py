@@ -53,7 +53,8 @@ class ObservationLayout:
     | next 2 | only with a moving formation (``Scenario.motion``): the feed-forward ṗ_ff,i (m/s; :mod:`~.motion`) |
     | last 1 | only where arms may fault (``Scenario.fault_times``): 1.0 once the arm's first joint lost its drive |
 
-    D is the formation graph's largest degree (N − 1 for random scenarios); for neighbour j,
+    D is the most neighbours the team's graph can give an arm (random polygon teams: N − 1; a ring: 4 whatever N,
+    so the size does not depend on the team's; a scenario file's graph: its largest degree); for neighbour j,
     (dx, dy) = p_j − p_i and err = ‖p_j − p_i‖ − d_ij (m). The K obstacles are the nearest by
     clearance; for obstacle o, (dx, dy) = o − p_i, r its radius and h = ‖p_i − o‖² − r² the barrier
     value. Absent slots are zeros. Entries other than cos, sin and flags are clipped to ±1e6.
