@@ -18,6 +18,7 @@ Prints a Markdown table of medians (each over several repeats) and the ratios th
   (benchmarks/reset.py), and the per-copy reference path they replaced;
 * the exact compiled QP against qpsolvers + PIQP, per solve, on the same random filter problems;
 * the shielded step for teams of 4, 16 and 64 arms (random polygons of PA3 arms), and 64 against 4;
+* a whole-arm step per arm on ring teams of 4 to 64 arms, against 16 arms (benchmarks/sizes.py);
 * the batched TorchRL env (``pan1_env.marl``, shielded random teams) against VMAS ``navigation`` (4 agents,
   CPU) at B = 1024, in agent-steps per second (needs the ``marl`` and ``bench`` extras);
 * ``pan1-env reproduce`` of each paper scenario (the simulation loop, nominal and safe);
@@ -41,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 from reset import bench_reset  # benchmarks/ is the script's directory
+from sizes import bench_sizes
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # compile_times.py is a script beside this one
 from compile_times import bench_cold_start, bench_warmup  # noqa: E402
@@ -596,7 +598,7 @@ def bench_marl(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
 
 #: the groups of rows, in the order they run (``--only`` picks some)
 GROUPS = ("import", "cold_start", "warmup", "mpe", "acrobot", "vector", "kernel", "v1", "faults", "moving", "gate",
-          "whole_arm", "reset", "qp", "team_scaling", "marl", "reproduce", "training")
+          "whole_arm", "reset", "qp", "team_scaling", "sizes", "marl", "reproduce", "training")
 
 
 def main() -> int:
@@ -629,6 +631,7 @@ def main() -> int:
         "reset": lambda: bench_reset(repeats),
         "qp": lambda: bench_qp(300 if args.quick else 2000),
         "team_scaling": lambda: bench_team_scaling(repeats, inner),
+        "sizes": lambda: bench_sizes(repeats),
         "marl": lambda: bench_marl(repeats),
         "reproduce": lambda: bench_reproduce(10.0 if args.quick else 100.0),
         "training": lambda: bench_training(16_384 if args.quick else 65_536),
