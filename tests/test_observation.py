@@ -127,3 +127,17 @@ def test_a_rings_observation_has_the_same_size_for_every_team_size(env_id: str) 
             present = obs[agent][layout.segments(3)["neighbours"]][::4]
             assert present.sum() == degree[i] == len(env.scenario.formation.neighbours(i))
     assert len(set().union(*sizes.values())) == 1, sizes
+
+
+@pytest.mark.parametrize("n_arms", [3, 7])
+def test_the_reference_from_a_rings_observations_is_the_law(n_arms: int) -> None:
+    """The paper's distributed law needs only an arm's graph neighbours: from the ring's 4 padded slots the
+    reference policy computes what the env's own law computes from the state."""
+    from rollouts import reference_and_law
+
+    def make(**kw):
+        return parallel_env("pan1_env/RandomFormation-v2", random_options={"n_arms": n_arms}, **kw)
+
+    _, _, pairs, _ = reference_and_law(make, seed=2, steps=10, action_seed=1)
+    for law, reference in pairs:
+        np.testing.assert_allclose(law, reference, rtol=1e-4, atol=1e-5)
