@@ -51,7 +51,7 @@ class SB3ArmVecEnv(SB3VecEnv):
         return self.venv.num_envs * self._arms, observation, action
 
     @property
-    def teams(self) -> list[range]:
+    def team_envs(self) -> list[range]:
         """The sub-envs of each copy's team: its arms."""
         N = self._arms
         return [range(b * N, (b + 1) * N) for b in range(self.num_envs // N)]

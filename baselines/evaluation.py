@@ -174,6 +174,8 @@ def eval_callback(out: Path, every: int, scenario: str, shield: bool, env_kwargs
             env = self.model.get_env()
             norm = env if isinstance(env, VecNormalize) else None
             arms = env.unwrapped if isinstance(env.unwrapped, SB3ArmVecEnv) else None
+            if hasattr(env.unwrapped, "team_sizes"):  # mixed sizes: the arm view of the evaluation's own team size
+                arms = SB3ArmVecEnv(scenario, 1, **(env_kwargs or {}))
             policy = _team_policy(lambda obs: self.model.predict(obs, deterministic=True)[0], arms,
                                   (lambda obs: obs) if norm is None else norm.normalize_obs)
             row = {"timesteps": self.num_timesteps} | summarise(evaluate(policy, scenario, seeds, shield=shield,

@@ -39,6 +39,9 @@ class SB3MixedArmVecEnv(VecEnv):
             raise ValueError("critic_state (MAPPO's global state) grows with the team: train mixed team sizes "
                              "without --centralised-critic")
         options = dict(kwargs.pop("random_options", None) or {})
+        if "n_arms" in options:
+            raise ValueError(f"random_options n_arms={options['n_arms']!r} and team_sizes={sizes} both set the team "
+                             "size: give the sizes in team_sizes only")
         self.parts = [SB3ArmVecEnv(scenario, num_envs, random_options=options | {"n_arms": n}, **kwargs)
                       for n in sizes]
         spaces = {(p.observation_space.shape, p.action_space.shape) for p in self.parts}
@@ -65,18 +68,28 @@ class SB3MixedArmVecEnv(VecEnv):
             part.venv = venv
 
     @property
-    def teams(self) -> list[range]:
+    def team_envs(self) -> list[range]:
         """The sub-envs of each copy (its arms), over every size."""
         return [range(first + t.start, first + t.stop) for first, p in zip(self._bounds, self.parts, strict=False)
-                for t in p.teams]
+                for t in p.team_envs]
 
     def seed(self, seed: int | None = None) -> list[int | None]:
+        """Seed the next reset: every copy of every size its own stream spawned from ``seed`` (the sizes' copies
+        numbered one after another); returns that seed once per sub-env."""
         seeds = self.parts[0].seed(seed)
         for part in self.parts[1:]:
             part.seed(seeds[0])
         return [seeds[0]] * self.num_envs
 
+    def set_options(self, options: list[dict] | dict | None = None) -> None:
+        """The next reset's options (the task's reset options), for every size's copies (one dict), or per
+        sub-env (a list, as SB3 gives it; a copy takes its first arm's)."""
+        for part, lo, hi in zip(self.parts, self._bounds[:-1], self._bounds[1:], strict=True):
+            part.set_options(options[lo:hi] if isinstance(options, list) else options)
+
     def reset(self) -> np.ndarray:
+        self._reset_seeds()  # the parts hold the seeds and options this view was given
+        self._reset_options()
         obs = [p.reset() for p in self.parts]
         self.reset_infos = [info for p in self.parts for info in p.reset_infos]
         return np.concatenate(obs)

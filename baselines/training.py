@@ -326,7 +326,7 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
     if resume and previous is None:
         raise ValueError(f"nothing to resume in {out}: no checkpoints/model_*_steps.zip")
     if previous is not None:
-        _check_resumed_view(out, algo, param_sharing, centralised_critic)
+        _check_resumed_view(out, algo, param_sharing, centralised_critic, team_sizes)
         path, done_steps = previous
         with path.with_name(f"state_{done_steps}_steps.pkl").open("rb") as fh:
             state = pickle.load(fh)
@@ -372,8 +372,8 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
                 (out / log_name).unlink()
     chunk = _steps_per_collection(model)
     requested, timesteps = timesteps, max(chunk, int(timesteps / chunk + 0.5) * chunk)  # the nearest whole count
-    teams = venv.unwrapped.teams  # each copy's SB3 envs: its arms with parameter sharing, else itself
-    team_size = max(len(t) for t in teams)
+    teams = venv.unwrapped.team_envs  # each copy's SB3 envs: its arms with parameter sharing, else itself
+    team_size = venv.num_envs // n_envs  # SB3 envs per --n-envs copy (with mixed sizes, one copy of each size)
     if timesteps != requested:
         _say(f"--timesteps {requested:,} rounded to {timesteps:,}: {_collection_text(model, len(teams))}; "
              "the progress bar, num_timesteps and the last checkpoint all stop there")
@@ -443,16 +443,19 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
             "episodes": str(out / "episodes.csv")} | _episode_summary(out / "episodes.csv")
 
 
-def _check_resumed_view(out: Path, algo: str, param_sharing: bool, centralised_critic: bool) -> None:
+def _check_resumed_view(out: Path, algo: str, param_sharing: bool, centralised_critic: bool,
+                        team_sizes: list[int] | None = None) -> None:
     """A run resumes with the algorithm and the view of the env it was trained on: its run.json's."""
     try:
         run = json.loads((out / "run.json").read_text())
     except (OSError, ValueError):
         return  # no readable run.json: SB3's own checks on the saved model remain
-    given = {"algo": algo, "param_sharing": param_sharing, "centralised_critic": centralised_critic}
-    flags = {"algo": "--algo", "param_sharing": "--param-sharing", "centralised_critic": "--centralised-critic"}
+    given = {"algo": algo, "param_sharing": param_sharing, "centralised_critic": centralised_critic,
+             "team_sizes": list(team_sizes) if team_sizes else None}
+    flags = {"algo": "--algo", "param_sharing": "--param-sharing", "centralised_critic": "--centralised-critic",
+             "team_sizes": "--team-sizes, in the same order"}
     for key, value in given.items():
-        trained = run.get(key, "ppo" if key == "algo" else False)
+        trained = run.get(key, {"algo": "ppo", "team_sizes": None}.get(key, False))
         if trained != value:
             raise ValueError(f"{out} was trained with {key}={trained!r} ({flags[key]}); resume it with the same, "
                              f"not {value!r}")

@@ -54,7 +54,7 @@ class SB3VecEnv(VecEnv):
         return self.venv.num_envs, self.venv.single_observation_space, self.venv.single_action_space
 
     @property
-    def teams(self) -> list[range]:
+    def team_envs(self) -> list[range]:
         """The sub-envs of each copy's team (here each copy is one sub-env)."""
         return [range(b, b + 1) for b in range(self.num_envs)]
 

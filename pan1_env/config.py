@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from .control import MAX_JOINT_SPEED
-from .formation import RING_DEGREE
+from .formation import most_neighbours
 from .random_scenario import RandomScenarioOptions, random_scenario
 from .registration import DEFAULT_REACH_STEPS, env_arguments
 from .safety import QP_SOLVERS, FilterParams, filter_parameters
@@ -208,8 +208,13 @@ class FormationConfig:
         else the largest degree of the scenario's graph."""
         team = self.team
         if self.random:
-            return RING_DEGREE if self.random_options.shape == "ring" else team.n_arms - 1
+            return most_neighbours(self.random_options.shape, team.n_arms)
         return int(np.bincount(team.formation.edges.ravel(), minlength=team.n_arms).max())
+
+    @property
+    def ring(self) -> bool:
+        """Random teams on a ring formation, whose arms list their neighbours in one shared order."""
+        return self.random and self.random_options.shape == "ring"
 
     def replace(self, **changes: Any) -> FormationConfig:
         """This config's arguments with ``changes``, validated and resolved again (a default that depended on

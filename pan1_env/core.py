@@ -78,6 +78,10 @@ class FormationCore:
         threads: the engine's ``threads`` (``"auto"``, ``True`` or ``False``).
     """
 
+    #: where these copies start in a larger batch seeded with one int (several cores trained as one, as the mixed
+    #: team sizes of pan1_env.baselines.mixed_vec_env are), so that every copy's stream is its own
+    first_copy: int = 0
+
     def __init__(self, config: FormationConfig | ReachConfig, copies: int = 1, *, threads: bool | str = "auto") -> None:
         self.config = c = config
         self.copies = B = positive_int("num_envs", copies)
@@ -91,9 +95,6 @@ class FormationCore:
         self.n_links = [a.n_links for a in team.arms]
         self.n_actuated = [a.n_actuated for a in team.arms]
         self.rngs = [np.random.default_rng() for _ in range(B)]
-        # where these copies start in a larger batch seeded with one int (several cores trained as one: the
-        # mixed team sizes of pan1_env.baselines), so that each copy's stream is its own
-        self.first_copy = 0
         self.steps = np.zeros(B, dtype=np.int64)
         self.record: StepRecord | None = None
         self._k_rows = np.tile(np.asarray(self.n_actuated), B)

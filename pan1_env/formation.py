@@ -32,6 +32,8 @@ __all__ = [
     "realise",
     "SHAPES",
     "RING_DEGREE",
+    "most_neighbours",
+    "ring_neighbours",
 ]
 
 SHAPES = ("square", "polygon", "ring")
@@ -129,7 +131,7 @@ def shape_positions(shape: str, size: float, n_agents: int) -> tuple[np.ndarray,
     ``polygon``: a regular N-gon, its N sides plus the fan of diagonals from vertex 0 (2N − 3 edges,
     infinitesimally rigid; vertex 0 has N − 1 neighbours).
     ``ring``: the same N-gon, its sides plus the chords that skip one vertex (i, i + 2): the square of the cycle,
-    2N edges (the complete graph up to N = 4), no vertex with more than :data:`RING_DEGREE` neighbours
+    2N edges from N = 5 (the complete graph up to N = 4), no vertex with more than :data:`RING_DEGREE` neighbours
     whatever N, each edge local (an arm's nearest two on each side), and rigid with every single edge removed
     (tests/test_formation.py checks both up to N = 33). Vertex i is agent i.
     """
@@ -150,10 +152,28 @@ def shape_positions(shape: str, size: float, n_agents: int) -> tuple[np.ndarray,
         sides = [[i, (i + 1) % n_agents] for i in range(n_agents)]
         if shape == "polygon":
             return pos, np.array(sides + [[0, j] for j in range(2, n_agents - 1)])
-        # chords (i, i + 2), each once: for N = 4 the two diagonals, for N = 3 none (the sides already join all)
-        chords = [[i, (i + 2) % n_agents] for i in range({3: 0, 4: 2}.get(n_agents, n_agents))]
+        # chords (i, i + 2), each once: N of them from 5 arms; for 4 arms the two diagonals; for 3 arms none (the
+        # sides already join every pair)
+        n_chords = n_agents if n_agents > 4 else (2 if n_agents == 4 else 0)
+        chords = [[i, (i + 2) % n_agents] for i in range(n_chords)]
         return pos, np.array(sides + chords)
     raise FormationError(f"unknown formation shape {shape!r}; choose one of {SHAPES}")
+
+
+def most_neighbours(shape: str, n_agents: int) -> int:
+    """The most neighbours ``shape``'s graph gives an arm of an ``n_agents`` team: a ring's
+    :data:`RING_DEGREE` whatever N (so that an observation's neighbour slots do not depend on the team's size),
+    a polygon's or a square's N − 1 (the fan's arm 0)."""
+    if shape not in SHAPES:
+        raise FormationError(f"unknown formation shape {shape!r}; choose one of {SHAPES}")
+    return RING_DEGREE if shape == "ring" else n_agents - 1
+
+
+def ring_neighbours(i: int, n_agents: int) -> list[int]:
+    """Arm i's neighbours on the ring in the one order every arm lists them: one back, one forward, two back,
+    two forward (those the team has), so that a neighbour slot means the same for every arm."""
+    offsets = [-1, 1, -2, 2][: min(RING_DEGREE, n_agents - 1)]
+    return [(i + d) % n_agents for d in offsets]
 
 
 def realise(edges: np.ndarray, distances: np.ndarray, n_agents: int, near: np.ndarray | None = None

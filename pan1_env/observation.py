@@ -20,6 +20,7 @@ from functools import cached_property
 import numpy as np
 
 from .compiled import kernels
+from .formation import ring_neighbours
 from .scenario import Scenario
 
 __all__ = ["ObservationLayout", "NEIGHBOUR_FEATURES", "OBSTACLE_FEATURES", "OBS_BOUND"]
@@ -86,8 +87,11 @@ class ObservationLayout:
     motion: bool = False
 
     @classmethod
-    def from_scenario(cls, scenario: Scenario, slots: int, n_obstacle_obs: int) -> ObservationLayout:
-        """The layout of ``scenario``'s team with D = ``slots`` and K = ``n_obstacle_obs``."""
+    def from_scenario(cls, scenario: Scenario, slots: int, n_obstacle_obs: int, ring: bool = False
+                      ) -> ObservationLayout:
+        """The layout of ``scenario``'s team with D = ``slots`` and K = ``n_obstacle_obs``. An arm's neighbours
+        fill its slots in edge order, or with ``ring`` (a ring formation) in the order every arm shares: one
+        back, one forward, two back, two forward (:func:`~pan1_env.formation.ring_neighbours`)."""
         N = scenario.n_arms
         f = scenario.formation
         edge_of = {}
@@ -98,6 +102,10 @@ class ObservationLayout:
         present = np.zeros((N, slots))
         for i in range(N):
             nbrs = f.neighbours(i)
+            if ring:
+                if sorted(ring_neighbours(i, N)) != sorted(nbrs):
+                    raise ValueError(f"arm {i}'s neighbours {nbrs} are not a ring's")
+                nbrs = ring_neighbours(i, N)
             if len(nbrs) > slots:
                 raise ValueError(f"arm {i} has {len(nbrs)} neighbours, more than the {slots} slots")
             for s, j in enumerate(nbrs):

@@ -15,7 +15,7 @@ the README ("Scenario files"); in short::
     [arm_defaults] masses, lengths, com, inertias, passive_first_joint, phi,
                   passive_damping = 0 (N·m·s/rad at a passive first joint)   (optional)
     [[arms]]      base, q0, and any arm_defaults key to override it
-    [formation]   shape = "square" | "polygon" with size,  or  edges + distances (0-based arms)
+    [formation]   shape = "square" | "polygon" | "ring" with size,  or  edges + distances (0-based arms)
     [formation.motion]  scale = [[t, s], ...], switch_distances, switch_time, switch_duration = 0, and to place
                   the shape centre = [x, y], turn = [[t, θ], ...] (rad), path = [[t, dx, dy], ...] (m)  (optional)
     [[obstacles]] center, radius, and for a moving obstacle path_end = [x, y] and speed (m/s)

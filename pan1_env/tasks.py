@@ -89,7 +89,8 @@ class FormationTask:
 
     def __init__(self, config: FormationConfig, copies: int) -> None:
         scenario = config.team
-        self.layout = layout = ObservationLayout.from_scenario(scenario, config.neighbour_slots, config.n_obstacle_obs)
+        self.layout = layout = ObservationLayout.from_scenario(scenario, config.neighbour_slots, config.n_obstacle_obs,
+                                                               ring=config.ring)
         self.gain_range = config.gain_range
         self.max_joint_speed, self.success_tolerance = config.max_joint_speed, config.success_tolerance
         self.weights = (config.formation_weight, config.effort_weight, config.collision_penalty, config.success_bonus,

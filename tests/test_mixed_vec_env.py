@@ -27,7 +27,7 @@ def test_each_size_is_its_own_arm_view_and_every_copy_draws_its_own_stream() -> 
     B, sizes, seed = 2, (3, 5), 7
     mixed = SB3MixedArmVecEnv(RING, sizes, B, max_steps=4, action_mode="gain")
     alone = [SB3ArmVecEnv(RING, B, random_options={"n_arms": n}, max_steps=4, action_mode="gain") for n in sizes]
-    assert mixed.num_envs == B * sum(sizes) and [list(t) for t in mixed.teams[:3]] == [[0, 1, 2], [3, 4, 5],
+    assert mixed.num_envs == B * sum(sizes) and [list(t) for t in mixed.team_envs[:3]] == [[0, 1, 2], [3, 4, 5],
                                                                                        [6, 7, 8, 9, 10]]
     for k, part in enumerate(alone):
         part.venv.core.first_copy = k * B
@@ -68,6 +68,8 @@ def test_sizes_whose_observations_differ_are_refused_with_the_way_out() -> None:
         SB3MixedArmVecEnv(RING, (3, 3), 1)
     with pytest.raises(ValueError, match="centralised-critic"):
         SB3MixedArmVecEnv(RING, (3, 4), 1, critic_state=True)
+    with pytest.raises(ValueError, match="team_sizes only"):
+        SB3MixedArmVecEnv(RING, (3, 4), 1, random_options={"n_arms": 5})
 
 
 def test_training_on_mixed_sizes_logs_one_row_per_team_episode(tmp_path) -> None:
@@ -75,13 +77,18 @@ def test_training_on_mixed_sizes_logs_one_row_per_team_episode(tmp_path) -> None
     (each team's arms end together); the run records its sizes and the model then acts on a 6-arm team."""
     from pan1_env.baselines.training import train
 
-    summary = train("ppo", RING, timesteps=400, seed=3, out=tmp_path / "run", n_envs=2, param_sharing=True,
-                    team_sizes=[2, 3], env_kwargs={"max_steps": 20, "action_mode": "gain"},
-                    algo_kwargs={"n_steps": 20, "batch_size": 50}, progress=False)
+    kwargs = {"seed": 3, "out": tmp_path / "run", "n_envs": 2, "param_sharing": True, "progress": False,
+              "env_kwargs": {"max_steps": 20, "action_mode": "gain"}, "algo_kwargs": {"n_steps": 20, "batch_size": 50}}
+    summary = train("ppo", RING, timesteps=400, team_sizes=[2, 3], eval_every=200, checkpoint_every=200, **kwargs)
     assert summary["team_sizes"] == [2, 3] and summary["timesteps"] == 400
     with (tmp_path / "run" / "episodes.csv").open() as fh:
         rows = list(csv.DictReader(fh))
     assert len(rows) == 4 * (400 // (20 * 10)) and {int(r["length"]) for r in rows} == {20}
+    with (tmp_path / "run" / "eval.csv").open() as fh:  # on the id's own 4-arm teams
+        assert [int(r["timesteps"]) for r in csv.DictReader(fh)] == [0, 200]  # at the rollouts that start there
+    for other in ([3, 2], None):  # a resume on other sizes is refused before anything is built
+        with pytest.raises(ValueError, match="--team-sizes"):
+            train("ppo", RING, timesteps=600, team_sizes=other, resume=True, **kwargs)
     from pan1_env.baselines.benchmark import run_benchmark
 
     rows = run_benchmark([RING], [f"sb3:{tmp_path / 'run' / 'model.zip'}"], episodes=1, seed=0,

@@ -21,6 +21,8 @@ def _reference(env) -> dict[str, np.ndarray]:
         n = sc.arms[i].n_links
         o = [np.cos(q[i, :n]), np.sin(q[i, :n]), qd[i, :n] / env.max_joint_speed, P[i] - sc.arms[i].base]
         nbrs = [int(j) for j in sc.formation.neighbours(i)]
+        if env.config.ring:  # the documented shared order: one back, one forward, two back, two forward
+            nbrs = [(i + d) % len(sc.arms) for d in (-1, 1, -2, 2)[: len(nbrs)]]
         for s in range(D):
             if s < len(nbrs):
                 j = nbrs[s]
@@ -113,19 +115,23 @@ def test_a_layout_needs_what_its_team_observes(env_id, options, keyword, bad, me
 
 
 @pytest.mark.parametrize("env_id", ["pan1_env/RandomFormation-v2", "pan1_env/LargeFormation-v0"])
-def test_a_rings_observation_has_the_same_size_for_every_team_size(env_id: str) -> None:
-    """On the ring an arm's observation has 4 neighbour slots whatever N, so one shared policy's input fits
-    a team of any size; the slots present are the arm's neighbours in the formation graph."""
+def test_a_rings_observation_has_the_same_size_and_slots_for_every_team_size(env_id: str) -> None:
+    """On the ring an arm's observation has 4 neighbour slots whatever N, so one shared policy's input fits a
+    team of any size, and slot s means the same for every arm: the arm one back, one forward, two back, two
+    forward around the ring (its relative position p_j − p_i), absent slots zero."""
     sizes = {}
     for n_arms in (2, 3, 4, 8, 32):
         env = parallel_env(env_id, random_options={"n_arms": n_arms, "n_obstacles": max(3, 3 * n_arms // 4)})
         obs, _ = env.reset(seed=n_arms)
-        layout = env.observation_layout
+        P = env.end_effectors()
         sizes[n_arms] = {env.observation_space(a).shape for a in env.agents}
-        degree = np.bincount(env.scenario.formation.edges.ravel(), minlength=n_arms)
         for i, agent in enumerate(env.agents):
-            present = obs[agent][layout.segments(3)["neighbours"]][::4]
-            assert present.sum() == degree[i] == len(env.scenario.formation.neighbours(i))
+            slots = obs[agent][env.observation_layout.segments(3)["neighbours"]].reshape(4, 4)
+            present = min(4, n_arms - 1)
+            assert slots[:, 0].tolist() == [1.0] * present + [0.0] * (4 - present)
+            for s, d in enumerate((-1, 1, -2, 2)[:present]):
+                np.testing.assert_allclose(slots[s, 1:3], P[(i + d) % n_arms] - P[i], atol=1e-5)
+            assert not slots[present:].any()
     assert len(set().union(*sizes.values())) == 1, sizes
 
 
