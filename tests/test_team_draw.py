@@ -30,6 +30,9 @@ OPTIONS = {
                                                                                "n_obstacles": 6, "arm_redraws": 20},
     "whole_arm_redraws": ENV_IDS["pan1_env/WholeArmStaticFormation-v1"]["random_options"]
     | {"shape": "ring", "n_arms": 6, "arm_redraws": 5},
+    # one redraw only: arms that use it up send the draw to a new attempt, often
+    "one_redraw": ENV_IDS["pan1_env/WholeArmStaticFormation-v1"]["random_options"]
+    | {"shape": "ring", "n_arms": 8, "arm_redraws": 1},
 }
 
 
