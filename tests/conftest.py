@@ -19,3 +19,18 @@ if settings is not None:
     settings.register_profile("ci", derandomize=True, print_blob=True)
     if os.environ.get("CI"):
         settings.load_profile("ci")
+
+
+def pytest_configure(config) -> None:
+    """Under xdist's default ``--dist load``, hand each worker its next test only as it finishes one
+    (``--maxschedchunk 1``, unless given) rather than a block of consecutive ones: with the slow tests first
+    (below), a first block of a hundred-odd items would give one worker all of them."""
+    if config.pluginmanager.hasplugin("xdist") and config.getoption("maxschedchunk", None) is None:
+        config.option.maxschedchunk = 1
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    """The slow tests first, each module's in file order, then the rest: the minutes-long tests share the
+    workers from the start and the run ends on short ones, where in file order one worker sat idle for
+    minutes while the other worked through test_soak's and test_specialise's slow tests."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)  # stable: file order within each group
