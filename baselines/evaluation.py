@@ -152,10 +152,12 @@ def eval_callback(out: Path, every: int, scenario: str, shield: bool, env_kwargs
     from stable_baselines3.common.vec_env import VecNormalize
 
     from .arm_vec_env import SB3ArmVecEnv
+    from .mixed_vec_env import SB3MixedArmVecEnv
 
     class EvalCallback(BaseCallback):
         def _on_training_start(self) -> None:
             self.path = Path(out) / "eval.csv"
+            self.own_size = None  # built at the first evaluation of a run on mixed team sizes
             self.next = (self.num_timesteps // every + 1) * every if self.num_timesteps else 0
 
         def _on_rollout_start(self) -> None:
@@ -174,8 +176,10 @@ def eval_callback(out: Path, every: int, scenario: str, shield: bool, env_kwargs
             env = self.model.get_env()
             norm = env if isinstance(env, VecNormalize) else None
             arms = env.unwrapped if isinstance(env.unwrapped, SB3ArmVecEnv) else None
-            if hasattr(env.unwrapped, "team_sizes"):  # mixed sizes: the arm view of the evaluation's own team size
-                arms = SB3ArmVecEnv(scenario, 1, **(env_kwargs or {}))
+            if isinstance(env.unwrapped, SB3MixedArmVecEnv):  # the arm view of the evaluation's own team size
+                if self.own_size is None:
+                    self.own_size = SB3ArmVecEnv(scenario, 1, **(env_kwargs or {}))
+                arms = self.own_size
             policy = _team_policy(lambda obs: self.model.predict(obs, deterministic=True)[0], arms,
                                   (lambda obs: obs) if norm is None else norm.normalize_obs)
             row = {"timesteps": self.num_timesteps} | summarise(evaluate(policy, scenario, seeds, shield=shield,

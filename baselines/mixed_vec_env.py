@@ -123,8 +123,3 @@ class SB3MixedArmVecEnv(VecEnv):
 
     def _part_of(self, index: int) -> SB3ArmVecEnv:
         return self.parts[int(np.searchsorted(self._bounds, index, side="right")) - 1]
-
-    def _get_indices(self, indices: VecEnvIndices) -> Sequence[int]:
-        if indices is None:
-            return range(self.num_envs)
-        return [indices] if isinstance(indices, int) else list(indices)

@@ -12,7 +12,6 @@ shield flags).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any
 
 import gymnasium
@@ -110,10 +109,3 @@ class SB3VecEnv(VecEnv):
                     v = values[b]
                     out[b][key] = v.item() if isinstance(v, np.generic) else v
         return out
-
-    def _get_indices(self, indices: VecEnvIndices) -> Sequence[int]:
-        if indices is None:
-            return range(self.num_envs)
-        if isinstance(indices, int):
-            return [indices]
-        return list(indices)

@@ -295,10 +295,8 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
             continue
         arms, q0 = drawn
         starts = np.array([end_effector(a, q) for a, q in zip(arms, q0, strict=True)])
-        if not opt.arm_redraws and not all(_arm_passes(i, arms, q0, opt, earlier=False) for i in range(N)):
-            continue
-        if not opt.arm_redraws and opt.inter_arm and not _arms_apart(arms, q0, opt):
-            continue
+        if not opt.arm_redraws and not all(_arm_passes(i, arms, q0, opt) for i in range(N)):
+            continue  # drawn whole, checked whole (with arm_redraws each arm passed as it was drawn)
         bases = np.array([a.base for a in arms])
         lo = np.minimum(starts.min(0), targets.min(0)) - 0.2
         hi = np.maximum(starts.max(0), targets.max(0)) + 0.2
@@ -360,7 +358,7 @@ def _draw_arms(rng: np.random.Generator, opt: RandomScenarioOptions, targets: np
     for i in range(opt.n_arms):
         for _ in range(opt.arm_redraws + 1):
             arm, q = _placed_arm(rng, opt, i, targets[i], centroid)
-            if not opt.arm_redraws or _arm_passes(i, [*arms, arm], [*q0, q], opt, earlier=True):
+            if not opt.arm_redraws or _arm_passes(i, [*arms, arm], [*q0, q], opt):
                 break
         else:
             return None
@@ -391,13 +389,12 @@ def _placed_arm(rng: np.random.Generator, opt: RandomScenarioOptions, i: int, ta
     return arm, zero_momentum_start(arm, q_t, qa_start)
 
 
-def _arm_passes(i: int, arms: list[ArmParams], q0: list[np.ndarray], opt: RandomScenarioOptions,
-                earlier: bool) -> bool:
-    """Arm i regular at its start (σ_min(J̄) ≥ ``min_sigma``) and, if ``earlier`` and ``inter_arm``, its capsules
-    ``start_clearance`` clear of arms 0 … i − 1's."""
+def _arm_passes(i: int, arms: list[ArmParams], q0: list[np.ndarray], opt: RandomScenarioOptions) -> bool:
+    """Arm i regular at its start (σ_min(J̄) ≥ ``min_sigma``) and, with ``inter_arm``, its capsules
+    ``start_clearance`` clear of arms 0 … i − 1's (so that all arms passing is every pair apart)."""
     if np.linalg.svd(reduced_jacobian(arms[i], q0[i]), compute_uv=False).min() < opt.min_sigma:
         return False
-    return not (earlier and opt.inter_arm) or all(
+    return not opt.inter_arm or all(
         inter_arm_clearance(arms[i], q0[i], arms[j], q0[j], opt.link_radius).min() >= opt.start_clearance
         for j in range(i))
 
@@ -463,12 +460,6 @@ def _unturned(targets: np.ndarray, rot: float) -> np.ndarray:
     """The placement ``targets (N, 2)`` turned back by ``rot``: the formation's realisation, centred."""
     c, s = np.cos(rot), np.sin(rot)
     return targets @ np.array([[c, -s], [s, c]])
-
-
-def _arms_apart(arms: list[ArmParams], q0: list[np.ndarray], opt: RandomScenarioOptions) -> bool:
-    """Every pair of arms' link capsules at least ``start_clearance`` apart at the start."""
-    return all(inter_arm_clearance(arms[i], q0[i], arms[j], q0[j], opt.link_radius).min() >= opt.start_clearance
-               for i in range(len(arms)) for j in range(i))
 
 
 def _links_clear(arms: list[ArmParams], q0: list[np.ndarray], c: np.ndarray, r: float,
