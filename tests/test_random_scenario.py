@@ -164,10 +164,14 @@ def test_inter_arm_keeps_crowded_random_arms_apart() -> None:
     ({"fault_probability": 0.5, "fault_time": (1.0, 200.0)},
      "RandomScenarioOptions.fault_time must have low ≤ high ≤ horizon (100 s)"),
     ({"fault_time": 3.0}, "RandomScenarioOptions.fault_time must be a range (low, high) in seconds, got 3.0"),
+    ({"arm_redraws": -1}, "RandomScenarioOptions.arm_redraws must be an integer ≥ 0, got -1"),
+    ({"arm_redraws": 1.5}, "RandomScenarioOptions.arm_redraws must be an integer ≥ 0, got 1.5"),
+    ({"shape": "rng"}, "RandomScenarioOptions.shape must be one of ('square', 'polygon', 'ring'), got 'rng'"),
 ], ids=["bodies_misspelt", "negative_link_radius", "link_radius_without_links", "inter_arm_without_links",
         "inter_arm_not_bool", "speed_range_reversed", "negative_speed", "speed_not_a_range", "zero_path_length",
         "negative_damping", "fault_probability_above_1", "negative_fault_probability", "fault_time_reversed",
-        "fault_time_after_horizon", "fault_time_not_a_range"])
+        "fault_time_after_horizon", "fault_time_not_a_range", "negative_redraws", "fractional_redraws",
+        "shape_misspelt"])
 def test_random_options_bad_input(options: dict, message: str) -> None:
     with pytest.raises(ValueError) as err:
         RandomScenarioOptions(**options)
