@@ -17,7 +17,7 @@ from .config import FormationConfig, ReachConfig
 from .control import nominal_velocity, within_speed
 from .dynamics import end_effector
 from .engine import Engine, StepRecord
-from .formation import edge_errors, edge_length_errors, edge_vectors, formation_gradient, incidence_matrix
+from .formation import SparseIncidence, edge_errors, edge_length_errors
 from .motion import MotionTable
 from .observation import OBS_BOUND, OBSTACLE_FEATURES, ObservationLayout
 from .random_scenario import zero_momentum_start
@@ -100,7 +100,7 @@ class FormationTask:
         self.residual_gate, self.blocked_gate = config.residual_gate, config.blocked_gate
         self.blocked = np.zeros((copies, layout.n.size))  # the filter's change of each arm's last command
         self.edges = np.ascontiguousarray(scenario.formation.edges, dtype=np.int64)
-        self.incidence = incidence_matrix(self.edges, scenario.n_arms)  # for the residual mode's law and gate
+        self.incidence = SparseIncidence.of(self.edges, scenario.n_arms)  # for the law and the residual gate
         self.distances = np.tile(np.asarray(scenario.formation.distances, dtype=float)[None], (copies, 1))
         self.kp = np.full(copies, float(scenario.kp))
         self.success_hold = config.success_hold
@@ -178,8 +178,8 @@ class FormationTask:
         ``gain (B, N, k_max)``, if given, multiplies each joint's term before that scaling. A moving formation
         adds J̄⁺ ṗ_ff (its feed-forward) before that scaling."""
         self.track(engine)
-        z = edge_vectors(self.incidence, engine.positions())  # (B, E, 2)
-        e_hat = formation_gradient(self.incidence, z, edge_errors(z, self.distances))  # (B, N, 2)
+        z = self.incidence.edge_vectors(engine.positions())  # (B, E, 2)
+        e_hat = self.incidence.gradient(z, edge_errors(z, self.distances))  # (B, N, 2)
         out = np.zeros((engine.copies, engine.n_arms, engine.k_max))
         for kind in engine.kinds:
             terms = engine.kind_terms(kind)
@@ -221,8 +221,8 @@ class FormationTask:
         if self.blocked_gate > 0:
             command *= np.minimum(1.0, self.blocked / self.blocked_gate)[..., None]
         if self.residual_gate > 0:
-            err = np.abs(edge_length_errors(edge_vectors(self.incidence, engine.positions()), self.distances))
-            arm_err = np.max(np.abs(self.incidence)[None] * err[:, None, :], axis=-1, initial=0.0)  # (B, N)
+            err = np.abs(edge_length_errors(self.incidence.edge_vectors(engine.positions()), self.distances))
+            arm_err = self.incidence.largest_at_vertex(err)  # (B, N)
             command *= np.minimum(1.0, (arm_err / self.residual_gate) ** 2)[..., None]
         command += self.nominal_velocity(engine)
         np.clip(command, -self.max_joint_speed, self.max_joint_speed, out=command)

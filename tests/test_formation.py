@@ -8,6 +8,7 @@ import pytest
 from pan1_env.formation import (
     Formation,
     FormationError,
+    SparseIncidence,
     edge_errors,
     edge_length_errors,
     edge_vectors,
@@ -115,6 +116,27 @@ def test_e_hat_is_gradient_of_potential(n_agents: int) -> None:
         B2 = incidence_matrix(flipped, n_agents)
         z2 = edge_vectors(B2, p)
         np.testing.assert_allclose(formation_gradient(B2, z2, edge_errors(z2, d)), e_hat, atol=1e-14)
+
+
+@pytest.mark.parametrize(("shape", "n_agents"), [("ring", 3), ("ring", 9), ("ring", 33), ("polygon", 6)])
+def test_sparse_incidence_gives_the_dense_products(shape: str, n_agents: int) -> None:
+    """The law's products from B's non-zeros equal the dense B's, for a batch of positions, with an edge
+    flipped, and each vertex's largest edge value equals the largest over the non-zeros of |B|'s row."""
+    rng = np.random.default_rng(n_agents)
+    edges = Formation.from_shape(shape, 1.0, n_agents).edges.copy()
+    edges[0] = edges[0][::-1]
+    B, sparse = incidence_matrix(edges, n_agents), SparseIncidence.of(edges, n_agents)
+    p = rng.normal(size=(5, n_agents, 2))
+    d = rng.uniform(0.5, 1.5, size=len(edges))
+    z = edge_vectors(B, p)
+    np.testing.assert_allclose(sparse.edge_vectors(p), z, rtol=1e-12, atol=1e-12)
+    e = edge_errors(z, d)
+    np.testing.assert_allclose(sparse.gradient(z, e), formation_gradient(B, z, e), rtol=1e-12, atol=1e-12)
+    values = np.abs(e)
+    dense_max = np.array([[values[b][B[i] != 0].max() for i in range(n_agents)] for b in range(5)])
+    np.testing.assert_array_equal(sparse.largest_at_vertex(values), dense_max)
+    if shape == "ring":  # the products' width is the bounded degree, not N
+        assert sparse.arm_edges.shape[1] == min(n_agents - 1, 4)
 
 
 def test_e_hat_is_distributed() -> None:
