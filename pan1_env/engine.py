@@ -257,7 +257,6 @@ class Engine:
         R = sum(len(kind.q) for kind in self.kinds)  # B·N, and B·A more for each faulted twin
         caps, start_time = np.zeros((R, C, kernels().capsules.CAPSULE_COLUMNS)), np.zeros(R)
         joints = np.zeros((R, L + 1, 2))
-        self.others = np.array([[j for j in range(N) if j != i] for i in range(N)], dtype=np.int64).reshape(N, N - 1)
         self.copy_rows = np.empty((B, N), dtype=np.int64)
         first = 0
         for kind in self.kinds:
@@ -289,7 +288,7 @@ class Engine:
     def _load_capsules(self, copies: np.ndarray, mask: np.ndarray, bases: np.ndarray, reach: np.ndarray) -> None:
         """The capsules of ``copies`` (``mask (C, N, O)``, their arms' ``bases (C, N, 2)`` and ``reach (C, N)``): their
         obstacles (start, path, radius, share 1) and, with ``inter_arm``, the other arms' link slots (each kind's
-        :meth:`~pan1_env.kinds.Kind.load_capsules`)."""
+        :meth:`~pan1_env.kinds.Kind.load_capsules`), with the floors of their clearances to each arm."""
         K = kernels().capsules
         starts = self.start_centers[copies]
         step = self.path_ends[copies] - starts
@@ -300,12 +299,19 @@ class Engine:
         obstacles[..., K.CAP_RADIUS], obstacles[..., K.CAP_SHARE] = self.radii[copies], 1.0
         obstacles[..., K.CAP_PATH], obstacles[..., K.CAP_SPEED] = length, self.speeds[copies]
         obstacles[..., K.CAP_ARM] = -1.0
-        near = None  # which pairs of arms' reaches can meet
+        # floors: every body of arm i lies within its reach of its base, an obstacle on the segment of its path
+        body = self.link_radius if self.link_bodies else 0.0
+        along = np.einsum("cnoz,coz->cno", bases[:, :, None] - starts[:, None], step)
+        t = np.clip(along / np.where(length > 0, length**2, 1.0)[:, None], 0.0, 1.0)
+        nearest = starts[:, None] + t[..., None] * step[:, None]
+        world_floor = np.linalg.norm(bases[:, :, None] - nearest, axis=-1) - reach[..., None] \
+            - self.radii[copies][:, None] - body
+        arm_floor = None
         if self.inter_arm:
             apart = np.linalg.norm(bases[:, :, None] - bases[:, None], axis=-1)
-            near = apart <= reach[:, :, None] + reach[:, None] + 2.0 * self.link_radius
+            arm_floor = apart - reach[:, :, None] - reach[:, None] - 2.0 * self.link_radius
         for kind in self.kinds:
-            kind.load_capsules(copies, obstacles, mask, near, self.others, self.n_links, self.link_radius)
+            kind.load_capsules(copies, obstacles, mask, world_floor, arm_floor, self.n_links, self.link_radius)
 
     def reset(self, copies: np.ndarray | None = None, q0: list[np.ndarray] | None = None) -> None:
         """Put the ``copies`` (default: all) at rest at their team's start (or, for one copy, at ``q0``)."""
@@ -559,7 +565,7 @@ class Engine:
                 # computes the joint velocities and end-effectors (`finish`)
                 self._call(kind, args, kind.whole._replace(carried=sub > 0, finish=sub == substeps - 1))
             # the kernel placed the obstacles from the clock itself; the clock moves on here
-            self._geometry("after_substep", B * N, self.copy_rows, self.others, self._team_joints, clear, finite,
+            self._geometry("after_substep", B * N, self.copy_rows, self._team_joints, clear, finite,
                            ok, self._team_start_time, self._team_caps, self.radii.shape[1], self.link_radius,
                            self.physics_dt, sub < substeps - 1, self.elapsed, P, between)
         finite[:] = ok
@@ -591,8 +597,8 @@ class Engine:
         from their joints ``P`` (:meth:`joint_positions`, as they are now), which each arm's filter holds
         for the call (one sub-step)."""
         if self.inter_arm:
-            self._geometry("refresh_capsules", self.copies * self.n_arms, self.copy_rows, self.others,
-                           self._team_start_time, self._team_caps, self.radii.shape[1], self.elapsed, P)
+            self._geometry("refresh_capsules", self.copies * self.n_arms, self.copy_rows, self._team_start_time,
+                           self._team_caps, self.radii.shape[1], self.elapsed, P)
             return
         self._team_start_time[self.copy_rows] = self.elapsed[:, None]
 

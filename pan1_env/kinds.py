@@ -117,22 +117,30 @@ class Kind:
         self.mask[rows] = mask[:, ids].reshape(len(rows), -1)
         self.q0[rows] = draws.q0[:, ids, :n].reshape(-1, n)
 
-    def load_capsules(self, copies: np.ndarray, obstacles: np.ndarray, mask: np.ndarray, near: np.ndarray | None,
-                      others: np.ndarray, n_links: list[int], link_radius: float) -> None:
+    def load_capsules(self, copies: np.ndarray, obstacles: np.ndarray, mask: np.ndarray, world_floor: np.ndarray,
+                      arm_floor: np.ndarray | None, n_links: list[int], link_radius: float) -> None:
         """Its capsules in ``copies``: the obstacles' columns ``obstacles (C, O, ·)``, active for its arms where
-        ``mask (C, N, O)`` is; with ``near (C, N, N)`` (inter-arm) the slots of every other arm's links (radius ρ,
-        share ½, active where the two arms' reaches can meet; the segments are set every step)."""
+        ``mask (C, N, O)`` is, with their floors ``world_floor (C, N, O)``; with ``arm_floor (C, N, N)`` (inter-arm)
+        a slot for each link of every other arm (radius ρ, share ½; the segments are set every sub-step), in
+        order of the floor, active where the two arms' reaches can meet (floor ≤ 0), then unused slots."""
         K = kernels().capsules
-        O, slot = obstacles.shape[1], self.joints.shape[1] - 1  # the team's n_max links per slot
+        O = obstacles.shape[1]
         block = np.zeros((len(copies), self.A, *self.caps.shape[1:]))
         block[:, :, :O] = obstacles[:, None]
         block[:, :, :O, K.CAP_ACTIVE] = mask[:, self.ids]
-        if near is not None:
+        block[:, :, :O, K.CAP_FLOOR] = world_floor[:, self.ids]
+        block[:, :, O:, K.CAP_ARM], block[:, :, O:, K.CAP_FLOOR] = -1.0, np.inf
+        if arm_floor is not None:
             for r, i in enumerate(self.ids):
-                for s, j in enumerate(others[i]):
-                    cols = slice(O + s * slot, O + s * slot + n_links[j])
-                    block[:, r, cols, K.CAP_RADIUS], block[:, r, cols, K.CAP_SHARE] = link_radius, 0.5
-                    block[:, r, cols, K.CAP_ACTIVE], block[:, r, cols, K.CAP_ARM] = near[:, i, j, None], float(j)
+                arm = np.array([j for j in range(len(n_links)) if j != i for _ in range(n_links[j])], dtype=np.int64)
+                link = np.array([a for j in range(len(n_links)) if j != i for a in range(n_links[j])], dtype=float)
+                floor = arm_floor[:, i, arm]  # (C, S): stable, so an arm's links stay together and in order
+                order = np.argsort(floor, axis=1, kind="stable")
+                slots = block[:, r, O:O + len(arm)]
+                slots[..., K.CAP_ARM], slots[..., K.CAP_LINK] = arm[order], link[order]
+                slots[..., K.CAP_FLOOR] = np.take_along_axis(floor, order, axis=1)
+                slots[..., K.CAP_ACTIVE] = slots[..., K.CAP_FLOOR] <= 0.0
+                slots[..., K.CAP_RADIUS], slots[..., K.CAP_SHARE] = link_radius, 0.5
         self.caps.reshape(self.copies, self.A, *self.caps.shape[1:])[copies] = block
 
     def from_team(self, team: np.ndarray, width: int | None = None, *, first: int | None = None) -> np.ndarray:

@@ -43,8 +43,9 @@ def _rows(arm: ArmParams, q: np.ndarray, caps: np.ndarray, *, links: bool = True
     qd = np.zeros((n, 1)) if qd is None else np.asarray(qd, float).reshape(n, 1)
     m, h_min = kernels().capsules.whole_arm_rows(
         0, 0, n, k, arm.passive_first_joint, links, rho, sensing, gate, skin, dt, lane["lengths"], lane["bx"],
-        lane["by"], lane["c"], lane["s"], qd, lane["M"], p1, caps, time, kappa, epsilon, margin, distance, decay, v_max,
-        np.zeros(k), A, b, active, P, np.empty((caps.shape[1], kernels().capsules.NEAR_COLUMNS)))
+        lane["by"], lane["c"], lane["s"], qd, lane["M"], p1, caps, caps.shape[1], time, kappa, epsilon, margin,
+        distance, decay, v_max, np.zeros(k), A, b, active, P,
+        np.empty((caps.shape[1], kernels().capsules.NEAR_COLUMNS)))
     return A[:m], b[:m], h_min
 
 

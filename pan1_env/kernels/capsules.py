@@ -18,8 +18,15 @@ or with the filter choices of docs/MODEL.md §5a (``distance``: h = ‖x − y�
 
 A capsule is a row of ``capsules (A, C, CAPSULE_COLUMNS)``: its segment's end points at time 0 (equal
 for a disk), radius, share, the unit direction, length and speed of its back-and-forth path
-(:func:`pan1_env.bodies.obstacle_centers`), whether the arm's filter considers it, and its kind
-(a world obstacle, or another arm's link, whose segment the engine refreshes every control step).
+(:func:`pan1_env.bodies.obstacle_centers`), whether the arm's filter considers it, its kind (a world
+obstacle, or link ``CAP_LINK`` of another arm, whose segment the engine refreshes every sub-step), and its
+floor: a lower bound on its clearance to any body of the arm in any configuration, from the arm's base
+and reach and the capsule's path (or the other arm's base and reach).
+
+The first ``n_world`` capsules are the world's obstacles, in the world's order. The other arms' links
+follow in order of floor, so the arms whose reach can meet this arm's (floor ≤ 0, active) come first and
+a scan of them stops at the first inactive one, and a scan for the clearance stops at the first floor
+above the clearance found so far: the work per arm follows the nearby arms, not the team's size.
 """
 
 from __future__ import annotations
@@ -30,9 +37,9 @@ from numba import njit, prange
 from ._numba_ext import _JIT
 from .qp import STATUS_FALLBACK, _project_one
 
-CAP_AX, CAP_AY, CAP_BX, CAP_BY, CAP_RADIUS, CAP_SHARE, CAP_UX, CAP_UY, CAP_PATH, CAP_SPEED, CAP_ACTIVE, CAP_ARM = \
-    range(12)
-CAPSULE_COLUMNS = 12  #: columns of a capsule row; ``CAP_ARM`` is −1 for a world obstacle, else the other arm's index
+(CAP_AX, CAP_AY, CAP_BX, CAP_BY, CAP_RADIUS, CAP_SHARE, CAP_UX, CAP_UY, CAP_PATH, CAP_SPEED, CAP_ACTIVE, CAP_ARM,
+ CAP_LINK, CAP_FLOOR) = range(14)
+CAPSULE_COLUMNS = 14  #: columns of a capsule row; ``CAP_ARM`` is −1 for a world obstacle or an unused slot
 NEAR_COLUMNS = 10  #: :func:`whole_arm_rows`' scratch: segment now, velocity, half length, reach, range, share
 
 
@@ -114,7 +121,7 @@ def _body(P, n, links, body):
 
 @njit(**_JIT)
 def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, lengths, bx, by, c, s, qd, M, p1, caps,
-                   time, kappa, epsilon, margin, distance, decay, v_max, v0, A, b, active, P, near):
+                   n_world, time, kappa, epsilon, margin, distance, decay, v_max, v0, A, b, active, P, near):
     """The whole-arm RCBF rows of arm i (lane w of the kernel's scratch) at ``time``, then its speed
     bounds (finite ``v_max``), into ``A``, ``b``, ``active``: returns (rows written, smallest barrier h).
     A PAn−1 arm's passive momentum ``p1`` drifts its bodies, q̇ = g0 v + e₁ p₁ / M_11 (docs/MODEL.md §7):
@@ -170,6 +177,8 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
     n_near = 0
     for j in range(C):
         if caps[i, j, CAP_ACTIVE] == 0.0:
+            if j >= n_world:  # the other arms' active links come first
+                break
             continue
         a2x, a2y, d2x, d2y, vx, vy = _capsule_now(caps, i, j, time)
         reach = caps[i, j, CAP_RADIUS] + (rho if links else 0.0) + skin + caps[i, j, CAP_SPEED] * dt
@@ -272,7 +281,8 @@ def whole_arm_clearance_lanes(arm, live, n, W, links, rho, lengths, bx, by, c, s
     are left to the engine, which measures them from every arm's state. Lanes at once: each body and
     obstacle pair is a point–segment distance, whose clamp is a select (``joints_x``, ``joints_y (n + 1, W)``,
     ``ox``, ``oy``, ``orad (W)`` are scratch). The same operations in the same order as
-    :func:`_gap` for a segment and a point, so the same clearance, bit for bit."""
+    :func:`_gap` for a segment and a point, so the same clearance, bit for bit. An obstacle whose floor
+    is at least every live lane's clearance so far cannot lower it and is not measured."""
     for w in range(W):  # the joints: base, link ends (link a runs from joint a to joint a + 1)
         x, y = bx[w], by[w]
         joints_x[0, w], joints_y[0, w] = x, y
@@ -282,6 +292,11 @@ def whole_arm_clearance_lanes(arm, live, n, W, links, rho, lengths, bx, by, c, s
             joints_x[a + 1, w], joints_y[a + 1, w] = x, y
     radius = rho if links else 0.0
     for j in range(n_world):
+        lowers = False
+        for w in range(W):
+            lowers = lowers or (live[w] and caps[arm[w], j, CAP_FLOOR] < clear[w])
+        if not lowers:
+            continue
         for w in range(W):
             row = arm[w]
             ox[w], oy[w], _, _, _, _ = _capsule_now(caps, row, j, start_time[row] + elapsed)
@@ -521,38 +536,74 @@ def _box_gap(lox1, hix1, loy1, hiy1, lox2, hix2, loy2, hiy2):
 
 
 @njit(**_JIT)
+def _arm_boxes(P, b, box):
+    """Every arm's bounding box ``box (N, 4)`` (x low, high, y low, high) in copy b: its segments lie in that of
+    its joints ``P``."""
+    for i in range(P.shape[1]):
+        box[i, 0], box[i, 1], box[i, 2], box[i, 3] = P[b, i, 0, 0], P[b, i, 0, 0], P[b, i, 0, 1], P[b, i, 0, 1]
+        for a in range(1, P.shape[2]):
+            box[i, 0], box[i, 1] = min(box[i, 0], P[b, i, a, 0]), max(box[i, 1], P[b, i, a, 0])
+            box[i, 2], box[i, 3] = min(box[i, 2], P[b, i, a, 1]), max(box[i, 3], P[b, i, a, 1])
+
+
+@njit(**_JIT)
+def _pair_clearance(P, b, i, j, box, rho, out):
+    """Lower ``out[b, i]`` and ``out[b, j]`` to the clearance d − 2ρ between arms i and j of copy b, unless
+    their boxes, or a pair of their links' boxes, are too far apart to lower either."""
+    L = P.shape[2] - 1
+    limit = max(out[b, i], out[b, j]) + 2.0 * rho  # a gap this large cannot lower either minimum
+    if _box_gap(box[i, 0], box[i, 1], box[i, 2], box[i, 3], box[j, 0], box[j, 1], box[j, 2], box[j, 3]) >= limit:
+        return
+    best = np.inf
+    for li in range(L):
+        a1x, a1y = P[b, i, li, 0], P[b, i, li, 1]
+        d1x, d1y = P[b, i, li + 1, 0] - a1x, P[b, i, li + 1, 1] - a1y
+        for lj in range(L):
+            a2x, a2y = P[b, j, lj, 0], P[b, j, lj, 1]
+            d2x, d2y = P[b, j, lj + 1, 0] - a2x, P[b, j, lj + 1, 1] - a2y
+            if _box_gap(min(a1x, a1x + d1x), max(a1x, a1x + d1x), min(a1y, a1y + d1y), max(a1y, a1y + d1y),
+                        min(a2x, a2x + d2x), max(a2x, a2x + d2x), min(a2y, a2y + d2y),
+                        max(a2y, a2y + d2y)) >= min(limit, np.sqrt(best)):
+                continue
+            _, rx, ry = _gap(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y)
+            best = min(best, rx * rx + ry * ry)
+    clear = np.sqrt(best) - 2.0 * rho
+    out[b, i] = min(out[b, i], clear)
+    out[b, j] = min(out[b, j], clear)
+
+
+@njit(**_JIT)
 def _inter_arm_copies(P, rho, out, lo, hi):
     """:func:`inter_arm_clearance` for copies ``lo … hi−1``."""
-    N, L = P.shape[1], P.shape[2] - 1
+    N = P.shape[1]
     box = np.empty((N, 4))
     for b in range(lo, hi):
-        for i in range(N):  # every arm's bounding box (its segments lie in that of its joints)
-            box[i, 0], box[i, 1], box[i, 2], box[i, 3] = P[b, i, 0, 0], P[b, i, 0, 0], P[b, i, 0, 1], P[b, i, 0, 1]
-            for a in range(1, L + 1):
-                box[i, 0], box[i, 1] = min(box[i, 0], P[b, i, a, 0]), max(box[i, 1], P[b, i, a, 0])
-                box[i, 2], box[i, 3] = min(box[i, 2], P[b, i, a, 1]), max(box[i, 3], P[b, i, a, 1])
+        _arm_boxes(P, b, box)
         for i in range(N):
             for j in range(i + 1, N):
-                limit = max(out[b, i], out[b, j]) + 2.0 * rho  # a gap this large cannot lower either minimum
-                if _box_gap(box[i, 0], box[i, 1], box[i, 2], box[i, 3],
-                            box[j, 0], box[j, 1], box[j, 2], box[j, 3]) >= limit:
+                _pair_clearance(P, b, i, j, box, rho, out)
+
+
+@njit(**_JIT)
+def _nearby_arm_copies(copy_rows, caps, first, P, rho, out, lo, hi):
+    """:func:`inter_arm_clearance` for copies ``lo … hi−1``, each arm walking its slots for the other arms'
+    links (from column ``first``, in order of floor) and stopping at the first floor not below its clearance
+    so far: no arm after it can lower that, so the walk meets the nearby arms only. The minimum is the
+    all-pairs one, bit for bit: the same pairs' clearances, less pairs that cannot lower it."""
+    N, C = P.shape[1], caps.shape[1]
+    box = np.empty((N, 4))
+    for b in range(lo, hi):
+        _arm_boxes(P, b, box)
+        for i in range(N):
+            row, last = copy_rows[b, i], -1
+            for col in range(first, C):
+                j = int(caps[row, col, CAP_ARM])
+                if j == last:
                     continue
-                best = np.inf
-                for li in range(L):
-                    a1x, a1y = P[b, i, li, 0], P[b, i, li, 1]
-                    d1x, d1y = P[b, i, li + 1, 0] - a1x, P[b, i, li + 1, 1] - a1y
-                    for lj in range(L):
-                        a2x, a2y = P[b, j, lj, 0], P[b, j, lj, 1]
-                        d2x, d2y = P[b, j, lj + 1, 0] - a2x, P[b, j, lj + 1, 1] - a2y
-                        if _box_gap(min(a1x, a1x + d1x), max(a1x, a1x + d1x), min(a1y, a1y + d1y),
-                                    max(a1y, a1y + d1y), min(a2x, a2x + d2x), max(a2x, a2x + d2x),
-                                    min(a2y, a2y + d2y), max(a2y, a2y + d2y)) >= min(limit, np.sqrt(best)):
-                            continue
-                        _, rx, ry = _gap(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y)
-                        best = min(best, rx * rx + ry * ry)
-                clear = np.sqrt(best) - 2.0 * rho
-                out[b, i] = min(out[b, i], clear)
-                out[b, j] = min(out[b, j], clear)
+                if j < 0 or not caps[row, col, CAP_FLOOR] < out[b, i]:  # an unused slot, or no lower pair after
+                    break
+                last = j
+                _pair_clearance(P, b, i, j, box, rho, out)
 
 
 @njit(**_JIT)
@@ -613,7 +664,7 @@ def obstacles_now(copy_rows, caps, elapsed, centers, velocities):
 
 
 @njit(**_JIT)
-def _after_substep_copies(copy_rows, others, joints, clear, finite, ok, start_time, caps, first, rho, dt, refresh,
+def _after_substep_copies(copy_rows, joints, clear, finite, ok, start_time, caps, first, rho, dt, refresh,
                           elapsed, P, between, lo, hi):
     """:func:`after_substep` for copies ``lo … hi−1``."""
     N, J = copy_rows.shape[1], joints.shape[1]
@@ -625,49 +676,49 @@ def _after_substep_copies(copy_rows, others, joints, clear, finite, ok, start_ti
             c, now = clear[row], between[b, i]
             between[b, i] = c if c < now or c != c else now  # np.minimum's rule (NaN wins)
             ok[row] = ok[row] and finite[row]
-    _inter_arm_copies(P, rho, between, lo, hi)
+    _nearby_arm_copies(copy_rows, caps, first, P, rho, between, lo, hi)
     for b in range(lo, hi):
         elapsed[b] += dt
     if refresh:
-        _refresh_copies(copy_rows, others, start_time, caps, first, elapsed, P, lo, hi)
+        _refresh_copies(copy_rows, start_time, caps, first, elapsed, P, lo, hi)
 
 
 @njit(**_JIT)
-def _refresh_copies(copy_rows, others, start_time, caps, first, elapsed, P, lo, hi):
+def _refresh_copies(copy_rows, start_time, caps, first, elapsed, P, lo, hi):
     """:func:`refresh_capsules` for copies ``lo … hi−1``."""
-    N, L = copy_rows.shape[1], P.shape[2] - 1
+    N, C = copy_rows.shape[1], caps.shape[1]
     for b in range(lo, hi):
         for i in range(N):
             row = copy_rows[b, i]
             start_time[row] = elapsed[b]
-            col = first
-            for j in others[i]:
-                for a in range(L):
-                    caps[row, col, CAP_AX], caps[row, col, CAP_AY] = P[b, j, a, 0], P[b, j, a, 1]
-                    caps[row, col, CAP_BX], caps[row, col, CAP_BY] = P[b, j, a + 1, 0], P[b, j, a + 1, 1]
-                    col += 1
+            for col in range(first, C):
+                if caps[row, col, CAP_ACTIVE] == 0.0:  # the active links come first
+                    break
+                j, a = int(caps[row, col, CAP_ARM]), int(caps[row, col, CAP_LINK])
+                caps[row, col, CAP_AX], caps[row, col, CAP_AY] = P[b, j, a, 0], P[b, j, a, 1]
+                caps[row, col, CAP_BX], caps[row, col, CAP_BY] = P[b, j, a + 1, 0], P[b, j, a + 1, 1]
 
 
 @njit(**_JIT)
-def refresh_capsules(copy_rows, others, start_time, caps, first, elapsed, P):
+def refresh_capsules(copy_rows, start_time, caps, first, elapsed, P):
     """Before an inter-arm sub-step, on team-level arrays whose row ``copy_rows[b, i]`` is arm i of copy
     b: every arm's clock ``start_time`` from its copy's ``elapsed``, and from column ``first`` of its
-    capsules, L slots for each arm of ``others[i]`` in order, their link segments from ``P (B, N, L + 1,
+    capsules, the active slots' link segments (link ``CAP_LINK`` of arm ``CAP_ARM``) from ``P (B, N, L + 1,
     2)``."""
-    _refresh_copies(copy_rows, others, start_time, caps, first, elapsed, P, 0, P.shape[0])
+    _refresh_copies(copy_rows, start_time, caps, first, elapsed, P, 0, P.shape[0])
 
 
 @njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
-def refresh_capsules_parallel(copy_rows, others, start_time, caps, first, elapsed, P, n_chunks):
+def refresh_capsules_parallel(copy_rows, start_time, caps, first, elapsed, P, n_chunks):
     """:func:`refresh_capsules` with the copies split into ``n_chunks`` chunks on numba's threads."""
     B = P.shape[0]
     for c in prange(n_chunks):
-        _refresh_copies(copy_rows, others, start_time, caps, first, elapsed, P, c * B // n_chunks,
+        _refresh_copies(copy_rows, start_time, caps, first, elapsed, P, c * B // n_chunks,
                         (c + 1) * B // n_chunks)
 
 
 @njit(**_JIT)
-def after_substep(copy_rows, others, joints, clear, finite, ok, start_time, caps, first, rho, dt, refresh, elapsed,
+def after_substep(copy_rows, joints, clear, finite, ok, start_time, caps, first, rho, dt, refresh, elapsed,
                   P, between):
     """Between an inter-arm step's sub-steps, after every kind's kernel call, on team-level arrays whose
     row ``copy_rows[b, i]`` is arm i of copy b: gather the joints the kernel left into ``P (B, N, L + 1,
@@ -675,15 +726,15 @@ def after_substep(copy_rows, others, joints, clear, finite, ok, start_time, caps
     ``ok``, lower ``between`` to the clearance between arms (:func:`inter_arm_clearance`), advance every
     copy's clock ``elapsed`` by ``dt`` and, with ``refresh`` (a sub-step follows), :func:`refresh_capsules`
     for it. Copy by copy: no copy reads another's rows."""
-    _after_substep_copies(copy_rows, others, joints, clear, finite, ok, start_time, caps, first, rho, dt, refresh,
+    _after_substep_copies(copy_rows, joints, clear, finite, ok, start_time, caps, first, rho, dt, refresh,
                           elapsed, P, between, 0, P.shape[0])
 
 
 @njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
-def after_substep_parallel(copy_rows, others, joints, clear, finite, ok, start_time, caps, first, rho, dt, refresh,
+def after_substep_parallel(copy_rows, joints, clear, finite, ok, start_time, caps, first, rho, dt, refresh,
                            elapsed, P, between, n_chunks):
     """:func:`after_substep` with the copies split into ``n_chunks`` chunks on numba's threads."""
     B = P.shape[0]
     for c in prange(n_chunks):
-        _after_substep_copies(copy_rows, others, joints, clear, finite, ok, start_time, caps, first, rho, dt,
+        _after_substep_copies(copy_rows, joints, clear, finite, ok, start_time, caps, first, rho, dt,
                               refresh, elapsed, P, between, c * B // n_chunks, (c + 1) * B // n_chunks)

@@ -95,7 +95,8 @@ def _load_filter(W, O, filter_on, torque_mode, v_max, centers, radii, mask, has_
             if filter_on and mask[i, j]:
                 uf = True
         if whole is not None and filter_on and not uf:
-            for j in range(caps.shape[1]):  # the first active capsule decides (and spares the others' reads)
+            # the first active capsule decides: a world obstacle, or the first other arm's link (active ones first)
+            for j in range(min(caps.shape[1], n_world + 1)):
                 if caps[i, j, CAP_ACTIVE] != 0.0:
                     uf = True
                     break
@@ -149,7 +150,7 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
     M, R, Sn, Mc, Hc, qd, thd, H = dyn
     Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy = search
     wA, wb, wact, wP, wnear, wrows, wviol, wnorm, wb0, wn0, joints_x, joints_y, ox, oy, orad = scratch
-    rho, link_bodies, sensing, gate, skin = bodies
+    rho, link_bodies, sensing, gate, skin, n_world = bodies
     for w in range(W):
         if use_filter[w] and live[w] and real[w]:
             for t in range(k):
@@ -157,8 +158,8 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
             time = start_time[arm[w]] + sub * dt
             p1 = pj[0][w] if passive else 0.0
             m_w, h_w = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, gate, skin, dt, ln, bx, by,
-                                      c, s, qd, M, p1, caps, time, kappa, epsilon, margin, distance, decay, v_max, qv0,
-                                      wA, wb, wact, wP, wnear)
+                                      c, s, qd, M, p1, caps, n_world, time, kappa, epsilon, margin, distance, decay,
+                                      v_max, qv0, wA, wb, wact, wP, wnear)
             arm_h[w] = min(arm_h[w], h_w)
             status[w] = _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand, qL, qy, wviol,
                                      wnorm)
@@ -168,8 +169,8 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
                 # velocity that violates the rows least (braking does not keep a moving obstacle out);
                 # reported as a fallback either way
                 m_w, _ = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, gate, skin, dt, ln, bx,
-                                        by, c, s, qd, M, p1, caps, time, kappa, np.inf, margin, distance, decay, v_max,
-                                        qv0, wA, wb, wact, wP, wnear)
+                                        by, c, s, qd, M, p1, caps, n_world, time, kappa, np.inf, margin, distance,
+                                        decay, v_max, qv0, wA, wb, wact, wP, wnear)
                 if _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand, qL, qy, wviol,
                                 wnorm) == STATUS_FALLBACK:
                     least_violation(qv0, wA, wb, wact, m_w, k, 2 * k if v_max < np.inf else 0, qvs, wb0, wn0, wrows,

@@ -136,7 +136,7 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
         wb0, wn0, wnear = np.empty(m_whole), np.empty(m_whole), np.empty((caps.shape[1], NEAR_COLUMNS))
         owned = (wA, wb, wact, wP, wnear, wrows, wviol, wnorm, wb0, wn0, joints_x, joints_y, ox, oy, orad)
         scratch = _borrowed(owned)
-        bodies = (rho, link_bodies, sensing, gate, skin)
+        bodies = (rho, link_bodies, sensing, gate, skin, n_world)
     else:  # no whole-arm scratch: the steps read it only where the kernel's own `whole` is not None
         owned = None
         scratch = None
