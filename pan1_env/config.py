@@ -21,10 +21,11 @@ import numpy as np
 
 from .control import MAX_JOINT_SPEED
 from .formation import most_neighbours
-from .random_scenario import RandomScenarioOptions, random_scenario
+from .random_scenario import RandomScenarioOptions
 from .registration import DEFAULT_REACH_STEPS, env_arguments
 from .safety import QP_SOLVERS, FilterParams, filter_parameters
 from .scenario import Scenario, load
+from .team_draw import draw_teams
 from .validation import positive_int, real, refuse_unknown, whole_ratio
 
 __all__ = ["FormationConfig", "ReachConfig", "config_arguments", "ACTION_MODES", "DEFAULT_CONTROL_DT",
@@ -180,7 +181,8 @@ class FormationConfig:
             elif random_options is not None and not isinstance(random_options, RandomScenarioOptions):
                 raise ValueError(f"random_options must be a dict or RandomScenarioOptions, got {random_options!r}")
             random_options = random_options or RandomScenarioOptions()
-            team = random_scenario(np.random.default_rng(0), random_options)
+            # the compiled draw: the reference's team from the same generator, in milliseconds at 256 arms
+            team = draw_teams([np.random.default_rng(0)], random_options).scenario(0)
         else:
             if random_options is not None:
                 raise ValueError("random_options is only for scenario='random'")

@@ -143,7 +143,10 @@ def is_infinitesimally_rigid(edges: np.ndarray, positions: np.ndarray, tol: floa
     if R.size == 0:
         return False
     s = np.linalg.svd(R, compute_uv=False)
-    scale = max(float(np.abs(positions - positions.mean(0)).max()), 1e-12)
+    # R's entries are edge vectors: the threshold scales with the longest edge, not with the team's extent,
+    # which grows with N while a ring's smallest singular value shrinks (about 1e-5 of its edge at 256 arms)
+    edges = np.asarray(edges, dtype=int).reshape(-1, 2)
+    scale = max(float(np.linalg.norm(positions[edges[:, 0]] - positions[edges[:, 1]], axis=-1).max()), 1e-12)
     rank = int(np.sum(s > tol * scale * max(s.size, 1)))
     return rank == 2 * n - 3
 
