@@ -16,12 +16,26 @@ from pan1_env.validation import positive_int
 
 from .arm_vec_env import SB3ArmVecEnv
 
-__all__ = ["SB3MixedArmVecEnv"]
+__all__ = ["SB3MixedArmVecEnv", "sized_options"]
+
+
+def sized_options(scenario: Any, options: dict[str, Any], n_arms: int) -> dict[str, int]:
+    """The random options that make a team of ``n_arms`` arms of ``scenario``'s task (an id or ``"random"``, with
+    ``options`` on top): ``n_arms``, and the obstacles at the task's density, its ``n_obstacles`` per ``n_arms``
+    (three per four arms on ``pan1_env/RandomFormation-v2``: 12 for 16 arms, as ``LargeFormation-v0``), rounded
+    half up."""
+    from pan1_env.random_scenario import RandomScenarioOptions
+    from pan1_env.registration import env_arguments
+
+    _, kwargs = env_arguments(scenario, {"random_options": options} if options else None)
+    base = RandomScenarioOptions(**kwargs.get("random_options", {}))
+    return {"n_arms": n_arms, "n_obstacles": int(base.n_obstacles * n_arms / base.n_arms + 0.5)}
 
 
 class SB3MixedArmVecEnv(VecEnv):
-    """``num_envs`` copies of ``scenario`` for each team size of ``team_sizes`` (``random_options`` ``n_arms``),
-    every arm an SB3 env: sub-envs ``0 … num_envs·N₀ − 1`` are the arms of the first size's copies (as
+    """``num_envs`` copies of ``scenario`` for each team size of ``team_sizes`` (``random_options`` ``n_arms``, with
+    the obstacles at the task's density: :func:`sized_options`), every arm an SB3 env: sub-envs
+    ``0 … num_envs·N₀ − 1`` are the arms of the first size's copies (as
     :class:`~pan1_env.baselines.arm_vec_env.SB3ArmVecEnv` lays them out), then the next size's, and so on.
     ``seed(s)`` gives every copy of every size its own stream spawned from s (the sizes' copies are numbered one
     after another, :func:`pan1_env.core.copy_generator`). Other arguments as ``SB3ArmVecEnv``.
@@ -42,8 +56,11 @@ class SB3MixedArmVecEnv(VecEnv):
         if "n_arms" in options:
             raise ValueError(f"random_options n_arms={options['n_arms']!r} and team_sizes={sizes} both set the team "
                              "size: give the sizes in team_sizes only")
-        self.parts = [SB3ArmVecEnv(scenario, num_envs, random_options=options | {"n_arms": n}, **kwargs)
-                      for n in sizes]
+        if "n_obstacles" in options:
+            raise ValueError(f"random_options n_obstacles={options['n_obstacles']!r} with team_sizes: each size gets "
+                             "the task's obstacles per arm (sized_options)")
+        self.parts = [SB3ArmVecEnv(scenario, num_envs, random_options=options | sized_options(scenario, options, n),
+                                   **kwargs) for n in sizes]
         spaces = {(p.observation_space.shape, p.action_space.shape) for p in self.parts}
         if len(spaces) > 1:
             seen = ", ".join(f"{n} arms: {p.observation_space.shape}" for n, p in zip(sizes, self.parts, strict=True))

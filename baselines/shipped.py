@@ -60,10 +60,36 @@ def _task(scenario: str, options: Any, action_mode: str, control_dt: float | Non
     return scenario, action_mode, round(control_dt, 9), round(physics_dt, 9)
 
 
+ANY_SIZE = ("n_arms", "any")  #: in a random task's options: a model trained on teams of several sizes
+
+
+def _any_size(task: tuple, density: float | None = None) -> tuple:
+    """A random-team task as one of any size: :data:`ANY_SIZE` for its team size, the link counts that occur
+    for its arms' (one per arm), and its obstacles per arm for its number of obstacles (as
+    :func:`~pan1_env.baselines.mixed_vec_env.sized_options` rounds them, if ``density`` is given: unless its
+    number of obstacles is that density's, it stays and the task is another)."""
+    if not isinstance(task[0], tuple):
+        return task
+    options = dict(task[0][1])
+    n_arms, n_obstacles = options.pop("n_arms"), options.pop("n_obstacles")
+    per_arm = n_obstacles / n_arms if density is None else density
+    if int(per_arm * n_arms + 0.5) == n_obstacles:
+        options["obstacles_per_arm"] = round(per_arm, 12)
+    else:
+        options["n_obstacles"] = n_obstacles
+    if isinstance(options.get("links"), tuple):
+        options["links"] = tuple(sorted(set(options["links"])))
+    return ((task[0][0], tuple(sorted([ANY_SIZE, *options.items()]))), *task[1:])
+
+
 def _serves(model: tuple, env: tuple) -> bool:
     """Whether a model trained on task ``model`` can run on an env of task ``env`` (both from
     :func:`_task`, or their first two entries): the same task, except that a model trained on residual
-    or gain actions also runs on the velocity-mode env (the adapter computes the paper's law)."""
+    or gain actions also runs on the velocity-mode env (the adapter computes the paper's law), and a model
+    trained on teams of several sizes (its task's options hold :data:`ANY_SIZE`) runs on a team of any size with
+    the obstacles per arm it was trained with."""
+    if isinstance(model[0], tuple) and ANY_SIZE in model[0][1]:
+        env = _any_size(env, dict(model[0][1])["obstacles_per_arm"])
     if len(model) != len(env) or model[0] != env[0] or model[2:] != env[2:]:
         return False
     return model[1] == env[1] or (env[1] == "velocity" and model[1] in ("residual", "gain"))
@@ -82,8 +108,9 @@ def _env_task(env) -> tuple:
 
 def _model_task(meta: dict[str, Any]) -> tuple:
     kwargs = meta.get("env_kwargs", {})
-    return _task(meta.get("scenario"), kwargs.get("random_options"), kwargs.get("action_mode", "velocity"),
+    task = _task(meta.get("scenario"), kwargs.get("random_options"), kwargs.get("action_mode", "velocity"),
                  kwargs.get("control_dt"), kwargs.get("physics_dt"))
+    return _any_size(task) if meta.get("team_sizes") else task
 
 
 def describe(meta: dict[str, Any]) -> str:

@@ -11,7 +11,7 @@ import pytest
 pytest.importorskip("stable_baselines3")
 
 from pan1_env.baselines.arm_vec_env import SB3ArmVecEnv  # noqa: E402
-from pan1_env.baselines.mixed_vec_env import SB3MixedArmVecEnv  # noqa: E402
+from pan1_env.baselines.mixed_vec_env import SB3MixedArmVecEnv, sized_options  # noqa: E402
 from pan1_env.core import copy_generator  # noqa: E402
 from pan1_env.random_scenario import RandomScenarioOptions  # noqa: E402
 from pan1_env.registration import ENV_IDS  # noqa: E402
@@ -23,10 +23,14 @@ RING = "pan1_env/RandomFormation-v2"
 def test_each_size_is_its_own_arm_view_and_every_copy_draws_its_own_stream() -> None:
     """Sub-envs are the arms of the 3-arm copies, then of the 5-arm ones; stepped with the same actions, each
     block is what an SB3ArmVecEnv of that size gives when its copies are numbered where the block starts. Copy b
-    of size k draws from copy_generator(seed, k·B + b): no two copies of the batch share a team stream."""
+    of size k draws from copy_generator(seed, k·B + b): no two copies of the batch share a team stream. Each size
+    has the task's three obstacles per four arms, rounded half up."""
     B, sizes, seed = 2, (3, 5), 7
+    assert [sized_options(RING, {}, n) for n in sizes] == [{"n_arms": 3, "n_obstacles": 2},
+                                                           {"n_arms": 5, "n_obstacles": 4}]
     mixed = SB3MixedArmVecEnv(RING, sizes, B, max_steps=4, action_mode="gain")
-    alone = [SB3ArmVecEnv(RING, B, random_options={"n_arms": n}, max_steps=4, action_mode="gain") for n in sizes]
+    alone = [SB3ArmVecEnv(RING, B, random_options=sized_options(RING, {}, n), max_steps=4, action_mode="gain")
+             for n in sizes]
     assert mixed.num_envs == B * sum(sizes) and [list(t) for t in mixed.team_envs[:3]] == [[0, 1, 2], [3, 4, 5],
                                                                                        [6, 7, 8, 9, 10]]
     for k, part in enumerate(alone):
@@ -52,9 +56,9 @@ def test_each_size_is_its_own_arm_view_and_every_copy_draws_its_own_stream() -> 
             expected.append(o)
         assert len(infos) == mixed.num_envs
     for k, n in enumerate(sizes):  # the first teams: each copy's own spawned stream
-        options = RandomScenarioOptions(**(ENV_IDS[RING]["random_options"] | {"n_arms": n}))
+        options = RandomScenarioOptions(**(ENV_IDS[RING]["random_options"] | sized_options(RING, {}, n)))
         first = draw_teams([copy_generator(seed, k * B + b) for b in range(B)], options)
-        again = SB3ArmVecEnv(RING, B, random_options={"n_arms": n})
+        again = SB3ArmVecEnv(RING, B, random_options=sized_options(RING, {}, n))
         again.venv.core.first_copy = k * B
         again.seed(seed)
         again.reset()
@@ -70,6 +74,8 @@ def test_sizes_whose_observations_differ_are_refused_with_the_way_out() -> None:
         SB3MixedArmVecEnv(RING, (3, 4), 1, critic_state=True)
     with pytest.raises(ValueError, match="team_sizes only"):
         SB3MixedArmVecEnv(RING, (3, 4), 1, random_options={"n_arms": 5})
+    with pytest.raises(ValueError, match="obstacles per arm"):
+        SB3MixedArmVecEnv(RING, (3, 4), 1, random_options={"n_obstacles": 5})
 
 
 def test_training_on_mixed_sizes_logs_one_row_per_team_episode(tmp_path) -> None:

@@ -529,6 +529,26 @@ def test_a_gain_model_serves_velocity_and_gain_envs_but_not_residual_ones() -> N
     assert shipped.available()["paper_pa3_square"]["env_kwargs"]["gain_range"] > 1  # recorded, not a default
 
 
+def test_a_model_trained_on_several_team_sizes_serves_any_size_of_its_task_only() -> None:
+    """A model trained with team_sizes on RandomFormation-v2 (its record: the id's options, no team size) serves
+    a team of any size with three obstacles per four arms, rounded half up (as the training drew them); a model of
+    one size serves that size only."""
+    from pan1_env.baselines import shipped
+    from pan1_env.environment import parallel_env
+    from pan1_env.registration import env_arguments
+
+    _, kwargs = env_arguments("pan1_env/RandomFormation-v2")
+    mixed = {"scenario": "random", "env_kwargs": {"random_options": kwargs["random_options"], "action_mode": "gain"},
+             "team_sizes": [3, 5, 8], "param_sharing": True}
+    one_size = {key: value for key, value in mixed.items() if key != "team_sizes"}
+    for n_arms, n_obstacles, by_mixed, by_one in ((3, 2, True, False), (4, 3, True, True), (16, 12, True, False),
+                                                  (32, 24, True, False), (16, 9, False, False), (8, 3, False, False)):
+        env = parallel_env("pan1_env/RandomFormation-v2", random_options={"n_arms": n_arms, "n_obstacles": n_obstacles})
+        assert shipped._serves(shipped._model_task(mixed), shipped._env_task(env)) is by_mixed, (n_arms, n_obstacles)
+        assert shipped._serves(shipped._model_task(one_size), shipped._env_task(env)) is by_one, (n_arms, n_obstacles)
+    assert shipped.describe(mixed) == "pan1_env/RandomFormation-v2"
+
+
 @pytest.mark.parametrize("name", ["paper_pa3_square", "paper_pa_mixed_square"])
 def test_the_shipped_paper_models_form_the_shape_before_the_paper_law(name) -> None:
     """The shipped model forms its scenario's shape behind the shield by the time its provenance
