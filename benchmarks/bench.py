@@ -18,7 +18,8 @@ Prints a Markdown table of medians (each over several repeats) and the ratios th
   (benchmarks/reset.py), and the per-copy reference path they replaced;
 * the exact compiled QP against qpsolvers + PIQP, per solve, on the same random filter problems;
 * the shielded step for teams of 4, 16 and 64 arms (random polygons of PA3 arms), and 64 against 4;
-* a whole-arm step per arm on ring teams of 4 to 64 arms, against 16 arms (benchmarks/sizes.py);
+* a whole-arm step per arm on ring teams of 4 to 256 arms, against 4 arms, the draw of a team and the memory
+  per arm at each size (benchmarks/sizes.py);
 * the batched TorchRL env (``pan1_env.marl``, shielded random teams) against VMAS ``navigation`` (4 agents,
   CPU) at B = 1024, in agent-steps per second (needs the ``marl`` and ``bench`` extras);
 * ``pan1-env reproduce`` of each paper scenario (the simulation loop, nominal and safe);
