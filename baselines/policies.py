@@ -147,7 +147,14 @@ def _sb3(env, seed: int | None, path: str) -> Policy:
     return sb3_policy(path, env)
 
 
+def _circulation(env, seed: int | None) -> Policy:
+    from .circulation import CirculatingPolicy
+
+    return CirculatingPolicy(env)
+
+
 register_policy("reference", _reference)
+register_policy("circulation", _circulation)
 register_policy("zero", lambda env, seed: ZeroPolicy(env))
 register_policy("random", lambda env, seed: RandomPolicy(env, seed))
 register_policy("adversarial", lambda env, seed: AdversarialPolicy(env))
@@ -172,5 +179,5 @@ def _marl(env, seed: int | None) -> Policy:
 
 register_policy("marl", _marl)  # the shipped decentralised model (shared by the arms) for the env's task
 
-BUILTIN_POLICIES = ("reference", "zero", "random", "adversarial")
+BUILTIN_POLICIES = ("reference", "circulation", "zero", "random", "adversarial")
 """The built-in names besides the ``sb3:PATH`` family."""

@@ -44,92 +44,11 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # filters.py and failures.py are scripts beside this one
-import failures  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # filters.py is a script beside this one
 import filters  # noqa: E402
 
-from pan1_env.baselines import ReferencePolicy  # noqa: E402
-from pan1_env.bodies import link_obstacle_barrier, link_point_jacobian  # noqa: E402
-from pan1_env.cascade import passive_velocity_map  # noqa: E402
-from pan1_env.dynamics import end_effector  # noqa: E402
+from pan1_env.baselines.circulation import SENSES, CirculatingPolicy  # noqa: E402
 from pan1_env.registration import env_arguments  # noqa: E402
-from pan1_env.safety import clearance  # noqa: E402
-
-SENSES = {"ccw": 1.0, "cw": -1.0}
-PAUSE_S = 2.0  # a pause in an arm's term this long ends its spell of contact
-
-
-def circulation(arm, q, v0, centers, radii, link_radius, links, gain, sense, activation):
-    """The term added to one arm's velocity command ``v0 (k,)`` (rad/s) at joint angles ``q``."""
-    if links:
-        bar = link_obstacle_barrier(arm, q, centers, radii, link_radius)  # the closest point of each link
-        gap = np.linalg.norm(bar.point - centers, axis=-1) - radii - link_radius
-        pairs = [(link, o, bar.point[link, o], bar.t[link, o]) for link, o in
-                 zip(*np.nonzero(gap < activation), strict=True)]
-    else:
-        p = end_effector(arm, q)
-        pairs = [(arm.n_links - 1, o, p, 1.0) for o in np.flatnonzero(clearance(p, centers, radii) < activation)]
-    g0 = passive_velocity_map(arm, q)
-    term = np.zeros_like(v0)
-    for link, o, x, t in pairs:
-        Jx = link_point_jacobian(arm, q, link, t) @ g0
-        rel = x - centers[o]
-        a = rel @ Jx
-        norm_a = np.linalg.norm(a)
-        into = -(a @ v0)
-        if norm_a < 1e-12 or into <= 0.0:
-            continue
-        tangent = sense * np.array([-rel[1], rel[0]]) @ Jx
-        tangent -= (tangent @ a) / norm_a**2 * a
-        norm_t = np.linalg.norm(tangent)
-        if norm_t > 1e-12:
-            term += gain * into / norm_a * tangent / norm_t
-    return term
-
-
-class CirculatingPolicy:
-    """The paper's law (:class:`~pan1_env.baselines.ReferencePolicy`, velocity mode) plus :func:`circulation`
-    for every arm, on a parallel env whose team it reads at every call.
-
-    A spell of contact is the time an arm's term is non-zero without a pause of :data:`PAUSE_S`. ``delay``
-    (s) holds the term back for the spell's first seconds, so that it acts only on an arm that stays
-    blocked. ``flip_after`` > 0 (s) turns the arm's sense round once the term has acted that long, once per
-    spell."""
-
-    def __init__(self, env, gain: float, sense: str, activation: float, flip_after: float = 0.0,
-                 delay: float = 0.0) -> None:
-        self.env, self.law = env, ReferencePolicy(env)
-        self.gain, self.sense, self.activation, self.flip_after = gain, SENSES[sense], activation, flip_after
-        self.delay = delay
-        self.arms: list[dict] = []
-
-    def __call__(self, observations: dict) -> dict:
-        actions = self.law(observations)
-        env, dt = self.env, self.env.unwrapped.control_dt
-        scenario, speed = env.scenario, env.max_joint_speed
-        if env.unwrapped.num_steps == 0:  # a new episode
-            self.arms = [{"sense": self.sense, "acting": 0.0, "pause": 0.0, "flipped": False}
-                         for _ in env.possible_agents]
-        qs = failures.team_state(env, scenario)[0]
-        obstacles = scenario.obstacles
-        for i, agent in enumerate(env.possible_agents):
-            arm = self.arms[i]
-            v0 = np.asarray(actions[agent], float) * speed
-            term = circulation(scenario.arms[i], qs[i], v0, obstacles.centers, obstacles.radii, scenario.link_radius,
-                               scenario.bodies == "links", self.gain, arm["sense"], self.activation)
-            if np.any(term):
-                arm["acting"] += dt
-                arm["pause"] = 0.0
-                if self.flip_after > 0 and arm["acting"] > self.delay + self.flip_after and not arm["flipped"]:
-                    arm["sense"], arm["flipped"] = -arm["sense"], True
-            else:
-                arm["pause"] += dt
-                if arm["pause"] > PAUSE_S:
-                    arm["acting"], arm["flipped"] = 0.0, False
-            v = v0 + term if arm["acting"] > self.delay else v0
-            v /= speed * max(1.0, float(np.max(np.abs(v))) / speed)
-            actions[agent] = v.astype(np.float32)
-        return actions
 
 
 def run(task: str, seeds: list[int], senses: list[str], gains: list[float], flips: list[float], activation: float,

@@ -1,6 +1,6 @@
-"""benchmarks/circulation.py: its term moves the blocked point round the obstacle (checked by forward
-kinematics, not by the Jacobian it is built of), leaves the speed into the obstacle alone, and the study
-runs end to end."""
+"""The circulation term (pan1_env.baselines.circulation): it moves the blocked point round the obstacle (checked by
+forward kinematics, not by the Jacobian it is built of) and leaves the speed into the obstacle alone; the policy
+built on it is a registered name; and the study (benchmarks/circulation.py) runs end to end."""
 
 import importlib.util
 import json
@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pan1_env.bodies import link_clearance, link_segments
+from pan1_env.baselines.circulation import SENSES, circulation_term
+from pan1_env.bodies import link_clearance, link_point_jacobian, link_segments
 from pan1_env.cascade import passive_velocity_map
 from pan1_env.dynamics import end_effector
 from tests.arms import random_arm
@@ -24,7 +25,7 @@ RHO, ACTIVATION = 0.02, 0.03  # a capsule radius, and the clearance within which
 
 
 def _term(arm, q, v0, centre, radius, links, sense=1.0):
-    return circulation.circulation(arm, q, v0, centre[None], np.array([radius]), RHO, links, 1.0, sense, ACTIVATION)
+    return circulation_term(arm, q, v0, centre[None], np.array([radius]), RHO, links, 1.0, sense, ACTIVATION)
 
 
 def _angle_about(x: np.ndarray, o: np.ndarray) -> float:
@@ -55,10 +56,10 @@ def test_the_term_turns_the_blocked_point_round_the_obstacle_in_its_sense(links:
         if links and np.sum(link_clearance(arm, q, o[None], np.array([r]), RHO) < ACTIVATION + 0.02) != 1:
             continue  # another link is near the obstacle too
         # the command that drives that point straight at the obstacle fastest
-        J = (circulation.link_point_jacobian(arm, q, ell, 0.5 if links else 1.0) @ g0)
+        J = (link_point_jacobian(arm, q, ell, 0.5 if links else 1.0) @ g0)
         v0 = J.T @ (o - x)
         turns = {}
-        for sense, sign in circulation.SENSES.items():
+        for sense, sign in SENSES.items():
             term = _term(arm, q, v0, o, r, links, sign)
             normal = (x - o) @ J
             assert abs(term @ normal) <= 1e-9 * np.linalg.norm(term) * np.linalg.norm(normal)
@@ -99,3 +100,28 @@ def test_the_study_refuses_bad_arguments_in_one_line(argv: list[str], message: s
     with pytest.raises(SystemExit) as stop:
         circulation.main(argv)
     assert stop.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_the_registered_policy_is_the_law_until_an_arm_stays_blocked() -> None:
+    """``make_policy("circulation", env)``: for the first ``delay`` seconds of an episode its actions are the law's
+    (a term acts only on an arm blocked that long), always within the action bounds; it refuses an env whose
+    actions are not velocities."""
+    from pan1_env.baselines import ReferencePolicy, make_policy
+    from pan1_env.environment import parallel_env
+    from pan1_env.wrappers import SafetyShield
+
+    env = SafetyShield(parallel_env("pan1_env/WholeArmStaticFormation-v1"))
+    policy, law = make_policy("circulation", env), ReferencePolicy(env)
+    observations, _ = env.reset(seed=2_000_000)
+    for _ in range(20):  # 1 s, within the default delay of 5 s
+        actions, expected = policy(observations), law(observations)
+        for agent in env.agents:
+            np.testing.assert_allclose(actions[agent], expected[agent], rtol=1e-6, atol=1e-7)
+            assert np.all(np.abs(actions[agent]) <= 1.0)
+        observations, *_ = env.step(actions)
+    with pytest.raises(ValueError, match="outputs velocities"):
+        make_policy("circulation", parallel_env("pan1_env/WholeArmStaticFormation-v1", action_mode="gain"))
+    with pytest.raises(ValueError, match="sense must be one of"):
+        from pan1_env.baselines.circulation import CirculatingPolicy
+
+        CirculatingPolicy(env, sense="up")
