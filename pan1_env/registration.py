@@ -15,6 +15,8 @@
   b = 0.5 N·m·s/rad: docs/ENVIRONMENTS.md),
 * ``pan1_env/MovingFormation-v0`` (RandomFormation-v1's teams, whose formation scales between 0.8 and 1.2
   through keyframes 15 s apart; success is the error below 1 cm for the last 5 s: docs/ENVIRONMENTS.md),
+* ``pan1_env/MovingFormation-v1`` (MovingFormation-v0 with the shape placed: at every keyframe it turns within
+  ±0.5 rad and its centroid travels up to 0.1 m, each arm brought to its own point: docs/ENVIRONMENTS.md),
 * ``pan1_env/RandomFormation-v2`` (RandomFormation-v1's task on a ring: each arm joined to the two nearest on
   each side, so at most 4 neighbours and an observation whose size does not depend on the team's; arms redrawn
   one by one, so that ``random_options={"n_arms": 32}`` draws at once: docs/ENVIRONMENTS.md),
@@ -39,6 +41,7 @@ _V1_FILTER = {"barrier": "distance", "decay": 50.0, "kappa": 0.5, "epsilon": 5.0
 _FAULTS = {"fault_probability": 0.5, "fault_time": (1.0, 10.0), "passive_damping": 0.5}
 _MOVING = {"formation_scale": (0.8, 1.2), "scale_period": 15.0}
 _RING = {"shape": "ring", "arm_redraws": 20}
+_PLACED = {"formation_turn": (-0.5, 0.5), "formation_travel": (0.0, 0.1)}  # where the law forms half the teams
 MOVING_SUCCESS_HOLD = 5.0  # s: MovingFormation-v0's success is the error below tolerance for this long
 ENV_IDS = {
     "pan1_env/PaperPA3Square-v0": {"scenario": "paper_pa3_square"},
@@ -55,6 +58,8 @@ ENV_IDS = {
                                       "random_options": _WHOLE_ARM | _V1_FILTER | {"obstacle_speed": (0.05, 0.2)}},
     "pan1_env/FaultFormation-v0": {"scenario": "random", "random_options": _V1_FILTER | _FAULTS},
     "pan1_env/MovingFormation-v0": {"scenario": "random", "random_options": _V1_FILTER | _MOVING,
+                                    "success_hold": MOVING_SUCCESS_HOLD},
+    "pan1_env/MovingFormation-v1": {"scenario": "random", "random_options": _V1_FILTER | _MOVING | _PLACED,
                                     "success_hold": MOVING_SUCCESS_HOLD},
     "pan1_env/RandomFormation-v2": {"scenario": "random", "random_options": _V1_FILTER | _RING},
     "pan1_env/LargeFormation-v0": {"scenario": "random",

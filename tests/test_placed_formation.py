@@ -347,3 +347,16 @@ def test_a_switch_too_short_is_refused_and_a_step_is_not() -> None:
                                          r"switch"):
         check_motion(FormationMotion([0.0], [1.0], switch_duration=0.05, **switch), SQUARE, EDGES, bases,
                      np.full(4, 1.5), 20.0)
+
+
+def test_moving_formation_v1_is_v0_with_the_shape_placed_turning_and_travelling() -> None:
+    """The id of the row where the law forms half the teams: v0's options and success hold, plus a turn within
+    ±0.5 rad and a travel up to 0.1 m; every copy's arms are placed."""
+    _, v0 = env_arguments("pan1_env/MovingFormation-v0")
+    _, v1 = env_arguments("pan1_env/MovingFormation-v1")
+    assert v1["random_options"] == v0["random_options"] | {"formation_turn": (-0.5, 0.5),
+                                                           "formation_travel": (0.0, 0.1)}
+    assert v1["success_hold"] == v0["success_hold"]
+    env = parallel_env("pan1_env/MovingFormation-v1")
+    env.reset(seed=2_000_000)
+    assert env.task.motion.placed.all()
