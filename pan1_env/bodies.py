@@ -61,6 +61,8 @@ __all__ = [
     "inter_arm_clearance",
     "obstacle_centers",
     "obstacle_velocities",
+    "obstacle_floors",
+    "arm_pair_floors",
 ]
 
 
@@ -282,3 +284,25 @@ def obstacle_velocities(centers: np.ndarray, path_ends: np.ndarray, speeds: np.n
     speeds = np.asarray(speeds, dtype=float)
     sign = np.where(length > 0, np.where(arc < length, 1.0, -1.0), 0.0)
     return (sign * speeds)[..., None] * unit
+
+
+def obstacle_floors(bases: np.ndarray, reach: np.ndarray, centers: np.ndarray, path_ends: np.ndarray,
+                    radii: np.ndarray, body_radius: float) -> np.ndarray:
+    """Lower bounds on the clearance of any body of each arm to each obstacle, in any configuration and at any
+    time: ``(..., N, O)`` from the arms' ``bases (..., N, 2)`` and ``reach (..., N)`` (Σ L: every body point
+    lies within it of the base) and the obstacles of :func:`obstacle_centers` (each stays on the segment from
+    its centre to its path's end): the base's distance to that segment, less the reach, the obstacle's radius
+    and the body's (``link_radius`` for links, 0 for an end-effector)."""
+    start, step = centers[..., None, :, :], (path_ends - centers)[..., None, :, :]
+    length2 = np.sum(step * step, axis=-1)
+    along = np.sum((bases[..., :, None, :] - start) * step, axis=-1) / np.where(length2 > 0, length2, 1.0)
+    nearest = start + np.clip(along, 0.0, 1.0)[..., None] * step
+    apart = np.linalg.norm(bases[..., :, None, :] - nearest, axis=-1)
+    return apart - reach[..., :, None] - radii[..., None, :] - body_radius
+
+
+def arm_pair_floors(bases: np.ndarray, reach: np.ndarray, link_radius: float) -> np.ndarray:
+    """Lower bounds on the clearance d − 2ρ between any link capsules of arms i and j, in any configurations:
+    ``(..., N, N)``, the bases' distance less both reaches and 2ρ (≤ 0: the two reaches can meet)."""
+    apart = np.linalg.norm(bases[..., :, None, :] - bases[..., None, :, :], axis=-1)
+    return apart - reach[..., :, None] - reach[..., None, :] - 2.0 * link_radius

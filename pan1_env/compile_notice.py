@@ -32,7 +32,7 @@ logger = logging.getLogger("pan1_env")
 KERNELS_PER_KIND = ("group_advance", "group_advance_parallel")
 # the sub-step kernel's body, called from Python (its fourth argument (n, k), not None) as the generic kernel
 GENERIC = "_advance_arms"
-# the engine's whole-arm geometry passes between kernel calls (pan1_env.kernels.capsules): a few seconds
+# the engine's whole-arm geometry passes between kernel calls (pan1_env.kernels.team_geometry): a few seconds
 # together on a first whole-arm step, announced once
 GEOMETRY = ("kind_joints", "kind_joints_parallel", "obstacles_now", "refresh_capsules", "refresh_capsules_parallel",
             "inter_arm_clearance", "after_substep", "after_substep_parallel")
@@ -95,7 +95,7 @@ class _KernelCompileNotice(numba_event.Listener):
         dispatcher = event.data.get("dispatcher")
         func = getattr(dispatcher, "py_func", None)
         if getattr(func, "__name__", "") not in GEOMETRY or getattr(func, "__module__", "") != \
-                "pan1_env.kernels.capsules":
+                "pan1_env.kernels.team_geometry":
             return False
         if not self._geometry_told:
             self._geometry_told = True

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .bodies import capsule_clearance, obstacle_velocities
+from .bodies import arm_pair_floors, capsule_clearance, obstacle_floors, obstacle_velocities
 from .compiled import WholeArm, kernels, plain
 from .kinds import Kind
 from .piqp_filter import PiqpFilter
@@ -299,17 +299,9 @@ class Engine:
         obstacles[..., K.CAP_RADIUS], obstacles[..., K.CAP_SHARE] = self.radii[copies], 1.0
         obstacles[..., K.CAP_PATH], obstacles[..., K.CAP_SPEED] = length, self.speeds[copies]
         obstacles[..., K.CAP_ARM] = -1.0
-        # floors: every body of arm i lies within its reach of its base, an obstacle on the segment of its path
-        body = self.link_radius if self.link_bodies else 0.0
-        along = np.einsum("cnoz,coz->cno", bases[:, :, None] - starts[:, None], step)
-        t = np.clip(along / np.where(length > 0, length**2, 1.0)[:, None], 0.0, 1.0)
-        nearest = starts[:, None] + t[..., None] * step[:, None]
-        world_floor = np.linalg.norm(bases[:, :, None] - nearest, axis=-1) - reach[..., None] \
-            - self.radii[copies][:, None] - body
-        arm_floor = None
-        if self.inter_arm:
-            apart = np.linalg.norm(bases[:, :, None] - bases[:, None], axis=-1)
-            arm_floor = apart - reach[:, :, None] - reach[:, None] - 2.0 * self.link_radius
+        world_floor = obstacle_floors(bases, reach, starts, self.path_ends[copies], self.radii[copies],
+                                      self.link_radius if self.link_bodies else 0.0)
+        arm_floor = arm_pair_floors(bases, reach, self.link_radius) if self.inter_arm else None
         for kind in self.kinds:
             kind.load_capsules(copies, obstacles, mask, world_floor, arm_floor, self.n_links, self.link_radius)
 
@@ -466,7 +458,7 @@ class Engine:
         if not self.inter_arm or N < 2:
             return np.full((B, N), np.inf)
         clear = np.full((B, N), np.inf)
-        kernels().capsules.inter_arm_clearance(self.joint_positions() if P is None else P, self.link_radius, clear)
+        kernels().team_geometry.inter_arm_clearance(self.joint_positions() if P is None else P, self.link_radius, clear)
         return clear
 
     def kind_terms(self, kind: Kind) -> KindTerms:
@@ -589,7 +581,7 @@ class Engine:
         """``centers`` and ``velocities`` (which observations and :meth:`clearance` read) where every copy's
         clock puts the obstacles, as the filter places them (whole-arm safety: from the capsules)."""
         if self.speeds.any():
-            kernels().capsules.obstacles_now(self.copy_rows, self._team_caps, self.elapsed, self.centers,
+            kernels().team_geometry.obstacles_now(self.copy_rows, self._team_caps, self.elapsed, self.centers,
                                              self.velocities)
 
     def refresh_capsules(self, P: np.ndarray | None = None) -> None:
@@ -688,13 +680,13 @@ class Engine:
         return kind.specialised
 
     def _geometry(self, name: str, rows: int, *args) -> None:
-        """The whole-arm geometry pass ``name`` of :mod:`pan1_env.kernels.capsules` over ``rows`` arms, or its
+        """The whole-arm geometry pass ``name`` of :mod:`pan1_env.kernels.team_geometry` over ``rows`` arms, or its
         ``_parallel`` twin on numba's threads when :meth:`chunks` says so."""
         chunks = self.chunks(rows)
         if chunks:
-            getattr(kernels().capsules, name + "_parallel")(*args, chunks)
+            getattr(kernels().team_geometry, name + "_parallel")(*args, chunks)
         else:
-            getattr(kernels().capsules, name)(*args)
+            getattr(kernels().team_geometry, name)(*args)
 
     def chunks(self, rows: int) -> int:
         """0 to run a kernel call on one thread, else its number of chunks on numba's thread pool."""

@@ -446,3 +446,33 @@ def test_scenario_constructor_defaults_keep_old_calls_working() -> None:
     with pytest.raises(ValueError, match="obstacle_paths and obstacle_speeds go together"):
         scenario.Scenario(**fields, obstacle_paths=sc.obstacles.centers)
     copy.deepcopy(rebuilt)
+
+
+def test_the_floors_bound_every_configurations_clearance_from_below() -> None:
+    """obstacle_floors and arm_pair_floors against the independent geometry: for random arms placed anywhere, any
+    joint angles, obstacles anywhere on their paths, no link capsule comes closer than its floor; and a stretched arm
+    pointing at an obstacle reaches its floor."""
+    rng = np.random.default_rng(0)
+    rho = 0.03
+    for _ in range(20):
+        arms = [random_arm(rng, int(rng.integers(2, 5)), placed=True) for _ in range(3)]
+        bases, reach = np.array([a.base for a in arms]), np.array([a.reach for a in arms])
+        centers, ends = rng.uniform(-2, 2, (4, 2)), rng.uniform(-2, 2, (4, 2))
+        radii = rng.uniform(0.05, 0.3, 4)
+        world = bodies.obstacle_floors(bases, reach, centers, ends, radii, rho)
+        pairs = bodies.arm_pair_floors(bases, reach, rho)
+        for _ in range(10):
+            P = [joints(rng.uniform(-np.pi, np.pi, a.n_links), a.lengths, a.base, a.phi) for a in arms]
+            where = centers + rng.uniform(0, 1, (4, 1)) * (ends - centers)
+            for i, Pi in enumerate(P):
+                for o in range(4):
+                    near = min(point_segment_distance(where[o], Pi[k], Pi[k + 1]) for k in range(len(Pi) - 1))
+                    assert near - radii[o] - rho >= world[i, o] - 1e-12
+            for (i, j), c in inter_arm_clearances(P, rho).items():
+                assert c.min() >= pairs[i, j] - 1e-12 and pairs[i, j] == pytest.approx(pairs[j, i], abs=1e-12)
+    arm = random_arm(rng, 3, placed=True)
+    stretched = joints(np.zeros(3), arm.lengths, arm.base, arm.phi)  # every joint at 0: the arm straight out
+    ahead = arm.base + (stretched[-1] - arm.base) * (arm.reach + 0.5) / arm.reach
+    floor = bodies.obstacle_floors(arm.base[None], np.array([arm.reach]), ahead[None], ahead[None], np.array([0.1]),
+                                   0.0)[0, 0]
+    assert floor == pytest.approx(point_segment_distance(ahead, stretched[-2], stretched[-1]) - 0.1, abs=1e-9)
