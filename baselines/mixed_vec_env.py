@@ -16,7 +16,12 @@ from pan1_env.validation import positive_int
 
 from .arm_vec_env import SB3ArmVecEnv
 
-__all__ = ["SB3MixedArmVecEnv", "sized_options"]
+__all__ = ["SB3MixedArmVecEnv", "sized_options", "obstacles_at_size"]
+
+
+def obstacles_at_size(n_obstacles: int, n_arms: int, size: int) -> int:
+    """The obstacles of a team of ``size`` arms at the density of ``n_obstacles`` per ``n_arms``, rounded half up."""
+    return (2 * n_obstacles * size + n_arms) // (2 * n_arms)
 
 
 def sized_options(scenario: Any, options: dict[str, Any], n_arms: int) -> dict[str, int]:
@@ -29,7 +34,7 @@ def sized_options(scenario: Any, options: dict[str, Any], n_arms: int) -> dict[s
 
     _, kwargs = env_arguments(scenario, {"random_options": options} if options else None)
     base = RandomScenarioOptions(**kwargs.get("random_options", {}))
-    return {"n_arms": n_arms, "n_obstacles": int(base.n_obstacles * n_arms / base.n_arms + 0.5)}
+    return {"n_arms": n_arms, "n_obstacles": obstacles_at_size(base.n_obstacles, base.n_arms, n_arms)}
 
 
 class SB3MixedArmVecEnv(VecEnv):

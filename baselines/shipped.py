@@ -63,18 +63,20 @@ def _task(scenario: str, options: Any, action_mode: str, control_dt: float | Non
 ANY_SIZE = ("n_arms", "any")  #: in a random task's options: a model trained on teams of several sizes
 
 
-def _any_size(task: tuple, density: float | None = None) -> tuple:
-    """A random-team task as one of any size: :data:`ANY_SIZE` for its team size, the link counts that occur
-    for its arms' (one per arm), and its obstacles per arm for its number of obstacles (as
-    :func:`~pan1_env.baselines.mixed_vec_env.sized_options` rounds them, if ``density`` is given: unless its
-    number of obstacles is that density's, it stays and the task is another)."""
+def _any_size(task: tuple, density: tuple[int, int] | None = None) -> tuple:
+    """A random-team task as one of any size: :data:`ANY_SIZE` for its team size, the set of its arms' link counts
+    for their list, and ``("obstacles_per_arms", (n_obstacles, n_arms))`` for its obstacles, at its own density or,
+    if given, at ``density`` when its number of obstacles is what
+    :func:`~pan1_env.baselines.mixed_vec_env.obstacles_at_size` gives (else its number stays: another task)."""
+    from .mixed_vec_env import obstacles_at_size
+
     if not isinstance(task[0], tuple):
         return task
     options = dict(task[0][1])
     n_arms, n_obstacles = options.pop("n_arms"), options.pop("n_obstacles")
-    per_arm = n_obstacles / n_arms if density is None else density
-    if int(per_arm * n_arms + 0.5) == n_obstacles:
-        options["obstacles_per_arm"] = round(per_arm, 12)
+    density = (n_obstacles, n_arms) if density is None else tuple(density)
+    if obstacles_at_size(*density, n_arms) == n_obstacles:
+        options["obstacles_per_arms"] = density
     else:
         options["n_obstacles"] = n_obstacles
     if isinstance(options.get("links"), tuple):
@@ -89,7 +91,7 @@ def _serves(model: tuple, env: tuple) -> bool:
     trained on teams of several sizes (its task's options hold :data:`ANY_SIZE`) runs on a team of any size with
     the obstacles per arm it was trained with."""
     if isinstance(model[0], tuple) and ANY_SIZE in model[0][1]:
-        env = _any_size(env, dict(model[0][1])["obstacles_per_arm"])
+        env = _any_size(env, dict(model[0][1])["obstacles_per_arms"])
     if len(model) != len(env) or model[0] != env[0] or model[2:] != env[2:]:
         return False
     return model[1] == env[1] or (env[1] == "velocity" and model[1] in ("residual", "gain"))

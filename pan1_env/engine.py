@@ -38,6 +38,7 @@ __all__ = ["Engine", "KernelQP", "FilterParams", "KindTerms", "StepRecord", "fil
 
 PARALLEL_THRESHOLD = 256  # arms of one kind from which the kernel runs on numba's thread pool
 #: m: with whole-arm safety, a body's filter takes a row for a capsule only when their clearance is at
+FLOOR_SLACK = 1e-9  #: m taken off the capsules' floors (Engine._load_capsules)
 #: most this plus what the gap can close in a sub-step (:func:`pan1_env.kernels.capsules.whole_arm_rows`)
 SENSING_RADIUS = 0.1
 #: m: with whole-arm safety the filter keeps every capsule this much (plus an obstacle's travel in one
@@ -299,9 +300,10 @@ class Engine:
         obstacles[..., K.CAP_RADIUS], obstacles[..., K.CAP_SHARE] = self.radii[copies], 1.0
         obstacles[..., K.CAP_PATH], obstacles[..., K.CAP_SPEED] = length, self.speeds[copies]
         obstacles[..., K.CAP_ARM] = -1.0
+        # the floors less a nanometre: the kernels' distances round otherwise, and a skip must never be a near thing
         world_floor = obstacle_floors(bases, reach, starts, self.path_ends[copies], self.radii[copies],
-                                      self.link_radius if self.link_bodies else 0.0)
-        arm_floor = arm_pair_floors(bases, reach, self.link_radius) if self.inter_arm else None
+                                      self.link_radius if self.link_bodies else 0.0) - FLOOR_SLACK
+        arm_floor = arm_pair_floors(bases, reach, self.link_radius) - FLOOR_SLACK if self.inter_arm else None
         for kind in self.kinds:
             kind.load_capsules(copies, obstacles, mask, world_floor, arm_floor, self.n_links, self.link_radius)
 

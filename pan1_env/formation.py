@@ -54,7 +54,7 @@ def incidence_matrix(edges: np.ndarray, n_agents: int) -> np.ndarray:
     return B
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class SparseIncidence:
     """B by its non-zeros, for teams whose graph has bounded degree D: the products below cost O(N·D) per
     copy where the dense B's cost O(N·|E|), which for a ring grows as N². ``arm_edges (N, D)`` lists each

@@ -12,6 +12,7 @@ filtered velocities sit one column further in the team's ``(B, N, k_max)`` array
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -132,8 +133,7 @@ class Kind:
         block[:, :, O:, K.CAP_ARM], block[:, :, O:, K.CAP_FLOOR] = -1.0, np.inf
         if arm_floor is not None:
             for r, i in enumerate(self.ids):
-                arm = np.array([j for j in range(len(n_links)) if j != i for _ in range(n_links[j])], dtype=np.int64)
-                link = np.array([a for j in range(len(n_links)) if j != i for a in range(n_links[j])], dtype=float)
+                arm, link = _other_links(tuple(n_links), int(i))
                 floor = arm_floor[:, i, arm]  # (C, S): stable, so an arm's links stay together and in order
                 order = np.argsort(floor, axis=1, kind="stable")
                 slots = block[:, r, O:O + len(arm)]
@@ -203,3 +203,11 @@ class Kind:
         full.active[rows], self.active[rows] = False, True
         full.set_stepped()
         self.set_stepped()
+
+
+@lru_cache(maxsize=256)
+def _other_links(n_links: tuple[int, ...], i: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every link of the arms other than i, as (its arm, its index): one slot each, an arm's links together."""
+    arm = np.array([j for j in range(len(n_links)) if j != i for _ in range(n_links[j])], dtype=np.int64)
+    link = np.array([a for j in range(len(n_links)) if j != i for a in range(n_links[j])], dtype=float)
+    return arm, link

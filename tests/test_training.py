@@ -547,6 +547,14 @@ def test_a_model_trained_on_several_team_sizes_serves_any_size_of_its_task_only(
         assert shipped._serves(shipped._model_task(mixed), shipped._env_task(env)) is by_mixed, (n_arms, n_obstacles)
         assert shipped._serves(shipped._model_task(one_size), shipped._env_task(env)) is by_one, (n_arms, n_obstacles)
     assert shipped.describe(mixed) == "pan1_env/RandomFormation-v2"
+    # a density whose half-way ties the training's rounding breaks upwards: the model serves what it trained on
+    from pan1_env.baselines.mixed_vec_env import obstacles_at_size
+
+    tie = {**mixed, "env_kwargs": {**mixed["env_kwargs"], "random_options": kwargs["random_options"] | {
+        "n_arms": 6, "n_obstacles": 5}}}
+    assert obstacles_at_size(5, 6, 3) == 3  # 2.5 rounded half up
+    env = parallel_env("pan1_env/RandomFormation-v2", random_options={"n_arms": 3, "n_obstacles": 3})
+    assert shipped._serves(shipped._model_task(tie), shipped._env_task(env))
 
 
 @pytest.mark.parametrize("name", ["paper_pa3_square", "paper_pa_mixed_square"])

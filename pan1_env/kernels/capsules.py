@@ -19,7 +19,8 @@ or with the filter choices of docs/MODEL.md §5a (``distance``: h = ‖x − y�
 A capsule is a row of ``capsules (A, C, CAPSULE_COLUMNS)``: its segment's end points at time 0 (equal
 for a disk), radius, share, the unit direction, length and speed of its back-and-forth path
 (:func:`pan1_env.bodies.obstacle_centers`), whether the arm's filter considers it, its kind (a world
-obstacle, or link ``CAP_LINK`` of another arm, whose segment the engine refreshes every sub-step), and its
+obstacle, or link ``CAP_LINK`` of another arm, whose segment the engine refreshes every sub-step while it is
+active), and its
 floor: a lower bound on its clearance to any body of the arm in any configuration, from the arm's base
 and reach and the capsule's path (or the other arm's base and reach).
 
@@ -282,7 +283,8 @@ def whole_arm_clearance_lanes(arm, live, n, W, links, rho, lengths, bx, by, c, s
     obstacle pair is a point–segment distance, whose clamp is a select (``joints_x``, ``joints_y (n + 1, W)``,
     ``ox``, ``oy``, ``orad (W)`` are scratch). The same operations in the same order as
     :func:`_gap` for a segment and a point, so the same clearance, bit for bit. An obstacle whose floor
-    is at least every live lane's clearance so far cannot lower it and is not measured."""
+    is at least every live lane's clearance so far cannot lower it and is not measured (the floors are a
+    nanometre below the bound, so rounding cannot make that a near thing)."""
     for w in range(W):  # the joints: base, link ends (link a runs from joint a to joint a + 1)
         x, y = bx[w], by[w]
         joints_x[0, w], joints_y[0, w] = x, y

@@ -78,7 +78,8 @@ def _nearby_arm_copies(copy_rows, caps, first, P, rho, out, lo, hi):
     """:func:`inter_arm_clearance` for copies ``lo … hi−1``, each arm walking its slots for the other arms'
     links (from column ``first``, in order of floor) and stopping at the first floor not below its clearance
     so far: no arm after it can lower that, so the walk meets the nearby arms only. The minimum is the
-    all-pairs one, bit for bit: the same pairs' clearances, less pairs that cannot lower it."""
+    all-pairs one: the same pairs' clearances, less pairs whose floor (a nanometre below the bound) shows they
+    cannot lower it."""
     N, C = P.shape[1], caps.shape[1]
     box = np.empty((N, 4))
     for b in range(lo, hi):
@@ -87,10 +88,10 @@ def _nearby_arm_copies(copy_rows, caps, first, P, rho, out, lo, hi):
             row, last = copy_rows[b, i], -1
             for col in range(first, C):
                 j = int(caps[row, col, CAP_ARM])
-                if j == last:
-                    continue
                 if j < 0 or not caps[row, col, CAP_FLOOR] < out[b, i]:  # an unused slot, or no lower pair after
                     break
+                if j == last:
+                    continue
                 last = j
                 _pair_clearance(P, b, i, j, box, rho, out)
 
