@@ -130,7 +130,7 @@ def registered():
 
 
 def test_builtin_policies_are_registered_and_satisfy_the_protocol() -> None:
-    assert registered_policies()[:5] == ("reference", "zero", "random", "adversarial", "sb3:PATH")
+    assert registered_policies()[:6] == ("reference", "circulation", "zero", "random", "adversarial", "sb3:PATH")
     env = parallel_env("paper_pa3_square")
     assert isinstance(make_policy("zero", env, seed=0), ZeroPolicy)
     assert isinstance(make_policy("random", env, seed=0), RandomPolicy)
@@ -144,8 +144,8 @@ def test_builtin_policies_are_registered_and_satisfy_the_protocol() -> None:
 def test_unknown_policy_names_are_a_clear_error() -> None:
     env = parallel_env("paper_pa3_square")
     for name in ("greedy", "sb3:", "sb3", "Reference", "zero:1"):
-        with pytest.raises(ValueError, match=r"unknown policy .*registered: reference, zero, random, adversarial, "
-                                             r"sb3:PATH"):
+        with pytest.raises(ValueError, match=r"unknown policy .*registered: reference, circulation, zero, random, "
+                                             r"adversarial, sb3:PATH"):
             make_policy(name, env, seed=0)
     with pytest.raises(ValueError, match="unknown policy 'greedy'"):
         run_benchmark(["paper_pa3_square"], ["zero", "greedy"], episodes=1)

@@ -675,7 +675,7 @@ def test_a_moving_layout_needs_the_obstacle_velocities() -> None:
 _GEOMETRY = """
 import numpy as np
 from pan1_env import kernels
-K = kernels.capsules
+K = kernels.team_geometry
 P = np.zeros((1, 2, 3, 2))
 K.kind_joints(np.zeros((2, 2)), np.ones((2, 2)), np.zeros((2, 2)), np.zeros(2), np.arange(2), np.arange(2), P)
 K.inter_arm_clearance(P, 0.03, np.full((1, 2), np.inf))
