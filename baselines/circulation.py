@@ -86,8 +86,9 @@ class CirculatingPolicy:
             raise ValueError("the circulating law outputs velocities: use action_mode='velocity'")
         if sense not in SENSES:
             raise ValueError(f"sense must be one of {sorted(SENSES)}, got {sense!r}")
-        if min(gain, activation, flip_after, delay) < 0:
-            raise ValueError("gain, activation, flip_after and delay must be ≥ 0")
+        if not all(np.isfinite(x) and x >= 0 for x in (gain, activation, flip_after, delay)):
+            raise ValueError(f"gain, activation, flip_after and delay must be finite and ≥ 0, got {gain}, "
+                             f"{activation}, {flip_after}, {delay}")
         self.env, self.law = env, ReferencePolicy(env)
         self.gain, self.sense, self.activation, self.flip_after = gain, SENSES[sense], activation, flip_after
         self.delay = delay

@@ -210,4 +210,6 @@ def _other_links(n_links: tuple[int, ...], i: int) -> tuple[np.ndarray, np.ndarr
     """Every link of the arms other than i, as (its arm, its index): one slot each, an arm's links together."""
     arm = np.array([j for j in range(len(n_links)) if j != i for _ in range(n_links[j])], dtype=np.int64)
     link = np.array([a for j in range(len(n_links)) if j != i for a in range(n_links[j])], dtype=float)
+    arm.setflags(write=False)  # shared by every call through the cache
+    link.setflags(write=False)
     return arm, link

@@ -125,3 +125,5 @@ def test_the_registered_policy_is_the_law_until_an_arm_stays_blocked() -> None:
         from pan1_env.baselines.circulation import CirculatingPolicy
 
         CirculatingPolicy(env, sense="up")
+    with pytest.raises(ValueError, match="must be finite and ≥ 0"):
+        CirculatingPolicy(env, gain=float("nan"))

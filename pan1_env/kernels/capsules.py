@@ -20,9 +20,8 @@ A capsule is a row of ``capsules (A, C, CAPSULE_COLUMNS)``: its segment's end po
 for a disk), radius, share, the unit direction, length and speed of its back-and-forth path
 (:func:`pan1_env.bodies.obstacle_centers`), whether the arm's filter considers it, its kind (a world
 obstacle, or link ``CAP_LINK`` of another arm, whose segment the engine refreshes every sub-step while it is
-active), and its
-floor: a lower bound on its clearance to any body of the arm in any configuration, from the arm's base
-and reach and the capsule's path (or the other arm's base and reach).
+active), and its floor: a lower bound on its clearance to any body of the arm in any configuration, from the
+arm's base and reach and the capsule's path (or the other arm's base and reach).
 
 The first ``n_world`` capsules are the world's obstacles, in the world's order. The other arms' links
 follow in order of floor, so the arms whose reach can meet this arm's (floor ≤ 0, active) come first and
