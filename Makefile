@@ -1,7 +1,7 @@
 # Two commands do all set-up on a fresh machine (see README.md):
 #   make demo   reproduce the paper's Section 5 (both scenarios, both controllers): figures + table
 #   make test   run the whole test suite (slow tests included) in .venv, which holds every extra
-#               (dev, check, rl, marl, benchmarl, ray): one venv, torch unpacked once
+#               (dev, check, rl, marl, benchmarl, ray, suite): one venv, torch unpacked once
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
@@ -22,7 +22,7 @@ $(VENV)/.core: pyproject.toml
 # Gymnasium 1.2.2: the extras' pins (pyproject.toml) keep both, and pan1_env.marl supports that TorchRL.
 $(VENV)/.dev: $(VENV)/.core
 	$(PY) -m pip install --quiet torch==2.13.0 torchvision==0.28.0
-	$(PY) -m pip install --quiet -e ".[dev,check,rl,marl,benchmarl,ray]"
+	$(PY) -m pip install --quiet -e ".[dev,check,rl,marl,benchmarl,ray,suite]"
 	touch $@
 
 venv: $(VENV)/.dev

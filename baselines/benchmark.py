@@ -38,14 +38,18 @@ from tqdm import tqdm
 
 from .policies import BUILTIN_POLICIES, check_policy_name, make_policy
 
-__all__ = ["run_benchmark", "markdown_table", "marl_eval_rows", "plot_benchmark", "benchmark_figure", "make_policy",
-           "BUILTIN_POLICIES"]
+__all__ = ["run_benchmark", "run_episode", "markdown_table", "marl_eval_rows", "plot_benchmark", "benchmark_figure",
+           "make_policy", "BUILTIN_POLICIES"]
 
 
-def _episode(env, policy, seed: int, shield: bool) -> dict[str, Any]:
+def run_episode(env, policy, seed: int, shield: bool) -> dict[str, Any]:
+    """One episode of a policy on a parallel env (shielded or not) from ``reset(seed=seed)``, to its end: success,
+    time to formation (None if not formed), return, cost, smallest clearance, arm-steps, steps, and behind the
+    shield the arm-steps it changed, the steps in which it changed some arm, and its fallbacks; the step of the last
+    actuator fault and the mean formation error."""
     core = env.unwrapped
     obs, _ = env.reset(seed=seed)
-    ret, cost, steps, arm_steps, interventions, fallbacks = 0.0, 0.0, 0, 0, 0, 0
+    ret, cost, steps, arm_steps, interventions, fallbacks, intervened_steps = 0.0, 0.0, 0, 0, 0, 0, 0
     clearance = math.inf
     last_failure = 0.0  # the last time the formation error was ≥ the tolerance (1 cm)
     lost, last_fault = 0, None  # arms that have lost an actuator, and when the last one showed
@@ -62,6 +66,8 @@ def _episode(env, policy, seed: int, shield: bool) -> dict[str, Any]:
             if shield:
                 interventions += int(info["shield_intervened"])
                 fallbacks += int(info["shield_fallback"])
+        if shield:  # the steps in which the filter changed some arm's command, as the batched evaluation counts
+            intervened_steps += any(info["shield_intervened"] for info in infos.values())
         team = next(iter(infos.values()))
         tracking += team["formation_error"]
         if team["formation_error"] >= core.success_tolerance:  # not is_success, which lags by success_hold
@@ -73,6 +79,7 @@ def _episode(env, policy, seed: int, shield: bool) -> dict[str, Any]:
     success = bool(final["is_success"])
     return {"success": success, "time_to_formation": last_failure if success else None, "return": ret,
             "cost": cost, "min_clearance": clearance, "arm_steps": arm_steps, "interventions": interventions,
+            "steps": steps, "intervened_steps": intervened_steps,
             "fallbacks": fallbacks, "last_fault": last_fault, "tracking_error": tracking / max(steps, 1)}
 
 
@@ -114,7 +121,7 @@ def run_benchmark(scenarios: Sequence[str], policies: Sequence[str], episodes: i
                   disable=None if bar is None else not bar) as ticks:
             results = []
             for k in range(episodes):
-                results.append(_episode(env, policy, seed + k, shield))
+                results.append(run_episode(env, policy, seed + k, shield))
                 ticks.update()
         times = [r["time_to_formation"] for r in results if r["success"]]
         arm_steps = sum(r["arm_steps"] for r in results)

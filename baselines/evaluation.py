@@ -38,7 +38,9 @@ EVAL_FIELDS = ("timesteps", "success_1cm", "success_2cm", "success_5cm", "median
 def evaluate(policy: Callable[[np.ndarray], np.ndarray], scenario: str = "random", seeds: Sequence[int] = EVAL_SEEDS,
              *, shield: bool | FilterParams = True, env_kwargs: dict[str, Any] | None = None) -> dict[str, np.ndarray]:
     """One episode per seed, batched. Returns per-episode arrays: ``final_error`` (m, the largest edge
-    error at the end), ``return`` (sum of the mean agent reward), ``cost`` (arm-steps inside an obstacle),
+    error at the end), ``success`` (the task's own rule at the end, ``is_success``: the error below 1 cm, held for
+    ``success_hold`` s on a moving formation), ``return`` (sum of the mean agent reward), ``cost`` (arm-steps inside
+    an obstacle),
     ``time_to_formation`` (s after which the error stayed below 1 cm; NaN if it never did),
     ``min_clearance`` (m, the smallest over the episode's sub-steps and arms) and, behind the shield,
     ``intervention_rate`` and ``fallback_rate`` (the fraction of steps in which the filter changed some
@@ -58,6 +60,7 @@ def evaluate(policy: Callable[[np.ndarray], np.ndarray], scenario: str = "random
     ret, cost, clearance = np.zeros(B), np.zeros(B), np.full(B, np.inf)
     intervened, fallback, length = np.zeros(B), np.zeros(B), np.zeros(B)
     final, last_failure = np.full(B, np.nan), np.zeros(B)
+    success = np.zeros(B, dtype=bool)
     steps = 0
     while live.any():
         obs, reward, terminated, truncated, infos = venv.step(np.asarray(policy(obs), dtype=np.float32))
@@ -74,10 +77,12 @@ def evaluate(policy: Callable[[np.ndarray], np.ndarray], scenario: str = "random
         last_failure = np.where(live & (error >= TOLERANCES[0]), steps * dt, last_failure)
         ended = live & (terminated | truncated)
         final[ended] = error[ended]
+        success[ended] = infos["is_success"][ended]
         live &= ~ended
     venv.close()
     time = np.where(final < TOLERANCES[0], last_failure, np.nan)
-    out = {"final_error": final, "return": ret, "cost": cost, "time_to_formation": time, "min_clearance": clearance}
+    out = {"final_error": final, "success": success, "return": ret, "cost": cost, "time_to_formation": time,
+           "min_clearance": clearance}
     if shield is not False:
         out |= {"intervention_rate": intervened / length, "fallback_rate": fallback / length}
     return out

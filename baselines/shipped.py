@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["pretrained", "available", "model_for", "package_model", "PRETRAINED_DIR"]
+__all__ = ["pretrained", "available", "model_for", "serves", "package_model", "PRETRAINED_DIR"]
 
 PRETRAINED_DIR = Path(__file__).resolve().parent / "pretrained"
 
@@ -119,12 +119,17 @@ def describe(meta: dict[str, Any]) -> str:
     """A shipped model's task in words: the Gymnasium id whose task it is, else its scenario."""
     from pan1_env.registration import ENV_IDS, env_arguments
 
-    task = _model_task(meta)[:2]  # scenario (with its options) and action mode: the ids set no time steps
     for env_id in ENV_IDS:
-        scenario, kwargs = env_arguments(env_id)
-        if _serves(task, _model_task({"scenario": scenario, "env_kwargs": kwargs})[:2]):
+        if serves(meta, *env_arguments(env_id)):
             return env_id
     return str(meta.get("scenario"))
+
+
+def serves(meta: dict[str, Any], scenario: str, env_kwargs: dict[str, Any]) -> bool:
+    """Whether a model (its metadata) runs on the task of an env made with ``scenario`` and ``env_kwargs``: the same
+    scenario (with its options) and action mode, as :func:`model_for` matches them, time steps aside (an id sets
+    none)."""
+    return _serves(_model_task(meta)[:2], _model_task({"scenario": scenario, "env_kwargs": env_kwargs})[:2])
 
 
 def model_for(env, decentralised: bool = False) -> str:

@@ -205,8 +205,39 @@ def _parser() -> argparse.ArgumentParser:
     rep.add_argument("--reps", type=_positive_int, default=2000, help="bootstrap resamples (default: %(default)s)")
     rep.add_argument("--json", type=Path, default=None, metavar="PATH",
                      help="also write every episode in marl-eval's raw-data JSON layout")
+    suite = sub.add_parser("suite", help="the leaderboard: every entry on every benchmark task's held-out teams "
+                                         "(Markdown, marl-eval JSON, rliable figures)",
+                           description="Scores the paper's law, the circulation rule and every learner with runs "
+                                       "under --runs (else the shipped model of its recipe) on the held-out teams of "
+                                       "the suite's tasks (docs/BENCHMARK.md).")
+    suite.add_argument("--tasks", default=None, metavar="T,T,…", help="task names or ids (default: every task)")
+    suite.add_argument("--entries", default=None, metavar="E,E,…",
+                       help="law, circulation, ippo, mappo, mappo-lagrangian, ippo-unshielded (default: all)")
+    suite.add_argument("--runs", type=Path, default=Path("runs/suite"),
+                       help="where the learners' runs are, <runs>/<entry>/<task>/seed_<s> (default: %(default)s)")
+    suite.add_argument("--out", type=Path, default=Path("runs/leaderboard"), help="output directory")
+    suite.add_argument("--quick", action="store_true",
+                       help=f"{QUICK_TEAMS} held-out teams per task, episodes cut at {QUICK_STEPS} steps: a check of "
+                            "the pipeline (CI), not the leaderboard's numbers")
+    suite.add_argument("--teams", type=_positive_int, default=None, help="the first N held-out teams of each task")
+    suite.add_argument("--train", nargs=2, default=None, metavar=("ENTRY", "TASK"),
+                       help="train a learner's recipe on a task (every training seed, continuing from checkpoints) "
+                            "instead of scoring")
+    suite.add_argument("--seeds", type=_seeds, default=None, metavar="S,S,…",
+                       help="with --train: these training seeds only (default: the task's)")
+    suite.add_argument("--from", dest="source", type=Path, default=None, metavar="JSON",
+                       help="re-render a leaderboard JSON (pan1-env suite's leaderboard.json) without scoring")
+    suite.add_argument("--docs", type=Path, default=None, metavar="PATH",
+                       help="also write the benchmark page (docs/BENCHMARK.md) there, figures beside it")
+    suite.add_argument("--workers", type=_positive_int, default=None,
+                       help="processes for the policies run one team at a time (default: one per core)")
+    suite.add_argument("--reps", type=_positive_int, default=2000, help="bootstrap resamples (default: %(default)s)")
+    suite.add_argument("--no-figures", action="store_true", help="no rliable figures")
     return parser
 
+
+
+QUICK_TEAMS, QUICK_STEPS = 2, 150  #: pan1-env suite --quick: a check of the whole pipeline in about a minute
 
 
 def _json_object(text: str) -> dict:
@@ -224,6 +255,16 @@ def _team_sizes(text: str) -> list[int]:
     if not sizes or min(sizes) < 2 or len(set(sizes)) != len(sizes):
         raise argparse.ArgumentTypeError(f"expected distinct team sizes ≥ 2 separated by commas, got {text!r}")
     return sizes
+
+
+def _seeds(text: str) -> list[int]:
+    try:
+        seeds = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        seeds = []
+    if not seeds or min(seeds) < 0:
+        raise argparse.ArgumentTypeError(f"expected training seeds ≥ 0 separated by commas, got {text!r}")
+    return seeds
 
 
 def _positive_int(text: str) -> int:
@@ -502,6 +543,47 @@ def _cmd_report(args) -> int:
     return 0
 
 
+def _cmd_suite(args) -> int:
+    from tqdm import tqdm
+
+    from .baselines import leaderboard as board
+    from .baselines.leaderboard_table import benchmark_page, leaderboard_rows, markdown
+    from .experiment import atomic_write
+
+    tasks, entries = board.resolve(args.tasks, args.entries)
+    if args.train is not None:
+        from .baselines.suite import suite_task
+
+        board.train_entry(board.entry(args.train[0]), suite_task(args.train[1]), runs=args.runs, seeds=args.seeds)
+        return 0
+    if args.source is not None:
+        data = json.loads(args.source.read_text())
+    else:
+        data = board.run_suite(tasks, entries, runs=args.runs, teams=QUICK_TEAMS if args.quick else args.teams,
+                               max_steps=QUICK_STEPS if args.quick else None, workers=args.workers, bar=True,
+                               progress=lambda message: tqdm.write(message, file=sys.stderr))
+        data["quick"] = bool(args.quick or args.teams)
+        text = json.dumps(data, indent=1) + "\n"
+        atomic_write(args.out / "leaderboard.json", lambda fh: fh.write(text), mode="w")
+        raw = json.dumps(data["raw"], indent=1) + "\n"
+        atomic_write(args.out / "leaderboard_marl_eval.json", lambda fh: fh.write(raw), mode="w")
+    table = markdown(leaderboard_rows(data, args.reps))
+    atomic_write(args.out / "leaderboard.md", lambda fh: fh.write(table + "\n"), mode="w")
+    figures = []
+    if not args.no_figures:
+        from .baselines.leaderboard_figures import leaderboard_figures
+
+        place = args.out if args.docs is None else args.docs.parent / "figures"
+        figures = leaderboard_figures(data, place, args.reps)
+    if args.docs is not None:
+        names = [str(f.relative_to(args.docs.parent)) for f in figures]
+        page = benchmark_page(data, names, args.reps)
+        atomic_write(args.docs, lambda fh: fh.write(page), mode="w")
+    print(table + f"\n\nleaderboard.md, leaderboard.json and leaderboard_marl_eval.json under {args.out}/"
+          + "".join(f"\n{f}" for f in figures) + (f"\n{args.docs}" if args.docs else ""))
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``pan1-env`` console script."""
     from .scenario import ScenarioError
@@ -510,7 +592,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     handlers = {"reproduce": _cmd_reproduce, "paper": _cmd_paper, "scenarios": _cmd_scenarios,
                 "warmup": _cmd_warmup,
                 "animate": _cmd_animate, "train": _cmd_train, "benchmark": _cmd_benchmark, "plot": _cmd_plot,
-                "report": _cmd_report}
+                "report": _cmd_report, "suite": _cmd_suite}
     try:
         return handlers[args.command](args)
     except (ScenarioError, ValueError) as err:

@@ -1,0 +1,304 @@
+"""The leaderboard: every entry of the benchmark on every task's held-out teams (``pan1-env suite``).
+
+The tasks are :data:`~pan1_env.baselines.suite.SUITE`'s; the entries are :data:`ENTRIES`:
+
+* ``law``: the paper's law behind the task's filter, run batched as the zero action of the gain mode (the same
+  law, as ``pan1-env report``'s reference);
+* ``circulation``: the law with the circulation rule (:class:`~pan1_env.baselines.circulation.CirculatingPolicy`),
+  one team at a time on the parallel env behind the shield, since it keeps a memory per arm;
+* learners, each with a recipe (:attr:`Entry.recipe`, the arguments of
+  :func:`~pan1_env.baselines.training.train`). A learner's score on a task is its training runs under
+  ``<runs>/<entry>/<task>/seed_<s>`` (``pan1-env suite --train ENTRY TASK`` writes them with the task's training
+  seeds), one score per run. With no finished run there, the model the package ships for the task, if it was
+  trained with the entry's recipe, stands in as one run.
+
+Each run is scored on the task's held-out teams (:attr:`SuiteTask.held_out`, never a training copy's): the
+fraction the task's own rule calls formed (``is_success``), the mean time to formation over those, the cost
+(arm-steps inside an obstacle, summed over the teams), the smallest clearance and the fraction of steps in which
+the shield changed a command. A cell is the interquartile mean over the runs with its 95 % bootstrap interval
+(:func:`~pan1_env.baselines.report.iqm_interval`); an entry of one run (the law, the rule, a shipped model) has no
+spread over runs, and its success interval is the percentile bootstrap over its teams instead (the table says
+which). :func:`run_suite` returns the leaderboard as JSON-ready data, its ``raw`` part in marl-eval's layout.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .suite import SUITE, SuiteTask, suite_task
+
+__all__ = ["Entry", "ENTRIES", "entry", "run_suite", "task_dir", "finished_runs", "shipped_model", "train_entry",
+           "EPISODE_METRICS"]
+
+EPISODE_METRICS = ("success", "time_to_formation", "cost", "min_clearance", "intervention_rate", "return")
+_PPO = {"gamma": 0.995, "n_steps": 2000, "batch_size": 4000, "n_epochs": 5, "policy_kwargs": {"log_std_init": -1.0}}
+_SHARED = {"param_sharing": True, "n_envs": 16, "env_kwargs": {"success_bonus": 1.0, "action_mode": "gain"},
+           "algo_kwargs": _PPO, "checkpoint_every": 512_000, "eval_every": 1_024_000}
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One entry of the leaderboard: a fixed policy (``policy``, a name of the benchmark's registry) or a learner
+    (``recipe``: :func:`~pan1_env.baselines.training.train`'s arguments, less the task, seed, budget and output),
+    on the ids in ``tasks`` (None: every task)."""
+
+    name: str
+    description: str
+    policy: str | None = None
+    recipe: dict[str, Any] | None = None
+    tasks: tuple[str, ...] | None = None
+
+    def enters(self, task: SuiteTask) -> bool:
+        """Whether the entry is scored on the task."""
+        return self.tasks is None or task.env_id in self.tasks
+
+
+ENTRIES = (
+    Entry("law", "the paper's law behind the task's filter", policy="reference"),
+    # on the tasks it was made for: it runs one team at a time, ~20x slower per team than the batched law
+    Entry("circulation", "the law with the circulation rule round obstacles, behind the filter (on the whole-arm "
+                         "tasks, where the law's failures are deadlocks at an obstacle)", policy="circulation",
+          tasks=("pan1_env/WholeArmStaticFormation-v1", "pan1_env/WholeArmFormation-v1")),
+    Entry("ippo", "IPPO behind the shield: one network shared by the arms, each on its own observation, "
+                  "re-weighting the law (gain actions)", recipe={"algo": "ppo", "shield": True, **_SHARED}),
+    Entry("mappo", "MAPPO behind the shield: IPPO with a critic that also reads the team's state",
+          recipe={"algo": "ppo", "shield": True, "centralised_critic": True, **_SHARED}),
+    Entry("mappo-lagrangian", "MAPPO-Lagrangian without the shield: the cost (arm-steps inside an obstacle) "
+                              "held to 1 per episode by a multiplier",
+          recipe={"algo": "ppo-lagrangian", "shield": False, "centralised_critic": True, "cost_limit": 1.0, **_SHARED}),
+    Entry("ippo-unshielded", "IPPO without the shield and without a cost",
+          recipe={"algo": "ppo", "shield": False, **_SHARED}),
+)
+
+
+def entry(name: str) -> Entry:
+    """The entry of that name; ``ValueError`` listing them if none."""
+    for candidate in ENTRIES:
+        if candidate.name == name:
+            return candidate
+    raise ValueError(f"no leaderboard entry {name!r}; the entries: {', '.join(e.name for e in ENTRIES)}")
+
+
+def task_dir(runs: str | Path, entry_: Entry, task: SuiteTask) -> Path:
+    """Where a learner's runs on a task live: ``<runs>/<entry>/<task id without the prefix>``."""
+    return Path(runs) / entry_.name / task.env_id.split("/")[-1]
+
+
+def finished_runs(runs: str | Path, entry_: Entry, task: SuiteTask) -> list[Path]:
+    """The finished runs (``model.zip`` written) of the task's training seeds, in seed order."""
+    return [d for s in task.train_seeds if (d := task_dir(runs, entry_, task) / f"seed_{s}" / "model.zip").is_file()]
+
+
+def _recipe_of(run: dict[str, Any]) -> tuple:
+    return (run.get("algo", "ppo"), bool(run.get("shield", True)), bool(run.get("param_sharing")),
+            bool(run.get("centralised_critic")))
+
+
+def shipped_model(entry_: Entry, task: SuiteTask) -> str | None:
+    """The shipped model trained for the task with the entry's recipe (algorithm, shield, shared network, critic),
+    or None."""
+    from pan1_env.registration import env_arguments
+
+    from .shipped import available, serves
+
+    if entry_.recipe is None:
+        return None
+    scenario, kwargs = env_arguments(task.env_id, task.env_kwargs)
+    for name, meta in available().items():
+        run = meta.get("provenance", {}).get("run", {})
+        if _recipe_of(run) == _recipe_of(entry_.recipe) and serves(meta, scenario, kwargs):
+            return name
+    return None
+
+
+def _records(result: dict[str, np.ndarray]) -> dict[str, list]:
+    """An evaluation's per-team arrays as JSON lists; the time of a team the task's rule does not call formed is None
+    (on a moving formation the error can end below 1 cm before it has been held long enough)."""
+    formed = np.asarray(result["success"], bool)
+    out = {"success": formed.astype(float).tolist()}
+    for key in EPISODE_METRICS[1:]:
+        if key in result:
+            values = np.where(formed, result[key], np.nan) if key == "time_to_formation" else result[key]
+            out[key] = [None if not np.isfinite(v) else float(v) for v in np.asarray(values, float)]
+    return out
+
+
+def _law(task: SuiteTask, seeds: list[int], extra: dict[str, Any]) -> dict[str, list]:
+    from pan1_env.registration import env_arguments
+
+    from .evaluation import evaluate, law_policy
+
+    scenario, kwargs = env_arguments(task.env_id, task.env_kwargs | extra | {"action_mode": "gain"})
+    return _records(evaluate(law_policy(scenario, kwargs), scenario, seeds, env_kwargs=kwargs | extra))
+
+
+def _team_episodes(env_id: str, env_kwargs: dict[str, Any], policy_name: str, seeds: list[int]) -> list[dict]:
+    """Episodes of a registry policy behind the shield, one team at a time (a worker process's share)."""
+    from pan1_env.environment import parallel_env
+    from pan1_env.registration import env_arguments
+    from pan1_env.wrappers import SafetyShield
+
+    from .benchmark import run_episode
+    from .policies import make_policy
+
+    scenario, kwargs = env_arguments(env_id, env_kwargs)
+    env = SafetyShield(parallel_env(scenario, **kwargs))
+    policy = make_policy(policy_name, env, 0)
+    episodes = [run_episode(env, policy, seed, True) for seed in seeds]
+    env.close()
+    return episodes
+
+
+def _per_team(task: SuiteTask, policy_name: str, seeds: list[int], extra: dict[str, Any], workers: int,
+              tick: Callable[[int], Any]) -> dict[str, list]:
+    """A policy that keeps a memory per team, run on the parallel env: ``workers`` processes share the teams in
+    chunks (the per-team env is ~20x slower per team than the batched engine, so this is the suite's long part)."""
+    import math
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    size = max(1, math.ceil(len(seeds) / (4 * workers)))
+    chunks = [seeds[k:k + size] for k in range(0, len(seeds), size)]
+    done: dict[int, list[dict]] = {}
+    if workers == 1 or len(seeds) < 16:  # a few teams: not worth starting processes
+        for k, chunk in enumerate(chunks):
+            done[k] = _team_episodes(task.env_id, task.env_kwargs | extra, policy_name, chunk)
+            tick(len(chunk))
+    else:  # spawned, not forked: numba's threading layer does not survive a fork
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+            futures = {pool.submit(_team_episodes, task.env_id, task.env_kwargs | extra, policy_name, chunk): k
+                       for k, chunk in enumerate(chunks)}
+            for future in futures:
+                done[futures[future]] = future.result()
+                tick(len(chunks[futures[future]]))
+    episodes = [e for k in range(len(chunks)) for e in done[k]]
+    result = {"success": np.array([e["success"] for e in episodes]),
+              "time_to_formation": np.array([np.nan if e["time_to_formation"] is None else e["time_to_formation"]
+                                             for e in episodes]),
+              "intervention_rate": np.array([e["intervened_steps"] / max(e["steps"], 1) for e in episodes])}
+    result |= {key: np.array([e[key] for e in episodes], float) for key in ("cost", "min_clearance", "return")}
+    return _records(result)
+
+
+def _model(path: Path, seeds: list[int], extra: dict[str, Any]) -> dict[str, list]:
+    from .evaluation import evaluate, model_policy
+
+    meta = json.loads(path.with_suffix(".json").read_text())
+    policy, kwargs = model_policy(path)
+    shield = meta.get("shield", True)
+    return _records(evaluate(policy, meta["scenario"], seeds, shield=shield, env_kwargs=kwargs | extra))
+
+
+def _learned_runs(runs: str | Path, entry_: Entry, task: SuiteTask) -> list[tuple[int, Path, str]]:
+    """(seed, model, where it comes from) for each run that scores a learner on a task."""
+    from .shipped import PRETRAINED_DIR, available
+
+    found = finished_runs(runs, entry_, task)
+    if found:
+        return [(json.loads((m.parent / "run.json").read_text()).get("seed", k), m, str(m.parent))
+                for k, m in enumerate(found)]
+    name = shipped_model(entry_, task)
+    if name is None:
+        return []
+    seed = available()[name]["provenance"]["run"].get("seed", 0)
+    return [(seed, PRETRAINED_DIR / f"{name}.zip", f"shipped:{name}")]
+
+
+def run_suite(tasks: Sequence[SuiteTask] = SUITE, entries: Sequence[Entry] = ENTRIES, *,
+              runs: str | Path = "runs/suite", teams: int | None = None, max_steps: int | None = None,
+              workers: int | None = None, progress: Callable[[str], None] | None = None,
+              bar: bool | None = None) -> dict[str, Any]:
+    """Score every entry on every task's held-out teams (the first ``teams`` of them if given, and episodes cut at
+    ``max_steps`` if given: ``--quick``, a check of the pipeline whose numbers are not the leaderboard's). The
+    per-team policies run in ``workers`` processes (default: one per core).
+
+    Returns ``{"tasks": …, "entries": …, "runs": {task: {entry: [{"seed", "source"}]}}, "raw": …}``: ``raw`` in
+    marl-eval's layout, ``{"pan1_env": {task id: {entry: {"seed_<s>": {"absolute_metrics": {metric: [one value per
+    team]}}}}}}``. A learner with no run and no shipped model for a task is listed under ``missing``."""
+    import sys
+
+    from tqdm import tqdm
+
+    from .report import marl_eval_data
+
+    say = progress or (lambda text: None)
+    extra = {} if max_steps is None else {"max_steps": max_steps}
+    workers = workers or os.cpu_count() or 1
+    plan = []  # everything is resolved before the first evaluation, so that a missing model fails at once
+    for task in tasks:
+        seeds = list(task.held_out)[:teams] if teams else list(task.held_out)
+        for e in (e for e in entries if e.enters(task)):
+            if e.recipe is None:
+                plan.append((task, e, seeds, [(0, None, "policy")]))
+            elif found := _learned_runs(runs, e, task):
+                plan.append((task, e, seeds, found))
+    total = sum(len(seeds) * len(found) for _, _, seeds, found in plan)
+    covered = {(t.env_id, e.name) for t, e, _, _ in plan}
+    data: dict[str, Any] = {
+        "tasks": [{"name": t.name, "env_id": t.env_id, "env_kwargs": t.env_kwargs, "train_steps": t.train_steps,
+                   "train_seeds": list(t.train_seeds), "held_out": [t.held_out.start, len(t.held_out)],
+                   "teams": len(list(t.held_out)[:teams] if teams else t.held_out), "target": t.target,
+                   "law_success_recorded": t.law_success} for t in tasks],
+        "entries": [{"name": e.name, "description": e.description, "policy": e.policy, "recipe": e.recipe,
+                     "tasks": e.tasks} for e in entries],
+        "runs": {},
+        "missing": [[t.env_id, e.name] for t in tasks for e in entries
+                    if e.enters(t) and (t.env_id, e.name) not in covered],
+    }
+    rows = []
+    hide = None if bar is None else not bar
+    with tqdm(total=total, unit="team", desc="suite", file=sys.stderr, disable=hide) as ticks:
+        for task, e, seeds, found in plan:
+            for seed, model, source in found:
+                say(f"{e.name} on {task.env_id}: {len(seeds)} held-out teams ({source}) …")
+                if e.policy == "reference":
+                    record = _law(task, seeds, extra)
+                elif e.policy is not None:
+                    record = _per_team(task, e.policy, seeds, extra, workers, ticks.update)
+                else:
+                    record = _model(model, seeds, extra)
+                if e.policy is None or e.policy == "reference":  # batched: the bar moves by the whole run
+                    ticks.update(len(seeds))
+                rows.append((task.env_id, e.name, seed, {"absolute_metrics": record}))
+                data["runs"].setdefault(task.env_id, {}).setdefault(e.name, []).append(
+                    {"seed": seed, "source": source})
+    data["raw"] = marl_eval_data(rows)
+    return data
+
+
+def train_entry(entry_: Entry, task: SuiteTask, *, runs: str | Path = "runs/suite", seeds: Sequence[int] | None = None,
+                progress: bool = True, say: Callable[[str], None] = print) -> list[dict[str, Any]]:
+    """Train a learner's recipe on a task, one run per seed (default: the task's training seeds), each into
+    ``<runs>/<entry>/<task>/seed_<s>``, continuing from its newest checkpoint if it has one; a finished run is
+    left as it is. Returns the summaries of the runs trained."""
+    from .training import latest_checkpoint, train
+
+    if entry_.recipe is None:
+        raise ValueError(f"entry {entry_.name!r} is not trained: it is the policy {entry_.policy!r}")
+    recipe = dict(entry_.recipe)
+    recipe["env_kwargs"] = task.env_kwargs | recipe.get("env_kwargs", {})
+    summaries = []
+    for seed in task.train_seeds if seeds is None else seeds:
+        out = task_dir(runs, entry_, task) / f"seed_{seed}"
+        if (out / "model.zip").is_file():
+            say(f"{out}: finished, left as it is")
+            continue
+        resume = latest_checkpoint(out) is not None
+        say(f"{entry_.name} on {task.env_id}, seed {seed}: {'resuming' if resume else 'training'} into {out} …")
+        summaries.append(train(scenario=task.env_id, seed=seed, timesteps=task.train_steps, out=out, resume=resume,
+                               progress=progress, **recipe))
+    return summaries
+
+
+def resolve(tasks: str | None, entries: str | None) -> tuple[list[SuiteTask], list[Entry]]:
+    """Comma-separated task names or ids and entry names (None: all) as the suite's objects; ValueError if unknown."""
+    chosen_tasks = list(SUITE) if not tasks else [suite_task(t.strip()) for t in tasks.split(",") if t.strip()]
+    chosen_entries = list(ENTRIES) if not entries else [entry(e.strip()) for e in entries.split(",") if e.strip()]
+    return chosen_tasks, chosen_entries

@@ -1,0 +1,133 @@
+"""The leaderboard's numbers and pages: a row per task and entry of
+:func:`~pan1_env.baselines.leaderboard.run_suite`'s data, as a Markdown table and as the whole of docs/BENCHMARK.md
+(generated, so that the page and its JSON cannot drift apart)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from .report import iqm_interval
+
+__all__ = ["leaderboard_rows", "markdown", "benchmark_page", "success_scores"]
+
+
+def success_scores(data: dict[str, Any], task_id: str, entry: str) -> np.ndarray:
+    """One success rate per run of an entry on a task (empty if it has none)."""
+    runs = data["raw"]["pan1_env"].get(task_id, {}).get(entry, {})
+    return np.array([np.mean(r["absolute_metrics"]["success"]) for r in runs.values()], float)
+
+
+def _team_interval(formed: np.ndarray, reps: int) -> tuple[float, float, float]:
+    """The success rate of one run and its 95 % percentile bootstrap interval over the teams."""
+    point = float(formed.mean())
+    if len(formed) < 2 or np.ptp(formed) == 0:
+        return point, point, point
+    ci = stats.bootstrap((formed,), np.mean, n_resamples=reps, method="percentile",
+                         rng=np.random.default_rng(0)).confidence_interval
+    return point, float(ci.low), float(ci.high)
+
+
+def leaderboard_rows(data: dict[str, Any], reps: int = 2000) -> list[dict[str, Any]]:
+    """Per task and entry with runs: ``runs``, ``sources``, ``success`` (IQM, low, high) and ``over`` (``runs``, or
+    ``teams`` for an entry of one run), ``time`` (IQM over the runs of each one's mean time to formation over its
+    formed teams; None if none formed), ``cost`` (IQM over runs of the summed cost), ``min_clearance`` (m, over every
+    run and team) and ``interventions`` (mean fraction of steps the shield changed a command; None unshielded)."""
+    rows = []
+    for task in data["tasks"]:
+        for e in data["entries"]:
+            runs = data["raw"]["pan1_env"].get(task["env_id"], {}).get(e["name"])
+            if not runs:
+                continue
+            metrics = [r["absolute_metrics"] for r in runs.values()]
+            success = np.array([np.mean(m["success"]) for m in metrics])
+            if len(metrics) > 1:
+                over, interval = "runs", iqm_interval([success], reps=reps)
+            else:
+                over, interval = "teams", _team_interval(np.asarray(metrics[0]["success"], float), reps)
+            times = [np.mean([t for t in m["time_to_formation"] if t is not None]) for m in metrics
+                     if any(t is not None for t in m["time_to_formation"])]
+            clearances = [c for m in metrics for c in m["min_clearance"] if c is not None]
+            rates = [np.mean(m["intervention_rate"]) for m in metrics if "intervention_rate" in m]
+            rows.append({
+                "task": task["name"], "env_id": task["env_id"], "entry": e["name"], "runs": len(metrics),
+                "sources": [r["source"] for r in data["runs"][task["env_id"]][e["name"]]],
+                "success": interval, "over": over,
+                "time": iqm_interval([np.array(times)], reps=reps) if times else None,
+                "time_runs": len(times),
+                "cost": iqm_interval([np.array([np.sum(m["cost"]) for m in metrics])], reps=reps),
+                "min_clearance": min(clearances) if clearances else None,
+                "interventions": float(np.mean(rates)) if rates else None})
+    return rows
+
+
+def _cell(interval: tuple[float, float, float] | None, scale: float = 1.0, fmt: str = "{:.1f}") -> str:
+    if interval is None or not np.isfinite(interval[0]):
+        return "–"
+    point, low, high = (scale * v for v in interval)
+    return fmt.format(point) if low == high else f"{fmt.format(point)} [{fmt.format(low)}, {fmt.format(high)}]"
+
+
+def markdown(rows: Sequence[dict[str, Any]]) -> str:
+    """The rows as one Markdown table: IQM [95 % interval]; the interval of an entry of one run is over its teams."""
+    lines = ["| task | entry | runs | success [%] | interval over | time to formation [s] | cost "
+             "| min clearance [mm] | shield interventions |", "|---|---|---:|---|---|---|---|---:|---:|"]
+    for r in rows:
+        time = _cell(r["time"]) + ("" if r["time_runs"] in (0, r["runs"]) else f" ({r['time_runs']} runs)")
+        clearance = "–" if r["min_clearance"] is None else f"{1000 * r['min_clearance']:+.1f}"
+        rate = "–" if r["interventions"] is None else f"{r['interventions']:.1%}"
+        lines.append(f"| {r['task']} | {r['entry']} | {r['runs']} | {_cell(r['success'], 100)} | {r['over']} "
+                     f"| {time} | {_cell(r['cost'], fmt='{:g}')} | {clearance} | {rate} |")
+    return "\n".join(lines)
+
+
+def benchmark_page(data: dict[str, Any], figures: Sequence[str] = (), reps: int = 2000) -> str:
+    """docs/BENCHMARK.md from the leaderboard's JSON: the tasks, the entries and their commands, the table, what is
+    missing, and the figures (paths relative to the page)."""
+    rows = leaderboard_rows(data, reps)
+    out = ["# The benchmark", "",
+           "Generated by `pan1-env suite` from `docs/leaderboard.json`; do not edit by hand. Every number below is "
+           "reproduced by `pan1-env suite --out runs/leaderboard` (the held-out teams of every task, every entry "
+           "found), and re-rendered without evaluating by `pan1-env suite --from docs/leaderboard.json --docs "
+           "docs/BENCHMARK.md`." + (" **This is a quick run (a few teams per task): not the leaderboard's numbers.**"
+                                    if data.get("quick") else ""),
+           "", "## Tasks", "", "| task | id | held-out teams (reset seeds) | training seeds | arm-steps per run "
+           "| the law's success, as recorded | target |", "|---|---|---|---|---:|---:|---|"]
+    for t in data["tasks"]:
+        first, n = t["held_out"]
+        law = "–" if t["law_success_recorded"] is None else f"{t['law_success_recorded']:.1%}"
+        out.append(f"| {t['name']} | `{t['env_id']}` | {t['teams']} ({first}–{first + t['teams'] - 1}) "
+                   f"| {', '.join(map(str, t['train_seeds']))} | {t['train_steps']:,} | {law} | {t['target']} |")
+    out += ["", "## Entries", ""]
+    for e in data["entries"]:
+        how = (f"the policy `{e['policy']}` of `pan1-env benchmark --policies`" if e["policy"] else
+               f"trained with `pan1-env suite --train {e['name']} TASK` (recipe: `{_recipe(e['recipe'])}`)")
+        out.append(f"- **{e['name']}**: {e['description']}; {how}.")
+    out += ["", "## Leaderboard", "",
+            "Success is the task's own rule on the held-out teams (the formation error below 1 cm at the end; held "
+            "for the task's hold time on a moving formation). A cell is the interquartile mean over the runs with its "
+            "95 % bootstrap interval; for an entry of one run (the law, the rule, a shipped model) the interval is "
+            "over the teams. The time is over the teams each run formed; the cost counts arm-steps inside an "
+            "obstacle.", "", markdown(rows), ""]
+    shipped = sorted({(r["entry"], r["task"], s) for r in rows for s in r["sources"] if s.startswith("shipped:")})
+    if shipped:
+        out += ["Rows scored by a shipped model (one training seed) until the entry's runs are trained: "
+                + "; ".join(f"{e} on {t} ({s.removeprefix('shipped:')})" for e, t, s in shipped) + ".", ""]
+    if data.get("missing"):
+        out += ["## Not yet on the board", "", "No run and no shipped model: "
+                + "; ".join(f"{e} on `{t}`" for t, e in data["missing"]) + ".", ""]
+    if figures:
+        out += ["## Figures", "", "Made with rliable over the tasks every plotted entry has: the IQM of success with "
+                "95 % stratified bootstrap intervals, the performance profiles, and the probability that an entry "
+                "forms more of a task's teams than the law.", ""]
+        out += [f"![{name}]({name})" for name in figures] + [""]
+    return "\n".join(out)
+
+
+def _recipe(recipe: dict[str, Any]) -> str:
+    import json
+
+    return json.dumps(recipe, sort_keys=True)

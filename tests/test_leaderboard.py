@@ -1,0 +1,137 @@
+"""The leaderboard (pan1-env suite): its statistics on made-up scores, where it finds a learner's runs, its
+errors, the quick pipeline end to end, and that docs/BENCHMARK.md is the rendering of the shipped JSON."""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pan1_env.baselines import leaderboard as board
+from pan1_env.baselines.leaderboard_table import benchmark_page, leaderboard_rows, markdown
+from pan1_env.baselines.suite import suite_task
+from pan1_env.cli import main
+
+DOCS = Path(__file__).resolve().parents[1] / "docs"
+RANDOM = "pan1_env/RandomFormation-v1"
+
+
+def _data(runs_by_entry: dict[str, list[dict]]) -> dict:
+    """Leaderboard data of one made-up task: entry → one dict of per-team lists per run."""
+    raw = {name: {f"seed_{k}": {"absolute_metrics": m} for k, m in enumerate(runs)}
+           for name, runs in runs_by_entry.items()}
+    return {"tasks": [{"name": "made up", "env_id": RANDOM, "env_kwargs": {}, "train_steps": 1, "train_seeds": [0],
+                       "held_out": [0, 4], "teams": 4, "target": "", "law_success_recorded": None}],
+            "entries": [{"name": n, "description": n, "policy": None, "recipe": {}, "tasks": None}
+                        for n in runs_by_entry],
+            "runs": {RANDOM: {n: [{"seed": k, "source": "made up"} for k in range(len(r))]
+                              for n, r in runs_by_entry.items()}},
+            "missing": [], "raw": {"pan1_env": {RANDOM: raw}}}
+
+
+def _run(formed: list[int], time: float = 10.0) -> dict:
+    return {"success": [float(f) for f in formed], "time_to_formation": [time if f else None for f in formed],
+            "cost": [0.0] * len(formed), "min_clearance": [0.02] * len(formed),
+            "intervention_rate": [0.1] * len(formed)}
+
+
+def test_a_learner_is_the_iqm_over_its_runs_and_a_policy_is_bootstrapped_over_its_teams() -> None:
+    teams = 10
+    rates = [0.7, 0.8, 0.9, 0.9, 1.0]
+    learner = [_run([1] * round(r * teams) + [0] * (teams - round(r * teams))) for r in rates]
+    law = [_run([1, 0, 1, 1, 0, 1, 1, 1, 1, 0])]
+    nothing = [_run([0] * teams)]
+    rows = {r["entry"]: r for r in leaderboard_rows(_data({"ippo": learner, "law": law, "none": nothing}), reps=500)}
+    point, low, high = rows["ippo"]["success"]
+    assert rows["ippo"]["over"] == "runs" and rows["ippo"]["runs"] == 5
+    assert point == pytest.approx((0.8 + 0.9 + 0.9) / 3)  # the middle three of five
+    assert 0.7 <= low <= point <= high <= 1.0
+    point, low, high = rows["law"]["success"]
+    assert rows["law"]["over"] == "teams" and point == pytest.approx(0.7) and 0.0 <= low < point < high <= 1.0
+    assert rows["none"]["time"] is None and rows["none"]["success"] == (0.0, 0.0, 0.0)
+    assert rows["ippo"]["time"][0] == pytest.approx(10.0) and rows["ippo"]["min_clearance"] == pytest.approx(0.02)
+    table = markdown(list(rows.values()))
+    assert "| made up | ippo | 5 | 86.7 [" in table and "| made up | none | 1 | 0.0 | teams | – |" in table
+
+
+def test_docs_benchmark_is_the_rendering_of_the_shipped_leaderboard() -> None:
+    data = json.loads((DOCS / "leaderboard.json").read_text())
+    figures = [f"figures/{name}" for name in ("leaderboard_iqm.png", "leaderboard_profiles.png",
+                                               "leaderboard_improvement.png") if (DOCS / "figures" / name).exists()]
+    assert (DOCS / "BENCHMARK.md").read_text() == benchmark_page(data, figures)
+    for task in data["tasks"]:
+        assert task["teams"] == task["held_out"][1], "the shipped leaderboard is scored on every held-out team"
+    assert not data.get("quick")
+
+
+def test_unknown_names_fail_at_the_boundary(capsys) -> None:
+    with pytest.raises(ValueError, match="no leaderboard entry 'nope'; the entries: law, circulation, ippo"):
+        board.resolve(None, "law,nope")
+    with pytest.raises(ValueError, match="no suite task 'nope'"):
+        board.resolve("nope", None)
+    assert main(["suite", "--entries", "nope"]) == 2
+    assert "pan1-env: error: no leaderboard entry 'nope'" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="entry 'law' is not trained"):
+        board.train_entry(board.entry("law"), suite_task(RANDOM))
+
+
+def test_train_entry_runs_each_seed_once_and_resumes_from_a_checkpoint(tmp_path, monkeypatch) -> None:
+    import pan1_env.baselines.training as training
+
+    calls = []
+    monkeypatch.setattr(training, "train", lambda **kwargs: calls.append(kwargs) or {"seed": kwargs["seed"]})
+    task, ippo = suite_task(RANDOM), board.entry("ippo")
+    where = board.task_dir(tmp_path, ippo, task)
+    (where / "seed_0").mkdir(parents=True)
+    (where / "seed_0" / "model.zip").write_bytes(b"")  # finished
+    (where / "seed_1" / "checkpoints").mkdir(parents=True)
+    (where / "seed_1" / "checkpoints" / "model_512000_steps.zip").write_bytes(b"")
+    (where / "seed_1" / "checkpoints" / "state_512000_steps.pkl").write_bytes(b"")
+    board.train_entry(ippo, task, runs=tmp_path, seeds=[0, 1, 2], say=lambda text: None)
+    assert [c["seed"] for c in calls] == [1, 2]
+    assert [c["resume"] for c in calls] == [True, False]
+    first = calls[0]
+    assert first["scenario"] == RANDOM and first["timesteps"] == task.train_steps and first["param_sharing"]
+    assert first["env_kwargs"]["action_mode"] == "gain" and first["shield"] is True
+    assert first["out"] == where / "seed_1"
+
+
+def test_a_learners_runs_come_before_its_shipped_model(tmp_path) -> None:
+    pytest.importorskip("stable_baselines3")
+    from pan1_env.baselines.shipped import PRETRAINED_DIR
+
+    task, ippo, mappo = suite_task(RANDOM), board.entry("ippo"), board.entry("mappo")
+    assert board.shipped_model(ippo, task) == "random_formation_v1_ippo"
+    assert board.shipped_model(ippo, suite_task("pan1_env/WholeArmStaticFormation-v1")) is None
+    data = board.run_suite([task], [ippo, mappo], runs=tmp_path, teams=1, max_steps=5)
+    assert data["runs"][RANDOM]["ippo"] == [{"seed": 0, "source": "shipped:random_formation_v1_ippo"}]
+    assert [RANDOM, "mappo"] in data["missing"]
+    run = board.task_dir(tmp_path, ippo, task) / "seed_3"
+    run.mkdir(parents=True)
+    shutil.copyfile(PRETRAINED_DIR / "random_formation_v1_ippo.zip", run / "model.zip")
+    shutil.copyfile(PRETRAINED_DIR / "random_formation_v1_ippo.json", run / "model.json")
+    (run / "run.json").write_text(json.dumps({"seed": 3}))
+    data = board.run_suite([task], [ippo], runs=tmp_path, teams=1, max_steps=5)
+    assert data["runs"][RANDOM]["ippo"] == [{"seed": 3, "source": str(run)}]
+    episodes = data["raw"]["pan1_env"][RANDOM]["ippo"]["seed_3"]["absolute_metrics"]
+    assert len(episodes["success"]) == 1 and episodes["cost"] == [0.0]
+
+
+@pytest.mark.slow
+def test_the_quick_suite_writes_its_table_json_figures_and_page(tmp_path) -> None:
+    pytest.importorskip("rliable")
+    page = tmp_path / "docs" / "BENCHMARK.md"
+    assert main(["suite", "--quick", "--out", str(tmp_path / "board"), "--docs", str(page)]) == 0
+    raw = json.loads((tmp_path / "board" / "leaderboard_marl_eval.json").read_text())["pan1_env"]
+    data = json.loads((tmp_path / "board" / "leaderboard.json").read_text())
+    assert data["quick"] and len(raw) == len(data["tasks"])
+    for task in data["tasks"]:
+        law = raw[task["env_id"]]["law"]["seed_0"]["absolute_metrics"]
+        assert len(law["success"]) == task["teams"] == min(2, task["held_out"][1])
+        assert all(np.isfinite(c) for c in law["min_clearance"]) and sum(law["cost"]) == 0
+    assert "circulation" in raw["pan1_env/WholeArmStaticFormation-v1"]
+    for name in ("leaderboard_iqm.png", "leaderboard_profiles.png", "leaderboard_improvement.png"):
+        assert (tmp_path / "docs" / "figures" / name).stat().st_size > 0
+    text = page.read_text()
+    assert "quick run" in text and all(task["name"] in text for task in data["tasks"])
