@@ -27,7 +27,8 @@ cost) from the state ``--horizon`` s before the spell began (or the episode's st
 ``--after`` s past the contact:
 
     python benchmarks/avoidability.py --task pan1_env/WholeArmFormation-v1 --teams 200 [--first 2000000]
-        [--horizon 1.0] [--after 2.0] [--samples 400] [--policy reference] [--out runs/avoidability.json]
+        [--seeds S,S,…] [--horizon 1.0] [--after 2.0] [--samples 400] [--policy reference]
+        [--out runs/avoidability.json]
 
 It writes every spell (team, arm, time, verdict, the best clearance found) and prints the counts.
 """
@@ -163,6 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--task", default="pan1_env/WholeArmFormation-v1")
     parser.add_argument("--teams", type=int, default=200)
     parser.add_argument("--first", type=int, default=2_000_000)
+    parser.add_argument("--seeds", default=None, help="comma-separated reset seeds instead of --first/--teams")
     parser.add_argument("--horizon", type=float, default=1.0, help="s before a spell's first contact to judge from")
     parser.add_argument("--after", type=float, default=2.0, help="s past the contact the escape must hold")
     parser.add_argument("--samples", type=int, default=400, help="random command sequences per spell")
@@ -177,12 +179,17 @@ def main(argv: list[str] | None = None) -> int:
         policy = make_policy(args.policy, env, 0)
     except ValueError as err:
         parser.error(str(err))
+    try:
+        seeds = ([int(x) for x in args.seeds.split(",") if x.strip()] if args.seeds
+                 else list(range(args.first, args.first + args.teams)))
+    except ValueError:
+        parser.error(f"--seeds: comma-separated integers, got {args.seeds!r}")
     spells = []
-    for seed in range(args.first, args.first + args.teams):
+    for seed in seeds:
         spells += _spells(env, policy, seed, args.horizon, args.after, args.samples)
         print(f"team {seed}: {len(spells)} spells so far", file=sys.stderr, flush=True)
     avoidable = sum(s["avoidable"] for s in spells)
-    summary = {"task": args.task, "policy": args.policy, "teams": [args.first, args.teams], "horizon_s": args.horizon,
+    summary = {"task": args.task, "policy": args.policy, "seeds": seeds, "horizon_s": args.horizon,
                "after_s": args.after, "samples": args.samples, "spells": len(spells), "avoidable": avoidable,
                "no_escape_found": len(spells) - avoidable, "command": " ".join(["python", *sys.argv])}
     args.out.parent.mkdir(parents=True, exist_ok=True)
