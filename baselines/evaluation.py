@@ -88,24 +88,32 @@ def evaluate(policy: Callable[[np.ndarray], np.ndarray], scenario: str = "random
     return out
 
 
-def model_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], dict[str, Any]]:
+def model_policy(path: str | Path, env_kwargs: dict[str, Any] | None = None
+                 ) -> tuple[Callable[[np.ndarray], np.ndarray], dict[str, Any]]:
     """A model saved by ``pan1-env train`` as a policy for :func:`evaluate` (deterministic, with its
-    observation statistics), and the env arguments it was trained with (``model.json``): evaluate it
-    with ``evaluate(policy, run_scenario, seeds, env_kwargs=env_kwargs)``. A model trained with
-    ``param_sharing`` acts for each arm on the arm's own observation (the training scenario's arms)."""
+    observation statistics), and the env arguments to evaluate it with: those it was trained with
+    (``model.json``), or ``env_kwargs`` (another team size of its task, say): ``evaluate(policy, run_scenario,
+    seeds, env_kwargs=env_kwargs)``. A model trained with ``param_sharing`` acts for each arm on the arm's own
+    observation; ValueError if that env gives its arms observations of another size than the model's."""
     from .policies import load_model, normalise_observation
 
     model, meta = load_model(path)
+    kwargs = dict(meta.get("env_kwargs", {}) if env_kwargs is None else env_kwargs)
     norm = meta.get("observation_normalization")
     arms = None
     if meta.get("param_sharing"):  # a model shared by the arms: each arm acts on its own observation
         from .arm_vec_env import SB3ArmVecEnv
 
-        arms = SB3ArmVecEnv(meta["scenario"], 1, **meta.get("env_kwargs", {}))
+        arms = SB3ArmVecEnv(meta["scenario"], 1, **kwargs)
+        wanted = model.observation_space.shape[0]
+        if arms.observation_space.shape[0] != wanted:
+            raise ValueError(f"{path}: the model reads an arm observation of {wanted} numbers, this env gives "
+                             f"{arms.observation_space.shape[0]} (an observation that grows with the team: train on a "
+                             "ring task such as pan1_env/RandomFormation-v2 to serve teams of other sizes)")
 
     policy = _team_policy(lambda obs: model.predict(obs, deterministic=True)[0], arms,
                           lambda obs: normalise_observation(obs, norm))
-    return policy, dict(meta.get("env_kwargs", {}))
+    return policy, kwargs
 
 
 def law_policy(scenario: str, env_kwargs: dict[str, Any]) -> Callable[[np.ndarray], np.ndarray]:

@@ -91,14 +91,18 @@ def _scores(result: dict[str, np.ndarray], reference: dict[str, np.ndarray] | No
 
 
 def report(run_dirs: Sequence[str | Path], *, first: int = HELD_OUT_FIRST, teams: int = HELD_OUT_TEAMS,
-           reps: int = 2000, progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
+           reps: int = 2000, team_size: int | None = None,
+           progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
     """One row per group of runs (and one per task for its reference): ``label``, ``task``, ``runs`` (paths),
     ``scores`` (metric → one score per run), ``episodes`` (run path → :func:`~pan1_env.baselines.evaluation.evaluate`'s
     arrays), and ``<metric>`` → (IQM, low, high) over the runs where it is defined. ``progress`` is told what is
-    being evaluated. ValueError for a run directory that is not a finished ``pan1-env train`` run."""
+    being evaluated. ``team_size`` evaluates every run, and the law, on teams of that many arms of the run's task
+    (random teams; the obstacles at the task's density per arm: a model trained on a ring task such as
+    ``pan1_env/RandomFormation-v2``). ValueError for a run directory that is not a finished ``pan1-env train``
+    run."""
     if first < 0:
         raise ValueError(f"first must be a reset seed ≥ 0, got {first}")
-    runs = [_finished_run(Path(path)) for path in run_dirs]
+    runs = [_finished_run(Path(path), team_size) for path in run_dirs]
     groups = group_runs(runs, same_budget=True)
     rows, references = [], {}
     for label, group in zip(group_labels(groups, same_budget=True), groups, strict=True):
@@ -128,14 +132,27 @@ def report(run_dirs: Sequence[str | Path], *, first: int = HELD_OUT_FIRST, teams
     return rows
 
 
-def _finished_run(path: Path) -> dict[str, Any]:
+def _finished_run(path: Path, team_size: int | None = None) -> dict[str, Any]:
     missing = [name for name in ("run.json", "model.zip", "model.json") if not (path / name).is_file()]
     if missing:
         raise ValueError(f"{path}: not a finished training run, no {' or '.join(missing)} (pan1-env train writes "
                          "run.json at its start, model.zip and model.json at its end)")
     meta = run_arguments(path)
-    policy, env_kwargs = model_policy(path / "model.zip")
+    kwargs = json.loads((path / "model.json").read_text()).get("env_kwargs", {})
+    if team_size is not None:
+        kwargs = _at_size(meta["scenario"], kwargs, team_size)
+    policy, env_kwargs = model_policy(path / "model.zip", kwargs)
     return {"path": path, "meta": meta, "policy": policy, "env_kwargs": env_kwargs}
+
+
+def _at_size(scenario: str, kwargs: dict[str, Any], size: int) -> dict[str, Any]:
+    """A run's env arguments for teams of ``size`` arms with the obstacles at its task's density."""
+    from .mixed_vec_env import sized_options
+
+    if scenario != "random":
+        raise ValueError(f"a team size is a random-team option; this run's scenario is {scenario!r}")
+    options = dict(kwargs.get("random_options", {}))
+    return kwargs | {"random_options": options | sized_options(scenario, options, size)}
 
 
 def _row(label: str, task: str, meta: dict, episodes: dict, reference: dict | None, reps: int) -> dict[str, Any]:

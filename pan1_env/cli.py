@@ -203,6 +203,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="first reset seed of the held-out random teams (default: %(default)s)")
     rep.add_argument("--teams", type=_positive_int, default=200, help="held-out random teams (default: %(default)s)")
     rep.add_argument("--reps", type=_positive_int, default=2000, help="bootstrap resamples (default: %(default)s)")
+    rep.add_argument("--team-size", type=_positive_int, default=None, metavar="N",
+                     help="evaluate the runs and the law on teams of N arms of the runs' task, the obstacles at its "
+                          "density per arm (models trained on a ring task, e.g. with --team-sizes)")
     rep.add_argument("--json", type=Path, default=None, metavar="PATH",
                      help="also write every episode in marl-eval's raw-data JSON layout")
     suite = sub.add_parser("suite", help="the leaderboard: every entry on every benchmark task's held-out teams "
@@ -532,7 +535,7 @@ def _cmd_report(args) -> int:
     from .baselines.report import markdown, marl_eval_json, report
 
     try:
-        rows = report(args.runs, first=args.first, teams=args.teams, reps=args.reps,
+        rows = report(args.runs, first=args.first, teams=args.teams, reps=args.reps, team_size=args.team_size,
                       progress=lambda message: tqdm.write(message, file=sys.stderr))
     except OSError as err:  # a missing run directory or model
         print(f"pan1-env: error: {err}", file=sys.stderr)
