@@ -35,7 +35,7 @@ view gathers them over the arms (:meth:`~pan1_env.core.FormationCore.team_infos`
 With ``sensing_radius=s`` (m) an end-effector scenario is filtered through the whole-arm rows with the
 end-effector as the body: an obstacle gets a row only within s (plus what the gap can close in a
 sub-step), so the robust term of far obstacles cannot hold an arm still (the paper's filter, the
-default, keeps a row for every obstacle in reach; docs/TRAINING.md measures the difference).
+default, keeps a row for every obstacle in reach; docs/LEARNING_STUDIES.md measures the difference).
 
 With ``tracking_bound=δ̄`` the filter uses the tightened barrier h − Γ(δ̄), Γ(δ̄) = ε δ̄² / (4 κ)
 (docs/MODEL.md §5): as long as the tracking error stays below δ̄ the arm stays in the *original* set
