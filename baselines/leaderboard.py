@@ -96,14 +96,20 @@ def finished_runs(runs: str | Path, entry_: Entry, task: SuiteTask) -> list[Path
     return [d for s in task.train_seeds if (d := task_dir(runs, entry_, task) / f"seed_{s}" / "model.zip").is_file()]
 
 
-def _recipe_of(run: dict[str, Any]) -> tuple:
-    return (run.get("algo", "ppo"), bool(run.get("shield", True)), bool(run.get("param_sharing")),
-            bool(run.get("centralised_critic")))
+def _recipe_of(run: dict[str, Any], task_keys: Sequence[str] = ()) -> tuple:
+    """What makes a run the entry's: the algorithm and its arguments, the shield, the shared network and its critic,
+    the copies, the normalisation and the env arguments the recipe sets (not the task's own: ``task_keys`` and the
+    random options)."""
+    algo = run.get("algo", "ppo")
+    env = {k: v for k, v in run.get("env_kwargs", {}).items() if k not in (*task_keys, "random_options")}
+    return (algo, bool(run.get("shield", True)), bool(run.get("param_sharing")), bool(run.get("centralised_critic")),
+            run.get("n_envs"), json.dumps(run.get("algo_kwargs"), sort_keys=True), bool(run.get("normalize", True)),
+            run.get("cost_limit", 1.0) if algo == "ppo-lagrangian" else None, json.dumps(env, sort_keys=True))
 
 
 def shipped_model(entry_: Entry, task: SuiteTask) -> str | None:
-    """The shipped model trained for the task with the entry's recipe (algorithm, shield, shared network, critic),
-    or None."""
+    """The shipped model trained for the task with the entry's whole recipe, or None (a model trained another way,
+    say with gSDE, is not the entry's)."""
     from pan1_env.registration import env_arguments
 
     from .shipped import available, serves
@@ -113,7 +119,7 @@ def shipped_model(entry_: Entry, task: SuiteTask) -> str | None:
     scenario, kwargs = env_arguments(task.env_id, task.env_kwargs)
     for name, meta in available().items():
         run = meta.get("provenance", {}).get("run", {})
-        if _recipe_of(run) == _recipe_of(entry_.recipe) and serves(meta, scenario, kwargs):
+        if _recipe_of(run, list(task.env_kwargs)) == _recipe_of(entry_.recipe) and serves(meta, scenario, kwargs):
             return name
     return None
 
