@@ -45,8 +45,8 @@ __all__ = ["run_benchmark", "run_episode", "markdown_table", "marl_eval_rows", "
 def run_episode(env, policy, seed: int, shield: bool) -> dict[str, Any]:
     """One episode of a policy on a parallel env (shielded or not) from ``reset(seed=seed)``, to its end: success,
     time to formation (None if not formed), return, cost, smallest clearance, arm-steps, steps, and behind the
-    shield the arm-steps it changed, the steps in which it changed some arm, and its fallbacks; the step of the last
-    actuator fault and the mean formation error."""
+    shield the arm-steps it changed, the steps in which it changed some arm, and its fallbacks; the time (s) at which
+    the last actuator fault showed, and the mean formation error."""
     core = env.unwrapped
     obs, _ = env.reset(seed=seed)
     ret, cost, steps, arm_steps, interventions, fallbacks, intervened_steps = 0.0, 0.0, 0, 0, 0, 0, 0

@@ -34,10 +34,11 @@ import numpy as np
 
 from .suite import SUITE, SuiteTask, suite_task
 
-__all__ = ["Entry", "ENTRIES", "entry", "run_suite", "task_dir", "finished_runs", "shipped_model", "train_entry",
-           "EPISODE_METRICS"]
+__all__ = ["Entry", "ENTRIES", "entry", "run_suite", "load_leaderboard", "task_dir", "finished_runs", "shipped_model",
+           "train_entry", "EPISODE_METRICS"]
 
-EPISODE_METRICS = ("success", "time_to_formation", "cost", "min_clearance", "intervention_rate", "return")
+# no return: the learners are trained and scored with their own reward arguments, so returns do not compare
+EPISODE_METRICS = ("success", "time_to_formation", "cost", "min_clearance", "intervention_rate")
 _PPO = {"gamma": 0.995, "n_steps": 2000, "batch_size": 4000, "n_epochs": 5, "policy_kwargs": {"log_std_init": -1.0}}
 _SHARED = {"param_sharing": True, "n_envs": 16, "env_kwargs": {"success_bonus": 1.0, "action_mode": "gain"},
            "algo_kwargs": _PPO, "checkpoint_every": 512_000, "eval_every": 1_024_000}
@@ -96,15 +97,20 @@ def finished_runs(runs: str | Path, entry_: Entry, task: SuiteTask) -> list[Path
     return [d for s in task.train_seeds if (d := task_dir(runs, entry_, task) / f"seed_{s}" / "model.zip").is_file()]
 
 
-def _recipe_of(run: dict[str, Any], task_keys: Sequence[str] = ()) -> tuple:
-    """What makes a run the entry's: the algorithm and its arguments, the shield, the shared network and its critic,
-    the copies, the normalisation and the env arguments the recipe sets (not the task's own: ``task_keys`` and the
-    random options)."""
+def _recipe_of(run: dict[str, Any], task: SuiteTask) -> tuple:
+    """What makes a run (its ``run.json``, or an entry's recipe) the entry's on a task: the algorithm and its
+    arguments, the shield, the shared network and its critic, the copies, the normalisation, the budget and the env
+    arguments the recipe sets (not those the task's id and arguments set)."""
+    from pan1_env.registration import env_arguments
+
+    task_keys = (*env_arguments(task.env_id, task.env_kwargs)[1], "random_options")
     algo = run.get("algo", "ppo")
-    env = {k: v for k, v in run.get("env_kwargs", {}).items() if k not in (*task_keys, "random_options")}
+    env = {k: v for k, v in run.get("env_kwargs", {}).items() if k not in task_keys}
+    lagrangian = (run.get("cost_limit", 1.0), run.get("lagrangian_lr", 0.01)) if algo == "ppo-lagrangian" else None
     return (algo, bool(run.get("shield", True)), bool(run.get("param_sharing")), bool(run.get("centralised_critic")),
             run.get("n_envs"), json.dumps(run.get("algo_kwargs"), sort_keys=True), bool(run.get("normalize", True)),
-            run.get("cost_limit", 1.0) if algo == "ppo-lagrangian" else None, json.dumps(env, sort_keys=True))
+            lagrangian, run.get("critic_warmup", 0) or 0, run.get("team_sizes"), run.get("timesteps", task.train_steps),
+            json.dumps(env, sort_keys=True))
 
 
 def shipped_model(entry_: Entry, task: SuiteTask) -> str | None:
@@ -119,9 +125,17 @@ def shipped_model(entry_: Entry, task: SuiteTask) -> str | None:
     scenario, kwargs = env_arguments(task.env_id, task.env_kwargs)
     for name, meta in available().items():
         run = meta.get("provenance", {}).get("run", {})
-        if _recipe_of(run, list(task.env_kwargs)) == _recipe_of(entry_.recipe) and serves(meta, scenario, kwargs):
+        if _recipe_of(run, task) == _recipe_of(entry_.recipe, task) and serves(meta, scenario, kwargs):
             return name
     return None
+
+
+def _trained_for(model: Path, task: SuiteTask) -> bool:
+    from pan1_env.registration import env_arguments
+
+    from .shipped import serves
+
+    return serves(json.loads(model.with_suffix(".json").read_text()), *env_arguments(task.env_id, task.env_kwargs))
 
 
 def _records(result: dict[str, np.ndarray]) -> dict[str, list]:
@@ -181,15 +195,19 @@ def _per_team(task: SuiteTask, policy_name: str, seeds: list[int], extra: dict[s
         with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
             futures = {pool.submit(_team_episodes, task.env_id, task.env_kwargs | extra, policy_name, chunk): k
                        for k, chunk in enumerate(chunks)}
-            for future in futures:
-                done[futures[future]] = future.result()
-                tick(len(chunks[futures[future]]))
+            try:
+                for future in futures:
+                    done[futures[future]] = future.result()
+                    tick(len(chunks[futures[future]]))
+            except BaseException:  # a chunk failed (or Ctrl-C): do not wait for the others to say so
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise
     episodes = [e for k in range(len(chunks)) for e in done[k]]
     result = {"success": np.array([e["success"] for e in episodes]),
               "time_to_formation": np.array([np.nan if e["time_to_formation"] is None else e["time_to_formation"]
                                              for e in episodes]),
               "intervention_rate": np.array([e["intervened_steps"] / max(e["steps"], 1) for e in episodes])}
-    result |= {key: np.array([e[key] for e in episodes], float) for key in ("cost", "min_clearance", "return")}
+    result |= {key: np.array([e[key] for e in episodes], float) for key in ("cost", "min_clearance")}
     return _records(result)
 
 
@@ -207,9 +225,15 @@ def _learned_runs(runs: str | Path, entry_: Entry, task: SuiteTask) -> list[tupl
     from .shipped import PRETRAINED_DIR, available
 
     found = finished_runs(runs, entry_, task)
+    for model in found:
+        run = json.loads((model.parent / "run.json").read_text())
+        if _recipe_of(run, task) != _recipe_of(entry_.recipe, task) or run.get("seed") != int(model.parent.name[5:]):
+            raise ValueError(f"{model.parent}: not a run of {entry_.name}'s recipe with seed {model.parent.name[5:]} "
+                             f"(its run.json: {json.dumps(run, sort_keys=True)}); pan1-env suite --train writes them")
+        if not _trained_for(model, task):
+            raise ValueError(f"{model.parent}: its model was not trained for {task.env_id}")
     if found:
-        return [(json.loads((m.parent / "run.json").read_text()).get("seed", k), m, str(m.parent))
-                for k, m in enumerate(found)]
+        return [(int(m.parent.name[5:]), m, str(m.parent)) for m in found]
     name = shipped_model(entry_, task)
     if name is None:
         return []
@@ -223,7 +247,8 @@ def run_suite(tasks: Sequence[SuiteTask] = SUITE, entries: Sequence[Entry] = ENT
               bar: bool | None = None) -> dict[str, Any]:
     """Score every entry on every task's held-out teams (the first ``teams`` of them if given, and episodes cut at
     ``max_steps`` if given: ``--quick``, a check of the pipeline whose numbers are not the leaderboard's). The
-    per-team policies run in ``workers`` processes (default: one per core).
+    per-team policies run in ``workers`` processes (default: one per core), started with ``spawn``: a script that
+    calls this must guard its entry point with ``if __name__ == "__main__":``.
 
     Returns ``{"tasks": …, "entries": …, "runs": {task: {entry: [{"seed", "source"}]}}, "raw": …}``: ``raw`` in
     marl-eval's layout, ``{"pan1_env": {task id: {entry: {"seed_<s>": {"absolute_metrics": {metric: [one value per
@@ -289,9 +314,13 @@ def train_entry(entry_: Entry, task: SuiteTask, *, runs: str | Path = "runs/suit
     if entry_.recipe is None:
         raise ValueError(f"entry {entry_.name!r} is not trained: it is the policy {entry_.policy!r}")
     recipe = dict(entry_.recipe)
-    recipe["env_kwargs"] = task.env_kwargs | recipe.get("env_kwargs", {})
+    recipe["env_kwargs"] = recipe.get("env_kwargs", {}) | task.env_kwargs  # the task's arguments are every entry's
+    seeds = task.train_seeds if seeds is None else seeds
+    if not set(seeds) <= set(task.train_seeds):
+        raise ValueError(f"seeds {sorted(set(seeds) - set(task.train_seeds))} are not {task.env_id}'s training seeds "
+                         f"{list(task.train_seeds)}: every entry trains on the same seeds")
     summaries = []
-    for seed in task.train_seeds if seeds is None else seeds:
+    for seed in seeds:
         out = task_dir(runs, entry_, task) / f"seed_{seed}"
         if (out / "model.zip").is_file():
             say(f"{out}: finished, left as it is")
@@ -301,6 +330,21 @@ def train_entry(entry_: Entry, task: SuiteTask, *, runs: str | Path = "runs/suit
         summaries.append(train(scenario=task.env_id, seed=seed, timesteps=task.train_steps, out=out, resume=resume,
                                progress=progress, **recipe))
     return summaries
+
+
+def load_leaderboard(path: str | Path) -> dict[str, Any]:
+    """A leaderboard written by ``pan1-env suite`` (its ``leaderboard.json``); ValueError naming the file if it is
+    missing, not JSON or not a leaderboard."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise ValueError(f"{path}: cannot read a leaderboard ({err})") from None
+    keys = ("tasks", "entries", "runs", "raw", "missing")
+    if not isinstance(data, dict) or any(key not in data for key in keys) or "pan1_env" not in data["raw"]:
+        raise ValueError(f"{path}: not a pan1-env suite leaderboard.json (it needs {', '.join(keys)}, raw in "
+                         "marl-eval's layout)")
+    return data
 
 
 def resolve(tasks: str | None, entries: str | None) -> tuple[list[SuiteTask], list[Entry]]:

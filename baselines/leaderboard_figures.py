@@ -4,7 +4,8 @@ and the probability that an entry forms more of a task's teams than the law.
 
 A score is one run's success rate on one task (already in [0, 1], so nothing is normalised). rliable compares
 entries over one set of tasks, so the IQM and the profiles take the entries that have every task of the suite's
-data; the probability of improvement takes each entry against the law over the tasks both have. An entry of one
+data; the probability of improvement takes each entry against the law over the tasks both have (its label says how
+many). An entry of one
 run per task (the law, the circulation rule, a shipped model) has no spread over runs: its intervals are points.
 """
 
@@ -24,15 +25,14 @@ FIGURES = ("leaderboard_iqm.png", "leaderboard_profiles.png", "leaderboard_impro
 
 
 def score_matrices(data: dict[str, Any]) -> tuple[list[str], dict[str, np.ndarray]]:
-    """The tasks, and for each entry with every task a (runs × tasks) matrix of success rates; an entry with
-    fewer runs on some task repeats nothing: its matrix has as many rows as its fewest runs."""
+    """The tasks, and for each entry with the same number of runs on every task a (runs × tasks) matrix of success
+    rates (an entry missing a task, or with fewer runs on one, is left out rather than cut down)."""
     tasks = [t["env_id"] for t in data["tasks"]]
     matrices = {}
     for e in data["entries"]:
         per_task = [success_scores(data, task, e["name"]) for task in tasks]
-        if all(len(s) for s in per_task):
-            runs = min(len(s) for s in per_task)
-            matrices[e["name"]] = np.stack([s[:runs] for s in per_task], axis=1)
+        if all(len(s) for s in per_task) and len({len(s) for s in per_task}) == 1:
+            matrices[e["name"]] = np.stack(per_task, axis=1)
     return tasks, matrices
 
 
@@ -71,7 +71,12 @@ def _draw(data: dict[str, Any], out: Path, reps: int) -> list[Path]:
         fig.tight_layout()
         paths.append(save_figure(fig, out / FIGURES[0]))
         thresholds = np.linspace(0.0, 1.0, 41)
-        profiles, bands = rly.create_performance_profile(matrices, thresholds, reps=reps)
+        saved = np.random.get_state()  # noqa: NPY002 - rliable's profile bootstrap draws from the global generator
+        np.random.seed(0)  # noqa: NPY002 - so that the bands are the same at every render
+        try:
+            profiles, bands = rly.create_performance_profile(matrices, thresholds, reps=reps)
+        finally:
+            np.random.set_state(saved)  # noqa: NPY002
         fig, ax = plt.subplots(figsize=(6, 4))
         plot_utils.plot_performance_profiles(profiles, thresholds, performance_profile_cis=bands, ax=ax,
                                              xlabel=r"success rate $\tau$",
@@ -102,7 +107,9 @@ def _pairs_with_law(data: dict[str, Any]) -> dict[str, tuple[np.ndarray, np.ndar
         mine = {task: success_scores(data, task, e["name"]) for task in tasks}
         shared = [task for task in tasks if len(mine[task]) and len(law[task])]
         if shared:
-            runs_x, runs_y = min(len(mine[t]) for t in shared), min(len(law[t]) for t in shared)
-            pairs[f"{e['name']},law"] = (np.stack([mine[t][:runs_x] for t in shared], axis=1),
-                                         np.stack([law[t][:runs_y] for t in shared], axis=1))
+            if len({len(mine[t]) for t in shared}) > 1 or len({len(law[t]) for t in shared}) > 1:
+                continue  # as many runs on every task, or none of the entry's rows
+            label = f"{e['name']} ({len(shared)} task{'s' if len(shared) > 1 else ''})"
+            pairs[f"{label},law"] = (np.stack([mine[t] for t in shared], axis=1),
+                                     np.stack([law[t] for t in shared], axis=1))
     return pairs

@@ -21,21 +21,30 @@ def success_scores(data: dict[str, Any], task_id: str, entry: str) -> np.ndarray
     return np.array([np.mean(r["absolute_metrics"]["success"]) for r in runs.values()], float)
 
 
-def _team_interval(formed: np.ndarray, reps: int) -> tuple[float, float, float]:
-    """The success rate of one run and its 95 % percentile bootstrap interval over the teams."""
-    point = float(formed.mean())
-    if len(formed) < 2 or np.ptp(formed) == 0:
-        return point, point, point
-    ci = stats.bootstrap((formed,), np.mean, n_resamples=reps, method="percentile",
-                         rng=np.random.default_rng(0)).confidence_interval
-    return point, float(ci.low), float(ci.high)
+def _team_interval(formed: np.ndarray) -> tuple[float, float, float]:
+    """The success rate of one run over its teams and its 95 % Wilson score interval (which, unlike a bootstrap of
+    0s and 1s, does not shrink to a point when every team or none formed); a point for one team."""
+    k, n = int(formed.sum()), len(formed)
+    if n < 2:
+        return float(k), float(k), float(k)
+    ci = stats.binomtest(k, n).proportion_ci(method="wilson")
+    return k / n, float(ci.low), float(ci.high)
+
+
+def _time_ratio(mine: dict[str, list], law: dict[str, list]) -> float:
+    """A run's mean time to formation over the teams both it and the law formed, over the law's on those teams."""
+    both = [(t, u) for t, u in zip(mine["time_to_formation"], law["time_to_formation"], strict=True)
+            if t is not None and u is not None]
+    return float(np.mean([t for t, _ in both]) / np.mean([u for _, u in both])) if both else float("nan")
 
 
 def leaderboard_rows(data: dict[str, Any], reps: int = 2000) -> list[dict[str, Any]]:
     """Per task and entry with runs: ``runs``, ``sources``, ``success`` (IQM, low, high) and ``over`` (``runs``, or
     ``teams`` for an entry of one run), ``time`` (IQM over the runs of each one's mean time to formation over its
-    formed teams; None if none formed), ``cost`` (IQM over runs of the summed cost), ``min_clearance`` (m, over every
-    run and team) and ``interventions`` (mean fraction of steps the shield changed a command; None unshielded)."""
+    formed teams; None if none formed), ``time_ratio`` (IQM over the runs of each one's mean time over the teams both
+    it and the law formed, over the law's: the targets' measure; None without the law), ``cost`` (IQM over runs of
+    the summed cost), ``min_clearance`` (m, over every run and team) and ``interventions`` (mean fraction of steps in
+    which the shield changed some arm's command; None unshielded)."""
     rows = []
     for task in data["tasks"]:
         for e in data["entries"]:
@@ -47,7 +56,11 @@ def leaderboard_rows(data: dict[str, Any], reps: int = 2000) -> list[dict[str, A
             if len(metrics) > 1:
                 over, interval = "runs", iqm_interval([success], reps=reps)
             else:
-                over, interval = "teams", _team_interval(np.asarray(metrics[0]["success"], float), reps)
+                over, interval = "teams", _team_interval(np.asarray(metrics[0]["success"], float))
+            law = data["raw"]["pan1_env"].get(task["env_id"], {}).get("law")
+            ratios = np.array([_time_ratio(m, next(iter(law.values()))["absolute_metrics"]) for m in metrics]
+                              if law and e["name"] != "law" else [])
+            ratios = ratios[np.isfinite(ratios)]
             times = [np.mean([t for t in m["time_to_formation"] if t is not None]) for m in metrics
                      if any(t is not None for t in m["time_to_formation"])]
             clearances = [c for m in metrics for c in m["min_clearance"] if c is not None]
@@ -58,6 +71,7 @@ def leaderboard_rows(data: dict[str, Any], reps: int = 2000) -> list[dict[str, A
                 "success": interval, "over": over,
                 "time": iqm_interval([np.array(times)], reps=reps) if times else None,
                 "time_runs": len(times),
+                "time_ratio": iqm_interval([ratios], reps=reps) if len(ratios) else None,
                 "cost": iqm_interval([np.array([np.sum(m["cost"]) for m in metrics])], reps=reps),
                 "min_clearance": min(clearances) if clearances else None,
                 "interventions": float(np.mean(rates)) if rates else None})
@@ -73,14 +87,16 @@ def _cell(interval: tuple[float, float, float] | None, scale: float = 1.0, fmt: 
 
 def markdown(rows: Sequence[dict[str, Any]]) -> str:
     """The rows as one Markdown table: IQM [95 % interval]; the interval of an entry of one run is over its teams."""
-    lines = ["| task | entry | runs | success [%] | interval over | time to formation [s] | cost "
-             "| min clearance [mm] | shield interventions |", "|---|---|---:|---|---|---|---|---:|---:|"]
+    lines = ["| task | entry | runs | success [%] | interval over | time to formation [s] | time ÷ the law's, "
+             "teams both form | cost | min clearance [mm] | steps the shield changed |",
+             "|---|---|---:|---|---|---|---|---|---:|---:|"]
     for r in rows:
         time = _cell(r["time"]) + ("" if r["time_runs"] in (0, r["runs"]) else f" ({r['time_runs']} runs)")
         clearance = "–" if r["min_clearance"] is None else f"{1000 * r['min_clearance']:+.1f}"
         rate = "–" if r["interventions"] is None else f"{r['interventions']:.1%}"
         lines.append(f"| {r['task']} | {r['entry']} | {r['runs']} | {_cell(r['success'], 100)} | {r['over']} "
-                     f"| {time} | {_cell(r['cost'], fmt='{:g}')} | {clearance} | {rate} |")
+                     f"| {time} | {_cell(r['time_ratio'], fmt='{:.2f}')} | {_cell(r['cost'], fmt='{:g}')} "
+                     f"| {clearance} | {rate} |")
     return "\n".join(lines)
 
 
@@ -109,9 +125,11 @@ def benchmark_page(data: dict[str, Any], figures: Sequence[str] = (), reps: int 
     out += ["", "## Leaderboard", "",
             "Success is the task's own rule on the held-out teams (the formation error below 1 cm at the end; held "
             "for the task's hold time on a moving formation). A cell is the interquartile mean over the runs with its "
-            "95 % bootstrap interval; for an entry of one run (the law, the rule, a shipped model) the interval is "
-            "over the teams. The time is over the teams each run formed; the cost counts arm-steps inside an "
-            "obstacle.", "", markdown(rows), ""]
+            "95 % bootstrap interval; for an entry of one run (the law, the rule, a shipped model) it is the Wilson "
+            "interval over the teams. The time to formation is over the teams each run formed; the ratio to the "
+            "law's is over the teams both formed, the targets' measure. The cost counts arm-steps inside an obstacle; "
+            "the last column is the fraction of steps in which the shield changed some arm's command.", "",
+            markdown(rows), ""]
     shipped = sorted({(r["entry"], r["task"], s) for r in rows for s in r["sources"] if s.startswith("shipped:")})
     if shipped:
         out += ["Rows scored by a shipped model (one training seed) until the entry's runs are trained: "
@@ -120,9 +138,11 @@ def benchmark_page(data: dict[str, Any], figures: Sequence[str] = (), reps: int 
         out += ["## Not yet on the board", "", "No run and no shipped model: "
                 + "; ".join(f"{e} on `{t}`" for t, e in data["missing"]) + ".", ""]
     if figures:
-        out += ["## Figures", "", "Made with rliable over the tasks every plotted entry has: the IQM of success with "
-                "95 % stratified bootstrap intervals, the performance profiles, and the probability that an entry "
-                "forms more of a task's teams than the law.", ""]
+        out += ["## Figures", "",
+                "Made with rliable: the IQM of success with 95 % stratified bootstrap intervals and the "
+                "performance profiles, over the entries with as many runs on every task; and the probability that an "
+                "entry forms more of a task's teams than the law, over the tasks both have (the label says how many).",
+                ""]
         out += [f"![{name}]({name})" for name in figures] + [""]
     return "\n".join(out)
 

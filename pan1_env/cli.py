@@ -553,6 +553,11 @@ def _cmd_suite(args) -> int:
     from .baselines.leaderboard_table import benchmark_page, leaderboard_rows, markdown
     from .experiment import atomic_write
 
+    for flag, given, needs in (("--seeds", args.seeds, args.train), ("--teams", args.teams, not args.quick)):
+        if given is not None and not needs:
+            raise ValueError(f"{flag} goes with {'--train' if flag == '--seeds' else 'a full run, not --quick'}")
+    if args.source is not None and (args.tasks or args.entries or args.quick or args.teams or args.train):
+        raise ValueError("--from re-renders a leaderboard as it is: no --tasks, --entries, --quick, --teams or --train")
     tasks, entries = board.resolve(args.tasks, args.entries)
     if args.train is not None:
         from .baselines.suite import suite_task
@@ -560,16 +565,16 @@ def _cmd_suite(args) -> int:
         board.train_entry(board.entry(args.train[0]), suite_task(args.train[1]), runs=args.runs, seeds=args.seeds)
         return 0
     if args.source is not None:
-        data = json.loads(args.source.read_text())
+        data = board.load_leaderboard(args.source)
     else:
         data = board.run_suite(tasks, entries, runs=args.runs, teams=QUICK_TEAMS if args.quick else args.teams,
                                max_steps=QUICK_STEPS if args.quick else None, workers=args.workers, bar=True,
                                progress=lambda message: tqdm.write(message, file=sys.stderr))
-        data["quick"] = bool(args.quick or args.teams)
-        text = json.dumps(data, indent=1) + "\n"
-        atomic_write(args.out / "leaderboard.json", lambda fh: fh.write(text), mode="w")
-        raw = json.dumps(data["raw"], indent=1) + "\n"
-        atomic_write(args.out / "leaderboard_marl_eval.json", lambda fh: fh.write(raw), mode="w")
+        data["quick"] = bool(args.quick) or any(args.teams is not None and args.teams < len(t.held_out) for t in tasks)
+    text, raw = json.dumps(data, indent=1) + "\n", json.dumps(data["raw"], indent=1) + "\n"
+    for where in {args.out, *([args.docs.parent] if args.docs is not None else [])}:
+        atomic_write(where / "leaderboard.json", lambda fh: fh.write(text), mode="w")
+    atomic_write(args.out / "leaderboard_marl_eval.json", lambda fh: fh.write(raw), mode="w")
     table = markdown(leaderboard_rows(data, args.reps))
     atomic_write(args.out / "leaderboard.md", lambda fh: fh.write(table + "\n"), mode="w")
     figures = []
@@ -583,7 +588,7 @@ def _cmd_suite(args) -> int:
         page = benchmark_page(data, names, args.reps)
         atomic_write(args.docs, lambda fh: fh.write(page), mode="w")
     print(table + f"\n\nleaderboard.md, leaderboard.json and leaderboard_marl_eval.json under {args.out}/"
-          + "".join(f"\n{f}" for f in figures) + (f"\n{args.docs}" if args.docs else ""))
+          + "".join(f"\n{f}" for f in figures) + (f"\n{args.docs} (leaderboard.json beside it)" if args.docs else ""))
     return 0
 
 

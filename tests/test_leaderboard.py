@@ -40,7 +40,7 @@ def test_a_learner_is_the_iqm_over_its_runs_and_a_policy_is_bootstrapped_over_it
     teams = 10
     rates = [0.7, 0.8, 0.9, 0.9, 1.0]
     learner = [_run([1] * round(r * teams) + [0] * (teams - round(r * teams))) for r in rates]
-    law = [_run([1, 0, 1, 1, 0, 1, 1, 1, 1, 0])]
+    law = [_run([1, 0, 1, 1, 0, 1, 1, 1, 1, 0], time=20.0)]
     nothing = [_run([0] * teams)]
     rows = {r["entry"]: r for r in leaderboard_rows(_data({"ippo": learner, "law": law, "none": nothing}), reps=500)}
     point, low, high = rows["ippo"]["success"]
@@ -49,10 +49,14 @@ def test_a_learner_is_the_iqm_over_its_runs_and_a_policy_is_bootstrapped_over_it
     assert 0.7 <= low <= point <= high <= 1.0
     point, low, high = rows["law"]["success"]
     assert rows["law"]["over"] == "teams" and point == pytest.approx(0.7) and 0.0 <= low < point < high <= 1.0
-    assert rows["none"]["time"] is None and rows["none"]["success"] == (0.0, 0.0, 0.0)
+    point, low, high = rows["none"]["success"]  # no team formed: the Wilson interval still has width
+    assert rows["none"]["time"] is None and point == low == 0.0 and 0.2 < high < 0.35
     assert rows["ippo"]["time"][0] == pytest.approx(10.0) and rows["ippo"]["min_clearance"] == pytest.approx(0.02)
+    # on the teams both formed the learner takes 10 s where the law takes 20
+    assert rows["ippo"]["time_ratio"][0] == pytest.approx(0.5) and rows["law"]["time_ratio"] is None
+    assert rows["none"]["time_ratio"] is None
     table = markdown(list(rows.values()))
-    assert "| made up | ippo | 5 | 86.7 [" in table and "| made up | none | 1 | 0.0 | teams | – |" in table
+    assert "| made up | ippo | 5 | 86.7 [" in table and "| made up | none | 1 | 0.0 [0.0, " in table
 
 
 def test_docs_benchmark_is_the_rendering_of_the_shipped_leaderboard() -> None:
@@ -74,6 +78,22 @@ def test_unknown_names_fail_at_the_boundary(capsys) -> None:
     assert "pan1-env: error: no leaderboard entry 'nope'" in capsys.readouterr().err
     with pytest.raises(ValueError, match="entry 'law' is not trained"):
         board.train_entry(board.entry("law"), suite_task(RANDOM))
+    with pytest.raises(ValueError, match=r"seeds \[7\] are not pan1_env/RandomFormation-v1's training seeds"):
+        board.train_entry(board.entry("ippo"), suite_task(RANDOM), seeds=[0, 7])
+    assert main(["suite", "--seeds", "1"]) == 2 and "--seeds goes with --train" in capsys.readouterr().err
+
+
+def test_a_leaderboard_that_cannot_be_read_is_named_in_one_line(tmp_path, capsys) -> None:
+    (tmp_path / "shape.json").write_text('{"a": 1}')
+    (tmp_path / "text.json").write_text("not json")
+    for path, why in ((tmp_path / "none.json", "cannot read"), (tmp_path, "cannot read"),
+                      (tmp_path / "shape.json", "not a pan1-env suite leaderboard.json"),
+                      (tmp_path / "text.json", "cannot read")):
+        assert main(["suite", "--from", str(path), "--out", str(tmp_path / "out")]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and str(path) in err and why in err
+    assert main(["suite", "--from", str(tmp_path / "shape.json"), "--quick"]) == 2
+    assert "--from re-renders a leaderboard as it is" in capsys.readouterr().err
 
 
 def test_train_entry_runs_each_seed_once_and_resumes_from_a_checkpoint(tmp_path, monkeypatch) -> None:
@@ -111,11 +131,28 @@ def test_a_learners_runs_come_before_its_shipped_model(tmp_path) -> None:
     run.mkdir(parents=True)
     shutil.copyfile(PRETRAINED_DIR / "random_formation_v1_ippo.zip", run / "model.zip")
     shutil.copyfile(PRETRAINED_DIR / "random_formation_v1_ippo.json", run / "model.json")
-    (run / "run.json").write_text(json.dumps({"seed": 3}))
+    recorded = json.loads((PRETRAINED_DIR / "random_formation_v1_ippo.json").read_text())["provenance"]["run"]
+    (run / "run.json").write_text(json.dumps(recorded | {"seed": 3}))  # as if trained with seed 3
     data = board.run_suite([task], [ippo], runs=tmp_path, teams=1, max_steps=5)
     assert data["runs"][RANDOM]["ippo"] == [{"seed": 3, "source": str(run)}]
     episodes = data["raw"]["pan1_env"][RANDOM]["ippo"]["seed_3"]["absolute_metrics"]
-    assert len(episodes["success"]) == 1 and episodes["cost"] == [0.0]
+    assert len(episodes["success"]) == 1 and set(episodes) >= {"success", "cost", "min_clearance"}
+    (run / "run.json").write_text(json.dumps(recorded | {"seed": 3, "shield": False}))  # another recipe
+    with pytest.raises(ValueError, match="seed_3: not a run of ippo's recipe with seed 3"):
+        board.run_suite([task], [ippo], runs=tmp_path, teams=1, max_steps=5)
+
+
+def test_the_batched_law_and_the_law_one_team_at_a_time_score_alike() -> None:
+    """The law is scored batched (the zero action of the gain mode), the circulation rule one team at a time on the
+    parallel env: the same teams give the same success, steps changed by the shield and time, near enough."""
+    task = suite_task(RANDOM)
+    seeds = list(task.held_out)[:2]
+    batched = board._law(task, seeds, {})
+    alone = board._per_team(task, "reference", seeds, {}, workers=1, tick=lambda n: None)
+    assert batched["success"] == alone["success"]
+    assert np.allclose(batched["intervention_rate"], alone["intervention_rate"], atol=0.02)
+    for t, u in zip(batched["time_to_formation"], alone["time_to_formation"], strict=True):
+        assert (t is None) == (u is None) and (t is None or abs(t - u) <= 0.5)
 
 
 @pytest.mark.slow
@@ -129,7 +166,7 @@ def test_the_quick_suite_writes_its_table_json_figures_and_page(tmp_path) -> Non
     for task in data["tasks"]:
         law = raw[task["env_id"]]["law"]["seed_0"]["absolute_metrics"]
         assert len(law["success"]) == task["teams"] == min(2, task["held_out"][1])
-        assert all(np.isfinite(c) for c in law["min_clearance"]) and sum(law["cost"]) == 0
+        assert all(np.isfinite(c) for c in law["min_clearance"]) and all(c >= 0 for c in law["cost"])
     assert "circulation" in raw["pan1_env/WholeArmStaticFormation-v1"]
     for name in ("leaderboard_iqm.png", "leaderboard_profiles.png", "leaderboard_improvement.png"):
         assert (tmp_path / "docs" / "figures" / name).stat().st_size > 0
