@@ -505,7 +505,7 @@ def test_the_benchmarks_time_to_formation_is_the_errors_not_the_holds() -> None:
     though ``is_success`` turns on only 5 s in."""
     import dataclasses
 
-    from pan1_env.baselines.benchmark import _episode
+    from pan1_env.baselines.benchmark import run_episode
     from pan1_env.dynamics import end_effector
 
     team = scenario.load("paper_pa3_square")
@@ -515,5 +515,5 @@ def test_the_benchmarks_time_to_formation_is_the_errors_not_the_holds() -> None:
     for hold in (0.0, 5.0):
         env = parallel_env(dataclasses.replace(team, formation=formed), success_hold=hold, max_steps=120)
         still = {a: np.zeros(env.action_space(a).shape, np.float32) for a in env.possible_agents}
-        result = _episode(env, lambda obs, still=still: still, 0, False)
+        result = run_episode(env, lambda obs, still=still: still, 0, False)
         assert result["success"] and result["time_to_formation"] == 0.0
