@@ -47,7 +47,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pan1_env.bodies import link_clearance, obstacle_centers
-from pan1_env.cascade import joint_velocity, passive_momentum
+from pan1_env.cascade import joint_velocity, passive_momentum, rk4_step
 from pan1_env.dynamics import ArmParams
 
 __all__ = ["Verdict", "judge", "rollout"]
@@ -73,7 +73,7 @@ def rollout(arm: ArmParams, q: np.ndarray, p1: float, commands: np.ndarray, wind
     b = arm.passive_damping if passive else 0.0
     qs = np.broadcast_to(np.asarray(q, float), (S, arm.n_links)).copy()
     p = np.full(S, float(p1))
-    out = [qs.copy()]
+    out = [qs]
 
     def rhs(qq: np.ndarray, pp: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         qd = joint_velocity(arm, qq, v, pp) if passive else v
@@ -81,13 +81,8 @@ def rollout(arm: ArmParams, q: np.ndarray, p1: float, commands: np.ndarray, wind
 
     for k in range(steps):
         v = commands[:, min(int(k * h / window * pieces), pieces - 1)]
-        k1 = rhs(qs, p, v)
-        k2 = rhs(qs + 0.5 * h * k1[0], p + 0.5 * h * k1[1], v)
-        k3 = rhs(qs + 0.5 * h * k2[0], p + 0.5 * h * k2[1], v)
-        k4 = rhs(qs + h * k3[0], p + h * k3[1], v)
-        qs = qs + h / 6.0 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
-        p = p + h / 6.0 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
-        out.append(qs.copy())
+        qs, p = rk4_step(lambda qq, pp, v=v: rhs(qq, pp, v), qs, p, h)
+        out.append(qs)
     return np.stack(out, axis=1)
 
 
@@ -108,6 +103,8 @@ def judge(arm: ArmParams, q: np.ndarray, p1: float, centers: np.ndarray, path_en
     if not (max_speed > 0 and window > 0 and dt > 0 and pieces >= 1 and samples >= 2):
         raise ValueError(f"max_speed, window and dt must be > 0, pieces ≥ 1 and samples ≥ 2; got {max_speed}, "
                          f"{window}, {dt}, {pieces}, {samples}")
+    if not (np.all(np.isfinite(q)) and np.isfinite(p1) and np.isfinite(t0)):
+        raise ValueError(f"the state must be finite: q={np.asarray(q).tolist()}, p1={p1}, t0={t0}")
     commands = _candidates(arm.n_actuated, pieces, samples, max_speed, np.random.default_rng(seed))
     paths = rollout(arm, q, p1, commands, window, dt)  # (S, T, n)
     times = t0 + np.linspace(0.0, window, paths.shape[1])

@@ -51,6 +51,7 @@ __all__ = [
     "reduced_jacobian",
     "passive_momentum",
     "passive_momentum_rate",
+    "rk4_step",
     "reduced_state",
     "end_effector_drift",
     "momentum_cascade_rhs",
@@ -233,8 +234,9 @@ def cascade_rhs(
     return t.qd, vdot
 
 
-def _rk4(rhs, x: np.ndarray, y: np.ndarray, dt: float, first=None) -> tuple[np.ndarray, np.ndarray]:
-    """Classical RK4 of a state in two parts (x, y) with derivatives ``rhs(x, y)``."""
+def rk4_step(rhs, x: np.ndarray, y: np.ndarray, dt: float, first=None) -> tuple[np.ndarray, np.ndarray]:
+    """One classical RK4 step of a state in two parts (x, y) with derivatives ``rhs(x, y) -> (ẋ, ẏ)``; ``first`` may
+    pass ``rhs(x, y)`` when the caller has it already."""
     k1x, k1y = rhs(x, y) if first is None else first
     k2x, k2y = rhs(x + 0.5 * dt * k1x, y + 0.5 * dt * k1y)
     k3x, k3y = rhs(x + 0.5 * dt * k2x, y + 0.5 * dt * k2y)
@@ -259,7 +261,7 @@ def cascade_rk4_step(
     first = None
     if terms is not None:
         first = (terms.qd, np.linalg.solve(terms.M_comb, (tau_a - terms.H_comb)[..., None])[..., 0])
-    return _rk4(lambda x, y: cascade_rhs(arm, x, y, tau_a), q, v, dt, first)
+    return rk4_step(lambda x, y: cascade_rhs(arm, x, y, tau_a), q, v, dt, first)
 
 
 def momentum_cascade_rhs(
@@ -310,4 +312,4 @@ def full_order_rk4_step(
     arm: Arm, q: np.ndarray, qd: np.ndarray, tau: np.ndarray, dt: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """One RK4 step of the full-order state (q, q̇) with τ held over ``dt``."""
-    return _rk4(lambda x, y: full_order_rhs(arm, x, y, tau), q, qd, dt)
+    return rk4_step(lambda x, y: full_order_rhs(arm, x, y, tau), q, qd, dt)

@@ -79,3 +79,6 @@ def test_bad_settings_are_refused() -> None:
     with pytest.raises(ValueError, match="max_speed, window and dt must be > 0"):
         avoidability.judge(_arm(False), np.zeros(3), 0.0, **_crossing(1.0), link_radius=RHO, max_speed=0.0, t0=0.0,
                            window=1.0)
+    with pytest.raises(ValueError, match="the state must be finite"):
+        avoidability.judge(_arm(False), np.array([0.0, np.nan, 0.0]), 0.0, **_crossing(1.0), link_radius=RHO,
+                           max_speed=1.0, t0=0.0, window=1.0)
