@@ -17,8 +17,8 @@ fraction the task's own rule calls formed (``is_success``), the mean time to for
 (arm-steps inside an obstacle, summed over the teams), the smallest clearance and the fraction of steps in which
 the shield changed a command. A cell is the interquartile mean over the runs with its 95 % bootstrap interval
 (:func:`~pan1_env.baselines.report.iqm_interval`); an entry of one run (the law, the rule, a shipped model) has no
-spread over runs, and its success interval is the percentile bootstrap over its teams instead (the table says
-which). :func:`run_suite` returns the leaderboard as JSON-ready data, its ``raw`` part in marl-eval's layout.
+spread over runs, and its success interval is the Wilson interval over its teams instead (the table says which).
+:func:`run_suite` returns the leaderboard as JSON-ready data, its ``raw`` part in marl-eval's layout.
 """
 
 from __future__ import annotations
@@ -156,7 +156,7 @@ def _law(task: SuiteTask, seeds: list[int], extra: dict[str, Any]) -> dict[str, 
     from .evaluation import evaluate, law_policy
 
     scenario, kwargs = env_arguments(task.env_id, task.env_kwargs | extra | {"action_mode": "gain"})
-    return _records(evaluate(law_policy(scenario, kwargs), scenario, seeds, env_kwargs=kwargs | extra))
+    return _records(evaluate(law_policy(scenario, kwargs), scenario, seeds, env_kwargs=kwargs))
 
 
 def _team_episodes(env_id: str, env_kwargs: dict[str, Any], policy_name: str, seeds: list[int]) -> list[dict]:
@@ -224,16 +224,16 @@ def _learned_runs(runs: str | Path, entry_: Entry, task: SuiteTask) -> list[tupl
     """(seed, model, where it comes from) for each run that scores a learner on a task."""
     from .shipped import PRETRAINED_DIR, available
 
-    found = finished_runs(runs, entry_, task)
-    for model in found:
+    found = [(int(m.parent.name.removeprefix("seed_")), m) for m in finished_runs(runs, entry_, task)]
+    for seed, model in found:
         run = json.loads((model.parent / "run.json").read_text())
-        if _recipe_of(run, task) != _recipe_of(entry_.recipe, task) or run.get("seed") != int(model.parent.name[5:]):
-            raise ValueError(f"{model.parent}: not a run of {entry_.name}'s recipe with seed {model.parent.name[5:]} "
+        if _recipe_of(run, task) != _recipe_of(entry_.recipe, task) or run.get("seed") != seed:
+            raise ValueError(f"{model.parent}: not a run of {entry_.name}'s recipe with seed {seed} "
                              f"(its run.json: {json.dumps(run, sort_keys=True)}); pan1-env suite --train writes them")
         if not _trained_for(model, task):
             raise ValueError(f"{model.parent}: its model was not trained for {task.env_id}")
     if found:
-        return [(int(m.parent.name[5:]), m, str(m.parent)) for m in found]
+        return [(seed, model, str(model.parent)) for seed, model in found]
     name = shipped_model(entry_, task)
     if name is None:
         return []
@@ -264,7 +264,7 @@ def run_suite(tasks: Sequence[SuiteTask] = SUITE, entries: Sequence[Entry] = ENT
     workers = workers or os.cpu_count() or 1
     plan = []  # everything is resolved before the first evaluation, so that a missing model fails at once
     for task in tasks:
-        seeds = list(task.held_out)[:teams] if teams else list(task.held_out)
+        seeds = list(task.held_out)[:teams]  # teams None: all of them
         for e in (e for e in entries if e.enters(task)):
             if e.recipe is None:
                 plan.append((task, e, seeds, [(0, None, "policy")]))
@@ -275,7 +275,7 @@ def run_suite(tasks: Sequence[SuiteTask] = SUITE, entries: Sequence[Entry] = ENT
     data: dict[str, Any] = {
         "tasks": [{"name": t.name, "env_id": t.env_id, "env_kwargs": t.env_kwargs, "train_steps": t.train_steps,
                    "train_seeds": list(t.train_seeds), "held_out": [t.held_out.start, len(t.held_out)],
-                   "teams": len(list(t.held_out)[:teams] if teams else t.held_out), "target": t.target,
+                   "teams": len(t.held_out[:teams]), "target": t.target,
                    "law_success_recorded": t.law_success} for t in tasks],
         "entries": [{"name": e.name, "description": e.description, "policy": e.policy, "recipe": e.recipe,
                      "tasks": e.tasks} for e in entries],

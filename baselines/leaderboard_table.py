@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from .report import iqm_interval
+from .report import iqm_interval, time_ratio
 
 __all__ = ["leaderboard_rows", "markdown", "benchmark_page", "success_scores"]
 
@@ -33,9 +33,10 @@ def _team_interval(formed: np.ndarray) -> tuple[float, float, float]:
 
 def _time_ratio(mine: dict[str, list], law: dict[str, list]) -> float:
     """A run's mean time to formation over the teams both it and the law formed, over the law's on those teams."""
-    both = [(t, u) for t, u in zip(mine["time_to_formation"], law["time_to_formation"], strict=True)
-            if t is not None and u is not None]
-    return float(np.mean([t for t, _ in both]) / np.mean([u for _, u in both])) if both else float("nan")
+    def times(metrics: dict[str, list]) -> np.ndarray:
+        return np.array([np.nan if t is None else t for t in metrics["time_to_formation"]], float)
+
+    return time_ratio(times(mine), times(law))
 
 
 def leaderboard_rows(data: dict[str, Any], reps: int = 2000) -> list[dict[str, Any]]:

@@ -41,7 +41,8 @@ from scipy import stats
 from .curves import group_labels, group_runs, run_arguments
 from .evaluation import evaluate, law_policy, model_policy
 
-__all__ = ["report", "iqm", "iqm_interval", "markdown", "marl_eval_json", "marl_eval_data", "METRICS", "HELD_OUT_FIRST"]
+__all__ = ["report", "iqm", "iqm_interval", "time_ratio", "markdown", "marl_eval_json", "marl_eval_data", "METRICS",
+           "HELD_OUT_FIRST"]
 
 METRICS = ("success", "time_to_formation", "time_ratio", "return", "cost")
 HELD_OUT_FIRST, HELD_OUT_TEAMS = 2_000_000, 200
@@ -77,6 +78,14 @@ def _held_out(meta: dict[str, Any], first: int, teams: int) -> list[int]:
     return list(range(first, first + teams)) if meta["scenario"] == "random" else [first]
 
 
+def time_ratio(times: np.ndarray, reference_times: np.ndarray) -> float:
+    """A run's mean time to formation over the episodes both it and the reference formed (a time per episode, NaN
+    where not formed), over the reference's mean on those episodes; NaN if they formed none in common."""
+    times, reference_times = np.asarray(times, float), np.asarray(reference_times, float)
+    both = np.isfinite(times) & np.isfinite(reference_times)
+    return float(np.mean(times[both]) / np.mean(reference_times[both])) if both.any() else float("nan")
+
+
 def _scores(result: dict[str, np.ndarray], reference: dict[str, np.ndarray] | None) -> dict[str, float]:
     formed = result["success"]  # the task's own rule: on a moving formation, the error held below 1 cm
     times = np.where(formed, result["time_to_formation"], np.nan)
@@ -85,9 +94,7 @@ def _scores(result: dict[str, np.ndarray], reference: dict[str, np.ndarray] | No
            "return": float(np.mean(result["return"])), "cost": float(np.sum(result["cost"])),
            "time_ratio": float("nan")}
     if reference is not None:
-        both = formed & reference["success"]
-        if both.any():
-            out["time_ratio"] = float(np.mean(times[both]) / np.mean(reference["time_to_formation"][both]))
+        out["time_ratio"] = time_ratio(times, np.where(reference["success"], reference["time_to_formation"], np.nan))
     return out
 
 
