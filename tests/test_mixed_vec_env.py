@@ -101,13 +101,15 @@ def test_training_on_mixed_sizes_logs_one_row_per_team_episode(tmp_path) -> None
     rows = run_benchmark([RING], [f"sb3:{tmp_path / 'run' / 'model.zip'}"], episodes=1, seed=0,
                          shield_settings=(True,), max_steps=3, env_kwargs={"random_options": {"n_arms": 6}})
     assert rows[0]["episodes"] == 1
-    from pan1_env.baselines.report import report
+    from pan1_env.baselines.report import _at_size, report
 
     rows = report([tmp_path / "run"], first=7, teams=2, reps=100, team_size=6)  # the run and the law at 6 arms
     for row in rows:
         options = json.loads(row["task"])[1]["random_options"]  # the env it was evaluated in
         assert (options["n_arms"], options["n_obstacles"]) == (6, 5)  # 3 obstacles per 4 arms, rounded half up
         assert len(next(iter(row["episodes"].values()))["success"]) == 2
+    with pytest.raises(ValueError, match="a team size is a random-team option; this run's scenario is 'paper"):
+        _at_size("paper_pa3_square", {}, 6)
 
 
 def test_the_cli_refuses_bad_team_sizes_in_one_line(capsys) -> None:
