@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pan1_env.bodies import link_obstacle_barrier, link_point_jacobian
+from pan1_env.bodies import closest_point_on_segment, link_point_jacobian, link_segments
 from pan1_env.cascade import passive_velocity_map
 from pan1_env.dynamics import end_effector
 from pan1_env.safety import clearance
@@ -41,16 +41,19 @@ def circulation_term(arm, q, v0, centers, radii, link_radius, links, gain, sense
     """The term added to one arm's velocity command ``v0 (k,)`` (rad/s) at joint angles ``q``: ``sense`` +1
     turns round the obstacles anticlockwise, −1 clockwise; ``links`` whether the bodies are the links (else the
     end-effector)."""
-    if links:
-        bar = link_obstacle_barrier(arm, q, centers, radii, link_radius)  # the closest point of each link
-        gap = np.linalg.norm(bar.point - centers, axis=-1) - radii - link_radius
-        pairs = [(link, o, bar.point[link, o], bar.t[link, o]) for link, o in
+    term = np.zeros_like(v0)
+    if links:  # the closest point of each link to each obstacle; Jacobians only for the pairs in range
+        a, b = link_segments(arm, q)
+        point, t_on = closest_point_on_segment(a[:, None], b[:, None], centers)
+        gap = np.linalg.norm(point - centers, axis=-1) - radii - link_radius
+        pairs = [(link, o, point[link, o], t_on[link, o]) for link, o in
                  zip(*np.nonzero(gap < activation), strict=True)]
     else:
         p = end_effector(arm, q)
         pairs = [(arm.n_links - 1, o, p, 1.0) for o in np.flatnonzero(clearance(p, centers, radii) < activation)]
+    if not pairs:
+        return term
     g0 = passive_velocity_map(arm, q)
-    term = np.zeros_like(v0)
     for link, o, x, t in pairs:
         Jx = link_point_jacobian(arm, q, link, t) @ g0
         rel = x - centers[o]
