@@ -1,8 +1,7 @@
 """pan1-env: multi-arm PAn−1 formation control with robust-CBF safety.
 
-Importing the package registers the Gymnasium ids ``pan1_env/PaperPA3Square-v0``,
-``pan1_env/PaperMixedPA-v0``, ``pan1_env/RandomFormation-v0`` and the one-arm
-``pan1_env/PAReach-v0`` (see :mod:`pan1_env.registration`). The PettingZoo constructors
+Importing the package registers its Gymnasium ids (:data:`ENV_IDS`, listed in :mod:`pan1_env.env_ids`) and the
+one-arm ``pan1_env/PAReach-v0`` (:mod:`pan1_env.registration`). The PettingZoo constructors
 :func:`parallel_env`, :func:`env` and :data:`raw_env` are imported on first use, so
 ``import pan1_env`` stays fast.
 """

@@ -20,9 +20,9 @@ from typing import Any
 import numpy as np
 
 from .control import MAX_JOINT_SPEED
+from .env_ids import DEFAULT_REACH_STEPS, env_arguments
 from .formation import most_neighbours
 from .random_scenario import RandomScenarioOptions
-from .registration import DEFAULT_REACH_STEPS, env_arguments
 from .safety import QP_SOLVERS, FilterParams, filter_parameters
 from .scenario import Scenario, load
 from .team_draw import draw_teams

@@ -235,6 +235,49 @@ def test_no_private_name_is_imported_from_another_module() -> None:
     assert not offenders, f"private names imported across modules: {offenders}"
 
 
+#: The layers, lowest first (docs/ARCHITECTURE.md): a module imports only from its own layer or a lower one. Every
+#: module of the package is in exactly one; ``pan1_env.wrappers`` and ``pan1_env.baselines`` are front ends whole.
+LAYERS = {
+    "reference": ("validation", "dynamics", "cascade", "formation", "motion", "safety", "control", "bodies", "scenario",
+                  "random_scenario", "scenarios"),
+    "compiled": ("kernels", "compiled", "compile_notice", "draw_kernel", "team_draw"),
+    "engine": ("engine", "kinds", "piqp_filter"),
+    "tasks": ("env_ids", "config", "tasks", "observation"),
+    "core": ("core",),
+    "views": ("environment", "centralized", "vector", "reach", "marl", "masked_distribution", "render", "registration",
+              "benchmarl_task", "benchmarl_tasks", "simulation", "experiment"),
+    "front ends": ("", "__main__", "cli", "figures", "warmup", "wrappers", "baselines"),
+}
+
+
+def _layer(module: str) -> int:
+    """The rank of ``module``'s layer in :data:`LAYERS` (a submodule is in its package's layer)."""
+    rest = module.removeprefix("pan1_env").removeprefix(".")
+    top = rest.split(".")[0]  # "" for the package itself
+    for rank, names in enumerate(LAYERS.values()):
+        if top in names:
+            return rank
+    raise KeyError(f"{module} is in no layer of LAYERS: place it (and in docs/ARCHITECTURE.md)")
+
+
+def test_imports_only_go_down_the_layers() -> None:
+    """Every module is in a layer, and no import, at module level or in a function, reaches a higher one."""
+    up = [f"{name} ({list(LAYERS)[_layer(name)]}) imports {target} ({list(LAYERS)[_layer(target)]})"
+          for name, targets in _graph().items() for target in targets if _layer(target) > _layer(name)]
+    assert not up, "imports going up the layers:\n" + "\n".join(sorted(up))
+    assert _layer("pan1_env.kernels.qp") == _layer("pan1_env.compiled") < _layer("pan1_env.config")
+    with pytest.raises(KeyError):
+        _layer("pan1_env.nowhere")
+
+
+def test_the_architecture_page_names_every_module() -> None:
+    """docs/ARCHITECTURE.md's module table names each module of the package (``name`` in backquotes)."""
+    page = (ROOT / "docs" / "ARCHITECTURE.md").read_text()
+    modules = {name.removeprefix("pan1_env.").split(".")[0] for name in _sources()} - {"pan1_env", "__main__"}
+    missing = sorted(m for m in modules if f"`{m}`" not in page)
+    assert not missing, f"modules docs/ARCHITECTURE.md does not name: {missing}"
+
+
 def test_the_reference_layer_imports_nothing_compiled() -> None:
     """Neither directly nor through anything it imports (type-only imports included)."""
     sources = _sources()
