@@ -482,6 +482,11 @@ class CoreView:
         return self.core.n_actuated
 
     @property
+    def dt(self) -> float:
+        """Seconds of simulated time per env step (the config's ``control_dt``), as Gymnasium's MuJoCo envs name it."""
+        return self.core.config.control_dt
+
+    @property
     def num_steps(self) -> int:
         """Steps since copy 0's reset."""
         return int(self.core.steps[0])

@@ -135,6 +135,11 @@ class PAReachEnv(OneCopyGymEnv):
         return self.engine.filter
 
     @property
+    def dt(self) -> float:
+        """Seconds of simulated time per env step (the config's ``control_dt``)."""
+        return self.config.control_dt
+
+    @property
     def goal(self) -> np.ndarray:
         """The current goal point (2,) (a copy)."""
         return self.core.task.goal[0].copy()

@@ -282,3 +282,14 @@ def test_every_view_says_in_its_repr_whether_the_filter_is_on() -> None:
     shielded.reset(seed=0)
     assert "safety_filter=on" in repr(shielded.unwrapped)
     assert "'pan1_env/RandomFormation-v1', copies=3" in repr(Pan1VectorEnv("pan1_env/RandomFormation-v1", 3))
+
+
+def test_every_view_says_its_step_in_seconds() -> None:
+    """``env.dt`` is the simulated time of one step, the config's control_dt, in every view."""
+    from pan1_env.reach import PAReachEnv
+
+    views = [parallel_env("paper_pa3_square", control_dt=0.1), CentralizedEnv("paper_pa3_square", control_dt=0.1),
+             Pan1VectorEnv("paper_pa3_square", 2, control_dt=0.1), PAReachEnv(control_dt=0.1),
+             gymnasium.make("pan1_env/RandomFormation-v1", control_dt=0.1).unwrapped]
+    for env in views:
+        assert env.dt == env.config.control_dt == 0.1, type(env).__name__
