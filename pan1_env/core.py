@@ -482,6 +482,11 @@ class CoreView:
         return self.core.n_actuated
 
     @property
+    def obstacle_centers(self) -> np.ndarray:
+        """Where every copy's obstacles are now, ``(B, O, 2)`` m (a copy: moving obstacles move each sub-step)."""
+        return self.core.engine.centers.copy()
+
+    @property
     def dt(self) -> float:
         """Seconds of simulated time per env step (the config's ``control_dt``), as Gymnasium's MuJoCo envs name it."""
         return self.core.config.control_dt
