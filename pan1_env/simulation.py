@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .control import MAX_JOINT_SPEED, nominal_velocity, within_speed
+from .control import MAX_JOINT_SPEED
 from .engine import Engine, StepRecord
 from .formation import edge_errors, edge_vectors, formation_gradient
 from .motion import MotionTable
 from .scenario import Scenario
+from .tasks import law_velocity
 
 __all__ = ["Simulation", "StepRecord"]
 
@@ -109,13 +110,9 @@ class Simulation:
         distances, ff = self.targets()
         z = edge_vectors(formation.incidence, self.positions())
         e_hat = formation_gradient(formation.incidence, z, edge_errors(z, distances))
-        out = np.zeros((1, self.n_arms, self.k_max))
-        for kind in self.engine.kinds:
-            terms = self.engine.kind_terms(kind)
-            v0 = nominal_velocity(terms.Jbar, e_hat[kind.ids], self.scenario.kp, terms.drift,
-                                  None if self.motion is None else ff[kind.ids])
-            kind.to_team(out, v0 if self.motion is None else within_speed(v0, MAX_JOINT_SPEED))
-        return out[0]
+        moving = self.motion is not None
+        return law_velocity(self.engine, e_hat[None], np.array([self.scenario.kp]), ff[None] if moving else None,
+                            max_speed=MAX_JOINT_SPEED if moving else None)[0]
 
     def step(self, command: np.ndarray, substeps: int, *, torque: bool = False,
              max_speed: float | None = None) -> StepRecord:

@@ -25,9 +25,29 @@ from .safety import clearance
 from .scenario import Scenario
 from .team_draw import TeamDraws
 
-__all__ = ["FormationTask", "ReachTask", "Outcome"]
+__all__ = ["FormationTask", "ReachTask", "Outcome", "law_velocity"]
 
 GOAL_DRAWS = 1000  # attempts at a reach goal clear of the obstacles before giving up
+
+
+def law_velocity(engine: Engine, e_hat: np.ndarray, kp: np.ndarray, feed_forward: np.ndarray | None = None,
+                 gain: np.ndarray | None = None, max_speed: float | None = None) -> np.ndarray:
+    """The paper's distributed law (Eq. 39, :func:`~pan1_env.control.nominal_velocity`) for every arm of every copy of
+    ``engine``, ``(B, N, k_max)`` rad/s (padding zero), from each arm's formation gradient ``e_hat (B, N, 2)`` and each
+    copy's gain ``kp (B,)``: a PAn−1 arm's drift and a moving formation's ``feed_forward (B, N, 2)`` compensated,
+    ``gain (B, N, k_max)`` multiplying each joint's term, and each arm's vector scaled down as a whole to
+    ``max_speed`` (None: unbounded). The one assembly of the law: the envs' and
+    :class:`~pan1_env.simulation.Simulation`'s."""
+    out = np.zeros((engine.copies, engine.n_arms, engine.k_max))
+    for kind in engine.kinds:
+        terms = engine.kind_terms(kind)
+        e = e_hat[:, kind.ids].reshape(-1, 2)
+        ff = None if feed_forward is None else feed_forward[:, kind.ids].reshape(-1, 2)
+        v0 = nominal_velocity(terms.Jbar, e, np.repeat(kp, kind.A)[:, None], terms.drift, ff)
+        if gain is not None:
+            v0 *= kind.from_team(gain, kind.k)
+        kind.to_team(out, v0 if max_speed is None else within_speed(v0, max_speed))
+    return out
 
 
 @dataclass
@@ -180,16 +200,8 @@ class FormationTask:
         self.track(engine)
         z = self.incidence.edge_vectors(engine.positions())  # (B, E, 2)
         e_hat = self.incidence.gradient(z, edge_errors(z, self.distances))  # (B, N, 2)
-        out = np.zeros((engine.copies, engine.n_arms, engine.k_max))
-        for kind in engine.kinds:
-            terms = engine.kind_terms(kind)
-            e = e_hat[:, kind.ids].reshape(-1, 2)
-            ff = None if self.motion is None else self.feed_forward[:, kind.ids].reshape(-1, 2)
-            v0 = nominal_velocity(terms.Jbar, e, np.repeat(self.kp, kind.A)[:, None], terms.drift, ff)
-            if gain is not None:
-                v0 *= kind.from_team(gain, kind.k)
-            kind.to_team(out, within_speed(v0, self.max_joint_speed))
-        return out
+        return law_velocity(engine, e_hat, self.kp, self.feed_forward if self.motion is not None else None, gain,
+                            self.max_joint_speed)
 
     def compose(self, action_mode: str, command: np.ndarray, engine: Engine) -> None:
         """Turn the scaled actions ``command (B, N, k_max)`` into velocities in place: :meth:`add_nominal`
