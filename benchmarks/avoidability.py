@@ -23,7 +23,8 @@ random uniform ones): a search, not a proof. Other arms are not in the way here:
 
 **Classing a task's contacts.** Run as a script, it runs a policy (default: the paper's law) behind the task's
 filter on held-out teams, one team at a time, and judges every spell of contact (an arm's consecutive steps with
-cost) from the state ``--horizon`` s before the spell began (or the episode's start), over a window that lasts
+cost) from the state ``--horizon`` s before the spell began (or the episode's start, or the arm's fault if that came
+later: :func:`judged_from`), over a window that lasts
 ``--after`` s past the contact:
 
     python benchmarks/avoidability.py --task pan1_env/WholeArmFormation-v1 --teams 200 [--first 2000000]
@@ -50,7 +51,7 @@ from pan1_env.bodies import link_clearance, obstacle_centers
 from pan1_env.cascade import joint_velocity, passive_momentum, rk4_step
 from pan1_env.dynamics import ArmParams
 
-__all__ = ["Verdict", "judge", "rollout"]
+__all__ = ["Verdict", "judge", "judged_from", "rollout"]
 
 
 class Verdict(NamedTuple):
@@ -116,6 +117,13 @@ def judge(arm: ArmParams, q: np.ndarray, p1: float, centers: np.ndarray, path_en
     return Verdict(bool(least[best] >= 0.0), float(least[best]), commands[best], len(commands))
 
 
+def judged_from(past, arm: int) -> tuple:
+    """The recorded step a contact of ``arm`` is judged from: the oldest of ``past`` (the steps' starts, each
+    ``(time, q, qd, lost)``, oldest first), or the first at which the arm had lost its actuator if that came later:
+    before the fault the arm was whole, and no command then could plan for a fault it could not know of."""
+    return next((entry for entry in past if entry[3][arm]), past[0])
+
+
 def _spells(env, policy, seed: int, horizon: float, after: float, samples: int) -> list[dict]:
     """Every spell of contact of one team's episode, judged from the state ``horizon`` s before it began."""
     team = env.unwrapped
@@ -136,7 +144,7 @@ def _spells(env, policy, seed: int, horizon: float, after: float, samples: int) 
         cost = np.array([infos[a]["cost"] for a in team.possible_agents]) > 0
         lost = np.array([bool(infos[a].get("actuator_lost", False)) for a in team.possible_agents])
         for i in np.flatnonzero(cost & ~touching):
-            t0, q, qd, was_lost = past[0]
+            t0, q, qd, was_lost = judged_from(past, i)
             arm = scenario.arms[i]
             arm = dataclasses.replace(arm, passive_first_joint=True) if was_lost[i] else arm
             n = arm.n_links

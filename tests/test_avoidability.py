@@ -82,3 +82,13 @@ def test_bad_settings_are_refused() -> None:
     with pytest.raises(ValueError, match="the state must be finite"):
         avoidability.judge(_arm(False), np.array([0.0, np.nan, 0.0]), 0.0, **_crossing(1.0), link_radius=RHO,
                            max_speed=1.0, t0=0.0, window=1.0)
+
+
+def test_a_contact_after_a_fault_is_judged_from_the_fault_not_before_it() -> None:
+    """Of the recorded step starts (time, q, qd, lost per arm), a contact of an arm that faulted inside the window is
+    judged from the first step after its fault; otherwise, and for the other arms, from the oldest step."""
+    past = [(0.1 * k, np.full((2, 3), k), np.zeros((2, 3)), np.array([False, k >= 3])) for k in range(6)]
+    assert avoidability.judged_from(past, 1)[0] == pytest.approx(0.3)
+    assert avoidability.judged_from(past, 0)[0] == 0.0
+    faulted_before = [(t, q, qd, np.array([True, lost[1]])) for t, q, qd, lost in past]
+    assert avoidability.judged_from(faulted_before, 0)[0] == 0.0
