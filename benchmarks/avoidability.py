@@ -29,7 +29,7 @@ later: :func:`judged_from`), over a window that lasts
 
     python benchmarks/avoidability.py --task pan1_env/WholeArmFormation-v1 --teams 200 [--first 2000000]
         [--seeds S,S,…] [--horizon 1.0] [--after 2.0] [--samples 400] [--policy reference]
-        [--out runs/avoidability.json]
+        [--env-kwargs JSON] [--out runs/avoidability.json]
 
 It writes every spell (team, arm, time, verdict, the best clearance found) and prints the counts.
 """
@@ -174,15 +174,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--after", type=float, default=2.0, help="s past the contact the escape must hold")
     parser.add_argument("--samples", type=int, default=400, help="random command sequences per spell")
     parser.add_argument("--policy", default="reference")
+    parser.add_argument("--env-kwargs", default="{}", help="JSON: the env's arguments over the task's (random_options "
+                        "merged key by key), e.g. the soak's shorter steps and earlier faults")
     parser.add_argument("--out", type=Path, default=Path("runs/avoidability.json"))
     args = parser.parse_args(argv)
     if args.teams < 1 or not (args.horizon > 0 and args.after >= 0) or args.samples < 2:
         parser.error("--teams ≥ 1, --horizon > 0, --after ≥ 0 and --samples ≥ 2")
     try:
-        scenario, kwargs = env_arguments(args.task)
+        overrides = json.loads(args.env_kwargs)
+    except json.JSONDecodeError as err:
+        parser.error(f"--env-kwargs is not JSON: {err}")
+    if not isinstance(overrides, dict):
+        parser.error(f"--env-kwargs must be a JSON object, got {args.env_kwargs!r}")
+    try:
+        scenario, kwargs = env_arguments(args.task, overrides)
         env = SafetyShield(parallel_env(scenario, **kwargs))
         policy = make_policy(args.policy, env, 0)
-    except ValueError as err:
+    except (TypeError, ValueError) as err:
         parser.error(str(err))
     try:
         seeds = ([int(x) for x in args.seeds.split(",") if x.strip()] if args.seeds
@@ -194,9 +202,10 @@ def main(argv: list[str] | None = None) -> int:
         spells += _spells(env, policy, seed, args.horizon, args.after, args.samples)
         print(f"team {seed}: {len(spells)} spells so far", file=sys.stderr, flush=True)
     avoidable = sum(s["avoidable"] for s in spells)
-    summary = {"task": args.task, "policy": args.policy, "seeds": seeds, "horizon_s": args.horizon,
-               "after_s": args.after, "samples": args.samples, "spells": len(spells), "avoidable": avoidable,
-               "no_escape_found": len(spells) - avoidable, "command": " ".join(["python", *sys.argv])}
+    summary = {"task": args.task, "env_kwargs": overrides, "policy": args.policy, "seeds": seeds,
+               "horizon_s": args.horizon, "after_s": args.after, "samples": args.samples, "spells": len(spells),
+               "avoidable": avoidable, "no_escape_found": len(spells) - avoidable,
+               "command": " ".join(["python", *sys.argv])}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(summary | {"events": spells}, indent=1) + "\n")
     print(json.dumps(summary, indent=1))

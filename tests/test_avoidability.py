@@ -92,3 +92,11 @@ def test_a_contact_after_a_fault_is_judged_from_the_fault_not_before_it() -> Non
     assert avoidability.judged_from(past, 0)[0] == 0.0
     faulted_before = [(t, q, qd, np.array([True, lost[1]])) for t, q, qd, lost in past]
     assert avoidability.judged_from(faulted_before, 0)[0] == 0.0
+
+
+@pytest.mark.parametrize("env_kwargs, message", [("[1]", "must be a JSON object"), ("{bad", "is not JSON"),
+                                                 ('{"bogus": 1}', "unknown argument 'bogus'")])
+def test_the_script_refuses_bad_env_arguments_in_one_line(env_kwargs, message, capsys) -> None:
+    with pytest.raises(SystemExit) as exit_:
+        avoidability.main(["--task", "pan1_env/FaultFormation-v0", "--teams", "1", "--env-kwargs", env_kwargs])
+    assert exit_.value.code == 2 and message in capsys.readouterr().err
