@@ -42,6 +42,8 @@ EPISODE_METRICS = ("success", "time_to_formation", "cost", "min_clearance", "int
 _PPO = {"gamma": 0.995, "n_steps": 2000, "batch_size": 4000, "n_epochs": 5, "policy_kwargs": {"log_std_init": -1.0}}
 _SHARED = {"param_sharing": True, "n_envs": 16, "env_kwargs": {"success_bonus": 1.0, "action_mode": "gain"},
            "algo_kwargs": _PPO, "checkpoint_every": 512_000, "eval_every": 1_024_000}
+# fewer held-out teams than this run in-process: starting spawned workers (each importing numba's kernels) costs more
+_POOL_MIN_TEAMS = 16
 
 
 @dataclass(frozen=True)
@@ -187,7 +189,7 @@ def _per_team(task: SuiteTask, policy_name: str, seeds: list[int], extra: dict[s
     size = max(1, math.ceil(len(seeds) / (4 * workers)))
     chunks = [seeds[k:k + size] for k in range(0, len(seeds), size)]
     done: dict[int, list[dict]] = {}
-    if workers == 1 or len(seeds) < 16:  # a few teams: not worth starting processes
+    if workers == 1 or len(seeds) < _POOL_MIN_TEAMS:
         for k, chunk in enumerate(chunks):
             done[k] = _team_episodes(task.env_id, task.env_kwargs | extra, policy_name, chunk)
             tick(len(chunk))

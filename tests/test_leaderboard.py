@@ -155,6 +155,41 @@ def test_the_batched_law_and_the_law_one_team_at_a_time_score_alike() -> None:
         assert (t is None) == (u is None) and (t is None or abs(t - u) <= 0.5)
 
 
+def test_the_worker_pool_scores_the_circulation_rule_as_one_process_does(monkeypatch) -> None:
+    """The rule runs one team at a time; with --workers > 1 spawned processes share the teams. Two teams in two
+    workers (the pool is lowered to start at 2 teams) give what one process gives, team for team and in order."""
+    from concurrent import futures
+
+    from pan1_env.cli import QUICK_STEPS, QUICK_TEAMS
+
+    task, circulation = suite_task("pan1_env/WholeArmStaticFormation-v1"), board.entry("circulation")
+    pools = []
+
+    class Pool(futures.ProcessPoolExecutor):  # the real pool, counted: the test must reach it
+        def __init__(self, workers, **kwargs) -> None:
+            pools.append(workers)
+            super().__init__(workers, **kwargs)
+
+    monkeypatch.setattr(futures, "ProcessPoolExecutor", Pool)
+    monkeypatch.setattr(board, "_POOL_MIN_TEAMS", QUICK_TEAMS)
+
+    def scores(workers: int) -> dict[str, list]:
+        data = board.run_suite([task], [circulation], teams=QUICK_TEAMS, max_steps=QUICK_STEPS, workers=workers,
+                               bar=False)
+        return data["raw"]["pan1_env"][task.env_id]["circulation"]["seed_0"]["absolute_metrics"]
+
+    alone = scores(1)
+    assert pools == []
+    pooled = scores(2)
+    assert pools == [2]
+    assert set(pooled) == set(alone) and all(len(v) == QUICK_TEAMS for v in pooled.values())
+    assert pooled["success"] == alone["success"]
+    for key in board.EPISODE_METRICS[1:]:
+        for p, a in zip(pooled[key], alone[key], strict=True):
+            assert (p is None) == (a is None), key
+            assert p is None or p == pytest.approx(a, abs=1e-9), key
+
+
 @pytest.mark.slow
 def test_the_quick_suite_writes_its_table_json_figures_and_page(tmp_path) -> None:
     pytest.importorskip("rliable")
