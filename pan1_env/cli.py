@@ -164,7 +164,8 @@ def _parser() -> argparse.ArgumentParser:
                        help="comma-separated scenario names, paths, 'random' or team ids of "
                             "pan1_env.ENV_IDS (pan1_env/WholeArmStaticFormation-v0)")
     bench.add_argument("--policies", default="reference,zero,random",
-                       help="comma-separated: reference, zero, random, adversarial, sb3:PATH, pretrained "
+                       help="comma-separated: reference, circulation (the law turning round obstacles), zero, random, "
+                            "adversarial, sb3:PATH, pretrained "
                             "(the shipped centralised model trained for each scenario's task), marl (the shipped "
                             "decentralised one: a network shared by the arms), pretrained:NAME, or names "
                             "registered with pan1_env.baselines.register_policy")
