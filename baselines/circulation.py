@@ -105,7 +105,7 @@ class CirculatingPolicy:
             self.arms = [{"sense": self.sense, "acting": 0.0, "pause": 0.0, "flipped": False}
                          for _ in team.possible_agents]
         q = team.joint_state()[0]
-        centers, radii = team.obstacle_centers[0], team.scenario.obstacles.radii  # where they are now, if they move
+        centers, radii = team.obstacle_centers_now[0], scenario.obstacles.radii  # where they are now, if they move
         for i, agent in enumerate(team.possible_agents):
             arm = self.arms[i]
             v0 = np.asarray(actions[agent], float) * speed

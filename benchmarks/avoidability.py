@@ -125,7 +125,9 @@ def judged_from(past, arm: int) -> tuple:
 
 
 def _spells(env, policy, seed: int, horizon: float, after: float, samples: int) -> list[dict]:
-    """Every spell of contact of one team's episode, judged from the state ``horizon`` s before it began."""
+    """Every spell of contact of one team's episode, judged from the state :func:`judged_from` picks. An arm whose
+    actuator failed within the very step of the contact has no state after its fault before the contact: its
+    spell is recorded, not judged (``avoidable`` None)."""
     team = env.unwrapped
     obs, _ = env.reset(seed=seed)
     scenario, dt = team.scenario, team.control_dt
@@ -145,6 +147,10 @@ def _spells(env, policy, seed: int, horizon: float, after: float, samples: int) 
         lost = np.array([bool(infos[a].get("actuator_lost", False)) for a in team.possible_agents])
         for i in np.flatnonzero(cost & ~touching):
             t0, q, qd, was_lost = judged_from(past, i)
+            if lost[i] and not was_lost[i]:  # the fault and the contact in one step
+                out.append({"team": seed, "arm": int(i), "contact_s": step * dt, "from_s": None, "faulted": True,
+                            "avoidable": None, "best_clearance_m": None})
+                continue
             arm = scenario.arms[i]
             arm = dataclasses.replace(arm, passive_first_joint=True) if was_lost[i] else arm
             n = arm.n_links
@@ -184,8 +190,8 @@ def main(argv: list[str] | None = None) -> int:
         overrides = json.loads(args.env_kwargs)
     except json.JSONDecodeError as err:
         parser.error(f"--env-kwargs is not JSON: {err}")
-    if not isinstance(overrides, dict):
-        parser.error(f"--env-kwargs must be a JSON object, got {args.env_kwargs!r}")
+    if not isinstance(overrides, dict) or "scenario" in overrides:
+        parser.error(f"--env-kwargs must be a JSON object without 'scenario' (--task says it), got {args.env_kwargs!r}")
     try:
         scenario, kwargs = env_arguments(args.task, overrides)
         env = SafetyShield(parallel_env(scenario, **kwargs))
@@ -201,10 +207,12 @@ def main(argv: list[str] | None = None) -> int:
     for seed in seeds:
         spells += _spells(env, policy, seed, args.horizon, args.after, args.samples)
         print(f"team {seed}: {len(spells)} spells so far", file=sys.stderr, flush=True)
-    avoidable = sum(s["avoidable"] for s in spells)
+    avoidable = sum(s["avoidable"] is True for s in spells)
+    unjudged = sum(s["avoidable"] is None for s in spells)
     summary = {"task": args.task, "env_kwargs": overrides, "policy": args.policy, "seeds": seeds,
                "horizon_s": args.horizon, "after_s": args.after, "samples": args.samples, "spells": len(spells),
-               "avoidable": avoidable, "no_escape_found": len(spells) - avoidable,
+               "avoidable": avoidable, "no_escape_found": len(spells) - avoidable - unjudged,
+               "fault_in_the_contact_step": unjudged,
                "command": " ".join(["python", *sys.argv])}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(summary | {"events": spells}, indent=1) + "\n")

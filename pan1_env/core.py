@@ -482,7 +482,7 @@ class CoreView:
         return self.core.n_actuated
 
     @property
-    def obstacle_centers(self) -> np.ndarray:
+    def obstacle_centers_now(self) -> np.ndarray:
         """Where every copy's obstacles are now, ``(B, O, 2)`` m (a copy: moving obstacles move each sub-step)."""
         return self.core.engine.centers.copy()
 

@@ -293,3 +293,22 @@ def test_every_view_says_its_step_in_seconds() -> None:
              gymnasium.make("pan1_env/RandomFormation-v1", control_dt=0.1).unwrapped]
     for env in views:
         assert env.dt == env.config.control_dt == 0.1, type(env).__name__
+
+
+def test_obstacle_centers_now_follow_the_moving_obstacles_and_are_a_copy() -> None:
+    """Where the obstacles are after some steps of a moving-obstacle task: the scenario's paths at the elapsed time,
+    as :func:`pan1_env.bodies.obstacle_centers` (the reference) puts them; changing the array changes nothing."""
+    from pan1_env.bodies import obstacle_centers
+
+    env = parallel_env("random", random_options={"bodies": "links", "link_radius": 0.03, "obstacle_speed": (0.1, 0.2)},
+                       control_dt=0.05)
+    env.reset(seed=3)
+    for _ in range(10):
+        env.step({a: np.zeros(env.action_space(a).shape) for a in env.agents})
+    sc = env.scenario
+    now = env.obstacle_centers_now
+    expected = obstacle_centers(sc.obstacles.centers, sc.obstacle_paths, sc.obstacle_speeds, 10 * env.dt)
+    np.testing.assert_allclose(now[0], expected, atol=1e-9)
+    assert not np.allclose(now[0], sc.obstacles.centers)
+    now[:] = 0.0
+    np.testing.assert_allclose(env.obstacle_centers_now[0], expected, atol=1e-9)

@@ -94,6 +94,7 @@ def _vector_soak(mode: str, B: int, steps: int, seed: int) -> dict:
              "fallback_copy_steps": 0, "non_finite": 0, "min_clearance_m": float("inf")}
     inside = np.zeros(B, dtype=bool)
     rss_after_warmup = None
+    warm = max(steps // 10, 2 * 200)  # past the first autoresets' one-time allocations
     for t in range(steps):
         actions = rng.uniform(-1.0, 1.0, venv.action_space.shape)
         actions[adversarial] = adversary(obs)[adversarial]
@@ -101,7 +102,7 @@ def _vector_soak(mode: str, B: int, steps: int, seed: int) -> dict:
         inside = _count_step(stats, venv, obs, infos, inside) & ~(terminated | truncated)
         stats["cost"] += float(infos["cost"].sum())
         stats["episodes"] += int((terminated | truncated).sum())
-        if rss_after_warmup is None and t == steps // 10:
+        if rss_after_warmup is None and t == warm:
             rss_after_warmup = _rss_mb()
     stats["rss_growth_after_warmup_mb"] = _rss_mb() - rss_after_warmup
     return stats
@@ -111,18 +112,19 @@ def test_soak_one_million_shielded_arm_steps(capsys) -> None:
     """10⁶ arm-steps of random 4-arm teams (PA and fully actuated arms of 2–4 links, point obstacles) behind the
     paper's filter, half in velocity mode and half in torque mode, batched: no contact at all, no non-finite
     value, bounded memory. Then the PettingZoo view (shield wrapper, per-agent dicts) over 10⁵ arm-steps of
-    random and adversarial episodes, one team at a time: the same, and no numerical fault reported."""
+    random and adversarial episodes in both modes, one team at a time: the same, and no numerical fault reported."""
     B = 64
     steps = -(-ARM_STEPS // (2 * B * TEAM["n_arms"]))
     parts = [_vector_soak("velocity", B, steps, 0), _vector_soak("torque", B, steps, 100_000)]
-    pettingzoo = _soak("velocity", ARM_STEPS // 10, 200_000)
+    pettingzoo = [_soak("velocity", ARM_STEPS // 20, 200_000), _soak("torque", ARM_STEPS // 20, 300_000)]
     with capsys.disabled():
         print("\nsoak:", json.dumps({"velocity": parts[0], "torque": parts[1], "pettingzoo": pettingzoo}))
-    assert sum(p["arm_steps"] for p in parts) >= ARM_STEPS and pettingzoo["arm_steps"] >= ARM_STEPS // 10
-    for stats in (*parts, pettingzoo):
+    assert sum(p["arm_steps"] for p in parts) >= ARM_STEPS
+    assert sum(p["arm_steps"] for p in pettingzoo) >= ARM_STEPS // 10
+    for stats in (*parts, *pettingzoo):
         assert stats["cost"] == 0.0 and stats["min_clearance_m"] >= 0.0, stats
         assert stats["non_finite"] == 0 and stats["rss_growth_after_warmup_mb"] < 100.0, stats
-    assert pettingzoo["faults"] == 0
+    assert all(p["faults"] == 0 for p in pettingzoo)
 
 
 @pytest.mark.parametrize("env_id", ["pan1_env/WholeArmFormation-v0", "pan1_env/WholeArmFormation-v1"])
