@@ -167,6 +167,7 @@ def _spells(env, policy, seed: int, horizon: float, after: float, samples: int) 
 
 def main(argv: list[str] | None = None) -> int:
     from pan1_env.baselines.policies import make_policy
+    from pan1_env.cli import json_object
     from pan1_env.environment import parallel_env
     from pan1_env.registration import env_arguments
     from pan1_env.wrappers import SafetyShield
@@ -180,18 +181,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--after", type=float, default=2.0, help="s past the contact the escape must hold")
     parser.add_argument("--samples", type=int, default=400, help="random command sequences per spell")
     parser.add_argument("--policy", default="reference")
-    parser.add_argument("--env-kwargs", default="{}", help="JSON: the env's arguments over the task's (random_options "
-                        "merged key by key), e.g. the soak's shorter steps and earlier faults")
+    parser.add_argument("--env-kwargs", type=json_object, default={}, metavar="JSON",
+                        help="the env's arguments over the task's (random_options merged key by key), e.g. the soak's "
+                             "shorter steps and earlier faults")
     parser.add_argument("--out", type=Path, default=Path("runs/avoidability.json"))
     args = parser.parse_args(argv)
     if args.teams < 1 or not (args.horizon > 0 and args.after >= 0) or args.samples < 2:
         parser.error("--teams ≥ 1, --horizon > 0, --after ≥ 0 and --samples ≥ 2")
-    try:
-        overrides = json.loads(args.env_kwargs)
-    except json.JSONDecodeError as err:
-        parser.error(f"--env-kwargs is not JSON: {err}")
-    if not isinstance(overrides, dict) or "scenario" in overrides:
-        parser.error(f"--env-kwargs must be a JSON object without 'scenario' (--task says it), got {args.env_kwargs!r}")
+    overrides = args.env_kwargs
+    if "scenario" in overrides:
+        parser.error("--env-kwargs cannot set the scenario: name it in --task")
     try:
         scenario, kwargs = env_arguments(args.task, overrides)
         env = SafetyShield(parallel_env(scenario, **kwargs))

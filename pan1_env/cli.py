@@ -30,7 +30,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-__all__ = ["main"]
+__all__ = ["main", "json_object"]
 
 PAPER_SCENARIOS = ("paper_pa3_square", "paper_pa_mixed_square")
 
@@ -145,9 +145,9 @@ def _parser() -> argparse.ArgumentParser:
                          "of it; default: %(default)s)")
     tr.add_argument("--normalize", action=argparse.BooleanOptionalAction, default=True,
                     help="standardise observations and scale rewards (SB3's VecNormalize, saved in model.json)")
-    tr.add_argument("--env-kwargs", type=_json_object, default=None, metavar="JSON",
+    tr.add_argument("--env-kwargs", type=json_object, default=None, metavar="JSON",
                     help="extra env arguments, e.g. '{\"success_bonus\": 1.0}' (see help(pan1_env.parallel_env))")
-    tr.add_argument("--algo-kwargs", type=_json_object, default=None, metavar="JSON",
+    tr.add_argument("--algo-kwargs", type=json_object, default=None, metavar="JSON",
                     help="extra arguments of the SB3 algorithm, e.g. '{\"gamma\": 0.995}' (policy_kwargs too)")
     tr.add_argument("--eval-every", type=_positive_int, default=None, metavar="STEPS",
                     help="evaluate the deterministic policy on held-out teams every STEPS steps (eval.csv)")
@@ -177,7 +177,7 @@ def _parser() -> argparse.ArgumentParser:
                        help="run every policy with the safety shield, without it, or both")
     bench.add_argument("--max-steps", type=_positive_int, default=None,
                        help="env steps per episode (default: the env's max_steps)")
-    bench.add_argument("--env-kwargs", type=_json_object, default=None, metavar="JSON",
+    bench.add_argument("--env-kwargs", type=json_object, default=None, metavar="JSON",
                        help="extra env arguments for every scenario, on top of a team id's options, e.g. "
                             "'{\"random_options\": {\"formation_turn\": [-0.5, 0.5]}}'")
     bench.add_argument("--out", type=Path, default=Path("runs/benchmark"), help="output directory")
@@ -244,7 +244,8 @@ def _parser() -> argparse.ArgumentParser:
 QUICK_TEAMS, QUICK_STEPS = 2, 150  #: pan1-env suite --quick: a check of the whole pipeline in about a minute
 
 
-def _json_object(text: str) -> dict:
+def json_object(text: str) -> dict:
+    """An argparse type: ``text`` parsed as a JSON object (``--env-kwargs``, ``--algo-kwargs``), refused in one line."""
     try:
         value = json.loads(text)
     except json.JSONDecodeError as err:

@@ -94,8 +94,9 @@ def test_a_contact_after_a_fault_is_judged_from_the_fault_not_before_it() -> Non
     assert avoidability.judged_from(faulted_before, 0)[0] == 0.0
 
 
-@pytest.mark.parametrize("env_kwargs, message", [("[1]", "must be a JSON object"), ("{bad", "is not JSON"),
-                                                 ('{"scenario": "random"}', "without 'scenario'"),
+@pytest.mark.parametrize("env_kwargs, message", [("[1]", "expected a JSON object such as"),
+                                                 ("{bad", "expected a JSON object, got"),
+                                                 ('{"scenario": "random"}', "cannot set the scenario"),
                                                  ('{"bogus": 1}', "unknown argument 'bogus'")])
 def test_the_script_refuses_bad_env_arguments_in_one_line(env_kwargs, message, capsys) -> None:
     with pytest.raises(SystemExit) as exit_:
