@@ -31,5 +31,7 @@ def training_command(run: dict[str, Any], out: str | Path = "runs/train", *, tim
                         ("--lagrangian-lr", "lagrangian_lr")):
         if key in run:
             words += [option, str(run[key])]
+    if run.get("team_sizes"):
+        words += ["--team-sizes", ",".join(str(n) for n in run["team_sizes"])]
     words += ["--timesteps", str(run["timesteps"] if timesteps is None else timesteps), "--out", str(out)]
     return shlex.join([*words, *(["--resume"] if resume else [])])

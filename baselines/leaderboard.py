@@ -57,10 +57,16 @@ class Entry:
     policy: str | None = None
     recipe: dict[str, Any] | None = None
     tasks: tuple[str, ...] | None = None
+    trained_on: str | None = None
 
     def enters(self, task: SuiteTask) -> bool:
         """Whether the entry is scored on the task."""
         return self.tasks is None or task.env_id in self.tasks
+
+    def training_task(self, task: SuiteTask) -> SuiteTask:
+        """The task whose seeds, budget and runs serve this one: the task itself, or for a learner trained on one
+        task and judged on others (``trained_on``, e.g. teams of several sizes) that task."""
+        return task if self.trained_on is None else suite_task(self.trained_on)
 
 
 ENTRIES = (
@@ -78,6 +84,10 @@ ENTRIES = (
           recipe={"algo": "ppo-lagrangian", "shield": False, "centralised_critic": True, "cost_limit": 1.0, **_SHARED}),
     Entry("ippo-unshielded", "IPPO without the shield and without a cost",
           recipe={"algo": "ppo", "shield": False, **_SHARED}),
+    Entry("ippo-sizes", "IPPO behind the shield on ring teams of 3 to 8 arms in the same rollouts: one network "
+                        "for a team of any size, judged at 4 and 16 arms",
+          recipe={"algo": "ppo", "shield": True, **_SHARED, "n_envs": 4, "team_sizes": [3, 4, 5, 6, 7, 8]},
+          tasks=("pan1_env/RandomFormation-v2", "pan1_env/LargeFormation-v0"), trained_on="pan1_env/RandomFormation-v2"),
 )
 
 
@@ -90,13 +100,14 @@ def entry(name: str) -> Entry:
 
 
 def task_dir(runs: str | Path, entry_: Entry, task: SuiteTask) -> Path:
-    """Where a learner's runs on a task live: ``<runs>/<entry>/<task id without the prefix>``."""
-    return Path(runs) / entry_.name / task.env_id.split("/")[-1]
+    """Where a learner's runs on a task live: ``<runs>/<entry>/<id of the task it trains on, without the prefix>``."""
+    return Path(runs) / entry_.name / entry_.training_task(task).env_id.split("/")[-1]
 
 
 def finished_runs(runs: str | Path, entry_: Entry, task: SuiteTask) -> list[Path]:
-    """The finished runs (``model.zip`` written) of the task's training seeds, in seed order."""
-    return [d for s in task.train_seeds if (d := task_dir(runs, entry_, task) / f"seed_{s}" / "model.zip").is_file()]
+    """The finished runs (``model.zip`` written) of the training seeds, in seed order."""
+    seeds = entry_.training_task(task).train_seeds
+    return [d for s in seeds if (d := task_dir(runs, entry_, task) / f"seed_{s}" / "model.zip").is_file()]
 
 
 def _recipe_of(run: dict[str, Any], task: SuiteTask) -> tuple:
@@ -111,7 +122,8 @@ def _recipe_of(run: dict[str, Any], task: SuiteTask) -> tuple:
     lagrangian = (run.get("cost_limit", 1.0), run.get("lagrangian_lr", 0.01)) if algo == "ppo-lagrangian" else None
     return (algo, bool(run.get("shield", True)), bool(run.get("param_sharing")), bool(run.get("centralised_critic")),
             run.get("n_envs"), json.dumps(run.get("algo_kwargs"), sort_keys=True), bool(run.get("normalize", True)),
-            lagrangian, run.get("critic_warmup", 0) or 0, run.get("team_sizes"), run.get("timesteps", task.train_steps),
+            lagrangian, run.get("critic_warmup", 0) or 0, tuple(run.get("team_sizes") or ()),
+            run.get("timesteps", task.train_steps),
             json.dumps(env, sort_keys=True))
 
 
@@ -127,7 +139,8 @@ def shipped_model(entry_: Entry, task: SuiteTask) -> str | None:
     scenario, kwargs = env_arguments(task.env_id, task.env_kwargs)
     for name, meta in available().items():
         run = meta.get("provenance", {}).get("run", {})
-        if _recipe_of(run, task) == _recipe_of(entry_.recipe, task) and serves(meta, scenario, kwargs):
+        trained = entry_.training_task(task)
+        if _recipe_of(run, trained) == _recipe_of(entry_.recipe, trained) and serves(meta, scenario, kwargs):
             return name
     return None
 
@@ -229,7 +242,8 @@ def _learned_runs(runs: str | Path, entry_: Entry, task: SuiteTask) -> list[tupl
     found = [(int(m.parent.name.removeprefix("seed_")), m) for m in finished_runs(runs, entry_, task)]
     for seed, model in found:
         run = json.loads((model.parent / "run.json").read_text())
-        if _recipe_of(run, task) != _recipe_of(entry_.recipe, task) or run.get("seed") != seed:
+        trained = entry_.training_task(task)
+        if _recipe_of(run, trained) != _recipe_of(entry_.recipe, trained) or run.get("seed") != seed:
             raise ValueError(f"{model.parent}: not a run of {entry_.name}'s recipe with seed {seed} "
                              f"(its run.json: {json.dumps(run, sort_keys=True)}); pan1-env suite --train writes them")
         if not _trained_for(model, task):
@@ -310,11 +324,13 @@ def train_entry(entry_: Entry, task: SuiteTask, *, runs: str | Path = "runs/suit
                 progress: bool = True, say: Callable[[str], None] = print) -> list[dict[str, Any]]:
     """Train a learner's recipe on a task, one run per seed (default: the task's training seeds), each into
     ``<runs>/<entry>/<task>/seed_<s>``, continuing from its newest checkpoint if it has one; a finished run is
-    left as it is. Returns the summaries of the runs trained."""
+    left as it is. An entry trained on another task than it is judged on trains there (:meth:`Entry.training_task`).
+    Returns the summaries of the runs trained."""
     from .training import latest_checkpoint, train
 
     if entry_.recipe is None:
         raise ValueError(f"entry {entry_.name!r} is not trained: it is the policy {entry_.policy!r}")
+    task = entry_.training_task(task)
     recipe = dict(entry_.recipe)
     recipe["env_kwargs"] = recipe.get("env_kwargs", {}) | task.env_kwargs  # the task's arguments are every entry's
     seeds = task.train_seeds if seeds is None else seeds

@@ -219,6 +219,8 @@ def package_model(run_dir: str | Path, name: str, steps: int | None = None, dest
     except PackageNotFoundError:  # pragma: no cover - a source tree that is not installed
         package_version = "unknown"
     meta = json.loads(model.with_suffix(".json").read_text())
+    if run.get("team_sizes"):  # what makes it serve a team of any size: a model.json may predate recording it
+        meta["team_sizes"] = list(run["team_sizes"])
     meta["provenance"] = {"run": run, "command": training_command(run, f"runs/{name}"),
                           "steps": steps or run["timesteps"], "package_version": package_version,
                           "evaluation": evaluation}

@@ -130,6 +130,11 @@ class Pan1TorchRLEnv(EnvBase):
         return len(self.core.agents)
 
     @property
+    def dt(self) -> float:
+        """Seconds of simulated time per env step (the config's ``control_dt``), as the other views give it."""
+        return self.core.config.control_dt
+
+    @property
     def done_key(self) -> str:
         """``"done"``, a copy's end, which every arm shares (``("arms", "done")`` repeats it per arm, and TorchRL's
         default accessor would refuse to choose among the six done entries)."""

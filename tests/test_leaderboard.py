@@ -117,6 +117,30 @@ def test_train_entry_runs_each_seed_once_and_resumes_from_a_checkpoint(tmp_path,
     assert first["out"] == where / "seed_1"
 
 
+def test_an_entry_for_any_team_size_trains_once_and_is_judged_at_each_size(tmp_path, monkeypatch) -> None:
+    """ippo-sizes trains on RandomFormation-v2's seeds with teams of 3-8 arms, whichever of its tasks is named, and
+    its runs there score both the 4-arm and the 16-arm task; a run of another recipe does not."""
+    import pan1_env.baselines.training as training
+
+    calls = []
+    monkeypatch.setattr(training, "train", lambda **kwargs: calls.append(kwargs) or {"seed": kwargs["seed"]})
+    sizes, large, small = board.entry("ippo-sizes"), suite_task("pan1_env/LargeFormation-v0"), \
+        suite_task("pan1_env/RandomFormation-v2")
+    assert sizes.enters(large) and sizes.enters(small) and not sizes.enters(suite_task(RANDOM))
+    board.train_entry(sizes, large, runs=tmp_path, seeds=[2], say=lambda text: None)
+    (call,) = calls
+    assert call["scenario"] == "pan1_env/RandomFormation-v2" and call["team_sizes"] == [3, 4, 5, 6, 7, 8]
+    assert call["timesteps"] == small.train_steps and call["out"] == board.task_dir(tmp_path, sizes, small) / "seed_2"
+    assert board.task_dir(tmp_path, sizes, large) == board.task_dir(tmp_path, sizes, small)
+    run = {"algo": "ppo", "shield": True, "param_sharing": True, "n_envs": 4, "seed": 2, "normalize": True,
+           "algo_kwargs": sizes.recipe["algo_kwargs"], "team_sizes": [3, 4, 5, 6, 7, 8], "timesteps": 16_368_000,
+           "env_kwargs": {"success_bonus": 1.0, "action_mode": "gain",
+                          "random_options": {"shape": "ring", "arm_redraws": 20}}}
+    trained = sizes.training_task(large)
+    assert board._recipe_of(run, trained) == board._recipe_of(sizes.recipe, trained)
+    assert board._recipe_of(run | {"team_sizes": [4]}, trained) != board._recipe_of(sizes.recipe, trained)
+
+
 def test_a_learners_runs_come_before_its_shipped_model(tmp_path) -> None:
     pytest.importorskip("stable_baselines3")
     from pan1_env.baselines.shipped import PRETRAINED_DIR

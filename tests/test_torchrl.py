@@ -194,6 +194,7 @@ def test_native_env_is_shaped_like_torchrl_multi_agent_envs() -> None:
     assert rollout["next", env.done_key][:, -1].all()
     floats = {key: value.dtype for key, value in rollout.items(True, True) if value.is_floating_point()}
     assert ("next", "arms", "info", "min_clearance") in floats and set(floats.values()) == {torch.float32}
+    assert torchrl_env("paper_pa3_square", control_dt=0.1).dt == 0.1  # seconds per step, as every view says
 
 
 def test_an_unknown_argument_gets_a_did_you_mean() -> None:
