@@ -87,7 +87,8 @@ ENTRIES = (
     Entry("ippo-sizes", "IPPO behind the shield on ring teams of 3 to 8 arms in the same rollouts: one network "
                         "for a team of any size, judged at 4 and 16 arms",
           recipe={"algo": "ppo", "shield": True, **_SHARED, "n_envs": 4, "team_sizes": [3, 4, 5, 6, 7, 8]},
-          tasks=("pan1_env/RandomFormation-v2", "pan1_env/LargeFormation-v0"), trained_on="pan1_env/RandomFormation-v2"),
+          tasks=("pan1_env/RandomFormation-v2", "pan1_env/LargeFormation-v0"),
+          trained_on="pan1_env/RandomFormation-v2"),
 )
 
 

@@ -429,7 +429,9 @@ SHIPPED_TASKS = {"random_formation": "pan1_env/RandomFormation-v0",
                  # decentralised: one network shared by the arms (--param-sharing), picked by `marl`
                  "random_formation_v1_ippo": "pan1_env/RandomFormation-v1",
                  "paper_pa3_square_ippo": "pan1_env/PaperPA3Square-v0",
-                 "paper_pa_mixed_square_ippo": "pan1_env/PaperMixedPA-v0"}
+                 "paper_pa_mixed_square_ippo": "pan1_env/PaperMixedPA-v0",
+                 # trained on ring teams of 3-8 arms at once: serves the task at any size
+                 "random_formation_v2_ippo_sizes": "pan1_env/RandomFormation-v2"}
 
 
 def test_every_shipped_model_has_its_task_listed() -> None:
@@ -451,7 +453,7 @@ def test_each_shipped_model_is_picked_for_its_task_and_runs_there(name) -> None:
     scenario, kwargs = env_arguments(SHIPPED_TASKS[name], {"max_steps": 4})
     env = SafetyShield(parallel_env(scenario, **kwargs))  # velocity mode: the residual models' adapter
     decentralised = bool(shipped.available()[name]["param_sharing"])
-    assert decentralised == name.endswith("_ippo")
+    assert decentralised == ("_ippo" in name)
     assert shipped.model_for(env, decentralised) == name
     assert shipped.describe(shipped.available()[name]) == SHIPPED_TASKS[name]
     policy = make_policy("marl" if decentralised else "pretrained", env)
@@ -464,8 +466,31 @@ def test_each_shipped_model_is_picked_for_its_task_and_runs_there(name) -> None:
     provenance = shipped.available()[name]["provenance"]
     args = _parser().parse_args(shlex.split(provenance["command"])[1:])  # the command that made it parses back
     run = provenance["run"]
-    assert (args.scenario, args.seed, args.timesteps, args.env_kwargs, args.algo_kwargs) == \
-        (run["scenario"], run["seed"], run["timesteps"], run["env_kwargs"], run["algo_kwargs"])
+    assert (args.scenario, args.seed, args.timesteps, args.env_kwargs, args.algo_kwargs, args.team_sizes) == \
+        (run["scenario"], run["seed"], run["timesteps"], run["env_kwargs"], run["algo_kwargs"], run.get("team_sizes"))
+
+
+@pytest.mark.parametrize("n_arms", [16, 32])
+def test_the_model_for_any_team_size_is_picked_and_runs_on_large_teams(n_arms) -> None:
+    """`marl` on a 16-arm LargeFormation-v0 team and a 32-arm RandomFormation-v2 team (24 obstacles, the density
+    it trained at) picks the model trained on 3-8 arms; its actions are in the arms' spaces and the shield keeps
+    the cost at 0."""
+    from pan1_env.baselines import make_policy, shipped
+    from pan1_env.environment import parallel_env
+    from pan1_env.wrappers import SafetyShield
+
+    env_id = "pan1_env/LargeFormation-v0" if n_arms == 16 else "pan1_env/RandomFormation-v2"
+    options = {} if n_arms == 16 else {"random_options": {"n_arms": 32, "n_obstacles": 24}}
+    env = SafetyShield(parallel_env(env_id, max_steps=3, action_mode="gain", **options))
+    assert shipped.model_for(env, decentralised=True) == "random_formation_v2_ippo_sizes"
+    policy = make_policy("marl", env)
+    obs, _ = env.reset(seed=2_000_000)
+    assert len(env.agents) == n_arms
+    for _ in range(3):
+        actions = policy(obs)
+        assert all(env.action_space(a).contains(actions[a]) for a in env.agents)
+        obs, _, _, _, infos = env.step(actions)
+        assert all(infos[a]["cost"] == 0.0 for a in infos)
 
 
 def test_a_file_that_is_not_a_saved_model_is_refused(tmp_path) -> None:
