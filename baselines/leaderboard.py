@@ -227,13 +227,17 @@ def _per_team(task: SuiteTask, policy_name: str, seeds: list[int], extra: dict[s
     return _records(result)
 
 
-def _model(path: Path, seeds: list[int], extra: dict[str, Any]) -> dict[str, list]:
+def _model(path: Path, task: SuiteTask, seeds: list[int], extra: dict[str, Any]) -> dict[str, list]:
+    """A model on the task's teams: the task's scenario and arguments (for a model trained on teams of several
+    sizes, the task's size) over the model's own action and reward arguments."""
+    from pan1_env.registration import env_arguments
+
     from .evaluation import evaluate, model_policy
 
     meta = json.loads(path.with_suffix(".json").read_text())
-    policy, kwargs = model_policy(path)
-    shield = meta.get("shield", True)
-    return _records(evaluate(policy, meta["scenario"], seeds, shield=shield, env_kwargs=kwargs | extra))
+    scenario, task_kwargs = env_arguments(task.env_id, task.env_kwargs)
+    policy, kwargs = model_policy(path, meta.get("env_kwargs", {}) | task_kwargs | extra)
+    return _records(evaluate(policy, scenario, seeds, shield=meta.get("shield", True), env_kwargs=kwargs))
 
 
 def _learned_runs(runs: str | Path, entry_: Entry, task: SuiteTask) -> list[tuple[int, Path, str]]:
@@ -311,7 +315,7 @@ def run_suite(tasks: Sequence[SuiteTask] = SUITE, entries: Sequence[Entry] = ENT
                 elif e.policy is not None:
                     record = _per_team(task, e.policy, seeds, extra, workers, ticks.update)
                 else:
-                    record = _model(model, seeds, extra)
+                    record = _model(model, task, seeds, extra)
                 if e.policy is None or e.policy == "reference":  # batched: the bar moves by the whole run
                     ticks.update(len(seeds))
                 rows.append((task.env_id, e.name, seed, {"absolute_metrics": record}))
