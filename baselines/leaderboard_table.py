@@ -92,7 +92,8 @@ def markdown(rows: Sequence[dict[str, Any]]) -> str:
              "teams both form | cost | min clearance [mm] | steps the shield changed |",
              "|---|---|---:|---|---|---|---|---|---:|---:|"]
     for r in rows:
-        time = _cell(r["time"]) + ("" if r["time_runs"] in (0, r["runs"]) else f" ({r['time_runs']} runs)")
+        some = r["time_runs"] not in (0, r["runs"])  # runs that formed no team have no time
+        time = _cell(r["time"]) + (f" ({r['time_runs']} of {r['runs']} runs)" if some else "")
         clearance = "–" if r["min_clearance"] is None else f"{1000 * r['min_clearance']:+.1f}"
         rate = "–" if r["interventions"] is None else f"{r['interventions']:.1%}"
         lines.append(f"| {r['task']} | {r['entry']} | {r['runs']} | {_cell(r['success'], 100)} | {r['over']} "

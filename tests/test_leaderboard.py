@@ -141,6 +141,27 @@ def test_an_entry_for_any_team_size_trains_once_and_is_judged_at_each_size(tmp_p
     assert board._recipe_of(run | {"team_sizes": [4]}, trained) != board._recipe_of(sizes.recipe, trained)
 
 
+def test_a_model_for_any_team_size_is_scored_on_the_tasks_teams(monkeypatch) -> None:
+    """The shipped model trained on 3-8 arms stands in for ippo-sizes and is scored on LargeFormation-v0's 16-arm
+    teams (the task's options), with its own action and reward arguments."""
+    pytest.importorskip("stable_baselines3")
+    import pan1_env.baselines.evaluation as evaluation
+
+    seen = []
+
+    def fake_evaluate(policy, scenario, seeds, *, shield, env_kwargs):
+        seen.append((scenario, env_kwargs))
+        return {"success": np.zeros(len(seeds))}
+
+    monkeypatch.setattr(evaluation, "evaluate", fake_evaluate)
+    sizes, large = board.entry("ippo-sizes"), suite_task("pan1_env/LargeFormation-v0")
+    assert board.shipped_model(sizes, large) == "random_formation_v2_ippo_sizes"
+    board.run_suite([large], [sizes], runs="/nonexistent", teams=1, max_steps=5)
+    ((scenario, kwargs),) = seen
+    assert scenario == "random" and kwargs["max_steps"] == 5 and kwargs["action_mode"] == "gain"
+    assert (kwargs["random_options"]["n_arms"], kwargs["random_options"]["n_obstacles"]) == (16, 12)
+
+
 def test_a_learners_runs_come_before_its_shipped_model(tmp_path) -> None:
     pytest.importorskip("stable_baselines3")
     from pan1_env.baselines.shipped import PRETRAINED_DIR

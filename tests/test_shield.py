@@ -96,6 +96,22 @@ def test_tightened_set_uses_gamma_margin() -> None:
         SafetyShield(parallel_env("paper_pa3_square"), margin=0.01, tracking_bound=0.1)
 
 
+def test_a_shield_takes_a_whole_filter_params_or_the_settings_not_both() -> None:
+    """``params=FilterParams`` switches on exactly that filter, in both shields; mixing it with a loose setting or
+    passing something else is refused, naming the shield."""
+    from pan1_env.safety import FilterParams
+
+    env = parallel_env("paper_pa3_square")
+    params = FilterParams.of(env.scenario, barrier="distance", decay=50.0)
+    assert SafetyShield(env, params=params).unwrapped.safety_filter == params
+    gym_env = gymnasium.make("pan1_env/PaperPA3Square-v0")
+    assert GymSafetyShield(gym_env, params=params).unwrapped.parallel.safety_filter == params
+    with pytest.raises(ValueError, match="SafetyShield: give params or the settings one by one"):
+        SafetyShield(parallel_env("paper_pa3_square"), kappa=0.5, params=params)
+    with pytest.raises(TypeError, match="GymSafetyShield: params must be a pan1_env.safety.FilterParams, got dict"):
+        GymSafetyShield(gymnasium.make("pan1_env/PaperPA3Square-v0"), params={"kappa": 0.5})
+
+
 def test_gym_shield_reports_and_blocks() -> None:
     env = GymSafetyShield(gymnasium.make("pan1_env/PaperMixedPA-v0", max_steps=150))
     obs, info = env.reset(seed=0)

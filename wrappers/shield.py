@@ -64,12 +64,21 @@ def shield_parameters(scenario, kappa: float | None, epsilon: float | None, marg
                            barrier=barrier, decay=decay, gate=gate)
 
 
-def _switch_on(core, kappa, epsilon, margin, tracking_bound, sensing_radius, barrier, decay, gate) -> None:
-    """Switch the filter on through the env's public :meth:`set_safety_filter`."""
+def _switch_on(core, owner: str, params: FilterParams | None, kappa, epsilon, margin, tracking_bound, sensing_radius,
+               barrier, decay, gate) -> None:
+    """Switch the filter on through the env's public :meth:`set_safety_filter`: ``params`` as they are, or the
+    scenario's settings with the loose ones replaced (not both)."""
     if core.safety_filter is not None:
         raise ValueError("this env is already shielded; wrap it once")
-    core.set_safety_filter(shield_parameters(core.scenario, kappa, epsilon, margin, tracking_bound, sensing_radius,
-                                             barrier=barrier, decay=decay, gate=gate))
+    if params is None:
+        params = shield_parameters(core.scenario, kappa, epsilon, margin, tracking_bound, sensing_radius,
+                                   barrier=barrier, decay=decay, gate=gate)
+    elif not isinstance(params, FilterParams):
+        raise TypeError(f"{owner}: params must be a pan1_env.safety.FilterParams, got {type(params).__name__}")
+    elif any(v is not None for v in (kappa, epsilon, margin, tracking_bound, sensing_radius, barrier, decay, gate)):
+        raise ValueError(f"{owner}: give params or the settings one by one (kappa=…, barrier=…), not both: "
+                         "FilterParams.of(env.unwrapped.scenario, …) builds params from the scenario's")
+    core.set_safety_filter(params)
 
 
 class SafetyShield(BaseParallelWrapper):
@@ -89,17 +98,20 @@ class SafetyShield(BaseParallelWrapper):
             (docs/MODEL.md §5a; default: the scenario's, the paper's "squared" and 0).
         gate: width (m) of the smooth activation past the sensing range (0: a hard range; default: the
             scenario's); needs whole-arm bodies or ``sensing_radius``, and the env's speed bound.
+        params: a whole :class:`~pan1_env.safety.FilterParams` instead of the settings above (one object to
+            sweep a filter's design with, e.g. ``FilterParams.of(scenario, barrier="distance", decay=50)``).
     """
 
     def __init__(self, env, kappa: float | None = None, epsilon: float | None = None,
                  margin: float | None = None, tracking_bound: float | None = None,
                  sensing_radius: float | None = None, *, barrier: str | None = None,
-                 decay: float | None = None, gate: float | None = None) -> None:
+                 decay: float | None = None, gate: float | None = None, params: FilterParams | None = None) -> None:
         super().__init__(env)
         core = env.unwrapped
         if not hasattr(core, "set_safety_filter"):
             raise TypeError(f"SafetyShield wraps a pan1_env parallel env, got {type(core).__name__}")
-        _switch_on(core, kappa, epsilon, margin, tracking_bound, sensing_radius, barrier, decay, gate)
+        _switch_on(core, "SafetyShield", params, kappa, epsilon, margin, tracking_bound, sensing_radius, barrier,
+                   decay, gate)
 
 
 class GymSafetyShield(gymnasium.Wrapper):
@@ -111,10 +123,11 @@ class GymSafetyShield(gymnasium.Wrapper):
     def __init__(self, env: gymnasium.Env, kappa: float | None = None, epsilon: float | None = None,
                  margin: float | None = None, tracking_bound: float | None = None,
                  sensing_radius: float | None = None, *, barrier: str | None = None,
-                 decay: float | None = None, gate: float | None = None) -> None:
+                 decay: float | None = None, gate: float | None = None, params: FilterParams | None = None) -> None:
         super().__init__(env)
         inner = env.unwrapped
         if not hasattr(inner, "parallel"):
             hint = " (PAReachEnv has the filter built in: safety_filter=True)" if hasattr(inner, "arm_index") else ""
             raise TypeError(f"GymSafetyShield wraps a pan1_env team Gymnasium env, got {type(inner).__name__}{hint}")
-        _switch_on(inner.parallel, kappa, epsilon, margin, tracking_bound, sensing_radius, barrier, decay, gate)
+        _switch_on(inner.parallel, "GymSafetyShield", params, kappa, epsilon, margin, tracking_bound, sensing_radius,
+                   barrier, decay, gate)
