@@ -156,6 +156,9 @@ def _imports(name: str, path: Path, modules: set[str], runtime_only: bool = True
         if isinstance(node, ast.Import):
             for alias in node.names:
                 yield alias.name, "", node.lineno
+        elif (isinstance(node, ast.Call) and _called_name(node.func) == "import_module" and node.args
+              and isinstance(node.args[0], ast.Constant) and isinstance(node.args[0].value, str)):
+            yield node.args[0].value, "", node.lineno  # importlib.import_module("pan1_env.x"): an import all the same
         elif strings and isinstance(node, ast.Constant) and isinstance(node.value, str):
             entry = _ENTRY_POINT.match(node.value)  # "pan1_env.x:name": x imported when the name is called for
             if entry:
@@ -168,6 +171,11 @@ def _imports(name: str, path: Path, modules: set[str], runtime_only: bool = True
             for alias in node.names:
                 sub = f"{base}.{alias.name}"
                 yield (sub, "", node.lineno) if sub in modules else (base, alias.name, node.lineno)
+
+
+def _called_name(func: ast.expr) -> str:
+    """The name a call calls: ``f`` for ``f(…)`` and ``m.f(…)``."""
+    return func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
 
 
 def _graph(strings: bool = False) -> dict[str, set[str]]:
@@ -221,6 +229,7 @@ def test_the_graph_sees_the_installed_names_and_every_kind_of_import() -> None:
     assert "pan1_env.safety" in graph["pan1_env.kernels.qp"]  # relative, two levels up
     assert "pan1_env.kernels.capsules" in graph["pan1_env.kernels"]  # from . import capsules
     assert "pan1_env.environment" in graph["pan1_env.centralized"]  # inside a function
+    assert "pan1_env.environment" in graph["pan1_env"]  # importlib.import_module("pan1_env.environment")
     assert "pan1_env.scenario" not in graph["pan1_env.safety"]  # under TYPE_CHECKING: never runs
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [frozenset("abc")]
 
