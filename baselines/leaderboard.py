@@ -69,6 +69,10 @@ class Entry:
         return task if self.trained_on is None else suite_task(self.trained_on)
 
 
+# one network for any team size is judged on these; a recipe of one team size trains on none of them
+_SIZE_TASKS = ("pan1_env/RandomFormation-v2", "pan1_env/LargeFormation-v0")
+_ONE_SIZE_TASKS = tuple(t.env_id for t in SUITE if t.env_id not in _SIZE_TASKS)
+
 ENTRIES = (
     Entry("law", "the paper's law behind the task's filter", policy="reference"),
     # on the tasks it was made for: it runs one team at a time, ~20x slower per team than the batched law
@@ -76,19 +80,20 @@ ENTRIES = (
                          "tasks, where the law's failures are deadlocks at an obstacle)", policy="circulation",
           tasks=("pan1_env/WholeArmStaticFormation-v1", "pan1_env/WholeArmFormation-v1")),
     Entry("ippo", "IPPO behind the shield: one network shared by the arms, each on its own observation, "
-                  "re-weighting the law (gain actions)", recipe={"algo": "ppo", "shield": True, **_SHARED}),
+                  "re-weighting the law (gain actions)", recipe={"algo": "ppo", "shield": True, **_SHARED},
+          tasks=_ONE_SIZE_TASKS),
     Entry("mappo", "MAPPO behind the shield: IPPO with a critic that also reads the team's state",
-          recipe={"algo": "ppo", "shield": True, "centralised_critic": True, **_SHARED}),
+          recipe={"algo": "ppo", "shield": True, "centralised_critic": True, **_SHARED}, tasks=_ONE_SIZE_TASKS),
     Entry("mappo-lagrangian", "MAPPO-Lagrangian without the shield: the cost (arm-steps inside an obstacle) "
                               "held to 1 per episode by a multiplier",
-          recipe={"algo": "ppo-lagrangian", "shield": False, "centralised_critic": True, "cost_limit": 1.0, **_SHARED}),
+          recipe={"algo": "ppo-lagrangian", "shield": False, "centralised_critic": True, "cost_limit": 1.0, **_SHARED},
+          tasks=_ONE_SIZE_TASKS),
     Entry("ippo-unshielded", "IPPO without the shield and without a cost",
-          recipe={"algo": "ppo", "shield": False, **_SHARED}),
+          recipe={"algo": "ppo", "shield": False, **_SHARED}, tasks=_ONE_SIZE_TASKS),
     Entry("ippo-sizes", "IPPO behind the shield on ring teams of 3 to 8 arms in the same rollouts: one network "
                         "for a team of any size, judged at 4 and 16 arms",
           recipe={"algo": "ppo", "shield": True, **_SHARED, "n_envs": 4, "team_sizes": [3, 4, 5, 6, 7, 8]},
-          tasks=("pan1_env/RandomFormation-v2", "pan1_env/LargeFormation-v0"),
-          trained_on="pan1_env/RandomFormation-v2"),
+          tasks=_SIZE_TASKS, trained_on="pan1_env/RandomFormation-v2"),
 )
 
 
@@ -138,9 +143,9 @@ def shipped_model(entry_: Entry, task: SuiteTask) -> str | None:
     if entry_.recipe is None:
         return None
     scenario, kwargs = env_arguments(task.env_id, task.env_kwargs)
+    trained = entry_.training_task(task)
     for name, meta in available().items():
         run = meta.get("provenance", {}).get("run", {})
-        trained = entry_.training_task(task)
         if _recipe_of(run, trained) == _recipe_of(entry_.recipe, trained) and serves(meta, scenario, kwargs):
             return name
     return None
@@ -245,9 +250,9 @@ def _learned_runs(runs: str | Path, entry_: Entry, task: SuiteTask) -> list[tupl
     from .shipped import PRETRAINED_DIR, available
 
     found = [(int(m.parent.name.removeprefix("seed_")), m) for m in finished_runs(runs, entry_, task)]
+    trained = entry_.training_task(task)
     for seed, model in found:
         run = json.loads((model.parent / "run.json").read_text())
-        trained = entry_.training_task(task)
         if _recipe_of(run, trained) != _recipe_of(entry_.recipe, trained) or run.get("seed") != seed:
             raise ValueError(f"{model.parent}: not a run of {entry_.name}'s recipe with seed {seed} "
                              f"(its run.json: {json.dumps(run, sort_keys=True)}); pan1-env suite --train writes them")
@@ -299,7 +304,7 @@ def run_suite(tasks: Sequence[SuiteTask] = SUITE, entries: Sequence[Entry] = ENT
                    "teams": len(t.held_out[:teams]), "target": t.target,
                    "law_success_recorded": t.law_success} for t in tasks],
         "entries": [{"name": e.name, "description": e.description, "policy": e.policy, "recipe": e.recipe,
-                     "tasks": e.tasks} for e in entries],
+                     "tasks": e.tasks, "trained_on": e.trained_on} for e in entries],
         "runs": {},
         "missing": [[t.env_id, e.name] for t in tasks for e in entries
                     if e.enters(t) and (t.env_id, e.name) not in covered],
@@ -335,6 +340,9 @@ def train_entry(entry_: Entry, task: SuiteTask, *, runs: str | Path = "runs/suit
 
     if entry_.recipe is None:
         raise ValueError(f"entry {entry_.name!r} is not trained: it is the policy {entry_.policy!r}")
+    if not entry_.enters(task):
+        raise ValueError(f"entry {entry_.name!r} is not judged on {task.env_id}: its tasks are "
+                         f"{', '.join(entry_.tasks)}")
     task = entry_.training_task(task)
     recipe = dict(entry_.recipe)
     recipe["env_kwargs"] = recipe.get("env_kwargs", {}) | task.env_kwargs  # the task's arguments are every entry's

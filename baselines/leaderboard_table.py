@@ -121,8 +121,9 @@ def benchmark_page(data: dict[str, Any], figures: Sequence[str] = (), reps: int 
                    f"| {', '.join(map(str, t['train_seeds']))} | {t['train_steps']:,} | {law} | {t['target']} |")
     out += ["", "## Entries", ""]
     for e in data["entries"]:
+        where = f" on `{e['trained_on']}`'s seeds, whichever task is named" if e.get("trained_on") else ""
         how = (f"the policy `{e['policy']}` of `pan1-env benchmark --policies`" if e["policy"] else
-               f"trained with `pan1-env suite --train {e['name']} TASK` (recipe: `{_recipe(e['recipe'])}`)")
+               f"trained with `pan1-env suite --train {e['name']} TASK`{where} (recipe: `{_recipe(e['recipe'])}`)")
         out.append(f"- **{e['name']}**: {e['description']}; {how}.")
     out += ["", "## Leaderboard", "",
             "Success is the task's own rule on the held-out teams (the formation error below 1 cm at the end; held "

@@ -42,7 +42,9 @@ def test_a_learner_is_the_iqm_over_its_runs_and_a_policy_is_bootstrapped_over_it
     learner = [_run([1] * round(r * teams) + [0] * (teams - round(r * teams))) for r in rates]
     law = [_run([1, 0, 1, 1, 0, 1, 1, 1, 1, 0], time=20.0)]
     nothing = [_run([0] * teams)]
-    rows = {r["entry"]: r for r in leaderboard_rows(_data({"ippo": learner, "law": law, "none": nothing}), reps=500)}
+    sparse = [_run([0] * teams), _run([1] + [0] * (teams - 1), time=55.0)]  # one run of two forms a team
+    data = _data({"ippo": learner, "law": law, "none": nothing, "sparse": sparse})
+    rows = {r["entry"]: r for r in leaderboard_rows(data, reps=500)}
     point, low, high = rows["ippo"]["success"]
     assert rows["ippo"]["over"] == "runs" and rows["ippo"]["runs"] == 5
     assert point == pytest.approx((0.8 + 0.9 + 0.9) / 3)  # the middle three of five
@@ -57,6 +59,7 @@ def test_a_learner_is_the_iqm_over_its_runs_and_a_policy_is_bootstrapped_over_it
     assert rows["none"]["time_ratio"] is None
     table = markdown(list(rows.values()))
     assert "| made up | ippo | 5 | 86.7 [" in table and "| made up | none | 1 | 0.0 [0.0, " in table
+    assert "| 55.0 (1 of 2 runs) |" in table  # a mean time over the runs that formed a team says how many did
 
 
 def test_docs_benchmark_is_the_rendering_of_the_shipped_leaderboard() -> None:
@@ -127,6 +130,9 @@ def test_an_entry_for_any_team_size_trains_once_and_is_judged_at_each_size(tmp_p
     sizes, large, small = board.entry("ippo-sizes"), suite_task("pan1_env/LargeFormation-v0"), \
         suite_task("pan1_env/RandomFormation-v2")
     assert sizes.enters(large) and sizes.enters(small) and not sizes.enters(suite_task(RANDOM))
+    assert not any(board.entry(e).enters(large) for e in ("ippo", "mappo", "mappo-lagrangian", "ippo-unshielded"))
+    with pytest.raises(ValueError, match="'ippo-sizes' is not judged on pan1_env/PaperPA3Square-v0"):
+        board.train_entry(sizes, suite_task("pan1_env/PaperPA3Square-v0"), runs=tmp_path, say=lambda text: None)
     board.train_entry(sizes, large, runs=tmp_path, seeds=[2], say=lambda text: None)
     (call,) = calls
     assert call["scenario"] == "pan1_env/RandomFormation-v2" and call["team_sizes"] == [3, 4, 5, 6, 7, 8]
