@@ -382,9 +382,9 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
             args = (*kind.sizes, kind.lam, kind.lengths, kind.base, kind.phi, kind.damping, kind.passive, q, v,
                     momentum, v_prev, has_prev, kind.stepped, kind.window,
                     command * (0.3 if torque else t.max_joint_speed), torque, not torque,
-                    kind.centers, kind.radii, kind.mask, kappa, epsilon, margin, distance, decay, ke, t.physics_dt,
-                    t.substeps, np.inf if torque else t.max_joint_speed, np.empty((A, k)), np.empty((A, k)),
-                    np.empty((A, n)), np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf),
+                    kind.centers, kind.radii, kind.mask, (kappa, epsilon, margin, distance, decay, False), ke,
+                    t.physics_dt, t.substeps, np.inf if torque else t.max_joint_speed, np.empty((A, k)),
+                    np.empty((A, k)), np.empty((A, n)), np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf),
                     np.zeros((A, 3), np.int64), np.zeros(A), np.ones(A, bool), None)
             if threads > 1:
                 kernels.group_advance_parallel(*args, 4 * threads)

@@ -49,7 +49,8 @@ from pan1_env.safety import FilterParams
 TASKS = {"end_effector": "pan1_env/RandomFormation-v0", "whole_arm": "pan1_env/WholeArmStaticFormation-v0",
          "whole_arm_moving": "pan1_env/WholeArmFormation-v0"}
 # κ and ε are the random teams' (0.5, 5); the paper's filter first, then RandomFormation-v1's, then the smooth
-# gate (5 cm past the sensing range) on the hard-range settings. Key: (label, FilterParams fields).
+# gate (5 cm past the sensing range) on the hard-range settings, then v1 with the whole-arm last resort measured
+# by the barrier's rate (FilterParams.fallback). Key: (label, FilterParams fields).
 SETTINGS = {
     "paper": ("paper (squared, constant ε)", {}),
     "radius": ("paper + 0.1 m sensing radius", {"sensing_radius": 0.1}),
@@ -58,6 +59,7 @@ SETTINGS = {
     "v1": ("distance, ε decaying λ = 50 (v1)", {"barrier": "distance", "decay": 50.0}),
     "radius_gate": ("paper + 0.1 m sensing radius, 5 cm gate", {"sensing_radius": 0.1, "gate": 0.05}),
     "v1_gate": ("v1 + 5 cm gate past the whole-arm range", {"barrier": "distance", "decay": 50.0, "gate": 0.05}),
+    "v1_rate": ("v1, last resort by barrier rate", {"barrier": "distance", "decay": 50.0, "fallback": "barrier_rate"}),
 }
 POLICIES = ("reference", "random", "adversarial")
 HOLD_STEPS = 20  # the random policy's action is held this many control steps (1 s)
@@ -69,7 +71,8 @@ def _filter(scenario_kwargs: dict, setting: dict) -> FilterParams:
     options = scenario_kwargs.get("random_options", {})
     return FilterParams(kappa=options.get("kappa", 0.5), epsilon=options.get("epsilon", 5.0), margin=0.0,
                         sensing_radius=setting.get("sensing_radius"), barrier=setting.get("barrier", "squared"),
-                        decay=setting.get("decay", 0.0), gate=setting.get("gate", 0.0))
+                        decay=setting.get("decay", 0.0), gate=setting.get("gate", 0.0),
+                        fallback=setting.get("fallback", "command"))
 
 
 def _persistent_random(size: int, teams: int, seed: int):

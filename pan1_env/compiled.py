@@ -14,8 +14,12 @@ from __future__ import annotations
 
 from collections import namedtuple
 from types import ModuleType
+from typing import TYPE_CHECKING
 
-__all__ = ["kernels", "kernel_sizes", "plain", "WholeArm"]
+if TYPE_CHECKING:
+    from .safety import FilterParams
+
+__all__ = ["kernels", "kernel_sizes", "kernel_filter", "plain", "WholeArm"]
 
 #: the sub-step kernel's ``whole`` argument for whole-arm safety (:mod:`pan1_env.kernels.capsules`), in its
 #: order: ``caps (A, C, CAPSULE_COLUMNS)``, ``start_time (A,)``, ``link_radius``, ``link_bodies``, ``sensing``,
@@ -43,6 +47,14 @@ def kernel_sizes(n: int, k: int) -> tuple[tuple[int, ...], tuple[int, ...]]:
     ``k`` actuated joints: ``(0,) * n, (0,) * k``. Numba types a tuple by its length, so these hand
     the kernel n and k as compile-time constants."""
     return (0,) * n, (0,) * k
+
+
+def kernel_filter(params: FilterParams) -> tuple[float, float, float, bool, float, bool]:
+    """The filter's settings as the sub-step kernel takes them, its ``rcbf`` argument, in this order: κ, ε,
+    the margin, the distance barrier (else the squared one), λ of ε(h̃), and whether the whole-arm last
+    resort measures violation by the barrier's rate (:attr:`pan1_env.safety.FilterParams.fallback`)."""
+    return (params.kappa, params.epsilon, params.margin, params.barrier == "distance", params.decay,
+            params.fallback == "barrier_rate")
 
 
 def plain(group: tuple | None) -> tuple | None:

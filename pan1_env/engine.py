@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .bodies import arm_pair_floors, capsule_clearance, obstacle_floors, obstacle_velocities
-from .compiled import WholeArm, kernels, plain
+from .compiled import WholeArm, kernel_filter, kernels, plain
 from .kinds import Kind
 from .piqp_filter import PiqpFilter
 from .safety import QP_SOLVERS, FilterParams, check_gate, clearance, filter_parameters
@@ -45,7 +45,7 @@ SENSING_RADIUS = 0.1
 #: sub-step) farther out than its radius, against what a sub-step's discretisation lets through
 SKIN = 0.002
 #: κ, ε, margin, distance barrier, λ passed to the kernel with the filter off (it reads none)
-_UNUSED_RCBF = (1.0, 1.0, 0.0, False, 0.0)
+_UNUSED_RCBF = (1.0, 1.0, 0.0, False, 0.0, False)
 
 
 @dataclass
@@ -635,10 +635,9 @@ class Engine:
         if clear is not None:
             clear[:], finite[:] = out.min_clear, out.finite
             out = out._replace(min_clear=clear, finite=finite)
-        rcbf = _UNUSED_RCBF if params is None else (params.kappa, params.epsilon, params.margin,
-                                                    params.barrier == "distance", params.decay)
+        rcbf = _UNUSED_RCBF if params is None else kernel_filter(params)
         obstacles = (kind.centers, kind.radii, kind.mask) if kind.whole is None else kind.no_obstacles
-        args = (*kind.state_args, cmd, torque, params is not None, *obstacles, *rcbf, self.ke, self.physics_dt,
+        args = (*kind.state_args, cmd, torque, params is not None, *obstacles, rcbf, self.ke, self.physics_dt,
                 substeps, self.max_speed, out.v_star, out.tau, kind.qd, kind.p, out.min_clear, out.min_h,
                 out.qp_counts, out.max_track, out.finite)
         return args, out

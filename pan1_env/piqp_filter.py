@@ -113,7 +113,8 @@ class PiqpFilter:
                     retry = project_velocity(v0[None], A[None], b[None], solver="piqp")
                     v_star[0, i, :kind.k] = retry.v[0]
                     if retry.status[0] == QPStatus.FALLBACK:
-                        v_star[0, i, :kind.k] = least_violation(v0, A, b, np.isfinite(engine.max_speed))
+                        v_star[0, i, :kind.k] = least_violation(v0, A, b, np.isfinite(engine.max_speed),
+                                                                f.fallback == "barrier_rate")
         for kind in engine.kinds:
             self._unfiltered(engine, kind, v_star, rec)
         rec.qp_counts[0] += _STATUS[status] - _STATUS[0]
@@ -149,13 +150,14 @@ def whole_arm_rows(engine: Engine, kind, r: int, v0: np.ndarray, epsilon: float)
     return A[:m], b[:m], h
 
 
-def least_violation(v0: np.ndarray, A: np.ndarray, b: np.ndarray, speed_box: bool) -> np.ndarray:
+def least_violation(v0: np.ndarray, A: np.ndarray, b: np.ndarray, speed_box: bool, by_rate: bool = False) -> np.ndarray:
     """The kernel's last resort for an infeasible whole-arm QP (its rows end with the speed box when
-    ``speed_box``): :func:`pan1_env.kernels.capsules.least_violation`."""
+    ``speed_box``; violation measured by the barrier's rate with ``by_rate``, else per unit of a row's norm):
+    :func:`pan1_env.kernels.capsules.least_violation`."""
     m, k = A.shape
     v = np.empty(k)
     kernels().capsules.least_violation(
-        v0.copy(), A.copy(), b.copy(), np.ones(m, dtype=bool), m, k, 2 * k if speed_box else 0, v, np.empty(m),
-        np.empty(m), np.empty(m, dtype=np.int64), np.empty(k, dtype=np.int64), np.empty((k, k)), np.empty(k),
-        np.empty(k), np.empty(k), np.empty((k, k)), np.empty(k), np.empty(m), np.empty(m))
+        v0.copy(), A.copy(), b.copy(), np.ones(m, dtype=bool), m, k, 2 * k if speed_box else 0, by_rate, v,
+        np.empty(m), np.empty(m), np.empty(m, dtype=np.int64), np.empty(k, dtype=np.int64), np.empty((k, k)),
+        np.empty(k), np.empty(k), np.empty(k), np.empty((k, k)), np.empty(k), np.empty(m), np.empty(m))
     return v

@@ -77,6 +77,7 @@ __all__ = [
     "cbf_rows",
     "rcbf_constraints",
     "BARRIERS",
+    "FALLBACKS",
     "QPStatus",
     "FilterResult",
     "project_velocity",
@@ -91,6 +92,8 @@ __all__ = [
 QP_SOLVERS = ("active_set", "piqp")
 #: the barrier forms of :func:`shaped_barrier`: the paper's squared distance, or the distance itself
 BARRIERS = ("squared", "distance")
+#: how the whole-arm filter's last resort measures a row's violation (:attr:`FilterParams.fallback`)
+FALLBACKS = ("command", "barrier_rate")
 
 
 @dataclass(frozen=True)
@@ -515,7 +518,13 @@ class FilterParams:
     pair's row continuously from whole at the range's edge to none ``gate`` farther out, so that the
     filtered command does not jump when a pair comes into range. It needs the whole-arm rows (whole-arm
     bodies, or a ``sensing_radius``), a finite speed bound, and at least one sub-step's travel (the
-    engine checks all three)."""
+    engine checks all three).
+
+    ``fallback``: how the whole-arm filter picks a command when its QP has no solution even without the
+    robust term (docs/SCENARIOS.md, *Whole-arm safety*, the fallback): the command that violates every row least,
+    measured per unit of the row's norm (``"command"``, the default: a speed of the command), or per unit
+    of the barrier's rate (``"barrier_rate"``: m/s of clearance for the distance barrier), which keeps a link
+    of short lever from outweighing one that can still get away."""
 
     kappa: float
     epsilon: float
@@ -524,12 +533,13 @@ class FilterParams:
     barrier: str = "squared"
     decay: float = 0.0
     gate: float = 0.0
+    fallback: str = "command"
 
     def __post_init__(self) -> None:
         checked = _checked("FilterParams", self.kappa, self.epsilon, self.margin, self.sensing_radius, self.barrier,
-                           self.decay, self.gate)
-        for name, value in zip(("kappa", "epsilon", "margin", "sensing_radius", "barrier", "decay", "gate"), checked,
-                               strict=True):
+                           self.decay, self.gate, self.fallback)
+        for name, value in zip(("kappa", "epsilon", "margin", "sensing_radius", "barrier", "decay", "gate",
+                                "fallback"), checked, strict=True):
             object.__setattr__(self, name, value)
 
     @property
@@ -551,14 +561,15 @@ class FilterParams:
         barrier: str | None = None,
         decay: float | None = None,
         gate: float | None = None,
+        fallback: str = "command",
     ) -> FilterParams:
-        """The scenario's κ, ε, margin, barrier, λ and gate, each replaced where given. ``tracking_bound`` δ̄
-        instead of a margin sets it to Γ(δ̄) (:func:`robust_margin`, with the filter's λ), so that an arm
-        tracking within δ̄ stays in the original set. Errors name the argument, prefixed by ``owner``
+        """The scenario's κ, ε, margin, barrier, λ and gate, each replaced where given, and ``fallback``.
+        ``tracking_bound`` δ̄ instead of a margin sets it to Γ(δ̄) (:func:`robust_margin`, with the filter's
+        λ), so that an arm tracking within δ̄ stays in the original set. Errors name the argument, prefixed by ``owner``
         (the API that took it)."""
         if margin is not None and tracking_bound is not None:
             raise ValueError(f"{owner}: give margin or tracking_bound, not both")
-        kappa, epsilon, margin, sensing_radius, barrier, decay, gate = _checked(
+        kappa, epsilon, margin, sensing_radius, barrier, decay, gate, fallback = _checked(
             owner,
             scenario.kappa if kappa is None else kappa,
             scenario.epsilon if epsilon is None else epsilon,
@@ -567,21 +578,24 @@ class FilterParams:
             scenario.safety_barrier if barrier is None else barrier,
             scenario.safety_decay if decay is None else decay,
             scenario.safety_gate if gate is None else gate,
+            fallback,
         )
         if tracking_bound is not None:
             delta = real(f"{owner}: tracking_bound", tracking_bound, non_negative=True)
             margin = robust_margin(delta, kappa, epsilon, decay)
-        return cls(kappa, epsilon, margin, sensing_radius, barrier, decay, gate)
+        return cls(kappa, epsilon, margin, sensing_radius, barrier, decay, gate, fallback)
 
 
 def _checked(
     owner: str, kappa: float, epsilon: float, margin: float, sensing_radius: float | None, barrier: str = "squared",
-    decay: float = 0.0, gate: float = 0.0,
-) -> tuple[float, float, float, float | None, str, float, float]:
-    """The filter's parameters as floats (the barrier a name of :data:`BARRIERS`), or a ValueError
-    naming the first bad one."""
+    decay: float = 0.0, gate: float = 0.0, fallback: str = "command",
+) -> tuple[float, float, float, float | None, str, float, float, str]:
+    """The filter's parameters as floats (the barrier a name of :data:`BARRIERS`, the fallback one of
+    :data:`FALLBACKS`), or a ValueError naming the first bad one."""
     if not isinstance(barrier, str) or barrier not in BARRIERS:
         raise ValueError(f"{owner}: barrier must be one of {BARRIERS}, got {barrier!r}")
+    if not isinstance(fallback, str) or fallback not in FALLBACKS:
+        raise ValueError(f"{owner}: fallback must be one of {FALLBACKS}, got {fallback!r}")
     return (
         real(f"{owner}: kappa", kappa, positive=True),
         real(f"{owner}: epsilon", epsilon, positive=True),
@@ -590,6 +604,7 @@ def _checked(
         barrier,
         real(f"{owner}: decay", decay, non_negative=True),
         real(f"{owner}: gate", gate, non_negative=True),
+        fallback,
     )
 
 

@@ -11,6 +11,7 @@ from rollouts import random_policy, safety_episode
 
 from pan1_env.baselines import AdversarialPolicy, ReferencePolicy
 from pan1_env.environment import parallel_env
+from pan1_env.registration import env_arguments
 from pan1_env.safety import FilterParams, robust_margin
 from pan1_env.scenario import load
 from pan1_env.wrappers import SafetyShield
@@ -31,6 +32,9 @@ def test_filter_params_validate_the_choices() -> None:
     assert FilterParams.of(team).paper, "the paper scenarios keep the paper's filter"
     with pytest.raises(ValueError, match=r"barrier must be one of \('squared', 'distance'\), got 'cubic'"):
         FilterParams(0.5, 5.0, barrier="cubic")
+    assert FilterParams.of(team).fallback == "command"
+    with pytest.raises(ValueError, match=r"SafetyShield: fallback must be one of \('command', 'barrier_rate'\)"):
+        FilterParams.of(team, owner="SafetyShield", fallback="brake")
     for bad in (-1.0, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="SafetyShield: decay"):
             SafetyShield(parallel_env("paper_pa3_square"), decay=bad)
@@ -38,6 +42,34 @@ def test_filter_params_validate_the_choices() -> None:
     shaped = FilterParams.of(team, tracking_bound=0.05, decay=50.0)
     assert shaped.margin == pytest.approx(robust_margin(0.05, 0.5, 5.0, 50.0))
     assert shaped.margin < robust_margin(0.05, 0.5, 5.0)
+
+
+def test_the_fallback_measure_acts_only_where_the_whole_arm_qp_has_no_answer() -> None:
+    """On a team whose passive arm meets a moving obstacle it cannot out-run (WholeArmFormation-v1's held-out
+    team 2000145, the law behind the shield), ``fallback="command"`` is the default, step for step, and
+    ``"barrier_rate"`` changes what the arm gets, first at a step whose QP took the fallback."""
+    scenario, kwargs = env_arguments("pan1_env/WholeArmFormation-v1", {})
+    runs = {}
+    for fallback in (None, "command", "barrier_rate"):
+        base = parallel_env(scenario, **kwargs)
+        params = None if fallback is None else FilterParams.of(base.scenario, fallback=fallback)
+        env = SafetyShield(base, params=params)
+        policy = ReferencePolicy(base)
+        obs, _ = env.reset(seed=2000145)
+        steps = []
+        for _ in range(25):
+            obs, _, _, _, infos = env.step(policy(obs))
+            steps.append([(infos[a]["shield_status"], np.asarray(infos[a]["shield_applied"]).copy())
+                          for a in env.possible_agents])
+        runs[fallback] = steps
+    same = [[np.array_equal(x[1], y[1]) for x, y in zip(a, b, strict=True)] for a, b in
+            zip(runs[None], runs["command"], strict=True)]
+    assert np.all(same)
+    differ = [(t, i) for t, (a, b) in enumerate(zip(runs["command"], runs["barrier_rate"], strict=True))
+              for i, (x, y) in enumerate(zip(a, b, strict=True)) if not np.array_equal(x[1], y[1])]
+    assert differ, "the barrier-rate measure never changed a command"
+    t, i = differ[0]
+    assert runs["command"][t][i][0] == 2 and runs["barrier_rate"][t][i][0] == 2
 
 
 @pytest.mark.parametrize("gate", [0.0, 0.05], ids=["hard_range", "smooth_gate"])

@@ -98,7 +98,7 @@ def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False
             batch.passive_first_joint, q, v, momentum, prev, has_prev, np.arange(A) if rows is None else rows,
             _window(A, n_sub) if window is None else window, command, torque, filter_on,
             np.broadcast_to(centers, (A, *centers.shape)).copy(),
-            np.broadcast_to(radii, (A, len(radii))).copy(), mask, kappa, eps, margin, distance, decay, ke, dt,
+            np.broadcast_to(radii, (A, len(radii))).copy(), mask, (kappa, eps, margin, distance, decay, False), ke, dt,
             n_sub, v_max, out["v_star"], out["tau"], out["qd"], out["p"], out["clear"], out["min_h"], out["counts"],
             out["track"], out["finite"], None)
     if parallel:
@@ -428,8 +428,8 @@ def test_per_arm_obstacles_equal_one_arm_at_a_time() -> None:
     kernels.group_advance(*kernel_sizes(q.shape[1], k), batch.lam, batch.lengths, batch.base, batch.phi, np.zeros(A),
                           True, q_all, v_all, np.zeros(A), np.zeros((A, k)), np.zeros(A, bool), np.arange(A),
                           _window(A, 3), command, False, True,
-                          centers, radii, np.ones((A, 2), bool), 0.5, 5.0, 0.0, False, 0.0, 100.0, 1e-3, 3, 2.0,
-                          *args.values(), None)
+                          centers, radii, np.ones((A, 2), bool), (0.5, 5.0, 0.0, False, 0.0, False), 100.0, 1e-3, 3,
+                          2.0, *args.values(), None)
     for i in range(A):
         one = ArmBatch(lam=batch.lam[i : i + 1], lengths=batch.lengths[i : i + 1], base=batch.base[i : i + 1],
                        phi=batch.phi[i : i + 1], passive_first_joint=True)
@@ -581,7 +581,7 @@ def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
             args = [batch.lam, batch.lengths, batch.base, batch.phi, np.zeros(A), True, qk, vk, np.zeros(A), out[0],
                     out[1], np.arange(A), _window(A, 5), command, torque,
                     True, np.broadcast_to(centers, (A, 3, 2)).copy(), np.broadcast_to(radii, (A, 3)).copy(), mask,
-                    0.5, 5.0, 0.01, distance, decay, 100.0, 1e-2, 5, v_max, *out[2:], None]
+                    (0.5, 5.0, 0.01, distance, decay, False), 100.0, 1e-2, 5, v_max, *out[2:], None]
             if kernel == "slp":
                 kernels.group_advance(*kernel_sizes(3, 2), *args)
             else:

@@ -31,7 +31,8 @@ def _args(n: int, passive: bool, A: int = 2) -> tuple:
     lam = np.broadcast_to(np.eye(n), (A, n, n)).copy()
     return (*kernel_sizes(n, k), lam, np.full((A, n), 0.3), z(A, 2), z(A), z(A), passive, z(A, n), z(A, k), z(A),
             z(A, k), np.zeros(A, bool), np.arange(A), np.tile(np.array([0, 1]), (A, 1)), z(A, k), False, True,
-            z(A, 0, 2), z(A, 0), np.zeros((A, 0), bool), 1.0, 1.0, 0.0, False, 0.0, 100.0, 0.01, 1, np.inf, z(A, k),
+            z(A, 0, 2), z(A, 0), np.zeros((A, 0), bool), (1.0, 1.0, 0.0, False, 0.0, False), 100.0, 0.01, 1, np.inf,
+            z(A, k),
             z(A, k), z(A, n), z(A, 2), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64), z(A),
             np.ones(A, bool), None)
 

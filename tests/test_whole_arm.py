@@ -391,9 +391,27 @@ def test_least_violation_relaxes_conflicting_rows_uniformly() -> None:
     v = np.empty(2)
     scratch = (np.empty(m), np.empty(m), np.empty(m, np.int64), np.empty(k, np.int64), np.empty((k, k)), np.empty(k),
                np.empty(k), np.empty(k), np.empty((k, k)), np.empty(k), np.empty(m), np.empty(m))
-    t = K.least_violation(np.array([3.0, 3.0]), A, b, active, m, k, 4, v, *scratch)
+    t = K.least_violation(np.array([3.0, 3.0]), A, b, active, m, k, 4, False, v, *scratch)
     assert t == pytest.approx(1.0, abs=1e-6)  # the QP accepts rows within its feasibility tolerance
     np.testing.assert_allclose(v, [0.0, 2.0], atol=1e-6)
+
+
+@pytest.mark.parametrize("by_rate", [False, True])
+def test_least_violation_by_rate_does_not_let_a_short_lever_outweigh_a_long_one(by_rate: bool) -> None:
+    """Rows −0.1 x ≤ −0.1 (a short lever: x ≥ 1) and x ≤ −1 conflict. Relaxed per unit of norm, b_j + t‖A_j‖,
+    they meet at t = 1 and x = 0: the long lever's row gives up as much command as the short one's. Relaxed
+    by rate, b_j + t, they meet at t = 2/11 and x = −9/11: each row's rate falls short by the same 2/11, and
+    the long lever's row is nearly kept. The speed bounds |v| ≤ 2 hold the other coordinate at 2."""
+    K = kernels().capsules
+    A = np.array([[-0.1, 0.0], [1.0, 0.0], [1, 0], [-1, 0], [0, 1], [0, -1]])
+    b = np.array([-0.1, -1.0, 2, 2, 2, 2])
+    m, k = 6, 2
+    v = np.empty(2)
+    scratch = (np.empty(m), np.empty(m), np.empty(m, np.int64), np.empty(k, np.int64), np.empty((k, k)), np.empty(k),
+               np.empty(k), np.empty(k), np.empty((k, k)), np.empty(k), np.empty(m), np.empty(m))
+    t = K.least_violation(np.array([3.0, 3.0]), A, b, np.ones(m, bool), m, k, 4, by_rate, v, *scratch)
+    assert t == pytest.approx(2 / 11 if by_rate else 1.0, abs=1e-5)
+    np.testing.assert_allclose(v, [-9 / 11 if by_rate else 0.0, 2.0], atol=1e-5)
 
 
 def test_observations_carry_the_slots_obstacle_velocities() -> None:
@@ -730,7 +748,7 @@ def test_farkas_certificate_skips_only_searches_that_fail() -> None:
             continue  # feasible: no fallback
         got = np.empty(k)
         kept = active.copy()
-        t = K.least_violation(v0, A, b.copy(), kept, m, k, 2 * k, got, np.empty(m), np.empty(m), *scratch())
+        t = K.least_violation(v0, A, b.copy(), kept, m, k, 2 * k, False, got, np.empty(m), np.empty(m), *scratch())
         # least_violation's choice of rows (kept): the plain bisection runs on the same rows
         assert K._speed_box(A, b, kept, m, k, 2 * k) == v_max
         norms = np.concatenate([np.linalg.norm(A[:n_rows], axis=1), np.zeros(2 * k)])

@@ -455,16 +455,26 @@ def _certainly_infeasible(A, b, norms, m, k, n_box, box, y):
     return value > 2e-9 * weight * worst + 1e-12 * size
 
 
+@njit(**_JIT, inline="always")
+def _weight(by_rate, norm):
+    """A barrier row's weight in :func:`least_violation`'s relaxation: 1 by rate, its norm by command; 0 for
+    the speed box's rows (their ``norm`` is kept 0), which are never relaxed."""
+    return (1.0 if norm > 0.0 else 0.0) if by_rate else norm
+
+
 @njit(**_JIT)
-def least_violation(v0, A, b, active, m, k, n_box, v_out, b_given, norms, rows, idx, G, r, lam, cand, L, y, viol,
-                    rnorm):
+def least_violation(v0, A, b, active, m, k, n_box, by_rate, v_out, b_given, norms, rows, idx, G, r, lam, cand, L, y,
+                    viol, rnorm):
     """The fallback's last resort for an infeasible whole-arm QP: the velocity closest to ``v0`` among
     those that violate the barrier rows least, uniformly: every row j < m − ``n_box`` relaxed to
-    A_j v ≤ b_j + t ‖A_j‖ with the smallest t ≥ 0 that makes the QP feasible (20 steps of bisection; the
-    last ``n_box`` rows, the speed bounds, are kept). Only the 2k most demanding barrier rows take part.
-    v = 0 is feasible at t = max_j −b_j/‖A_j‖, so this always answers. A row of zero norm cannot be acted
-    on and is dropped. Writes ``v_out``; ``b`` and ``active`` are left changed, ``b_given`` and ``norms``
-    are scratch. Returns t."""
+    A_j v ≤ b_j + t w_j with the smallest t ≥ 0 that makes the QP feasible (20 steps of bisection; the
+    last ``n_box`` rows, the speed bounds, are kept). The weight w_j is the row's norm ‖A_j‖ (t is then a
+    speed of the command, rad/s), or 1 with ``by_rate`` (t is a rate of the barrier, ḣ: m/s of clearance for
+    the distance barrier), which does not let a row of short lever, that asks for a large command to
+    gain a little rate, outweigh the others. Only the 2k most demanding barrier rows (smallest b_j/w_j)
+    take part. v = 0 is feasible at t = max_j −b_j/w_j, so this always answers. A row of zero norm cannot
+    be acted on and is dropped. Writes ``v_out``; ``b`` and ``active`` are left changed, ``b_given`` and
+    ``norms`` are scratch. Returns t."""
     hi = 0.0
     for j in range(m):
         b_given[j] = b[j]
@@ -475,7 +485,7 @@ def least_violation(v0, A, b, active, m, k, n_box, v_out, b_given, norms, rows, 
         if j < m - n_box and nrm == 0.0:
             active[j] = False
         elif j < m - n_box:
-            hi = max(hi, -b[j] / norms[j])
+            hi = max(hi, -b[j] / _weight(by_rate, norms[j]))
     # the search tries sets of up to k rows: keep the 2k most demanding barrier rows (smallest b_j/‖A_j‖),
     # so that a crowd of rows cannot make the ~20 solves below slow (a fallback, not the guarantee)
     for _ in range(m - n_box - 2 * k):
@@ -484,8 +494,8 @@ def least_violation(v0, A, b, active, m, k, n_box, v_out, b_given, norms, rows, 
         for j in range(m - n_box):
             if active[j]:
                 kept += 1
-                if b[j] / norms[j] > worst:
-                    worst, worst_j = b[j] / norms[j], j
+                if b[j] / _weight(by_rate, norms[j]) > worst:
+                    worst, worst_j = b[j] / _weight(by_rate, norms[j]), j
         if kept <= 2 * k:
             break
         active[worst_j] = False
@@ -513,7 +523,7 @@ def least_violation(v0, A, b, active, m, k, n_box, v_out, b_given, norms, rows, 
             hi = mid
             continue
         for j in range(m):
-            b[j] = b_given[j] + mid * norms[j]
+            b[j] = b_given[j] + mid * _weight(by_rate, norms[j])
         if certify and _certainly_infeasible(A, b, norms, m, k, n_box, box, farkas):
             lo = mid
         elif _project_one(v0, A, b, active, m, k, v_out, rows, idx, G, r, lam, cand, L, y, viol, rnorm) \
@@ -522,7 +532,7 @@ def least_violation(v0, A, b, active, m, k, n_box, v_out, b_given, norms, rows, 
         else:
             hi = mid
     for j in range(m):
-        b[j] = b_given[j] + hi * norms[j]
+        b[j] = b_given[j] + hi * _weight(by_rate, norms[j])
     if _project_one(v0, A, b, active, m, k, v_out, rows, idx, G, r, lam, cand, L, y, viol, rnorm) == STATUS_FALLBACK:
         for t in range(k):
             v_out[t] = 0.0

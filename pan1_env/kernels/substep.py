@@ -62,8 +62,8 @@ from .steps import (
 @njit(**_JIT)
 def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, base, phi, damping, _passive, q, v,
                   momentum, v_prev, has_prev, rows, window, command, torque_mode, filter_on, centers, radii, mask,
-                  kappa, epsilon, margin, distance, decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out,
-                  min_clear, min_h, qp_counts, max_track, finite_out, whole):
+                  rcbf, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts,
+                  max_track, finite_out, whole):
     """Arms ``rows[lo … hi−1]`` of :func:`group_advance` (the loop body, with its own scratch space): see the
     module's docstring for the lanes, the per-kind and generic signatures and the whole-arm calls."""
     if sizes is None:  # the per-kind kernel (numba prunes the other branch by the argument's type)
@@ -123,7 +123,8 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     ee = _borrowed((J, Jbar, drift, filtered, row_A, row_b, row_h, row_norm, row_act, obst_rows, needs_qp, q_best,
                     q_best_viol, q_Ab, q_bb, q_cand, q_found))
     search = _borrowed((Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy))
-    fparams = (kappa, epsilon, margin, distance, decay, v_max)
+    kappa, epsilon, margin, distance, decay, by_rate = rcbf
+    fparams = (kappa, epsilon, margin, distance, decay, by_rate, v_max)
     if whole is not None:  # whole-arm scratch: one lane's rows (bodies × capsules, speed bounds) and joints
         caps, start_time, rho, link_bodies, sensing, gate, skin, joints_out, n_world, angles, carried, finish = whole
         jw = (links + (0,), lanes)  # joints: n + 1 per lane
@@ -218,10 +219,13 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     ``centers (A, O, 2)``, ``radii (A, O)`` and ``mask (A, O)`` (the obstacles each arm's filter
     sees; a team's obstacles are broadcast to every arm).
 
-    The end-effector filter's rows (:func:`pan1_env.kernels.qp._rcbf_row_lanes`) take κ ``kappa``, ε
-    ``epsilon``, the margin, the barrier (``distance`` True: h = ‖p − o‖ − r, else the paper's
-    squared one) and λ ``decay`` of the tunable ε(h̃) = ε e^{λ h̃} (0: the paper's constant ε);
-    ``min_h`` is then in that barrier's unit. The whole-arm rows (``whole``) take the same choices.
+    ``rcbf`` is the filter's settings, one tuple ``(kappa, epsilon, margin, distance, decay, by_rate)``
+    (:func:`pan1_env.compiled.kernel_filter`): the end-effector filter's rows
+    (:func:`pan1_env.kernels.qp._rcbf_row_lanes`) take κ, ε, the margin, the barrier (``distance`` True:
+    h = ‖p − o‖ − r, else the paper's squared one) and λ ``decay`` of the tunable ε(h̃) = ε e^{λ h̃} (0: the
+    paper's constant ε); ``min_h`` is then in that barrier's unit. The whole-arm rows (``whole``) take the same
+    choices, and ``by_rate`` picks their last-resort fallback's measure of violation
+    (:func:`pan1_env.kernels.capsules.least_violation`).
 
     Velocity mode (``torque_mode`` False): ``command`` is the desired active velocity; each
     sub-step filters it through the RCBF-QP when ``filter_on`` (against the obstacles of ``mask``)
@@ -276,31 +280,29 @@ def _check_sizes(links, actuated, passive, q, v, momentum, damping, rows, window
 
 @njit(**_JIT)
 def group_advance(links, actuated, lam, lengths, base, phi, damping, passive, q, v, momentum, v_prev, has_prev, rows,
-                  window, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, distance,
-                  decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts,
-                  max_track, finite_out, whole):
+                  window, command, torque_mode, filter_on, centers, radii, mask, rcbf, ke, dt, n_sub, v_max,
+                  v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out, whole):
     _check_sizes(links, actuated, passive, q, v, momentum, damping, rows, window)
     lo = rows.shape[0] * 0  # an int64, like the parallel kernel's chunk bounds
     _advance_arms(links, actuated, _LANES, None, True, lo, rows.shape[0], lam, lengths, base, phi, damping, passive, q,
                   v, momentum, v_prev, has_prev, rows, window, command, torque_mode, filter_on, centers, radii, mask,
-                  kappa, epsilon, margin, distance, decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out,
-                  min_clear, min_h, qp_counts, max_track, finite_out, whole)
+                  rcbf, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts,
+                  max_track, finite_out, whole)
 
 
 @njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
 def group_advance_parallel(links, actuated, lam, lengths, base, phi, damping, passive, q, v, momentum, v_prev, has_prev,
-                           rows, window, command, torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin,
-                           distance, decay, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h,
-                           qp_counts, max_track, finite_out, whole, n_chunks):
+                           rows, window, command, torque_mode, filter_on, centers, radii, mask, rcbf, ke, dt, n_sub,
+                           v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track,
+                           finite_out, whole, n_chunks):
     _check_sizes(links, actuated, passive, q, v, momentum, damping, rows, window)
     _check_chunks(n_chunks)
     R = rows.shape[0]
     for c in prange(n_chunks):
         _advance_arms(links, actuated, _LANES, None, True, c * R // n_chunks, (c + 1) * R // n_chunks, lam, lengths,
                       base, phi, damping, passive, q, v, momentum, v_prev, has_prev, rows, window, command,
-                      torque_mode, filter_on, centers, radii, mask, kappa, epsilon, margin, distance, decay, ke, dt,
-                      n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track,
-                      finite_out, whole)
+                      torque_mode, filter_on, centers, radii, mask, rcbf, ke, dt, n_sub, v_max, v_star_out, tau_out,
+                      qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out, whole)
 
 
 # The generic kernel: arms of any kind up to GENERIC_MAX_LINKS links, n and k read at run time, one
