@@ -140,8 +140,9 @@ def run(tasks: list[str], teams: int, first: int, settings: list[str] | None = N
             name, setting = SETTINGS[key]
             if task.startswith("whole_arm") and "sensing_radius" in setting:
                 continue  # the whole-arm filter has its sensing radius already
-            if task == "end_effector" and "gate" in setting and "sensing_radius" not in setting:
-                continue  # a gate widens a sensing range, which the end-effector filter has only when given one
+            whole_arm_only = "gate" in setting or "fallback" in setting
+            if task == "end_effector" and whole_arm_only and "sensing_radius" not in setting:
+                continue  # a gate widens a sensing range and the fallback's measure is the whole-arm rows' last resort
             params = _filter(kwargs, setting)
             chosen = {"reference": ({"action_mode": "residual"}, law),
                       "random": ({}, _persistent_random(size, teams, first)), "adversarial": ({}, VectorAdversary())}

@@ -53,8 +53,7 @@ def kernel_filter(params: FilterParams) -> tuple[float, float, float, bool, floa
     """The filter's settings as the sub-step kernel takes them, its ``rcbf`` argument, in this order: κ, ε,
     the margin, the distance barrier (else the squared one), λ of ε(h̃), and whether the whole-arm last
     resort measures violation by the barrier's rate (:attr:`pan1_env.safety.FilterParams.fallback`)."""
-    return (params.kappa, params.epsilon, params.margin, params.barrier == "distance", params.decay,
-            params.fallback == "barrier_rate")
+    return (params.kappa, params.epsilon, params.margin, params.barrier == "distance", params.decay, params.by_rate)
 
 
 def plain(group: tuple | None) -> tuple | None:

@@ -113,8 +113,7 @@ class PiqpFilter:
                     retry = project_velocity(v0[None], A[None], b[None], solver="piqp")
                     v_star[0, i, :kind.k] = retry.v[0]
                     if retry.status[0] == QPStatus.FALLBACK:
-                        v_star[0, i, :kind.k] = least_violation(v0, A, b, np.isfinite(engine.max_speed),
-                                                                f.fallback == "barrier_rate")
+                        v_star[0, i, :kind.k] = least_violation(v0, A, b, np.isfinite(engine.max_speed), f.by_rate)
         for kind in engine.kinds:
             self._unfiltered(engine, kind, v_star, rec)
         rec.qp_counts[0] += _STATUS[status] - _STATUS[0]

@@ -87,6 +87,7 @@ __all__ = [
     "FilterParams",
     "filter_parameters",
     "check_gate",
+    "check_fallback",
 ]
 
 QP_SOLVERS = ("active_set", "piqp")
@@ -543,6 +544,11 @@ class FilterParams:
             object.__setattr__(self, name, value)
 
     @property
+    def by_rate(self) -> bool:
+        """Whether the whole-arm last resort measures violation by the barrier's rate (``fallback``)."""
+        return self.fallback == "barrier_rate"
+
+    @property
     def paper(self) -> bool:
         """The paper's rows: the squared barrier with a constant ε."""
         return self.barrier == "squared" and self.decay == 0.0
@@ -563,7 +569,8 @@ class FilterParams:
         gate: float | None = None,
         fallback: str = "command",
     ) -> FilterParams:
-        """The scenario's κ, ε, margin, barrier, λ and gate, each replaced where given, and ``fallback``.
+        """The scenario's κ, ε, margin, barrier, λ and gate, each replaced where given, and ``fallback``
+        (scenarios have no such key: every id's is ``"command"``).
         ``tracking_bound`` δ̄ instead of a margin sets it to Γ(δ̄) (:func:`robust_margin`, with the filter's
         λ), so that an arm tracking within δ̄ stays in the original set. Errors name the argument, prefixed by ``owner``
         (the API that took it)."""
@@ -621,6 +628,14 @@ def check_gate(params: FilterParams, whole_arm: bool, max_speed: float, reach: f
         raise ValueError(f"FilterParams.gate must be 0 (a hard range) or at least one sub-step's travel, "
                          f"{travel:.4g} m (max_speed {max_speed:g} rad/s × reach {reach:.3g} m × physics_dt "
                          f"{physics_dt:g} s), got {params.gate:g}")
+
+
+def check_fallback(params: FilterParams, whole_arm: bool) -> None:
+    """The fallback's measure is a choice of the whole-arm filter's last resort: the end-effector filter brakes
+    (or holds a drifting end-effector) instead. ValueError where it would do nothing."""
+    if params.fallback != "command" and not whole_arm and params.sensing_radius is None:
+        raise ValueError(f"FilterParams.fallback={params.fallback!r} measures the whole-arm filter's last resort: "
+                         "it needs whole-arm bodies or a sensing_radius (the end-effector filter brakes instead)")
 
 
 def filter_parameters(safety_filter: bool | FilterParams | None, scenario: Scenario) -> FilterParams | None:

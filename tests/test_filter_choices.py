@@ -35,6 +35,10 @@ def test_filter_params_validate_the_choices() -> None:
     assert FilterParams.of(team).fallback == "command"
     with pytest.raises(ValueError, match=r"SafetyShield: fallback must be one of \('command', 'barrier_rate'\)"):
         FilterParams.of(team, owner="SafetyShield", fallback="brake")
+    with pytest.raises(ValueError, match="fallback='barrier_rate' measures the whole-arm filter's last resort"):
+        SafetyShield(parallel_env("paper_pa3_square"), params=FilterParams.of(team, fallback="barrier_rate"))
+    SafetyShield(parallel_env("paper_pa3_square"), params=FilterParams.of(team, fallback="barrier_rate",
+                                                                           sensing_radius=0.1))
     for bad in (-1.0, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="SafetyShield: decay"):
             SafetyShield(parallel_env("paper_pa3_square"), decay=bad)

@@ -627,8 +627,8 @@ def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> Non
             for _ in range(2):  # the second call starts from the first's v_prev / has_prev
                 kernel(*kernel_sizes(n, k), batch.lam, batch.lengths, batch.base, batch.phi, damping, passive, qk,
                        vk, pk, out[0], out[1], np.arange(A), _window(A, 5), command, torque, filter_on,
-                       np.broadcast_to(centers, (A, 3, 2)).copy(), np.broadcast_to(radii, (A, 3)).copy(), mask, 0.5,
-                       5.0, 0.01, distance, decay, 100.0, 1e-2, 5, v_max, *out[2:], None)
+                       np.broadcast_to(centers, (A, 3, 2)).copy(), np.broadcast_to(radii, (A, 3)).copy(), mask,
+                       (0.5, 5.0, 0.01, distance, decay, False), 100.0, 1e-2, 5, v_max, *out[2:], None)
             runs.append([qk, vk, pk, *out])
         finite, counts = runs[0][-1], runs[0][-3]
         assert not finite[3]

@@ -711,13 +711,15 @@ def test_the_geometry_helpers_say_once_that_they_compile(tmp_path) -> None:
     assert again.returncode == 0 and "compil" not in again.stderr, again.stderr[-2000:]
 
 
-def test_farkas_certificate_skips_only_searches_that_fail() -> None:
+@pytest.mark.parametrize("by_rate", [False, True], ids=["by_command", "by_rate"])
+def test_farkas_certificate_skips_only_searches_that_fail(by_rate: bool) -> None:
     """least_violation skips a bisection step when Farkas weights prove its QP infeasible: on random
     infeasible problems (k = 1, 2, 3; 2k to 3k barrier rows, some inactive or of zero norm, and the speed
     box) the box is recognised, every step so certified is one the active-set search also finds
     infeasible, the certificate's bound never exceeds the least uniform violation the bisection finds,
     and the answer is the plain bisection's, also where the rows it keeps are feasible as given (then
-    least_violation takes the bisection's steps without their searches)."""
+    least_violation takes the bisection's steps without their searches). For either measure of violation: the
+    rows relaxed per unit of norm or by the same rate."""
     from pan1_env.kernels.qp import STATUS_FALLBACK, _project_one
 
     K = kernels().capsules
@@ -748,17 +750,18 @@ def test_farkas_certificate_skips_only_searches_that_fail() -> None:
             continue  # feasible: no fallback
         got = np.empty(k)
         kept = active.copy()
-        t = K.least_violation(v0, A, b.copy(), kept, m, k, 2 * k, False, got, np.empty(m), np.empty(m), *scratch())
+        t = K.least_violation(v0, A, b.copy(), kept, m, k, 2 * k, by_rate, got, np.empty(m), np.empty(m), *scratch())
         # least_violation's choice of rows (kept): the plain bisection runs on the same rows
         assert K._speed_box(A, b, kept, m, k, 2 * k) == v_max
         norms = np.concatenate([np.linalg.norm(A[:n_rows], axis=1), np.zeros(2 * k)])
+        w = (norms > 0).astype(float) if by_rate else norms  # each row's relaxation per unit of t
         weights = np.empty(m)
-        bound = K._farkas_weights(A, b, norms, kept, m, k, 2 * k, v_max, weights)
-        lo, hi = 0.0, max([0.0] + [-b[j] / norms[j] for j in range(n_rows) if norms[j] > 0])  # as least_violation
+        bound = K._farkas_weights(A, b, norms, kept, m, k, 2 * k, v_max, by_rate, weights)
+        lo, hi = 0.0, max([0.0] + [-b[j] / w[j] for j in range(n_rows) if norms[j] > 0])  # as least_violation
         settled += bound <= 0.0 and _project_one(v0, A, b, kept, m, k, v, *scratch()) != STATUS_FALLBACK
         for _ in range(20):
             mid = 0.5 * (lo + hi)
-            relaxed = b + mid * norms
+            relaxed = b + mid * w
             infeasible = _project_one(v0, A, relaxed, kept, m, k, v, *scratch()) == STATUS_FALLBACK
             if bound > 0.0 and K._certainly_infeasible(A, relaxed, norms, m, k, 2 * k, v_max, weights):
                 certified += 1
@@ -767,7 +770,7 @@ def test_farkas_certificate_skips_only_searches_that_fail() -> None:
         checked += 1
         assert bound <= hi + 1e-9, (trial, bound, hi)
         expected = np.empty(k)
-        if _project_one(v0, A, b + hi * norms, kept, m, k, expected, *scratch()) == STATUS_FALLBACK:
+        if _project_one(v0, A, b + hi * w, kept, m, k, expected, *scratch()) == STATUS_FALLBACK:
             expected[:] = 0.0
         assert t == pytest.approx(hi, rel=1e-12, abs=1e-12)
         np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12)

@@ -334,15 +334,22 @@ def _speed_box(A, b, active, m, k, n_box):
     return box
 
 
+@njit(**_JIT, inline="always")
+def _weight(by_rate, norm):
+    """A barrier row's weight in :func:`least_violation`'s relaxation: 1 by rate, its norm by command; 0 for
+    the speed box's rows (their ``norm`` is kept 0), which are never relaxed."""
+    return (1.0 if norm > 0.0 else 0.0) if by_rate else norm
+
+
 @njit(**_JIT)
-def _farkas_weights(A, b, norms, active, m, k, n_box, box, y):
-    """Weights y ≥ 0 on the active barrier rows (j < m − ``n_box``), Σ_j y_j ‖A_j‖ = 1, that make
-    D(y) = −Σ_j y_j b_j − ``box`` Σ_t |Σ_j y_j A_jt| large: the best vertex of the dual of
-    min_{|v_t| ≤ box} max_j (A_j v − b_j)/‖A_j‖, so D is that minimum (the uniform violation the box
-    cannot avoid) when it is positive. A vertex has a support S of at most k + 1 rows and |S| − 1 of
-    the k sums Σ_j y_j A_jt zero; all are tried (at most 6 rows: the 2k that least_violation keeps, k ≤ 3).
-    Writes ``y`` (0 off the support); returns D(y), −inf if no vertex was found. Any y ≥ 0 gives a
-    valid bound (weak duality), so the small solves' rounding costs optimality, never soundness."""
+def _farkas_weights(A, b, norms, active, m, k, n_box, box, by_rate, y):
+    """Weights y ≥ 0 on the active barrier rows (j < m − ``n_box``), Σ_j y_j w_j = 1 (w_j = ‖A_j‖, or 1
+    ``by_rate``: :func:`_weight`), that make D(y) = −Σ_j y_j b_j − ``box`` Σ_t |Σ_j y_j A_jt| large: the
+    best vertex of the dual of min_{|v_t| ≤ box} max_j (A_j v − b_j)/w_j, so D is that minimum (the uniform
+    violation the box cannot avoid) when it is positive. A vertex has a support S of at most k + 1 rows and
+    |S| − 1 of the k sums Σ_j y_j A_jt zero; all are tried (at most 6 rows: the 2k that least_violation
+    keeps, k ≤ 3). Writes ``y`` (0 off the support); returns D(y), −inf if no vertex was found. Any y ≥ 0
+    gives a valid bound (weak duality), so the small solves' rounding costs optimality, never soundness."""
     rows = np.empty(6, dtype=np.int64)
     p = 0
     for j in range(m - n_box):
@@ -372,7 +379,7 @@ def _farkas_weights(A, b, norms, active, m, k, n_box, box, y):
                 nz += zeros >> t & 1
             if nz != size - 1:
                 continue
-            # size equations: Σ_j y_j A_jt = 0 for t in zeros, Σ_j y_j ‖A_j‖ = 1 (augmented, last column)
+            # size equations: Σ_j y_j A_jt = 0 for t in zeros, Σ_j y_j w_j = 1 (augmented, last column)
             e = 0
             for t in range(k):
                 if zeros >> t & 1:
@@ -381,7 +388,7 @@ def _farkas_weights(A, b, norms, active, m, k, n_box, box, y):
                     M[e, size] = 0.0
                     e += 1
             for c in range(size):
-                M[e, c] = norms[sel[c]]
+                M[e, c] = _weight(by_rate, norms[sel[c]])
             M[e, size] = 1.0
             singular = False
             for c in range(size):  # Gaussian elimination with partial pivoting
@@ -408,7 +415,7 @@ def _farkas_weights(A, b, norms, active, m, k, n_box, box, y):
             total = 0.0
             for c in range(size):
                 sol[c] = max(sol[c], 0.0)
-                total += sol[c] * norms[sel[c]]
+                total += sol[c] * _weight(by_rate, norms[sel[c]])
             if not total > 0.0:
                 continue
             value = 0.0
@@ -455,13 +462,6 @@ def _certainly_infeasible(A, b, norms, m, k, n_box, box, y):
     return value > 2e-9 * weight * worst + 1e-12 * size
 
 
-@njit(**_JIT, inline="always")
-def _weight(by_rate, norm):
-    """A barrier row's weight in :func:`least_violation`'s relaxation: 1 by rate, its norm by command; 0 for
-    the speed box's rows (their ``norm`` is kept 0), which are never relaxed."""
-    return (1.0 if norm > 0.0 else 0.0) if by_rate else norm
-
-
 @njit(**_JIT)
 def least_violation(v0, A, b, active, m, k, n_box, by_rate, v_out, b_given, norms, rows, idx, G, r, lam, cand, L, y,
                     viol, rnorm):
@@ -486,7 +486,7 @@ def least_violation(v0, A, b, active, m, k, n_box, by_rate, v_out, b_given, norm
             active[j] = False
         elif j < m - n_box:
             hi = max(hi, -b[j] / _weight(by_rate, norms[j]))
-    # the search tries sets of up to k rows: keep the 2k most demanding barrier rows (smallest b_j/‖A_j‖),
+    # the search tries sets of up to k rows: keep the 2k most demanding barrier rows (smallest b_j/w_j),
     # so that a crowd of rows cannot make the ~20 solves below slow (a fallback, not the guarantee)
     for _ in range(m - n_box - 2 * k):
         worst, worst_j = -np.inf, -1
@@ -504,7 +504,7 @@ def least_violation(v0, A, b, active, m, k, n_box, by_rate, v_out, b_given, norm
     # a search must fail, so it is skipped (its answer, FALLBACK, is the same)
     box = _speed_box(A, b, active, m, k, n_box) if k <= 3 else -1.0
     farkas = np.empty(m)
-    certify = box >= 0.0 and _farkas_weights(A, b_given, norms, active, m, k, n_box, box, farkas) > 0.0
+    certify = box >= 0.0 and _farkas_weights(A, b_given, norms, active, m, k, n_box, box, by_rate, farkas) > 0.0
     # relaxing rows never makes a feasible QP infeasible: if the kept rows are feasible as given (t = 0;
     # no certificate says otherwise, and often none does: without the rows left out they rarely conflict),
     # every step below would find its QP feasible and halve hi, so the steps go without their searches.
