@@ -24,8 +24,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from pan1_env.bodies import link_obstacle_barrier, obstacle_centers, obstacle_velocities
+from pan1_env.bodies import link_obstacle_barrier
 from pan1_env.dynamics import ArmParams
+from pan1_env.safety import shaped_barrier
 
 __all__ = ["LinkEscape", "escape_speeds"]
 
@@ -50,15 +51,12 @@ def escape_speeds(arm: ArmParams, q: np.ndarray, centers: np.ndarray, velocities
     if not max_speed > 0:
         raise ValueError(f"max_speed must be > 0, got {max_speed}")
     pairs = link_obstacle_barrier(arm, q, centers, radii, link_radius, velocities)  # h = d² − R², per (link, obstacle)
-    d = np.sqrt(np.maximum(pairs.h + (radii + link_radius) ** 2, 0.0))
-    nearest = np.argmin(d - radii, axis=1)
+    # the distance barrier: the clearance d − R, (∇_q d)ᵀ g0 and ∂d/∂t = −n · ċ
+    clear, row, dd_dt = shaped_barrier(pairs.h, radii + link_radius, "distance", pairs.row, pairs.dh_dt)
+    nearest = np.argmin(clear, axis=1)
     links = np.arange(arm.n_links)
-    d_near = d[links, nearest]
-    inv = np.where(d_near > 0.0, 0.5 / np.where(d_near > 0.0, d_near, 1.0), 0.0)  # ∂d = ∂(d²) / (2d)
-    row = pairs.row[links, nearest] * inv[:, None]  # (∇_q d)ᵀ g0, (n, k)
-    closing = -pairs.dh_dt[links, nearest] * inv
-    return LinkEscape(d_near - radii[nearest] - link_radius, nearest, closing,
-                      max_speed * np.abs(row).sum(axis=-1))
+    return LinkEscape(clear[links, nearest], nearest, -dd_dt[links, nearest],
+                      max_speed * np.abs(row[links, nearest]).sum(axis=-1))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -91,10 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     if not 0 <= args.arm < len(drawn.arms):
         parser.error(f"--arm must be in 0…{len(drawn.arms) - 1} for this team, got {args.arm}")
     arm, agent = drawn.arms[args.arm], team.possible_agents[args.arm]
-    centers, radii = drawn.obstacles.centers, drawn.obstacles.radii
-    moving = drawn.obstacle_paths is not None
-    ends = drawn.obstacle_paths if moving else centers
-    speeds = drawn.obstacle_speeds if moving else np.zeros(len(radii))
+    radii = drawn.obstacles.radii
     print(f"{args.task}, team {args.seed}, arm {args.arm}: {arm.n_links} links, "
           f"{'passive' if arm.passive_first_joint else 'actuated'} first joint; speed bound "
           f"{team.max_joint_speed} rad/s. Per link: clearance mm / closing m/s / escape m/s (nearest obstacle)")
@@ -107,9 +102,8 @@ def main(argv: list[str] | None = None) -> int:
         if now < args.start - 1e-9:
             continue
         n = arm.n_links
-        links = escape_speeds(arm, q[args.arm, :n], obstacle_centers(centers, ends, speeds, now),
-                              obstacle_velocities(centers, ends, speeds, now), radii, drawn.link_radius,
-                              team.max_joint_speed)
+        links = escape_speeds(arm, q[args.arm, :n], drawn.obstacle_centers(now), drawn.obstacle_velocities(now),
+                              radii, drawn.link_radius, team.max_joint_speed)
         faced = "  ".join(f"L{ell}:{c * 1e3:+6.1f}/{v:+.2f}/{e:.2f}(o{o})"
                           for ell, (c, v, e, o) in enumerate(zip(links.clearance, links.closing, links.escape,
                                                                  links.obstacle, strict=True)))

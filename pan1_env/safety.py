@@ -522,10 +522,10 @@ class FilterParams:
     engine checks all three).
 
     ``fallback``: how the whole-arm filter picks a command when its QP has no solution even without the
-    robust term (docs/SCENARIOS.md, *Whole-arm safety*, the fallback): the command that violates every row least,
-    measured per unit of the row's norm (``"command"``, the default: a speed of the command), or per unit
-    of the barrier's rate (``"barrier_rate"``: m/s of clearance for the distance barrier), which keeps a link
-    of short lever from outweighing one that can still get away."""
+    robust term (docs/SCENARIOS.md, *Whole-arm safety*, the fallback): the command that violates every row
+    least, measured per unit of the row's norm (``"command"``, the default: a speed of the command), or per
+    unit of the barrier's rate (``"barrier_rate"``: m/s of clearance for the distance barrier), which keeps
+    a link of short lever from outweighing one that can still get away."""
 
     kappa: float
     epsilon: float
@@ -570,10 +570,9 @@ class FilterParams:
         fallback: str = "command",
     ) -> FilterParams:
         """The scenario's κ, ε, margin, barrier, λ and gate, each replaced where given, and ``fallback``
-        (scenarios have no such key: every id's is ``"command"``).
-        ``tracking_bound`` δ̄ instead of a margin sets it to Γ(δ̄) (:func:`robust_margin`, with the filter's
-        λ), so that an arm tracking within δ̄ stays in the original set. Errors name the argument, prefixed by ``owner``
-        (the API that took it)."""
+        (scenarios have no such key: every id's is ``"command"``). ``tracking_bound`` δ̄ instead of a margin
+        sets it to Γ(δ̄) (:func:`robust_margin`, with the filter's λ), so that an arm tracking within δ̄ stays
+        in the original set. Errors name the argument, prefixed by ``owner`` (the API that took it)."""
         if margin is not None and tracking_bound is not None:
             raise ValueError(f"{owner}: give margin or tracking_bound, not both")
         kappa, epsilon, margin, sensing_radius, barrier, decay, gate, fallback = _checked(

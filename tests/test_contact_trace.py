@@ -81,3 +81,10 @@ def test_a_passive_first_joint_follows_the_others() -> None:
 def test_bad_speed_bound_is_refused() -> None:
     with pytest.raises(ValueError, match="max_speed"):
         trace.escape_speeds(ARM, np.zeros(3), np.zeros((1, 2)), np.zeros((1, 2)), np.array([0.1]), RHO, 0.0)
+
+
+def test_the_script_refuses_a_window_that_ends_before_it_starts(capsys) -> None:
+    with pytest.raises(SystemExit) as stop:
+        trace.main(["--seed", "1", "--arm", "0", "--start", "5", "--stop", "1"])
+    assert stop.value.code == 2
+    assert "--start ≤ --stop" in capsys.readouterr().err
