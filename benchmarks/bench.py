@@ -39,6 +39,7 @@ import statistics
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -361,6 +362,7 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
     from numba import get_num_threads
 
     from pan1_env import kernels
+    from pan1_env.compiled import kernel_filter
     from pan1_env.vector import Pan1VectorEnv
 
     venv = Pan1VectorEnv("paper_pa3_square", 1024)
@@ -370,8 +372,11 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
         venv.step(venv.action_space.sample())
     kind, t, f = venv.engine.kinds[0], venv, venv.safety_filter
     A, k, n = kind.q.shape[0], kind.k, kind.n
-    kappa, epsilon, margin, ke = f.kappa, f.epsilon, f.margin, venv.engine.ke
+    ke = venv.engine.ke
     command = np.random.default_rng(0).uniform(-1.0, 1.0, (A, k))
+
+    def rcbf(distance: bool, decay: float) -> tuple:
+        return kernel_filter(replace(f, barrier="distance" if distance else "squared", decay=decay))
 
     def advance(torque: bool, threads: int = 1, distance: bool = False, decay: float = 0.0):
         names = ("q", "v", "momentum", "v_prev", "has_prev")
@@ -382,7 +387,7 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
             args = (*kind.sizes, kind.lam, kind.lengths, kind.base, kind.phi, kind.damping, kind.passive, q, v,
                     momentum, v_prev, has_prev, kind.stepped, kind.window,
                     command * (0.3 if torque else t.max_joint_speed), torque, not torque,
-                    kind.centers, kind.radii, kind.mask, (kappa, epsilon, margin, distance, decay, False), ke,
+                    kind.centers, kind.radii, kind.mask, rcbf(distance, decay), ke,
                     t.physics_dt, t.substeps, np.inf if torque else t.max_joint_speed, np.empty((A, k)),
                     np.empty((A, k)), np.empty((A, n)), np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf),
                     np.zeros((A, 3), np.int64), np.zeros(A), np.ones(A, bool), None)

@@ -61,8 +61,10 @@ __all__ = [
     "inter_arm_clearance",
     "obstacle_centers",
     "obstacle_velocities",
+    "obstacle_stretch",
     "obstacle_floors",
     "arm_pair_floors",
+    "reachable_obstacles",
 ]
 
 
@@ -286,6 +288,38 @@ def obstacle_velocities(centers: np.ndarray, path_ends: np.ndarray, speeds: np.n
     return (sign * speeds)[..., None] * unit
 
 
+def obstacle_stretch(centers: np.ndarray, path_ends: np.ndarray, speeds: np.ndarray, t: float,
+                     lookahead: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The stretch of its path each obstacle of :func:`obstacle_centers` covers from ``t`` to ``t + lookahead``
+    (s, inf allowed): its ends ``start``, ``end`` ``(O, 2)`` (start nearer the path's centre) and their
+    velocities ``(O, 2)``. Along the path the position is the triangle wave u(τ); over the window its least
+    and greatest values are taken at the window's ends or at a turn inside it (u = 0 or ℓ), and each end of
+    the stretch moves as the term that attains it (a turn: still)."""
+    c0, unit, _, length = _legs(centers, path_ends, speeds, t)
+    speeds = np.asarray(speeds, dtype=float)
+
+    def wave(time: float) -> tuple[np.ndarray, np.ndarray]:  # u and u̇ at ``time``
+        arc = np.where(length > 0, np.mod(time * speeds, 2.0 * np.where(length > 0, length, 1.0)), 0.0)
+        return length - np.abs(length - arc), np.where(length > 0, np.where(arc < length, speeds, -speeds), 0.0)
+
+    (u0, du0), later = wave(t), t + lookahead
+    u1, du1 = wave(later) if np.isfinite(later) else (u0, du0)
+    period = np.where(length > 0, 2.0 * length / np.where(length > 0, speeds, 1.0), np.inf)
+    # the turns in (t, t + lookahead]: at 0 when τ·s ≡ 0, at ℓ when τ·s ≡ ℓ (mod 2ℓ)
+    phase = np.where(np.isfinite(period), np.mod(t, np.where(np.isfinite(period), period, 1.0)), 0.0)
+    to_far = np.where(phase < period / 2, period / 2 - phase, 1.5 * period - phase)
+    to_near = period - phase
+    far_turn = (length > 0) & (to_far <= lookahead)
+    near_turn = (length > 0) & (to_near <= lookahead)
+    lo = np.minimum(u0, u1)
+    v_lo = np.where(u0 <= u1, du0, du1)
+    lo, v_lo = np.where(near_turn, 0.0, lo), np.where(near_turn, 0.0, v_lo)
+    hi = np.maximum(u0, u1)
+    v_hi = np.where(u0 >= u1, du0, du1)
+    hi, v_hi = np.where(far_turn, length, hi), np.where(far_turn, 0.0, v_hi)
+    return c0 + lo[:, None] * unit, c0 + hi[:, None] * unit, v_lo[:, None] * unit, v_hi[:, None] * unit
+
+
 def obstacle_floors(bases: np.ndarray, reach: np.ndarray, centers: np.ndarray, path_ends: np.ndarray,
                     radii: np.ndarray, body_radius: float) -> np.ndarray:
     """Lower bounds on the clearance of any body of each arm to each obstacle, in any configuration and at any
@@ -299,6 +333,16 @@ def obstacle_floors(bases: np.ndarray, reach: np.ndarray, centers: np.ndarray, p
     nearest = start + np.clip(along, 0.0, 1.0)[..., None] * step
     apart = np.linalg.norm(bases[..., :, None, :] - nearest, axis=-1)
     return apart - reach[..., :, None] - radii[..., None, :] - body_radius
+
+
+def reachable_obstacles(bases: np.ndarray, reach: np.ndarray, centers: np.ndarray, ends: np.ndarray,
+                        radii: np.ndarray, link_radius: float) -> np.ndarray:
+    """``(…, N, O)``: whether obstacle o comes, anywhere on its path from ``centers`` to ``ends`` ``(…, O, 2)``,
+    within arm i's ``reach (…, N)`` plus its radius (``radii (…, O)``) and ``link_radius`` of the arm's base
+    (``bases (…, N, 2)``), batched over any leading axes (:meth:`Scenario.obstacle_mask`, the envs' drawn teams)."""
+    at = bases[..., :, None, :]  # (…, N, 1, 2)
+    nearest, _ = closest_point_on_segment(centers[..., None, :, :], ends[..., None, :, :], at)
+    return np.linalg.norm(nearest - at, axis=-1) <= reach[..., None] + radii[..., None, :] + link_radius
 
 
 def arm_pair_floors(bases: np.ndarray, reach: np.ndarray, link_radius: float) -> np.ndarray:

@@ -34,12 +34,12 @@ REAL_OPTIONS = ("size_lo", "size_hi", "radius_lo", "radius_hi", "start_clearance
                 "speed_lo", "speed_hi", "path_lo", "path_hi", "fault_probability", "fault_lo", "fault_hi",
                 "shape_divisor", "base_margin")
 #: the kernel's integer options, in order
-FLAG_OPTIONS = ("n_obstacles", "links_bodies", "inter_arm", "moving", "arm_redraws")
+FLAG_OPTIONS = ("n_obstacles", "links_bodies", "inter_arm", "moving", "arm_redraws", "clear_paths")
 _R = {name: i for i, name in enumerate(REAL_OPTIONS)}
 _F = {name: i for i, name in enumerate(FLAG_OPTIONS)}
 SIZE_LO, SIZE_HI, RAD_LO, RAD_HI, CLEAR, SIGMA, RHO = (_R[n] for n in REAL_OPTIONS[:7])
 SPEED_LO, SPEED_HI, PATH_LO, PATH_HI, FAULT_P, FAULT_LO, FAULT_HI, DIVISOR, MARGIN = (_R[n] for n in REAL_OPTIONS[7:])
-N_OBST, LINKS, INTER_ARM, MOVING, REDRAWS = (_F[n] for n in FLAG_OPTIONS)
+N_OBST, LINKS, INTER_ARM, MOVING, REDRAWS, CLEAR_PATHS = (_F[n] for n in FLAG_OPTIONS)
 _STEPS = 200  # zero_momentum_start's trapezoid steps
 _JIT = {"cache": True, "error_model": "numpy"}  # no fast-math: the reference's rounding as far as possible
 
@@ -359,7 +359,8 @@ def _place_obstacles(gen, real, flags, links, passive, starts, targets, joints, 
                 sweep = lengths[i, 0] if passive[i] else 0.0
                 if _point_segment_distance(cx, cy, ex, ey, base[i, 0], base[i, 1]) < r + margin + rho + sweep:
                     ok = False
-            if not ok:
+            if not ok or (flags[CLEAR_PATHS] and not _path_clear(flags[LINKS], links, starts, targets, joints, cx, cy,
+                                                                 ex, ey, r, rho, clear)):
                 continue
             ends[placed, 0], ends[placed, 1], speeds[placed] = ex, ey, speed
         else:
@@ -367,6 +368,23 @@ def _place_obstacles(gen, real, flags, links, passive, starts, targets, joints, 
         centers[placed, 0], centers[placed, 1], radii[placed] = cx, cy, r
         placed += 1
     return placed == O
+
+
+@njit(**_JIT)
+def _path_clear(link_bodies, links, starts, targets, joints, cx, cy, ex, ey, r, rho, clear):
+    """The reference's ``clear_paths`` check: the swept capsule from (cx, cy) to (ex, ey) of radius r keeps
+    ``clear`` from every starting end-effector (and link) and 5 cm from every target."""
+    for i in range(len(links)):
+        if (_point_segment_distance(cx, cy, ex, ey, starts[i, 0], starts[i, 1]) - r < clear
+                or _point_segment_distance(cx, cy, ex, ey, targets[i, 0], targets[i, 1]) < r + 0.05):
+            return False
+        if link_bodies:
+            for a in range(links[i]):
+                d = _segment_distance(joints[i, a, 0], joints[i, a, 1], joints[i, a + 1, 0], joints[i, a + 1, 1],
+                                      cx, cy, ex, ey)
+                if d - r - rho < clear:
+                    return False
+    return True
 
 
 @njit(**_JIT)

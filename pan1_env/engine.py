@@ -28,7 +28,7 @@ from .bodies import arm_pair_floors, capsule_clearance, obstacle_floors, obstacl
 from .compiled import WholeArm, kernel_filter, kernels, plain
 from .kinds import Kind
 from .piqp_filter import PiqpFilter
-from .safety import QP_SOLVERS, FilterParams, check_fallback, check_gate, clearance, filter_parameters
+from .safety import QP_SOLVERS, FilterParams, check_choices, clearance, filter_parameters
 from .scenario import Scenario
 from .team_draw import TeamDraws, Teams
 from .validation import real
@@ -45,7 +45,7 @@ SENSING_RADIUS = 0.1
 #: sub-step) farther out than its radius, against what a sub-step's discretisation lets through
 SKIN = 0.002
 #: the kernel's rcbf (compiled.kernel_filter) with the filter off: it reads none of it
-_UNUSED_RCBF = (1.0, 1.0, 0.0, False, 0.0, False)
+_UNUSED_RCBF = (1.0, 1.0, 0.0, False, 0.0, False, 0.0)
 
 
 @dataclass
@@ -186,10 +186,8 @@ class Engine:
         :class:`FilterParams`); it acts from the next sub-step."""
         params = filter_parameters(safety_filter, self.teams[0])
         if params is not None:
-            check_fallback(params, self.whole_arm)
-        if params is not None and params.gate > 0.0:
             reach = max(float(kind.lengths.sum(axis=-1).max()) for kind in self.kinds)
-            check_gate(params, self.whole_arm, self.max_speed, reach, self.physics_dt)
+            check_choices(params, self.whole_arm, self.max_speed, reach, self.physics_dt)
         self.filter = params
         sensing = None if self.filter is None else self.filter.sensing_radius
         if sensing is not None and not self.whole_arm:  # the end-effector as the body of the whole-arm rows

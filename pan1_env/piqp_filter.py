@@ -136,7 +136,7 @@ def whole_arm_rows(engine: Engine, kind, r: int, v0: np.ndarray, epsilon: float)
     def lane(x: np.ndarray) -> np.ndarray:  # one lane (W = 1) of the kernel's scratch: lanes last
         return np.ascontiguousarray(x[..., None])
 
-    m_max = (n if whole.link_bodies else 1) * caps.shape[1] + 2 * k
+    m_max = K.most_rows(n if whole.link_bodies else 1, caps.shape[1], whole.n_world, k)
     A, b, active = np.zeros((m_max, k)), np.zeros(m_max), np.zeros(m_max, dtype=bool)
     m, h = K.whole_arm_rows(r, 0, n, k, kind.passive, whole.link_bodies, whole.link_radius, whole.sensing, whole.gate,
                             whole.skin,
@@ -144,7 +144,7 @@ def whole_arm_rows(engine: Engine, kind, r: int, v0: np.ndarray, epsilon: float)
                             kind.base[r, 1:].copy(), lane(np.cos(angles)), lane(np.sin(angles)), lane(kind.qd[r]),
                             lane(mass_matrix(arm, q)), float(kind.momentum[r]), caps, whole.n_world,
                             whole.start_time[r], f.kappa, epsilon, f.margin,
-                            f.barrier == "distance", f.decay, engine.max_speed, v0.copy(), A, b, active,
+                            f.barrier == "distance", f.decay, f.lookahead, engine.max_speed, v0.copy(), A, b, active,
                             np.empty((n + 1, 2)), np.empty((caps.shape[1], K.NEAR_COLUMNS)))
     return A[:m], b[:m], h
 

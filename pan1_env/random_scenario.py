@@ -16,7 +16,9 @@ so the same generator state gives the same scenario. Every draw is checked to be
   and a path (direction uniform, length in ``obstacle_path_length``) whose every point keeps the
   obstacle ``BASE_MARGIN + link_radius`` clear of every base, so no base is ever hit, and, for a PA
   arm, clear of the disk its first link sweeps (radius L₀ more): that link moves only as the passive
-  joint reacts, so an obstacle running into it could find the arm unable to get out of the way;
+  joint reacts, so an obstacle running into it could find the arm unable to get out of the way; with
+  ``clear_paths`` the whole path (the capsule the disk sweeps) passes the checks a still obstacle passes
+  at the start, so that every arm held still where it starts is never touched;
 * **regular at the start** – J̄ has full rank (Assumption 1), with σ_min(J̄) ≥ ``min_sigma``.
 
 Arms start at rest (Lemma 1 needs it). With the default options (end-effectors only, still
@@ -30,12 +32,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .bodies import closest_point_on_segment, inter_arm_clearance, link_clearance
+from .bodies import (
+    closest_point_on_segment,
+    inter_arm_clearance,
+    link_clearance,
+    link_segments,
+    segment_distance,
+)
 from .cascade import reduced_jacobian
 from .dynamics import ArmParams, end_effector, mass_matrix
 from .formation import SHAPES, Formation, shape_positions
 from .motion import FormationMotion, check_motion, check_times
-from .safety import BARRIERS, Obstacles, clearance
+from .safety import BARRIERS, FALLBACKS, Obstacles, clearance
 from .scenario import BODIES, Scenario
 from .validation import positive_int, real, whole_ratio
 
@@ -81,10 +89,18 @@ class RandomScenarioOptions:
         inter_arm: keep the arms' capsules apart (only with ``bodies="links"``).
         obstacle_speed: range of obstacle speeds, m/s; ``(0, 0)`` keeps the obstacles still.
         obstacle_path_length: range of the length of a moving obstacle's path, metres.
+        clear_paths: every moving obstacle's whole path, the capsule its disk sweeps, keeps the start clearance
+            from every starting end-effector (and, with links, every link) and 5 cm from every formation vertex:
+            the team held still where it starts is never touched, and no target lies on a path. False (the
+            default) checks the obstacle where it starts only; it draws no random number, so it changes the
+            draws of moving obstacles only.
         barrier: the filter's barrier in the drawn scenario, ``"squared"`` (the paper's) or ``"distance"``.
         decay: λ ≥ 0 of the filter's tunable ε(h̃) = ε e^{λ h̃} in the drawn scenario (0: the paper's).
         gate: width (m) of the filter's smooth activation past its sensing range in the drawn scenario
-            (0: a hard range; :class:`pan1_env.safety.FilterParams`). None of these three changes what is drawn.
+            (0: a hard range; :class:`pan1_env.safety.FilterParams`).
+        fallback: the whole-arm filter's last resort in the drawn scenario (:class:`pan1_env.safety.FilterParams`).
+        lookahead: how far ahead (s) the whole-arm filter keeps moving obstacles' paths out in the drawn scenario
+            (0: where they are; inf: their whole paths). None of these five changes what is drawn.
         passive_damping: viscous damping b ≥ 0 (N·m·s/rad) of every arm's first joint while it is passive
             (:class:`pan1_env.dynamics.ArmParams`; 0: the paper's frictionless joint). It changes no draw: the
             start is the frictionless arm's, from which the target is reached with p₁ = 0 (with damping p₁
@@ -131,9 +147,12 @@ class RandomScenarioOptions:
     inter_arm: bool = False
     obstacle_speed: tuple[float, float] = (0.0, 0.0)
     obstacle_path_length: tuple[float, float] = (0.2, 0.6)
+    clear_paths: bool = False
     barrier: str = "squared"
     decay: float = 0.0
     gate: float = 0.0
+    fallback: str = "command"
+    lookahead: float = 0.0
     passive_damping: float = 0.0
     fault_probability: float = 0.0
     fault_time: tuple[float, float] = (1.0, 10.0)
@@ -185,10 +204,17 @@ class RandomScenarioOptions:
                              f"got bodies={self.bodies!r}, link_radius={rho}, inter_arm={self.inter_arm}")
         for name, positive in (("obstacle_speed", False), ("obstacle_path_length", True)):
             self._range(name, positive=positive, non_negative=True)
+        if not isinstance(self.clear_paths, (bool, np.bool_)):
+            raise ValueError(f"RandomScenarioOptions.clear_paths must be True or False, got {self.clear_paths!r}")
+        object.__setattr__(self, "clear_paths", bool(self.clear_paths))
         if not isinstance(self.barrier, str) or self.barrier not in BARRIERS:
             raise ValueError(f"RandomScenarioOptions.barrier must be one of {BARRIERS}, got {self.barrier!r}")
         object.__setattr__(self, "decay", real("RandomScenarioOptions.decay", self.decay, non_negative=True))
         object.__setattr__(self, "gate", real("RandomScenarioOptions.gate", self.gate, non_negative=True))
+        if not isinstance(self.fallback, str) or self.fallback not in FALLBACKS:
+            raise ValueError(f"RandomScenarioOptions.fallback must be one of {FALLBACKS}, got {self.fallback!r}")
+        object.__setattr__(self, "lookahead", real("RandomScenarioOptions.lookahead", self.lookahead,
+                                                   non_negative=True, allow_inf=True))
         object.__setattr__(self, "passive_damping",
                            real("RandomScenarioOptions.passive_damping", self.passive_damping, non_negative=True))
         self._check_faults()
@@ -322,6 +348,8 @@ def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | N
                 x, _ = closest_point_on_segment(c, end, bases)
                 if np.any(np.linalg.norm(bases - x, axis=-1) < r + BASE_MARGIN + rho + passive_sweep):
                     continue
+                if opt.clear_paths and not _path_clear(arms, q0, starts, targets, c, end, r, opt):
+                    continue
                 paths.append(end)
                 speeds.append(speed)
             centers.append(c)
@@ -409,7 +437,8 @@ def drawn_scenario(opt: RandomScenarioOptions, arms: list[ArmParams], q0: list[n
         kp=opt.kp, ke=opt.ke, kappa=opt.kappa, epsilon=opt.epsilon, physics_dt=opt.physics_dt,
         control_dt=opt.control_dt, horizon=opt.horizon, source="<random>", bodies=opt.bodies,
         link_radius=opt.link_radius, inter_arm=opt.inter_arm, obstacle_paths=paths, obstacle_speeds=speeds,
-        safety_barrier=opt.barrier, safety_decay=opt.decay, safety_gate=opt.gate, fault_times=fault_times,
+        safety_barrier=opt.barrier, safety_decay=opt.decay, safety_gate=opt.gate, safety_fallback=opt.fallback,
+        safety_lookahead=opt.lookahead, fault_times=fault_times,
         motion=motion,
     )
 
@@ -467,6 +496,25 @@ def _links_clear(arms: list[ArmParams], q0: list[np.ndarray], c: np.ndarray, r: 
     """Every link capsule at least ``start_clearance`` outside the obstacle (c, r) at the start."""
     return all(link_clearance(arm, q, c[None], np.array([r]), opt.link_radius).min() >= opt.start_clearance
                for arm, q in zip(arms, q0, strict=True))
+
+
+def _path_clear(arms: list[ArmParams], q0: list[np.ndarray], starts: np.ndarray, targets: np.ndarray,
+                c: np.ndarray, end: np.ndarray, r: float, opt: RandomScenarioOptions) -> bool:
+    """The capsule an obstacle (c, r) sweeps to ``end`` and back keeps the start clearance from every starting
+    end-effector (and link, with ``bodies="links"``) and 5 cm from every formation vertex (``clear_paths``)."""
+    x, _ = closest_point_on_segment(c, end, starts)
+    if np.linalg.norm(starts - x, axis=-1).min() - r < opt.start_clearance:
+        return False
+    x, _ = closest_point_on_segment(c, end, targets)
+    if np.linalg.norm(targets - x, axis=-1).min() < r + 0.05:
+        return False
+    if opt.bodies != "links":
+        return True
+    for arm, q in zip(arms, q0, strict=True):
+        a, b = link_segments(arm, q)
+        if segment_distance(a, b, c, end)[0].min() - r - opt.link_radius < opt.start_clearance:
+            return False
+    return True
 
 
 def _draw_path(rng: np.random.Generator, c: np.ndarray, opt: RandomScenarioOptions) -> tuple[float, np.ndarray]:

@@ -86,8 +86,7 @@ __all__ = [
     "QP_SOLVERS",
     "FilterParams",
     "filter_parameters",
-    "check_gate",
-    "check_fallback",
+    "check_choices",
 ]
 
 QP_SOLVERS = ("active_set", "piqp")
@@ -525,7 +524,11 @@ class FilterParams:
     robust term (docs/SCENARIOS.md, *Whole-arm safety*, the fallback): the command that violates every row
     least, measured per unit of the row's norm (``"command"``, the default: a speed of the command), or per
     unit of the barrier's rate (``"barrier_rate"``: m/s of clearance for the distance barrier), which keeps
-    a link of short lever from outweighing one that can still get away."""
+    a link of short lever from outweighing one that can still get away.
+
+    ``lookahead`` (s): what the whole-arm rows keep out of a moving obstacle: 0 (the default) the disk where it
+    is now; T > 0 the capsule of the stretch of its path it covers in the next T s, inf (or a full period or
+    more) its whole path, which the filter then treats as a still obstacle (docs/MODEL.md §5b)."""
 
     kappa: float
     epsilon: float
@@ -535,12 +538,13 @@ class FilterParams:
     decay: float = 0.0
     gate: float = 0.0
     fallback: str = "command"
+    lookahead: float = 0.0
 
     def __post_init__(self) -> None:
         checked = _checked("FilterParams", self.kappa, self.epsilon, self.margin, self.sensing_radius, self.barrier,
-                           self.decay, self.gate, self.fallback)
+                           self.decay, self.gate, self.fallback, self.lookahead)
         for name, value in zip(("kappa", "epsilon", "margin", "sensing_radius", "barrier", "decay", "gate",
-                                "fallback"), checked, strict=True):
+                                "fallback", "lookahead"), checked, strict=True):
             object.__setattr__(self, name, value)
 
     @property
@@ -567,15 +571,16 @@ class FilterParams:
         barrier: str | None = None,
         decay: float | None = None,
         gate: float | None = None,
-        fallback: str = "command",
+        fallback: str | None = None,
+        lookahead: float | None = None,
     ) -> FilterParams:
-        """The scenario's κ, ε, margin, barrier, λ and gate, each replaced where given, and ``fallback``
-        (scenarios have no such key: every id's is ``"command"``). ``tracking_bound`` δ̄ instead of a margin
-        sets it to Γ(δ̄) (:func:`robust_margin`, with the filter's λ), so that an arm tracking within δ̄ stays
-        in the original set. Errors name the argument, prefixed by ``owner`` (the API that took it)."""
+        """The scenario's κ, ε, margin, barrier, λ, gate, fallback and look-ahead, each replaced where given.
+        ``tracking_bound`` δ̄ instead of a margin sets it to Γ(δ̄) (:func:`robust_margin`, with the filter's λ), so
+        that an arm tracking within δ̄ stays in the original set. Errors name the argument, prefixed by ``owner``
+        (the API that took it)."""
         if margin is not None and tracking_bound is not None:
             raise ValueError(f"{owner}: give margin or tracking_bound, not both")
-        kappa, epsilon, margin, sensing_radius, barrier, decay, gate, fallback = _checked(
+        kappa, epsilon, margin, sensing_radius, barrier, decay, gate, fallback, lookahead = _checked(
             owner,
             scenario.kappa if kappa is None else kappa,
             scenario.epsilon if epsilon is None else epsilon,
@@ -584,18 +589,19 @@ class FilterParams:
             scenario.safety_barrier if barrier is None else barrier,
             scenario.safety_decay if decay is None else decay,
             scenario.safety_gate if gate is None else gate,
-            fallback,
+            scenario.safety_fallback if fallback is None else fallback,
+            scenario.safety_lookahead if lookahead is None else lookahead,
         )
         if tracking_bound is not None:
             delta = real(f"{owner}: tracking_bound", tracking_bound, non_negative=True)
             margin = robust_margin(delta, kappa, epsilon, decay)
-        return cls(kappa, epsilon, margin, sensing_radius, barrier, decay, gate, fallback)
+        return cls(kappa, epsilon, margin, sensing_radius, barrier, decay, gate, fallback, lookahead)
 
 
 def _checked(
     owner: str, kappa: float, epsilon: float, margin: float, sensing_radius: float | None, barrier: str = "squared",
-    decay: float = 0.0, gate: float = 0.0, fallback: str = "command",
-) -> tuple[float, float, float, float | None, str, float, float, str]:
+    decay: float = 0.0, gate: float = 0.0, fallback: str = "command", lookahead: float = 0.0,
+) -> tuple[float, float, float, float | None, str, float, float, str, float]:
     """The filter's parameters as floats (the barrier a name of :data:`BARRIERS`, the fallback one of
     :data:`FALLBACKS`), or a ValueError naming the first bad one."""
     if not isinstance(barrier, str) or barrier not in BARRIERS:
@@ -611,14 +617,31 @@ def _checked(
         real(f"{owner}: decay", decay, non_negative=True),
         real(f"{owner}: gate", gate, non_negative=True),
         fallback,
+        real(f"{owner}: lookahead", lookahead, non_negative=True, allow_inf=True),
     )
 
 
-def check_gate(params: FilterParams, whole_arm: bool, max_speed: float, reach: float, physics_dt: float) -> None:
-    """A smooth gate acts on the whole-arm rows' sensing range, relaxes rows towards the speed box, and is a gate only
-    if it is wider than what a body covers in a sub-step (an arm of ``reach`` m turning at ``max_speed``, its far end;
-    docs/MODEL.md §5, *Activation*). ValueError otherwise."""
-    if not whole_arm and params.sensing_radius is None:
+def check_choices(params: FilterParams, whole_arm: bool, max_speed: float, reach: float, physics_dt: float) -> None:
+    """The filter's choices that act on the whole-arm rows, checked against the engine that would apply them (an
+    arm of ``reach`` m at most, its speed bound ``max_speed`` rad/s, its sub-step ``physics_dt`` s): ValueError
+    naming the first that would do nothing or could not work.
+
+    - ``fallback`` other than ``"command"`` measures the whole-arm last resort (the end-effector filter brakes,
+      or holds a drifting end-effector, instead);
+    - ``lookahead`` > 0 shapes the whole-arm rows (the end-effector filter sees obstacles where they are);
+    - ``gate`` > 0 widens the whole-arm rows' sensing range, relaxes rows towards the speed box, and is a gate only
+      if it is wider than what a body covers in a sub-step (its far end turning at ``max_speed``; docs/MODEL.md
+      §5, *Activation*)."""
+    rows = whole_arm or params.sensing_radius is not None
+    if params.fallback != "command" and not rows:
+        raise ValueError(f"FilterParams.fallback={params.fallback!r} measures the whole-arm filter's last resort: "
+                         "it needs whole-arm bodies or a sensing_radius (the end-effector filter brakes instead)")
+    if params.lookahead > 0 and not rows:
+        raise ValueError(f"FilterParams.lookahead={params.lookahead:g} shapes the whole-arm filter's rows: it needs "
+                         "whole-arm bodies or a sensing_radius (the end-effector filter sees obstacles where they are)")
+    if params.gate == 0.0:
+        return
+    if not rows:
         raise ValueError("FilterParams.gate widens a sensing range: it needs whole-arm bodies or a sensing_radius")
     if not np.isfinite(max_speed):
         raise ValueError("FilterParams.gate relaxes rows towards the speed box: it needs a finite max_speed")
@@ -627,14 +650,6 @@ def check_gate(params: FilterParams, whole_arm: bool, max_speed: float, reach: f
         raise ValueError(f"FilterParams.gate must be 0 (a hard range) or at least one sub-step's travel, "
                          f"{travel:.4g} m (max_speed {max_speed:g} rad/s × reach {reach:.3g} m × physics_dt "
                          f"{physics_dt:g} s), got {params.gate:g}")
-
-
-def check_fallback(params: FilterParams, whole_arm: bool) -> None:
-    """The fallback's measure is a choice of the whole-arm filter's last resort: the end-effector filter brakes
-    (or holds a drifting end-effector) instead. ValueError where it would do nothing."""
-    if params.fallback != "command" and not whole_arm and params.sensing_radius is None:
-        raise ValueError(f"FilterParams.fallback={params.fallback!r} measures the whole-arm filter's last resort: "
-                         "it needs whole-arm bodies or a sensing_radius (the end-effector filter brakes instead)")
 
 
 def filter_parameters(safety_filter: bool | FilterParams | None, scenario: Scenario) -> FilterParams | None:

@@ -11,7 +11,8 @@ the README ("Scenario files"); in short::
     [controller]  kp, ke                                   (K_P, K_e)
     [safety]      kappa, epsilon, margin = 0, ignore_unreachable_obstacles = true,
                   bodies = "end_effector" | "links", link_radius = 0, inter_arm = false,
-                  barrier = "squared" | "distance", decay = 0, gate = 0 (m; a smooth activation past the sensing range)
+                  barrier = "squared" | "distance", decay = 0, gate = 0 (m; a smooth activation past the sensing range),
+                  fallback = "command" | "barrier_rate", lookahead = 0 (s; inf keeps moving obstacles' whole paths out)
     [arm_defaults] masses, lengths, com, inertias, passive_first_joint, phi,
                   passive_damping = 0 (N·m·s/rad at a passive first joint)   (optional)
     [[arms]]      base, q0, and any arm_defaults key to override it
@@ -42,18 +43,19 @@ from .bodies import (
     link_clearance,
     obstacle_centers,
     obstacle_velocities,
+    reachable_obstacles,
 )
 from .dynamics import ArmParams
 from .formation import Formation, FormationError
 from .motion import FormationMotion, check_motion, switch_shape
-from .safety import BARRIERS, Obstacles, clearance
+from .safety import BARRIERS, FALLBACKS, Obstacles, clearance
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["Scenario", "ScenarioError", "load", "from_dict", "builtin_names", "reachable_obstacles", "BODIES"]
+__all__ = ["Scenario", "ScenarioError", "load", "from_dict", "builtin_names", "BODIES"]
 
 #: What the ``[safety]`` table's ``bodies`` key may protect: the end-effectors (the paper) or every link.
 BODIES = ("end_effector", "links")
@@ -98,10 +100,13 @@ class Scenario:
     inter_arm: bool = False
     obstacle_paths: np.ndarray | None = None
     obstacle_speeds: np.ndarray | None = None
-    #: the filter's barrier, λ of its tunable ε(h̃) and activation gate (:class:`pan1_env.safety.FilterParams`)
+    #: the filter's barrier, λ of its tunable ε(h̃), activation gate, last resort's measure and look-ahead along
+    #: moving obstacles' paths (:class:`pan1_env.safety.FilterParams`)
     safety_barrier: str = "squared"
     safety_decay: float = 0.0
     safety_gate: float = 0.0
+    safety_fallback: str = "command"
+    safety_lookahead: float = 0.0
     #: ``(N,)`` s: when each arm's first joint loses its actuator (inf: never; docs/MODEL.md §7); None: no arm
     #: of this team or of the teams an engine loads after it can fault
     fault_times: np.ndarray | None = None
@@ -121,6 +126,11 @@ class Scenario:
             raise ValueError(f"Scenario.safety_decay must be finite and non-negative, got {self.safety_decay!r}")
         if not (math.isfinite(self.safety_gate) and self.safety_gate >= 0):
             raise ValueError(f"Scenario.safety_gate must be finite and non-negative, got {self.safety_gate!r}")
+        if self.safety_fallback not in FALLBACKS:
+            raise ValueError(f"Scenario.safety_fallback must be one of {FALLBACKS}, got {self.safety_fallback!r}")
+        if not self.safety_lookahead >= 0:
+            raise ValueError(f"Scenario.safety_lookahead must be non-negative (s, inf allowed), "
+                             f"got {self.safety_lookahead!r}")
         n_obs = len(self.obstacles)
         if (self.obstacle_paths is None) != (self.obstacle_speeds is None):
             raise ValueError("Scenario.obstacle_paths and obstacle_speeds go together: give both or neither")
@@ -207,16 +217,6 @@ class Scenario:
                                    self.obstacles.radii, self.link_radius)
 
 
-def reachable_obstacles(bases: np.ndarray, reach: np.ndarray, centers: np.ndarray, ends: np.ndarray,
-                        radii: np.ndarray, link_radius: float) -> np.ndarray:
-    """``(…, N, O)``: whether obstacle o comes, anywhere on its path from ``centers`` to ``ends`` ``(…, O, 2)``,
-    within arm i's ``reach (…, N)`` plus its radius (``radii (…, O)``) and ``link_radius`` of the arm's base
-    (``bases (…, N, 2)``), batched over any leading axes (:meth:`Scenario.obstacle_mask`, the envs' drawn teams)."""
-    at = bases[..., :, None, :]  # (…, N, 1, 2)
-    nearest, _ = closest_point_on_segment(centers[..., None, :, :], ends[..., None, :, :], at)
-    return np.linalg.norm(nearest - at, axis=-1) <= reach[..., None] + radii[..., None, :] + link_radius
-
-
 _TOP_KEYS = {"name", "description", "simulation", "controller", "safety", "arm_defaults", "arms",
              "formation", "obstacles", "faults"}
 _ARM_PARAM_KEYS = {"masses", "lengths", "com", "inertias", "passive_first_joint", "phi", "passive_damping"}
@@ -268,7 +268,7 @@ def _angle(value: Any, src: str, key: str) -> float:
 
 
 def _number(table: Mapping[str, Any], key: str, src: str, prefix: str, *, positive: bool = True,
-            default: float | None = None) -> float:
+            default: float | None = None, infinite: bool = False) -> float:
     full = f"{prefix}.{key}"
     if key not in table:
         if default is None:
@@ -278,8 +278,8 @@ def _number(table: Mapping[str, Any], key: str, src: str, prefix: str, *, positi
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ScenarioError(src, full, f"expected a number, got {value!r}")
     value = _float(value, src, full)
-    if not math.isfinite(value):
-        raise ScenarioError(src, full, f"must be finite, got {value!r}")
+    if not math.isfinite(value) and not (infinite and value == math.inf):
+        raise ScenarioError(src, full, f"must be {'a number or inf' if infinite else 'finite'}, got {value!r}")
     if positive and value <= 0:
         raise ScenarioError(src, full, f"must be positive, got {value!r}")
     if not positive and value < 0:
@@ -402,7 +402,7 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
     kp = _number(ctrl, "kp", src, "controller")
     ke = _number(ctrl, "ke", src, "controller")
     saf = _table(data, "safety", src, {"kappa", "epsilon", "margin", "ignore_unreachable_obstacles", "bodies",
-                                       "link_radius", "inter_arm", "barrier", "decay", "gate"})
+                                       "link_radius", "inter_arm", "barrier", "decay", "gate", "fallback", "lookahead"})
     kappa = _number(saf, "kappa", src, "safety")
     epsilon = _number(saf, "epsilon", src, "safety")
     margin = _number(saf, "margin", src, "safety", positive=False, default=0.0)
@@ -416,6 +416,11 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
                             + ", ".join(f'"{b}"' for b in BARRIERS))
     decay = _number(saf, "decay", src, "safety", positive=False, default=0.0)
     gate = _number(saf, "gate", src, "safety", positive=False, default=0.0)
+    fallback = saf.get("fallback", "command")
+    if fallback not in FALLBACKS:
+        raise ScenarioError(src, "safety.fallback", f"unknown fallback {fallback!r}; allowed values are "
+                            + ", ".join(f'"{f}"' for f in FALLBACKS))
+    lookahead = _number(saf, "lookahead", src, "safety", positive=False, default=0.0, infinite=True)
 
     defaults = _table(data, "arm_defaults", src, _ARM_PARAM_KEYS, required=False)
     arms_raw = data.get("arms")
@@ -498,8 +503,9 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
         control_dt=control_dt, horizon=horizon, safety_margin=margin,
         ignore_unreachable_obstacles=ignore, source=source, bodies=bodies, link_radius=link_radius,
         inter_arm=inter_arm, obstacle_paths=obstacle_paths, obstacle_speeds=obstacle_speeds,
-        safety_barrier=barrier, safety_decay=decay, safety_gate=gate,
-        fault_times=_fault_times(data, arms, horizon, src), motion=_motion(form, formation, arms, horizon, src),
+        safety_barrier=barrier, safety_decay=decay, safety_gate=gate, safety_fallback=fallback,
+        safety_lookahead=lookahead, fault_times=_fault_times(data, arms, horizon, src),
+        motion=_motion(form, formation, arms, horizon, src),
     )
 
 

@@ -16,10 +16,11 @@ from functools import cache
 
 import numpy as np
 
+from .bodies import reachable_obstacles
 from .dynamics import ArmParams
 from .formation import Formation, shape_positions
 from .random_scenario import BASE_MARGIN, DrawError, RandomScenarioOptions, draw_motion, drawn_scenario
-from .scenario import Scenario, reachable_obstacles
+from .scenario import Scenario
 
 __all__ = ["TeamDraws", "Teams", "draw_teams", "check_numpy_streams"]
 
@@ -160,7 +161,7 @@ def _kernel_options(opt: RandomScenarioOptions) -> tuple[np.ndarray, np.ndarray,
               "fault_probability": opt.fault_probability, "fault_lo": opt.fault_time[0], "fault_hi": opt.fault_time[1],
               "shape_divisor": divisor, "base_margin": BASE_MARGIN}  # an argument: a cached kernel keeps no constant
     flags = {"n_obstacles": opt.n_obstacles, "links_bodies": opt.bodies == "links", "inter_arm": opt.inter_arm,
-             "moving": opt.moving, "arm_redraws": opt.arm_redraws}
+             "moving": opt.moving, "arm_redraws": opt.arm_redraws, "clear_paths": opt.moving and opt.clear_paths}
     return (np.array([values[n] for n in REAL_OPTIONS], dtype=float),
             np.array([flags[n] for n in FLAG_OPTIONS], dtype=np.int64),
             np.array(opt.links, dtype=np.int64), np.array(opt.passive, dtype=np.bool_), np.ascontiguousarray(unit))

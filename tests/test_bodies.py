@@ -197,6 +197,30 @@ def test_moving_obstacle_time_term() -> None:
     assert np.all(bodies.link_obstacle_barrier(arm, q, c(t0), radii).dh_dt == 0)  # still: no time term
 
 
+@pytest.mark.parametrize("lookahead", [0.3, 1.0, 3.0, np.inf])
+def test_obstacle_stretch_is_the_sampled_path_and_its_ends_move_as_it_says(lookahead: float) -> None:
+    """The stretch an obstacle covers in the next T s: its ends are the extremes, along the path, of the
+    obstacle's sampled positions over the window, and their velocities the time derivatives of those ends;
+    a still obstacle's stretch is its centre."""
+    rng = np.random.default_rng(11)
+    centers = rng.uniform(-1.0, 1.0, (6, 2))
+    ends = centers + rng.uniform(-0.4, 0.4, (6, 2))
+    speeds = rng.uniform(0.05, 0.3, 6)
+    speeds[0] = 0.0
+    unit = (ends - centers) / np.linalg.norm(ends - centers, axis=1)[:, None]
+    for t in rng.uniform(0.0, 20.0, 5):
+        start, end, v_start, v_end = bodies.obstacle_stretch(centers, ends, speeds, t, lookahead)
+        window = np.linspace(t, t + min(lookahead, 100.0), 20001)
+        along = np.einsum("kod,od->ko", bodies.obstacle_centers(centers, ends, speeds, window) - centers, unit)
+        np.testing.assert_allclose(start, centers + along.min(0)[:, None] * unit, atol=1e-3)
+        np.testing.assert_allclose(end, centers + along.max(0)[:, None] * unit, atol=1e-3)
+        later = bodies.obstacle_stretch(centers, ends, speeds, t + 1e-6, lookahead)
+        np.testing.assert_allclose((later[0] - start) / 1e-6, v_start, atol=1e-4)
+        np.testing.assert_allclose((later[1] - end) / 1e-6, v_end, atol=1e-4)
+        np.testing.assert_array_equal(start[0], centers[0])
+        np.testing.assert_array_equal(end[0], centers[0])
+
+
 @pytest.mark.parametrize("kinds", [(True, False), (False, True), (True, True)], ids=["PA-FA", "FA-PA", "PA-PA"])
 def test_inter_arm_barrier_gradients_and_rows(kinds: tuple[bool, bool]) -> None:
     for seed in range(4):

@@ -8,15 +8,20 @@ from numba import njit
 
 from pan1_env import kernels
 from pan1_env.cascade import cascade_rk4_step, cascade_terms, end_effector_drift, passive_momentum, reduced_jacobian
-from pan1_env.compiled import kernel_sizes
+from pan1_env.compiled import kernel_filter, kernel_sizes
 from pan1_env.control import backstepping_torque
 from pan1_env.dynamics import ArmBatch, ArmParams, end_effector
 from pan1_env.kernels._numba_ext import _JIT, _LANES, _local, _slp_vectorised
 from pan1_env.kernels.physics import _SERIES_MAX, _SERIES_SHORT, _rotate_lanes, _spd_solve
 from pan1_env.kernels.qp import _first_projection_lanes
 from pan1_env.kernels.substep import _advance_arms
-from pan1_env.safety import active_set_projection, clearance, project_velocity, rcbf_constraints
+from pan1_env.safety import FilterParams, active_set_projection, clearance, project_velocity, rcbf_constraints
 
+
+def _rcbf(kappa: float, epsilon: float, margin: float, distance: bool, decay: float) -> tuple:
+    """The kernels' ``rcbf`` for these settings, built as the engine builds it."""
+    return kernel_filter(FilterParams(kappa, epsilon, margin, barrier="distance" if distance else "squared",
+                                      decay=decay))
 
 def _group(rng: np.random.Generator, n: int, passive: bool, count: int = 5):
     arms = []
@@ -98,7 +103,7 @@ def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False
             batch.passive_first_joint, q, v, momentum, prev, has_prev, np.arange(A) if rows is None else rows,
             _window(A, n_sub) if window is None else window, command, torque, filter_on,
             np.broadcast_to(centers, (A, *centers.shape)).copy(),
-            np.broadcast_to(radii, (A, len(radii))).copy(), mask, (kappa, eps, margin, distance, decay, False), ke, dt,
+            np.broadcast_to(radii, (A, len(radii))).copy(), mask, _rcbf(kappa, eps, margin, distance, decay), ke, dt,
             n_sub, v_max, out["v_star"], out["tau"], out["qd"], out["p"], out["clear"], out["min_h"], out["counts"],
             out["track"], out["finite"], None)
     if parallel:
@@ -428,7 +433,7 @@ def test_per_arm_obstacles_equal_one_arm_at_a_time() -> None:
     kernels.group_advance(*kernel_sizes(q.shape[1], k), batch.lam, batch.lengths, batch.base, batch.phi, np.zeros(A),
                           True, q_all, v_all, np.zeros(A), np.zeros((A, k)), np.zeros(A, bool), np.arange(A),
                           _window(A, 3), command, False, True,
-                          centers, radii, np.ones((A, 2), bool), (0.5, 5.0, 0.0, False, 0.0, False), 100.0, 1e-3, 3,
+                          centers, radii, np.ones((A, 2), bool), _rcbf(0.5, 5.0, 0.0, False, 0.0), 100.0, 1e-3, 3,
                           2.0, *args.values(), None)
     for i in range(A):
         one = ArmBatch(lam=batch.lam[i : i + 1], lengths=batch.lengths[i : i + 1], base=batch.base[i : i + 1],
@@ -581,7 +586,7 @@ def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
             args = [batch.lam, batch.lengths, batch.base, batch.phi, np.zeros(A), True, qk, vk, np.zeros(A), out[0],
                     out[1], np.arange(A), _window(A, 5), command, torque,
                     True, np.broadcast_to(centers, (A, 3, 2)).copy(), np.broadcast_to(radii, (A, 3)).copy(), mask,
-                    (0.5, 5.0, 0.01, distance, decay, False), 100.0, 1e-2, 5, v_max, *out[2:], None]
+                    _rcbf(0.5, 5.0, 0.01, distance, decay), 100.0, 1e-2, 5, v_max, *out[2:], None]
             if kernel == "slp":
                 kernels.group_advance(*kernel_sizes(3, 2), *args)
             else:
@@ -628,7 +633,7 @@ def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> Non
                 kernel(*kernel_sizes(n, k), batch.lam, batch.lengths, batch.base, batch.phi, damping, passive, qk,
                        vk, pk, out[0], out[1], np.arange(A), _window(A, 5), command, torque, filter_on,
                        np.broadcast_to(centers, (A, 3, 2)).copy(), np.broadcast_to(radii, (A, 3)).copy(), mask,
-                       (0.5, 5.0, 0.01, distance, decay, False), 100.0, 1e-2, 5, v_max, *out[2:], None)
+                       _rcbf(0.5, 5.0, 0.01, distance, decay), 100.0, 1e-2, 5, v_max, *out[2:], None)
             runs.append([qk, vk, pk, *out])
         finite, counts = runs[0][-1], runs[0][-3]
         assert not finite[3]

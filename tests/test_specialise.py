@@ -17,9 +17,10 @@ import numpy as np
 import pytest
 
 from pan1_env import kernels
-from pan1_env.compiled import kernel_sizes
+from pan1_env.compiled import kernel_filter, kernel_sizes
 from pan1_env.environment import parallel_env
 from pan1_env.kernels import specialise, substep
+from pan1_env.safety import FilterParams
 
 TEAM = {"n_arms": 2, "links": (3, 2)}  # a PA2 arm and a fully actuated 2-link arm
 
@@ -31,7 +32,7 @@ def _args(n: int, passive: bool, A: int = 2) -> tuple:
     lam = np.broadcast_to(np.eye(n), (A, n, n)).copy()
     return (*kernel_sizes(n, k), lam, np.full((A, n), 0.3), z(A, 2), z(A), z(A), passive, z(A, n), z(A, k), z(A),
             z(A, k), np.zeros(A, bool), np.arange(A), np.tile(np.array([0, 1]), (A, 1)), z(A, k), False, True,
-            z(A, 0, 2), z(A, 0), np.zeros((A, 0), bool), (1.0, 1.0, 0.0, False, 0.0, False), 100.0, 0.01, 1, np.inf,
+            z(A, 0, 2), z(A, 0), np.zeros((A, 0), bool), kernel_filter(FilterParams(1.0, 1.0)), 100.0, 0.01, 1, np.inf,
             z(A, k),
             z(A, k), z(A, n), z(A, 2), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64), z(A),
             np.ones(A, bool), None)

@@ -10,7 +10,7 @@ import copy
 
 import numpy as np
 import pytest
-from geometry import inter_arm_clearances, joints, obstacle_clearances, point_segment_distance
+from geometry import inter_arm_clearances, joints, obstacle_clearances, point_segment_distance, segment_segment_distance
 
 from pan1_env.cascade import reduced_jacobian
 from pan1_env.random_scenario import BASE_MARGIN, DrawError, RandomScenarioOptions, random_scenario
@@ -22,6 +22,7 @@ OPTIONS = {
     "whole_arm": ENV_IDS["pan1_env/WholeArmStaticFormation-v1"]["random_options"],
     "moving_obstacles": ENV_IDS["pan1_env/WholeArmFormation-v1"]["random_options"],
     "faults": ENV_IDS["pan1_env/FaultFormation-v0"]["random_options"],
+    "clear_paths": ENV_IDS["pan1_env/WholeArmFormation-v1"]["random_options"] | {"clear_paths": True},
     # odd numbers of signs per arm leave a 32-bit half in the generator's buffer between arms and attempts
     "mixed": {"n_arms": 5, "links": (2, 3, 4, 3, 2), "passive_fraction": 0.6, "n_obstacles": 4},
     "square": {"shape": "square", "links": 2, "passive_fraction": 0.25},
@@ -94,8 +95,11 @@ def test_a_copys_team_depends_on_its_generator_only() -> None:
     assert not np.array_equal(among.bases[0], among.bases[1])
 
 
-def test_the_guarantees_hold_on_hundreds_of_draws_by_independent_geometry() -> None:
-    options = RandomScenarioOptions(**OPTIONS["moving_obstacles"])
+@pytest.mark.parametrize("case", ["moving_obstacles", "clear_paths"])
+def test_the_guarantees_hold_on_hundreds_of_draws_by_independent_geometry(case: str) -> None:
+    """Start clearances, σ_min, reachable vertices and paths clear of the bases; with ``clear_paths`` every path's
+    swept capsule clear of the starting links and 5 cm from every vertex, by the tests' own geometry."""
+    options = RandomScenarioOptions(**OPTIONS[case])
     rho, clear = options.link_radius, options.start_clearance
     draws = draw_teams([np.random.default_rng(1000 + s) for s in range(300)], options)
     for c in range(300):
@@ -115,6 +119,10 @@ def test_the_guarantees_hold_on_hundreds_of_draws_by_independent_geometry() -> N
             for arm in team.arms:
                 sweep = arm.lengths[0] if arm.passive_first_joint else 0.0
                 assert point_segment_distance(arm.base, centre, end) >= r + BASE_MARGIN + rho + sweep - 1e-9
+            if options.clear_paths:
+                assert min(point_segment_distance(x, centre, end) for x in targets) >= r + 0.05 - 1e-9
+                assert min(segment_segment_distance(p[a], p[a + 1], centre, end) for p in arm_joints
+                           for a in range(len(p) - 1)) - r - rho >= clear - 1e-9
 
 
 @pytest.mark.parametrize("env_id", ["pan1_env/RandomFormation-v2", "pan1_env/WholeArmStaticFormation-v1"])

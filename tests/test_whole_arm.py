@@ -32,19 +32,19 @@ def _lanes(arm: ArmParams, q: np.ndarray) -> dict:
 def _rows(arm: ArmParams, q: np.ndarray, caps: np.ndarray, *, links: bool = True, rho: float = 0.0,
           time: float = 0.0, kappa: float = 1.0, epsilon: float = 10.0, margin: float = 0.0, v_max: float = np.inf,
           sensing: float = np.inf, skin: float = 0.0, dt: float = 0.0, qd: np.ndarray | None = None,
-          distance: bool = False, decay: float = 0.0, gate: float = 0.0, p1: float = 0.0):
+          distance: bool = False, decay: float = 0.0, gate: float = 0.0, p1: float = 0.0, lookahead: float = 0.0):
     """kernels.capsules.whole_arm_rows for one arm at q (one lane; ``p1`` its passive momentum): (A, b, h_min)
     of the rows written."""
     n = arm.n_links
     k = n - 1 if arm.passive_first_joint else n
-    m_max = (n if links else 1) * caps.shape[1] + 2 * k
+    m_max = kernels().capsules.most_rows(n if links else 1, caps.shape[1], caps.shape[1], k)
     A, b, active, P = np.zeros((m_max, k)), np.zeros(m_max), np.zeros(m_max, bool), np.empty((n + 1, 2))
     lane = _lanes(arm, q)
     qd = np.zeros((n, 1)) if qd is None else np.asarray(qd, float).reshape(n, 1)
     m, h_min = kernels().capsules.whole_arm_rows(
         0, 0, n, k, arm.passive_first_joint, links, rho, sensing, gate, skin, dt, lane["lengths"], lane["bx"],
         lane["by"], lane["c"], lane["s"], qd, lane["M"], p1, caps, caps.shape[1], time, kappa, epsilon, margin,
-        distance, decay, v_max, np.zeros(k), A, b, active, P,
+        distance, decay, lookahead, v_max, np.zeros(k), A, b, active, P,
         np.empty((caps.shape[1], kernels().capsules.NEAR_COLUMNS)))
     return A[:m], b[:m], h_min
 
@@ -138,6 +138,55 @@ def test_whole_arm_rows_with_the_filter_choices_match_the_numpy_reference(distan
     A_ref, b_ref = cbf_rows(h, row, kappa, epsilon, 0.0, decay, rate, share=0.5)
     np.testing.assert_allclose(A, A_ref, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(b, b_ref, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize(("lookahead", "distance"), [(0.7, False), (2.5, True), (np.inf, True)])
+def test_look_ahead_rows_keep_out_the_stretch_of_path_the_obstacle_covers(lookahead: float, distance: bool) -> None:
+    """With a look-ahead T the kernel's link rows are the barrier of each link against the capsule of the
+    stretch of path its obstacle covers in the next T s (bodies.obstacle_stretch, itself checked against the
+    sampled path): for each link and stretch, one row at their closest pair and one at the link's other end
+    (nearly parallel segments' closest pair jumps between the ends); h and L_g0 h from the segment distance and
+    the link Jacobian, ∂h/∂t by a central difference in time of that barrier; T = inf is the whole path, a still
+    obstacle (∂h/∂t = 0)."""
+    from pan1_env.safety import cbf_rows, shaped_barrier
+
+    K = kernels().capsules
+    rng = np.random.default_rng(29 + distance)
+    arm = _arm(rng, 3, True)
+    q = rng.uniform(-1.5, 1.5, 3)
+    centers = arm.base + rng.uniform(-1.0, 1.0, (5, 2))
+    ends = centers + rng.uniform(-0.4, 0.4, (5, 2))
+    radii, speeds, rho = rng.uniform(0.05, 0.2, 5), rng.uniform(0.1, 0.5, 5), 0.03
+    time, kappa, epsilon, margin, form = 2.7, 0.8, 20.0, 0.01, "distance" if distance else "squared"
+    caps = _capsules(K, centers, centers, radii, np.ones(5), ends, speeds)
+    A, b, h_min = _rows(arm, q, caps, rho=rho, time=time, kappa=kappa, epsilon=epsilon, margin=margin,
+                        distance=distance, lookahead=lookahead)
+    a, e = bodies.link_segments(arm, q)
+    start, end, _, _ = bodies.obstacle_stretch(centers, ends, speeds, time, lookahead)
+    s_pair = bodies.segment_distance(a[:, None], e[:, None], start[None], end[None])[1]  # (3, 5)
+    s_rows = np.stack([s_pair, np.where(s_pair < 0.5, 1.0, 0.0)], axis=-1)  # the pair, then the other end
+
+    def barrier(t: float) -> tuple[np.ndarray, np.ndarray]:  # h (3·5·2,) and ∇_q h (3·5·2, 3) at time t
+        start, end, _, _ = bodies.obstacle_stretch(centers, ends, speeds, t, lookahead)
+        x = a[:, None, None] + s_rows[..., None] * (e - a)[:, None, None]  # (3, 5, 2, 2): the rows' link points
+        y, _ = bodies.closest_point_on_segment(start[None, :, None], end[None, :, None], x)
+        J = bodies.link_point_jacobian(arm, q, np.arange(3)[:, None, None], s_rows)  # (3, 5, 2, 2, 3)
+        h = np.sum((x - y) ** 2, axis=-1) - (radii[:, None] + rho) ** 2
+        return h.reshape(30), (2.0 * np.einsum("lopc,lopcq->lopq", x - y, J)).reshape(30, 3)
+
+    h, grad = barrier(time)
+    step = 1e-6
+    rate = (barrier(time + step)[0] - barrier(time - step)[0]) / (2 * step)
+    if np.isinf(lookahead):
+        assert np.all(rate == 0.0)
+    h, row, dh_dt = shaped_barrier(h, np.tile(np.repeat(radii + rho, 2), 3), form, grad @ passive_velocity_map(arm, q),
+                                   rate)
+    A_ref, b_ref = cbf_rows(h, row, kappa, epsilon, margin, 0.0, dh_dt)
+    np.testing.assert_allclose(A, A_ref, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(b, b_ref, rtol=1e-6, atol=1e-7)
+    assert h_min == pytest.approx(h.min(), rel=1e-12)
+    now = bodies.link_obstacle_barrier(arm, q, bodies.obstacle_centers(centers, ends, speeds, time), radii, rho).h
+    assert np.all(h_min <= shaped_barrier(now.reshape(15), np.tile(radii + rho, 3), form)[0])  # never less kept out
 
 
 @pytest.mark.parametrize("distance", [False, True])

@@ -40,7 +40,9 @@ from .qp import STATUS_FALLBACK, _project_one
 (CAP_AX, CAP_AY, CAP_BX, CAP_BY, CAP_RADIUS, CAP_SHARE, CAP_UX, CAP_UY, CAP_PATH, CAP_SPEED, CAP_ACTIVE, CAP_ARM,
  CAP_LINK, CAP_FLOOR) = range(14)
 CAPSULE_COLUMNS = 14  #: columns of a capsule row; ``CAP_ARM`` is −1 for a world obstacle or an unused slot
-NEAR_COLUMNS = 10  #: :func:`whole_arm_rows`' scratch: segment now, velocity, half length, reach, range, share
+#: :func:`whole_arm_rows`' scratch: segment now, its start's velocity, half length, reach, range, share, its end's
+#: velocity, whether it is a stretch of path
+NEAR_COLUMNS = 13
 
 
 @njit(**_JIT, forceinline=True)
@@ -100,6 +102,39 @@ def _capsule_now(caps, i, j, time):
 
 
 @njit(**_JIT, forceinline=True)
+def _capsule_ahead(caps, i, j, time, lookahead):
+    """The stretch of world obstacle j's path that it covers from ``time`` to ``time + lookahead`` (its
+    whole path once that is a full period, 2ℓ/speed, or more): the segment's start and direction
+    (a2x, a2y, d2x, d2y) and the velocities of its start and of its end (:func:`_capsule_now`'s wave).
+    The obstacle is a disk, so the stretch is a capsule of its radius; a still one is itself."""
+    ax, ay = caps[i, j, CAP_AX], caps[i, j, CAP_AY]
+    speed, length = caps[i, j, CAP_SPEED], caps[i, j, CAP_PATH]
+    if not (speed > 0.0 and length > 0.0):
+        return ax, ay, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    ux, uy = caps[i, j, CAP_UX], caps[i, j, CAP_UY]
+    period = 2.0 * length
+    arc = speed * time
+    arc -= period * np.floor(arc / period)
+    u = length - abs(length - arc)
+    ahead = speed * lookahead
+    lo, hi, v_lo, v_hi = 0.0, length, 0.0, 0.0  # the whole path: still
+    if ahead < period:
+        if arc < length:  # outward: covers u … u + ahead, or turns at ℓ and comes back to 2ℓ − ahead − u
+            back = 2.0 * length - ahead - u
+            if ahead <= length - u:
+                lo, hi, v_lo, v_hi = u, u + ahead, speed, speed
+            elif back > 0.0:
+                lo, v_lo = (back, -speed) if back < u else (u, speed)
+        else:  # inward: covers u − ahead … u, or turns at 0 and goes out again to ahead − u
+            out = ahead - u
+            if ahead <= u:
+                lo, hi, v_lo, v_hi = u - ahead, u, -speed, -speed
+            elif out < length:
+                hi, v_hi = (out, speed) if out > u else (u, -speed)
+    return ax + lo * ux, ay + lo * uy, (hi - lo) * ux, (hi - lo) * uy, v_lo * ux, v_lo * uy, v_hi * ux, v_hi * uy
+
+
+@njit(**_JIT, forceinline=True)
 def _joints(lengths, bx, by, c, s, n, w, P):
     """Joint positions P[0] = base, …, P[n] = end-effector of lane w, into ``P (n + 1, 2)``."""
     x, y = bx[w], by[w]
@@ -120,8 +155,43 @@ def _body(P, n, links, body):
 
 
 @njit(**_JIT)
+def most_rows(bodies, capsules, n_world, k):
+    """The most rows :func:`whole_arm_rows` writes for an arm of ``bodies`` bodies and ``k`` actuated joints against
+    ``capsules`` capsules, the first ``n_world`` the world's (two rows a body with a look-ahead), and its speed box."""
+    return bodies * (capsules + n_world) + 2 * k
+
+
+@njit(**_JIT, forceinline=True)
+def _pair_row(m, ell, tau, rx, ry, passive, n, k, w, lengths, c, s, M, A):
+    """Row m of ``A`` := −L_g0 h of the squared barrier h = ‖x − y‖² − R² for the point x at parameter ``tau``
+    on link ``ell`` (gap x − y = (rx, ry)); returns ∂h/∂q₁, the passive joint's part (0 for a fully actuated arm).
+
+    ∇_q h = 2 (x − y)ᵀ J_x with ∂x/∂q_a = Σ_{a ≤ α ≤ ell} w_α L_α [cos, −sin](θ_α + φ), w_α = 1 below ell and
+    ``tau`` at ell; a PAn−1 arm's L_g0 h = ∇_a h − ∇_0 h M_0a / M_00 (g0 = [−M_0a / M_00 ; I])."""
+    grad0 = 0.0
+    jx, jy = 0.0, 0.0
+    for a in range(ell, -1, -1):
+        weight = tau if a == ell else 1.0
+        jx += weight * lengths[a, w] * c[a, w]
+        jy -= weight * lengths[a, w] * s[a, w]
+        grad = 2.0 * (rx * jx + ry * jy)
+        if passive and a == 0:
+            grad0 = grad
+        elif passive:
+            A[m, a - 1] = -grad
+        else:
+            A[m, a] = -grad
+    for a in range(ell + 1, n):  # links beyond the body do not move it
+        A[m, a - 1 if passive else a] = 0.0
+    if passive:
+        for t in range(k):
+            A[m, t] = A[m, t] + grad0 * M[0, t + 1, w] / M[0, 0, w]
+    return grad0
+
+
+@njit(**_JIT)
 def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, lengths, bx, by, c, s, qd, M, p1, caps,
-                   n_world, time, kappa, epsilon, margin, distance, decay, v_max, v0, A, b, active, P, near):
+                   n_world, time, kappa, epsilon, margin, distance, decay, lookahead, v_max, v0, A, b, active, P, near):
     """The whole-arm RCBF rows of arm i (lane w of the kernel's scratch) at ``time``, then its speed
     bounds (finite ``v_max``), into ``A``, ``b``, ``active``: returns (rows written, smallest barrier h).
     A PAn−1 arm's passive momentum ``p1`` drifts its bodies, q̇ = g0 v + e₁ p₁ / M_11 (docs/MODEL.md §7):
@@ -180,7 +250,11 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
             if j >= n_world:  # the other arms' active links come first
                 break
             continue
-        a2x, a2y, d2x, d2y, vx, vy = _capsule_now(caps, i, j, time)
+        if lookahead > 0.0 and j < n_world:
+            a2x, a2y, d2x, d2y, vx, vy, ex, ey = _capsule_ahead(caps, i, j, time, lookahead)
+        else:
+            a2x, a2y, d2x, d2y, vx, vy = _capsule_now(caps, i, j, time)
+            ex, ey = vx, vy
         reach = caps[i, j, CAP_RADIUS] + (rho if links else 0.0) + skin + caps[i, j, CAP_SPEED] * dt
         within = reach + sensing + 2.0 * (reach_speed + caps[i, j, CAP_SPEED]) * dt + gate
         if min(a2x, a2x + d2x) - within > hix or max(a2x, a2x + d2x) + within < lox or \
@@ -189,6 +263,8 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
         near[n_near, 0], near[n_near, 1], near[n_near, 2], near[n_near, 3] = a2x, a2y, d2x, d2y
         near[n_near, 4], near[n_near, 5], near[n_near, 6] = vx, vy, 0.5 * np.sqrt(d2x * d2x + d2y * d2y)
         near[n_near, 7], near[n_near, 8], near[n_near, 9] = reach, within, caps[i, j, CAP_SHARE]
+        near[n_near, 10], near[n_near, 11] = ex, ey
+        near[n_near, 12] = 1.0 if lookahead > 0.0 and j < n_world and d2x * d2x + d2y * d2y > 0.0 else 0.0
         n_near += 1
     for body in range(n if links else 1):
         a1x, a1y, d1x, d1y, ell = _body(P, n, links, body)
@@ -201,66 +277,56 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
             if sensing < np.inf and mx * mx + my * my > (within + half_body + near[x, 6]) ** 2:
                 continue
             sp, rx, ry = _gap(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y)
-            if np.sqrt(rx * rx + ry * ry) > within:
-                continue
-            h = rx * rx + ry * ry - reach * reach
-            # ∇_q h = 2 (x − y)ᵀ J_x, J_x of the point at parameter sp on link ell (the end for a point body):
-            # ∂x/∂q_a = Σ_{a ≤ α ≤ ell} w_α L_α [cos, −sin](θ_α + φ), w_α = 1 below ell and sp (or 1) at ell
-            tau = sp if links else 1.0
-            lg2 = 0.0
-            grad0 = 0.0
-            jx, jy = 0.0, 0.0
-            for a in range(ell, -1, -1):
-                weight = tau if a == ell else 1.0
-                jx += weight * lengths[a, w] * c[a, w]
-                jy -= weight * lengths[a, w] * s[a, w]
-                grad = 2.0 * (rx * jx + ry * jy)
-                if passive and a == 0:
-                    grad0 = grad
-                elif passive:
-                    A[m, a - 1] = -grad
-                else:
-                    A[m, a] = -grad
-            for a in range(ell + 1, n):  # links beyond the body do not move it
-                A[m, a - 1 if passive else a] = 0.0
-            if passive:  # L_g0 h = ∇_a h − ∇_0 h M_0a / M_00 (g0 = [−M_0a / M_00 ; I])
-                for t in range(k):
-                    A[m, t] = A[m, t] + grad0 * M[0, t + 1, w] / M[0, 0, w]
-            if distance:
-                # h = d − R (pan1_env.safety.shaped_barrier): the row and ∂h/∂t of the squared barrier
-                # over 2d, d from the squared h as the reference takes it; a zero row at d = 0
-                d = np.sqrt(max(h + reach * reach, 0.0))
-                scale = 0.5 / d if d > 0.0 else 0.0
-                h = d - reach
-                for t in range(k):
-                    A[m, t] = A[m, t] * scale
-            else:
-                scale = 1.0
-            h_min = min(h_min, h)
-            bound = 0.0
-            for t in range(k):
-                lg2 += A[m, t] * A[m, t]
-                bound += abs(A[m, t])
-            if not distance and decay == 0.0:  # the paper's row, its operations as before the choices existed
-                bm = near[x, 9] * kappa * (h - margin) - 2.0 * (rx * near[x, 4] + ry * near[x, 5]) - lg2 / epsilon \
-                    + grad0 * drift_speed
-            else:  # ε(h̃) = ε e^{min(λ h̃, 700)} (pan1_env.safety.robust_epsilon); ε = inf: the fallback's rows
-                ht = h - margin
-                bm = near[x, 9] * kappa * ht + (grad0 * drift_speed - 2.0 * (rx * near[x, 4] + ry * near[x, 5])) * \
-                    scale - lg2 / (epsilon * np.exp(min(decay * ht, 700.0)))
-            sigma = 1.0
-            if gate > 0.0:  # the smooth activation past the range: σ = 1 − (3 u² − 2 u³), u = (c − on)/gate
-                u = min(max((np.sqrt(rx * rx + ry * ry) - (within - gate)) / gate, 0.0), 1.0)
-                sigma = 1.0 - u * u * (3.0 - 2.0 * u)
-                if sigma < 1.0:
-                    bm = sigma * bm + (1.0 - sigma) * v_max * bound
+            # a link beside a stretch of path gets a second row, for its other end: segments nearly parallel
+            # have their closest pair jump from one end to the other, and a row at the link's inner end alone
+            # leaves the joint that swings the outer end free (the other arms' links keep one row)
+            for pick in range(2 if links and near[x, 12] > 0.0 else 1):
+                if pick == 1:
+                    sp = 1.0 if sp < 0.5 else 0.0
+                    _, rx, ry = _gap(a1x + sp * d1x, a1y + sp * d1y, 0.0, 0.0, a2x, a2y, d2x, d2y)
+                if np.sqrt(rx * rx + ry * ry) > within:
+                    continue
+                h = rx * rx + ry * ry - reach * reach
+                # the closest point's velocity: the capsule's end's where the pair meets past its middle; inside a
+                # stretch of path the gap is normal to it, and its motion along the path does not change h
+                vx, vy = (near[x, 10], near[x, 11]) if rx * d2x + ry * d2y > 0.0 else (near[x, 4], near[x, 5])
+                lg2 = 0.0
+                grad0 = _pair_row(m, ell, sp if links else 1.0, rx, ry, passive, n, k, w, lengths, c, s, M, A)
+                if distance:
+                    # h = d − R (pan1_env.safety.shaped_barrier): the row and ∂h/∂t of the squared barrier
+                    # over 2d, d from the squared h as the reference takes it; a zero row at d = 0
+                    d = np.sqrt(max(h + reach * reach, 0.0))
+                    scale = 0.5 / d if d > 0.0 else 0.0
+                    h = d - reach
                     for t in range(k):
-                        A[m, t] = sigma * A[m, t]
-            if cull and sigma * bound * v_max <= bm:
-                continue
-            b[m] = bm
-            active[m] = True
-            m += 1
+                        A[m, t] = A[m, t] * scale
+                else:
+                    scale = 1.0
+                h_min = min(h_min, h)
+                bound = 0.0
+                for t in range(k):
+                    lg2 += A[m, t] * A[m, t]
+                    bound += abs(A[m, t])
+                if not distance and decay == 0.0:  # the paper's row, its operations as before the choices existed
+                    bm = near[x, 9] * kappa * (h - margin) - 2.0 * (rx * vx + ry * vy) - lg2 / epsilon \
+                        + grad0 * drift_speed
+                else:  # ε(h̃) = ε e^{min(λ h̃, 700)} (pan1_env.safety.robust_epsilon); ε = inf: the fallback's rows
+                    ht = h - margin
+                    bm = near[x, 9] * kappa * ht + (grad0 * drift_speed - 2.0 * (rx * vx + ry * vy)) * \
+                        scale - lg2 / (epsilon * np.exp(min(decay * ht, 700.0)))
+                sigma = 1.0
+                if gate > 0.0:  # the smooth activation past the range: σ = 1 − (3 u² − 2 u³), u = (c − on)/gate
+                    u = min(max((np.sqrt(rx * rx + ry * ry) - (within - gate)) / gate, 0.0), 1.0)
+                    sigma = 1.0 - u * u * (3.0 - 2.0 * u)
+                    if sigma < 1.0:
+                        bm = sigma * bm + (1.0 - sigma) * v_max * bound
+                        for t in range(k):
+                            A[m, t] = sigma * A[m, t]
+                if cull and sigma * bound * v_max <= bm:
+                    continue
+                b[m] = bm
+                active[m] = True
+                m += 1
     if cull:
         for t0 in range(k):
             for sign in (1.0, -1.0):

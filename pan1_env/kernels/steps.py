@@ -146,7 +146,7 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
     """Whole-arm safety: each filtered lane's rows are its bodies against its capsules at the sub-step's
     time, solved by the full search, one lane at a time. ``bodies`` = (link radius, link bodies or the
     end-effector only, sensing range, gate, skin); ``pj`` the lanes' passive momenta (their drift)."""
-    kappa, epsilon, margin, distance, decay, by_rate, v_max = fparams
+    kappa, epsilon, margin, distance, decay, by_rate, lookahead, v_max = fparams
     M, R, Sn, Mc, Hc, qd, thd, H = dyn
     Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy = search
     wA, wb, wact, wP, wnear, wrows, wviol, wnorm, wb0, wn0, joints_x, joints_y, ox, oy, orad = scratch
@@ -159,7 +159,7 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
             p1 = pj[0][w] if passive else 0.0
             m_w, h_w = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, gate, skin, dt, ln, bx, by,
                                       c, s, qd, M, p1, caps, n_world, time, kappa, epsilon, margin, distance, decay,
-                                      v_max, qv0, wA, wb, wact, wP, wnear)
+                                      lookahead, v_max, qv0, wA, wb, wact, wP, wnear)
             arm_h[w] = min(arm_h[w], h_w)
             status[w] = _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand, qL, qy, wviol,
                                      wnorm)
@@ -170,7 +170,7 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
                 # reported as a fallback either way
                 m_w, _ = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, gate, skin, dt, ln, bx,
                                         by, c, s, qd, M, p1, caps, n_world, time, kappa, np.inf, margin, distance,
-                                        decay, v_max, qv0, wA, wb, wact, wP, wnear)
+                                        decay, lookahead, v_max, qv0, wA, wb, wact, wP, wnear)
                 if _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand, qL, qy, wviol,
                                 wnorm) == STATUS_FALLBACK:
                     least_violation(qv0, wA, wb, wact, m_w, k, 2 * k if v_max < np.inf else 0, by_rate, qvs, wb0, wn0,
@@ -186,7 +186,7 @@ def _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, 
     (:func:`_first_projection_lanes`), then the full active-set search lane by lane. A PAn−1 arm's
     rows take the end-effector's drift J₁ p₁ / M_11 (docs/MODEL.md §7), and where p₁ ≠ 0 its fallback
     holds the end-effector instead of braking (:func:`_hold_end_effector`)."""
-    kappa, epsilon, margin, distance, decay, by_rate, v_max = fparams
+    kappa, epsilon, margin, distance, decay, by_rate, lookahead, v_max = fparams
     M, R, Sn, Mc, Hc, qd, thd, H = dyn
     J, Jbar, drift, filtered, row_A, row_b, row_h, row_norm, row_act, obst_rows, needs_qp, q_best, q_best_viol, q_Ab, \
         q_bb, q_cand, q_found = ee

@@ -44,7 +44,7 @@ import numpy as np
 from numba import njit, prange
 
 from ._numba_ext import _JIT, _LANES, _borrowed, _check_chunks, _keep_alive, _local, _quick_when, _slp_vectorised
-from .capsules import NEAR_COLUMNS, whole_arm_clearance_lanes
+from .capsules import NEAR_COLUMNS, most_rows, whole_arm_clearance_lanes
 from .physics import _position_lanes
 from .steps import (
     _desired_velocity,
@@ -123,14 +123,14 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     ee = _borrowed((J, Jbar, drift, filtered, row_A, row_b, row_h, row_norm, row_act, obst_rows, needs_qp, q_best,
                     q_best_viol, q_Ab, q_bb, q_cand, q_found))
     search = _borrowed((Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy))
-    kappa, epsilon, margin, distance, decay, by_rate = rcbf
-    fparams = (kappa, epsilon, margin, distance, decay, by_rate, v_max)
+    kappa, epsilon, margin, distance, decay, by_rate, lookahead = rcbf
+    fparams = (kappa, epsilon, margin, distance, decay, by_rate, lookahead, v_max)
     if whole is not None:  # whole-arm scratch: one lane's rows (bodies × capsules, speed bounds) and joints
         caps, start_time, rho, link_bodies, sensing, gate, skin, joints_out, n_world, angles, carried, finish = whole
         jw = (links + (0,), lanes)  # joints: n + 1 per lane
         joints_x, joints_y = _local(jw, f8), _local(jw, f8)
         ox, oy, orad = _local(lw, f8), _local(lw, f8), _local(lw, f8)
-        m_whole = (n if link_bodies else 1) * caps.shape[1] + 2 * k
+        m_whole = most_rows(n if link_bodies else 1, caps.shape[1], n_world, k)
         wA, wb, wact = np.zeros((m_whole, kk)), np.zeros(m_whole), np.zeros(m_whole, dtype=np.bool_)
         wrows, wviol, wnorm, wP = np.empty(m_whole, dtype=np.int64), np.empty(m_whole), np.empty(m_whole), \
             np.empty((n + 1, 2))
@@ -219,13 +219,14 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     ``centers (A, O, 2)``, ``radii (A, O)`` and ``mask (A, O)`` (the obstacles each arm's filter
     sees; a team's obstacles are broadcast to every arm).
 
-    ``rcbf`` is the filter's settings, one tuple ``(kappa, epsilon, margin, distance, decay, by_rate)``
+    ``rcbf`` is the filter's settings, one tuple ``(kappa, epsilon, margin, distance, decay, by_rate, lookahead)``
     (:func:`pan1_env.compiled.kernel_filter`): the end-effector filter's rows
     (:func:`pan1_env.kernels.qp._rcbf_row_lanes`) take κ, ε, the margin, the barrier (``distance`` True:
     h = ‖p − o‖ − r, else the paper's squared one) and λ ``decay`` of the tunable ε(h̃) = ε e^{λ h̃} (0: the
     paper's constant ε); ``min_h`` is then in that barrier's unit. The whole-arm rows (``whole``) take the same
-    choices, and ``by_rate`` picks their last-resort fallback's measure of violation
-    (:func:`pan1_env.kernels.capsules.least_violation`).
+    choices, ``by_rate`` picks their last-resort fallback's measure of violation
+    (:func:`pan1_env.kernels.capsules.least_violation`) and ``lookahead`` (s, 0: the obstacles where they are)
+    the stretch of each moving obstacle's path that they keep out (:func:`pan1_env.kernels.capsules._capsule_ahead`).
 
     Velocity mode (``torque_mode`` False): ``command`` is the desired active velocity; each
     sub-step filters it through the RCBF-QP when ``filter_on`` (against the obstacles of ``mask``)
