@@ -78,7 +78,7 @@ ENTRIES = (
     # on the tasks it was made for: it runs one team at a time, ~20x slower per team than the batched law
     Entry("circulation", "the law with the circulation rule round obstacles, behind the filter (on the whole-arm "
                          "tasks, where the law's failures are deadlocks at an obstacle)", policy="circulation",
-          tasks=("pan1_env/WholeArmStaticFormation-v1", "pan1_env/WholeArmFormation-v1")),
+          tasks=("pan1_env/WholeArmStaticFormation-v1", "pan1_env/WholeArmFormation-v2")),
     Entry("ippo", "IPPO behind the shield: one network shared by the arms, each on its own observation, "
                   "re-weighting the law (gain actions)", recipe={"algo": "ppo", "shield": True, **_SHARED},
           tasks=_ONE_SIZE_TASKS),

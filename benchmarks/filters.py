@@ -47,7 +47,7 @@ from pan1_env.registration import env_arguments
 from pan1_env.safety import FilterParams
 
 TASKS = {"end_effector": "pan1_env/RandomFormation-v0", "whole_arm": "pan1_env/WholeArmStaticFormation-v0",
-         "whole_arm_moving": "pan1_env/WholeArmFormation-v0"}
+         "whole_arm_moving": "pan1_env/WholeArmFormation-v0", "whole_arm_clear_paths": "pan1_env/WholeArmFormation-v2"}
 # κ and ε are the random teams' (0.5, 5); the paper's filter first, then RandomFormation-v1's, then the smooth
 # gate (5 cm past the sensing range) on the hard-range settings, then v1 with the whole-arm last resort measured
 # by the barrier's rate (FilterParams.fallback). Key: (label, FilterParams fields).
@@ -60,6 +60,10 @@ SETTINGS = {
     "radius_gate": ("paper + 0.1 m sensing radius, 5 cm gate", {"sensing_radius": 0.1, "gate": 0.05}),
     "v1_gate": ("v1 + 5 cm gate past the whole-arm range", {"barrier": "distance", "decay": 50.0, "gate": 0.05}),
     "v1_rate": ("v1, last resort by barrier rate", {"barrier": "distance", "decay": 50.0, "fallback": "barrier_rate"}),
+    "v1_ahead1": ("v1, obstacles' next 1 s of path kept out", {"barrier": "distance", "decay": 50.0, "lookahead": 1.0}),
+    "v1_ahead3": ("v1, obstacles' next 3 s of path kept out", {"barrier": "distance", "decay": 50.0, "lookahead": 3.0}),
+    "v1_path": ("v1, obstacles' whole paths kept out", {"barrier": "distance", "decay": 50.0,
+                                                         "lookahead": float("inf")}),
 }
 POLICIES = ("reference", "random", "adversarial")
 HOLD_STEPS = 20  # the random policy's action is held this many control steps (1 s)
@@ -72,7 +76,7 @@ def _filter(scenario_kwargs: dict, setting: dict) -> FilterParams:
     return FilterParams(kappa=options.get("kappa", 0.5), epsilon=options.get("epsilon", 5.0), margin=0.0,
                         sensing_radius=setting.get("sensing_radius"), barrier=setting.get("barrier", "squared"),
                         decay=setting.get("decay", 0.0), gate=setting.get("gate", 0.0),
-                        fallback=setting.get("fallback", "command"))
+                        fallback=setting.get("fallback", "command"), lookahead=setting.get("lookahead", 0.0))
 
 
 def _persistent_random(size: int, teams: int, seed: int):
@@ -140,9 +144,11 @@ def run(tasks: list[str], teams: int, first: int, settings: list[str] | None = N
             name, setting = SETTINGS[key]
             if task.startswith("whole_arm") and "sensing_radius" in setting:
                 continue  # the whole-arm filter has its sensing radius already
-            whole_arm_only = "gate" in setting or "fallback" in setting
+            whole_arm_only = "gate" in setting or "fallback" in setting or "lookahead" in setting
             if task == "end_effector" and whole_arm_only and "sensing_radius" not in setting:
-                continue  # a gate widens a sensing range and the fallback's measure is the whole-arm rows' last resort
+                continue  # a gate widens a sensing range; the fallback's measure and the look-ahead are whole-arm rows'
+            if task not in ("whole_arm_moving", "whole_arm_clear_paths") and "lookahead" in setting:
+                continue  # the look-ahead is along moving obstacles' paths
             params = _filter(kwargs, setting)
             chosen = {"reference": ({"action_mode": "residual"}, law),
                       "random": ({}, _persistent_random(size, teams, first)), "adversarial": ({}, VectorAdversary())}

@@ -11,6 +11,9 @@ them with Gymnasium:
 * ``pan1_env/WholeArmStaticFormation-v1`` (the same teams behind RandomFormation-v1's filter choices),
 * ``pan1_env/WholeArmFormation-v0`` (the same with obstacles moving at 0.05–0.2 m/s),
 * ``pan1_env/WholeArmFormation-v1`` (the moving obstacles behind RandomFormation-v1's filter choices),
+* ``pan1_env/WholeArmFormation-v2`` (moving obstacles whose whole paths keep clear of every arm's start and of
+  every vertex, behind v1's filter choices with each path kept out whole: the team held still is never touched,
+  and the filter treats a moving obstacle as a still capsule: docs/ENVIRONMENTS.md),
 * ``pan1_env/FaultFormation-v0`` (RandomFormation-v1's teams, whose fully actuated arms each lose their
   first joint's actuator with probability ½ at a time drawn from 1–10 s; passive joints damped with
   b = 0.5 N·m·s/rad: docs/ENVIRONMENTS.md),
@@ -35,6 +38,8 @@ __all__ = ["env_arguments", "ENV_IDS", "REACH_ENV_ID", "DEFAULT_REACH_STEPS", "M
 
 _WHOLE_ARM = {"bodies": "links", "link_radius": 0.03, "inter_arm": True}
 _V1_FILTER = {"barrier": "distance", "decay": 50.0, "kappa": 0.5, "epsilon": 5.0}  # docs/ENVIRONMENTS.md says why
+# paths clear of every start (holding still is safe), and the filter keeps each path out whole (docs/ENVIRONMENTS.md)
+_CLEAR_PATHS = {"obstacle_speed": (0.05, 0.2), "clear_paths": True, "lookahead": float("inf")}
 _FAULTS = {"fault_probability": 0.5, "fault_time": (1.0, 10.0), "passive_damping": 0.5}
 _MOVING = {"formation_scale": (0.8, 1.2), "scale_period": 15.0}
 _RING = {"shape": "ring", "arm_redraws": 20}
@@ -53,6 +58,7 @@ ENV_IDS = {
                                       "random_options": _WHOLE_ARM | {"obstacle_speed": (0.05, 0.2)}},
     "pan1_env/WholeArmFormation-v1": {"scenario": "random",
                                       "random_options": _WHOLE_ARM | _V1_FILTER | {"obstacle_speed": (0.05, 0.2)}},
+    "pan1_env/WholeArmFormation-v2": {"scenario": "random", "random_options": _WHOLE_ARM | _V1_FILTER | _CLEAR_PATHS},
     "pan1_env/FaultFormation-v0": {"scenario": "random", "random_options": _V1_FILTER | _FAULTS},
     "pan1_env/MovingFormation-v0": {"scenario": "random", "random_options": _V1_FILTER | _MOVING,
                                     "success_hold": MOVING_SUCCESS_HOLD},

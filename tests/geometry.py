@@ -121,3 +121,43 @@ def inter_arm_clearances(arm_joints: list[np.ndarray], link_radius: float = 0.0)
 def inter_arm_penetration(arm_joints: list[np.ndarray], link_radius: float = 0.0) -> dict[tuple[int, int], np.ndarray]:
     """For every pair of arms i < j, ``(n_i, n_j)`` penetration depths max(0, 2ρ − d) of their capsules."""
     return {pair: np.maximum(0.0, -c) for pair, c in inter_arm_clearances(arm_joints, link_radius).items()}
+
+
+def batched_joints(q: np.ndarray, lengths: np.ndarray, base: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """:func:`joints` of many arms at once: ``q``, ``lengths (..., n)`` (a zero length past an arm's links),
+    ``base (..., 2)``, ``phi (...)`` → ``(..., n + 1, 2)``."""
+    theta = phi[..., None] + np.cumsum(q, axis=-1)
+    steps = lengths[..., None] * np.stack([np.sin(theta), np.cos(theta)], axis=-1)
+    return np.concatenate([base[..., None, :], base[..., None, :] + np.cumsum(steps, axis=-2)], axis=-2)
+
+
+def _batched_point_segment(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """:func:`point_segment_distance` broadcast over leading axes (``(..., 2)`` each)."""
+    ab, ap = b - a, p - a
+    length2 = np.sum(ab * ab, axis=-1)
+    along = np.sum(ap * ab, axis=-1)
+    inside = (along > 0) & (along < length2)
+    cross = np.abs(ab[..., 0] * ap[..., 1] - ab[..., 1] * ap[..., 0]) / np.sqrt(np.where(inside, length2, 1.0))
+    ends = np.minimum(np.linalg.norm(ap, axis=-1), np.linalg.norm(p - b, axis=-1))
+    return np.where(inside, cross, ends)
+
+
+def batched_clearances(P: np.ndarray, centers: np.ndarray, radii: np.ndarray, link_radius: float) -> tuple:
+    """Every copy's smallest link-to-obstacle and link-to-link clearance (``(B,)`` each) from arms' joints
+    ``P (B, N, n + 1, 2)`` and obstacles ``centers (B, O, 2)``, ``radii (B, O)``: the algorithms of
+    :func:`obstacle_clearances` and :func:`inter_arm_clearances`, broadcast."""
+    a, b = P[:, :, :-1, None, :], P[:, :, 1:, None, :]  # (B, N, n, 1, 2)
+    to_obstacles = _batched_point_segment(centers[:, None, None], a, b) - radii[:, None, None] - link_radius
+    i, j = np.triu_indices(P.shape[1], 1)
+    a1, b1 = P[:, i, :-1, None, :], P[:, i, 1:, None, :]  # (B, pairs, n, 1, 2)
+    a2, b2 = P[:, j, None, :-1, :], P[:, j, None, 1:, :]  # (B, pairs, 1, n, 2)
+
+    def orient(x, y, z):
+        return np.sign((y[..., 0] - x[..., 0]) * (z[..., 1] - x[..., 1])
+                       - (y[..., 1] - x[..., 1]) * (z[..., 0] - x[..., 0]))
+
+    crossing = (orient(a1, b1, a2) * orient(a1, b1, b2) < 0) & (orient(a2, b2, a1) * orient(a2, b2, b1) < 0)
+    ends = np.minimum(np.minimum(_batched_point_segment(a2, a1, b1), _batched_point_segment(b2, a1, b1)),
+                      np.minimum(_batched_point_segment(a1, a2, b2), _batched_point_segment(b1, a2, b2)))
+    between = np.where(crossing, 0.0, ends) - 2 * link_radius
+    return to_obstacles.reshape(len(P), -1).min(axis=1), between.reshape(len(P), -1).min(axis=1, initial=np.inf)

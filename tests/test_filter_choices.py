@@ -229,3 +229,64 @@ def test_the_smooth_gate_is_refused_where_it_cannot_act() -> None:
                physics_dt=0.002)
     engine = Engine(team, safety_filter=FilterParams(0.5, 5.0, sensing_radius=0.1, gate=0.05), max_speed=2.0)
     assert engine.whole_arm_args(engine.kinds[0]).gate == 0.05
+
+
+def test_the_look_ahead_is_checked_and_travels_with_the_scenario(tmp_path) -> None:
+    """``lookahead`` (s, inf allowed) is validated where it is given, refused without whole-arm rows (the
+    end-effector filter sees obstacles where they are), read from ``[safety] lookahead`` and ``fallback``, and
+    carried by WholeArmFormation-v2's drawn teams to every way of switching the filter on."""
+    import gymnasium
+
+    from pan1_env.vector import Pan1VectorEnv
+    from pan1_env.wrappers import GymSafetyShield
+
+    team = load("paper_pa3_square")
+    assert FilterParams.of(team).lookahead == 0.0 and FilterParams(0.5, 5.0, lookahead=float("inf")).lookahead > 1e9
+    for bad in (-1.0, float("nan"), "far"):
+        with pytest.raises(ValueError, match="SafetyShield: lookahead"):
+            FilterParams.of(team, owner="SafetyShield", lookahead=bad)
+    with pytest.raises(ValueError, match="lookahead=2 shapes the whole-arm filter's rows"):
+        parallel_env("paper_pa3_square", safety_filter=FilterParams.of(team, lookahead=2.0))
+    from importlib import resources
+
+    from pan1_env.scenario import ScenarioError
+
+    text = resources.files("pan1_env.scenarios").joinpath("paper_pa3_square.toml").read_text()
+    good = tmp_path / "ahead.toml"
+    good.write_text(text.replace("[safety]", '[safety]\nlookahead = inf\nfallback = "barrier_rate"', 1))
+    params = FilterParams.of(load(str(good)))
+    assert (params.lookahead, params.fallback) == (float("inf"), "barrier_rate")
+    for key, line in (("safety.lookahead", "lookahead = -1.0"), ("safety.lookahead", "lookahead = nan"),
+                      ("safety.fallback", 'fallback = "brake"')):
+        bad = tmp_path / "bad.toml"
+        bad.write_text(text.replace("[safety]", f"[safety]\n{line}", 1))
+        with pytest.raises(ScenarioError, match=key.replace(".", r"\.")):
+            load(str(bad))
+    v2 = dataclasses.replace(parallel_env("pan1_env/WholeArmFormation-v1", safety_filter=True).safety_filter,
+                             lookahead=float("inf"))
+    assert parallel_env("pan1_env/WholeArmFormation-v2", safety_filter=True).safety_filter == v2
+    assert GymSafetyShield(gymnasium.make("pan1_env:pan1_env/WholeArmFormation-v2")).unwrapped.parallel \
+        .safety_filter == v2
+    venv = Pan1VectorEnv("pan1_env/WholeArmFormation-v2", 2)
+    assert venv.safety_filter == v2
+    venv.close()
+
+
+def test_a_link_beside_a_kept_out_path_cannot_swing_its_far_end_in() -> None:
+    """WholeArmFormation-v2's held-out team 2000023 under the vector adversary: a PA arm's last link lies
+    parallel to an obstacle's path, and the closest pair jumps to its inner end. With a row at the closest pair
+    alone the QP let the outer joint spin to full speed and the tip went 1.9 mm into the path's capsule at step
+    711, with no fallback; the second row, at the link's other end, keeps it out."""
+    from pan1_env.baselines import VectorAdversary
+    from pan1_env.vector import Pan1VectorEnv
+
+    venv = Pan1VectorEnv("pan1_env/WholeArmFormation-v2", 1)
+    obs, _ = venv.reset(seed=[2000023])
+    adversary = VectorAdversary().attach(venv)
+    worst = np.inf
+    for _ in range(760):
+        obs, _, _, _, infos = venv.step(adversary(obs))
+        worst = min(worst, float(infos["min_clearance"][0]))
+        assert infos["cost"][0] == 0.0 and not infos["shield_fallback"][0]
+    assert worst > 0.0
+    venv.close()

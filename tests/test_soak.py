@@ -6,6 +6,7 @@ its figures (``pytest -s`` shows them).
 """
 
 import json
+import os
 import resource
 
 import numpy as np
@@ -127,10 +128,10 @@ def test_soak_one_million_shielded_arm_steps(capsys) -> None:
     assert all(p["faults"] == 0 for p in pettingzoo)
 
 
-@pytest.mark.parametrize("env_id", ["pan1_env/WholeArmFormation-v0", "pan1_env/WholeArmFormation-v1"])
+@pytest.mark.parametrize("env_id", ["pan1_env/WholeArmFormation-v1"])
 def test_soak_whole_arm_moving_obstacles(capsys, env_id) -> None:
     """10⁶ shielded arm-steps on random whole-arm teams (link capsules, arms kept apart, obstacles moving
-    at 0.05–0.2 m/s), behind the paper's filter (v0) and v1's (distance barrier, decaying ε),
+    at 0.05–0.2 m/s), behind v1's filter (distance barrier, decaying ε),
     control_dt = physics_dt = 0.01 s: half the copies take uniform random actions,
     half bang-bang ones held for 40 steps; every copy draws a new team when its 250-step episode ends.
     A penetration (a capsule entering an obstacle or another arm's capsule: the step's cost) may begin
@@ -174,6 +175,70 @@ def test_soak_whole_arm_moving_obstacles(capsys, env_id) -> None:
     assert stats["episodes_with_penetration"] <= 0.02 * stats["episodes"]
     assert stats["non_finite"] == 0
     assert stats["rss_growth_after_warmup_mb"] < 100.0
+
+
+#: arm-steps per policy of the WholeArmFormation-v2 soak; PAN1_SOAK_ARM_STEPS=1000000 runs the full claim
+V2_ARM_STEPS = int(os.environ.get("PAN1_SOAK_ARM_STEPS", ARM_STEPS // 3))
+
+
+@pytest.mark.parametrize("policy", ["random", "bang_bang", "adversarial"])
+def test_soak_whole_arm_v2_never_touches(capsys, policy) -> None:
+    """WholeArmFormation-v2 (paths clear of every start, each path kept out whole) behind its own filter:
+    no capsule ever inside an obstacle or another arm's capsule, by the engine's cost at every sub-step
+    (control_dt = physics_dt = 0.01 s) and by the tests' own geometry (tests/geometry.py) from every copy's
+    joint angles at every step; uniform random actions, bang-bang ones held for 40 steps, or the vector
+    adversary driving every arm at its nearest obstacle; a new team when a 250-step episode ends."""
+    from geometry import batched_clearances, batched_joints
+
+    from pan1_env.baselines import VectorAdversary
+    from pan1_env.vector import Pan1VectorEnv
+
+    B = 128
+    venv = Pan1VectorEnv("pan1_env/WholeArmFormation-v2", B, control_dt=0.01, physics_dt=0.01, max_steps=250)
+    obs, _ = venv.reset(seed=7_500_000 + ["random", "bang_bang", "adversarial"].index(policy) * 100_000)
+    engine, rho = venv.engine, venv.engine.teams[0].link_radius
+    adversary = VectorAdversary().attach(venv)
+    rng = np.random.default_rng(1)
+    held = rng.choice([-1.0, 1.0], size=venv.action_space.shape)
+    stats = {"arm_steps": 0, "episodes": 0, "cost": 0.0, "fallback_copy_steps": 0, "non_finite": 0,
+             "min_clearance_m": float("inf"), "independent_min_clearance_m": float("inf")}
+
+    def arms() -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # every copy's link lengths, bases and φ
+        teams = [engine.teams[b] for b in range(B)]
+        n = engine.n_max
+        lengths = np.array([[np.pad(a.lengths, (0, n - a.n_links)) for a in t.arms] for t in teams])
+        return lengths, np.array([[a.base for a in t.arms] for t in teams]), np.array([[a.phi for a in t.arms]
+                                                                                      for t in teams])
+
+    geometry = arms()
+    for t in range(-(-V2_ARM_STEPS // (B * engine.n_arms))):
+        if policy == "adversarial":
+            actions = adversary(obs)
+        elif policy == "bang_bang":
+            held = rng.choice([-1.0, 1.0], size=venv.action_space.shape) if t % 40 == 0 else held
+            actions = held
+        else:
+            actions = rng.uniform(-1.0, 1.0, venv.action_space.shape)
+        obs, _, terminated, truncated, infos = venv.step(actions)
+        stats["cost"] += float(infos["cost"].sum())
+        stats["fallback_copy_steps"] += int(infos["shield_fallback"].sum())
+        stats["non_finite"] += int((~np.isfinite(obs)).any(axis=1).sum()) + int("fault" in infos)
+        stats["min_clearance_m"] = min(stats["min_clearance_m"], float(infos["min_clearance"].min()))
+        stats["arm_steps"] += B * engine.n_arms
+        done = terminated | truncated
+        stats["episodes"] += int(done.sum())
+        if done.any():  # the copies that ended hold new teams now
+            geometry = arms()
+        q, _ = engine.joint_state(pad=0.0)
+        to_obstacles, between = batched_clearances(batched_joints(q, *geometry), engine.centers, engine.radii, rho)
+        stats["independent_min_clearance_m"] = min(stats["independent_min_clearance_m"], float(to_obstacles.min()),
+                                                   float(between.min()))
+    with capsys.disabled():
+        print(f"\nWholeArmFormation-v2 soak, {policy}:", json.dumps(stats))
+    assert stats["arm_steps"] >= V2_ARM_STEPS and stats["episodes"] >= 100
+    assert stats["cost"] == 0.0 and stats["min_clearance_m"] >= 0.0, stats
+    assert stats["independent_min_clearance_m"] >= -1e-9, stats
+    assert stats["non_finite"] == 0, stats
 
 
 def test_soak_actuator_faults(capsys) -> None:
