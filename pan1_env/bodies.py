@@ -291,7 +291,7 @@ def obstacle_velocities(centers: np.ndarray, path_ends: np.ndarray, speeds: np.n
 def obstacle_stretch(centers: np.ndarray, path_ends: np.ndarray, speeds: np.ndarray, t: float,
                      lookahead: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The stretch of its path each obstacle of :func:`obstacle_centers` covers from ``t`` to ``t + lookahead``
-    (s, inf allowed): its ends ``start``, ``end`` ``(O, 2)`` (start nearer the path's centre) and their
+    (s, inf allowed): its ends ``start``, ``end`` ``(O, 2)`` (start nearer ``centers[j]``) and their
     velocities ``(O, 2)``. Along the path the position is the triangle wave u(τ); over the window its least
     and greatest values are taken at the window's ends or at a turn inside it (u = 0 or ℓ), and each end of
     the stretch moves as the term that attains it (a turn: still)."""

@@ -49,6 +49,7 @@ from .dynamics import ArmParams
 from .formation import Formation, FormationError
 from .motion import FormationMotion, check_motion, switch_shape
 from .safety import BARRIERS, FALLBACKS, Obstacles, clearance
+from .validation import real
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -128,9 +129,7 @@ class Scenario:
             raise ValueError(f"Scenario.safety_gate must be finite and non-negative, got {self.safety_gate!r}")
         if self.safety_fallback not in FALLBACKS:
             raise ValueError(f"Scenario.safety_fallback must be one of {FALLBACKS}, got {self.safety_fallback!r}")
-        if not self.safety_lookahead >= 0:
-            raise ValueError(f"Scenario.safety_lookahead must be non-negative (s, inf allowed), "
-                             f"got {self.safety_lookahead!r}")
+        real("Scenario.safety_lookahead", self.safety_lookahead, non_negative=True, allow_inf=True)
         n_obs = len(self.obstacles)
         if (self.obstacle_paths is None) != (self.obstacle_speeds is None):
             raise ValueError("Scenario.obstacle_paths and obstacle_speeds go together: give both or neither")

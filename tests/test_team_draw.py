@@ -23,6 +23,9 @@ OPTIONS = {
     "moving_obstacles": ENV_IDS["pan1_env/WholeArmFormation-v1"]["random_options"],
     "faults": ENV_IDS["pan1_env/FaultFormation-v0"]["random_options"],
     "clear_paths": ENV_IDS["pan1_env/WholeArmFormation-v1"]["random_options"] | {"clear_paths": True},
+    # end-effectors only: the path's clearance from the starting end-effectors is the check that acts
+    "clear_paths_end_effector": ENV_IDS["pan1_env/RandomFormation-v1"]["random_options"]
+    | {"obstacle_speed": (0.05, 0.2), "clear_paths": True},
     # odd numbers of signs per arm leave a 32-bit half in the generator's buffer between arms and attempts
     "mixed": {"n_arms": 5, "links": (2, 3, 4, 3, 2), "passive_fraction": 0.6, "n_obstacles": 4},
     "square": {"shape": "square", "links": 2, "passive_fraction": 0.25},
@@ -95,10 +98,11 @@ def test_a_copys_team_depends_on_its_generator_only() -> None:
     assert not np.array_equal(among.bases[0], among.bases[1])
 
 
-@pytest.mark.parametrize("case", ["moving_obstacles", "clear_paths"])
+@pytest.mark.parametrize("case", ["moving_obstacles", "clear_paths", "clear_paths_end_effector"])
 def test_the_guarantees_hold_on_hundreds_of_draws_by_independent_geometry(case: str) -> None:
     """Start clearances, σ_min, reachable vertices and paths clear of the bases; with ``clear_paths`` every path's
-    swept capsule clear of the starting links and 5 cm from every vertex, by the tests' own geometry."""
+    swept capsule clear of the starting end-effectors (and links) and 5 cm from every vertex, by the tests' own
+    geometry."""
     options = RandomScenarioOptions(**OPTIONS[case])
     rho, clear = options.link_radius, options.start_clearance
     draws = draw_teams([np.random.default_rng(1000 + s) for s in range(300)], options)
@@ -106,8 +110,12 @@ def test_the_guarantees_hold_on_hundreds_of_draws_by_independent_geometry(case: 
         team = draws.scenario(c)
         arm_joints = [joints(q, a.lengths, a.base, a.phi) for a, q in zip(team.arms, team.q0, strict=True)]
         centers, radii = team.obstacles.centers, team.obstacles.radii
-        assert min(cl.min() for cl in obstacle_clearances(arm_joints, centers, radii, rho)) >= clear - 1e-9
-        assert min(cl.min() for cl in inter_arm_clearances(arm_joints, rho).values()) >= clear - 1e-9
+        if options.bodies == "links":
+            assert min(cl.min() for cl in obstacle_clearances(arm_joints, centers, radii, rho)) >= clear - 1e-9
+            assert min(cl.min() for cl in inter_arm_clearances(arm_joints, rho).values()) >= clear - 1e-9
+        else:  # end-effectors only
+            tips = np.array([p[-1] for p in arm_joints])
+            assert np.min(np.linalg.norm(tips[:, None] - centers, axis=-1) - radii) >= clear - 1e-9
         for arm, q in zip(team.arms, team.q0, strict=True):
             assert np.linalg.svd(reduced_jacobian(arm, q), compute_uv=False).min() >= options.min_sigma - 1e-9
         # every vertex is reachable: the target configuration put the end-effector on it
@@ -121,8 +129,10 @@ def test_the_guarantees_hold_on_hundreds_of_draws_by_independent_geometry(case: 
                 assert point_segment_distance(arm.base, centre, end) >= r + BASE_MARGIN + rho + sweep - 1e-9
             if options.clear_paths:
                 assert min(point_segment_distance(x, centre, end) for x in targets) >= r + 0.05 - 1e-9
-                assert min(segment_segment_distance(p[a], p[a + 1], centre, end) for p in arm_joints
-                           for a in range(len(p) - 1)) - r - rho >= clear - 1e-9
+                assert min(point_segment_distance(p[-1], centre, end) for p in arm_joints) - r >= clear - 1e-9
+                assert options.bodies != "links" or min(
+                    segment_segment_distance(p[a], p[a + 1], centre, end) for p in arm_joints
+                    for a in range(len(p) - 1)) - r - rho >= clear - 1e-9
 
 
 @pytest.mark.parametrize("env_id", ["pan1_env/RandomFormation-v2", "pan1_env/WholeArmStaticFormation-v1"])

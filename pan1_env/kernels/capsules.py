@@ -197,6 +197,10 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
     A PAn−1 arm's passive momentum ``p1`` drifts its bodies, q̇ = g0 v + e₁ p₁ / M_11 (docs/MODEL.md §7):
     each b gains (∂h/∂q₁) p₁ / M_11, and the speed bound below |p₁| / M_11.
 
+    ``lookahead`` T > 0 (s) puts, in place of each moving world obstacle's disk, the capsule of the stretch of
+    path it covers in the next T s (:func:`_capsule_ahead`; inf: its whole path), and gives each link two rows
+    per stretch, at the closest pair and at the link's other end (docs/MODEL.md §5b).
+
     Only pairs that are close get a row: clearance d − r − ρ at most ``sensing`` plus twice what the
     gap can close in the sub-step ``dt`` (no point of the arm moves faster than its reach times
     Σ|q̇_a|, bounded by the joint speeds now and by those the command ``v0`` can reach within the
@@ -287,8 +291,8 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
                 if np.sqrt(rx * rx + ry * ry) > within:
                     continue
                 h = rx * rx + ry * ry - reach * reach
-                # the closest point's velocity: the capsule's end's where the pair meets past its middle; inside a
-                # stretch of path the gap is normal to it, and its motion along the path does not change h
+                # the closest point's velocity: r·d2 > 0 only where the pair meets at the stretch's far end (≤ 0 at
+                # its start); inside, the gap is normal to the path and either end's velocity, along it, adds nothing
                 vx, vy = (near[x, 10], near[x, 11]) if rx * d2x + ry * d2y > 0.0 else (near[x, 4], near[x, 5])
                 lg2 = 0.0
                 grad0 = _pair_row(m, ell, sp if links else 1.0, rx, ry, passive, n, k, w, lengths, c, s, M, A)
