@@ -298,8 +298,8 @@ def obstacle_stretch(centers: np.ndarray, path_ends: np.ndarray, speeds: np.ndar
     c0, unit, _, length = _legs(centers, path_ends, speeds, t)
     speeds = np.asarray(speeds, dtype=float)
 
-    def wave(time: float) -> tuple[np.ndarray, np.ndarray]:  # u and u̇ at ``time``
-        arc = np.where(length > 0, np.mod(time * speeds, 2.0 * np.where(length > 0, length, 1.0)), 0.0)
+    def wave(time: float) -> tuple[np.ndarray, np.ndarray]:  # u and u̇ at ``time``, as obstacle_centers/_velocities
+        arc = _legs(centers, path_ends, speeds, time)[2]
         return length - np.abs(length - arc), np.where(length > 0, np.where(arc < length, speeds, -speeds), 0.0)
 
     (u0, du0), later = wave(t), t + lookahead

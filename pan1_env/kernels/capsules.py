@@ -83,6 +83,16 @@ def _gap(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y):
 
 
 @njit(**_JIT, forceinline=True)
+def _wave(speed, length, time):
+    """(arc, u) of an obstacle going back and forth on a path of ``length`` at ``speed``: its travel mod 2ℓ (< ℓ
+    outward) and its distance along the path, the triangle wave of :func:`pan1_env.bodies.obstacle_centers`."""
+    period = 2.0 * length
+    arc = speed * time
+    arc -= period * np.floor(arc / period)  # mod 2ℓ: a floor and a division cost a fraction of fmod's libm call
+    return arc, length - abs(length - arc)
+
+
+@njit(**_JIT, forceinline=True)
 def _capsule_now(caps, i, j, time):
     """Capsule j of arm i at ``time``: its segment's start and direction (a2x, a2y, d2x, d2y) and its
     velocity (vx, vy), the start moved along the path by the triangle wave of
@@ -92,10 +102,7 @@ def _capsule_now(caps, i, j, time):
     speed, length = caps[i, j, CAP_SPEED], caps[i, j, CAP_PATH]
     if not (speed > 0.0 and length > 0.0):
         return ax, ay, dx, dy, 0.0, 0.0
-    period = 2.0 * length
-    arc = speed * time
-    arc -= period * np.floor(arc / period)  # mod 2ℓ: a floor and a division cost a fraction of fmod's libm call
-    u = length - abs(length - arc)
+    arc, u = _wave(speed, length, time)
     sign = 1.0 if arc < length else -1.0
     ux, uy = caps[i, j, CAP_UX], caps[i, j, CAP_UY]
     return ax + u * ux, ay + u * uy, dx, dy, sign * speed * ux, sign * speed * uy
@@ -112,13 +119,10 @@ def _capsule_ahead(caps, i, j, time, lookahead):
     if not (speed > 0.0 and length > 0.0):
         return ax, ay, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     ux, uy = caps[i, j, CAP_UX], caps[i, j, CAP_UY]
-    period = 2.0 * length
-    arc = speed * time
-    arc -= period * np.floor(arc / period)
-    u = length - abs(length - arc)
+    arc, u = _wave(speed, length, time)
     ahead = speed * lookahead
     lo, hi, v_lo, v_hi = 0.0, length, 0.0, 0.0  # the whole path: still
-    if ahead < period:
+    if ahead < 2.0 * length:
         if arc < length:  # outward: covers u … u + ahead, or turns at ℓ and comes back to 2ℓ − ahead − u
             back = 2.0 * length - ahead - u
             if ahead <= length - u:
