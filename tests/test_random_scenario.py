@@ -167,11 +167,15 @@ def test_inter_arm_keeps_crowded_random_arms_apart() -> None:
     ({"arm_redraws": -1}, "RandomScenarioOptions.arm_redraws must be an integer ≥ 0, got -1"),
     ({"arm_redraws": 1.5}, "RandomScenarioOptions.arm_redraws must be an integer ≥ 0, got 1.5"),
     ({"shape": "rng"}, "RandomScenarioOptions.shape must be one of ('square', 'polygon', 'ring'), got 'rng'"),
+    ({"clear_paths": "yes"}, "RandomScenarioOptions.clear_paths must be True or False, got 'yes'"),
+    ({"fallback": "brake"}, "RandomScenarioOptions.fallback must be one of ('command', 'barrier_rate'), got 'brake'"),
+    ({"lookahead": -1.0}, "RandomScenarioOptions.lookahead must be non-negative"),
+    ({"lookahead": float("nan")}, "RandomScenarioOptions.lookahead must be finite"),
 ], ids=["bodies_misspelt", "negative_link_radius", "link_radius_without_links", "inter_arm_without_links",
         "inter_arm_not_bool", "speed_range_reversed", "negative_speed", "speed_not_a_range", "zero_path_length",
         "negative_damping", "fault_probability_above_1", "negative_fault_probability", "fault_time_reversed",
         "fault_time_after_horizon", "fault_time_not_a_range", "negative_redraws", "fractional_redraws",
-        "shape_misspelt"])
+        "shape_misspelt", "clear_paths_not_bool", "fallback_misspelt", "negative_lookahead", "nan_lookahead"])
 def test_random_options_bad_input(options: dict, message: str) -> None:
     with pytest.raises(ValueError) as err:
         RandomScenarioOptions(**options)
