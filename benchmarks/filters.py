@@ -47,7 +47,8 @@ from pan1_env.registration import env_arguments
 from pan1_env.safety import FilterParams
 
 TASKS = {"end_effector": "pan1_env/RandomFormation-v0", "whole_arm": "pan1_env/WholeArmStaticFormation-v0",
-         "whole_arm_moving": "pan1_env/WholeArmFormation-v0", "whole_arm_clear_paths": "pan1_env/WholeArmFormation-v2"}
+         "whole_arm_moving": "pan1_env/WholeArmFormation-v0", "whole_arm_clear_paths": "pan1_env/WholeArmFormation-v2",
+         "faults": "pan1_env/FaultFormation-v0"}
 # κ and ε are the random teams' (0.5, 5); the paper's filter first, then RandomFormation-v1's, then the smooth
 # gate (5 cm past the sensing range) on the hard-range settings, then v1 with the whole-arm last resort measured
 # by the barrier's rate (FilterParams.fallback). Key: (label, FilterParams fields).
@@ -64,6 +65,8 @@ SETTINGS = {
     "v1_ahead3": ("v1, obstacles' next 3 s of path kept out", {"barrier": "distance", "decay": 50.0, "lookahead": 3.0}),
     "v1_path": ("v1, obstacles' whole paths kept out", {"barrier": "distance", "decay": 50.0,
                                                          "lookahead": float("inf")}),
+    "v1_radius": ("v1 + 0.1 m sensing radius", {"barrier": "distance", "decay": 50.0, "sensing_radius": 0.1}),
+    "v1_fault": ("v1 + the fault margin", {"barrier": "distance", "decay": 50.0, "fault_margin": True}),
 }
 POLICIES = ("reference", "random", "adversarial")
 HOLD_STEPS = 20  # the random policy's action is held this many control steps (1 s)
@@ -76,7 +79,8 @@ def _filter(scenario_kwargs: dict, setting: dict) -> FilterParams:
     return FilterParams(kappa=options.get("kappa", 0.5), epsilon=options.get("epsilon", 5.0), margin=0.0,
                         sensing_radius=setting.get("sensing_radius"), barrier=setting.get("barrier", "squared"),
                         decay=setting.get("decay", 0.0), gate=setting.get("gate", 0.0),
-                        fallback=setting.get("fallback", "command"), lookahead=setting.get("lookahead", 0.0))
+                        fallback=setting.get("fallback", "command"), lookahead=setting.get("lookahead", 0.0),
+                        fault_margin=setting.get("fault_margin", False))
 
 
 def _persistent_random(size: int, teams: int, seed: int):

@@ -45,7 +45,7 @@ SENSING_RADIUS = 0.1
 #: sub-step) farther out than its radius, against what a sub-step's discretisation lets through
 SKIN = 0.002
 #: the kernel's rcbf (compiled.kernel_filter) with the filter off: it reads none of it
-_UNUSED_RCBF = (1.0, 1.0, 0.0, False, 0.0, False, 0.0)
+_UNUSED_RCBF = (1.0, 1.0, 0.0, False, 0.0, False, 0.0, False)
 
 
 @dataclass
@@ -189,8 +189,9 @@ class Engine:
             reach = max(float(kind.lengths.sum(axis=-1).max()) for kind in self.kinds)
             check_choices(params, self.whole_arm, self.max_speed, reach, self.physics_dt)
         self.filter = params
-        sensing = None if self.filter is None else self.filter.sensing_radius
-        if sensing is not None and not self.whole_arm:  # the end-effector as the body of the whole-arm rows
+        # a sensing range and the fault margin live in the whole-arm rows: the end-effector as their body
+        rows = self.filter is not None and (self.filter.sensing_radius is not None or self.filter.fault_margin)
+        if rows and not self.whole_arm:
             self.whole_arm = True
             self._whole_arm_setup()
             for b, team in enumerate(self.teams):

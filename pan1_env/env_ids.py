@@ -17,6 +17,8 @@ them with Gymnasium:
 * ``pan1_env/FaultFormation-v0`` (RandomFormation-v1's teams, whose fully actuated arms each lose their
   first joint's actuator with probability ½ at a time drawn from 1–10 s; passive joints damped with
   b = 0.5 N·m·s/rad: docs/ENVIRONMENTS.md),
+* ``pan1_env/FaultFormation-v1`` (FaultFormation-v0's teams behind a filter with the fault margin: every damped arm
+  keeps the drift a lost actuator leaves it stoppable short of the obstacles: docs/ENVIRONMENTS.md),
 * ``pan1_env/MovingFormation-v0`` (RandomFormation-v1's teams, whose formation scales between 0.8 and 1.2
   through keyframes 15 s apart; success is the error below 1 cm for the last 5 s: docs/ENVIRONMENTS.md),
 * ``pan1_env/MovingFormation-v1`` (MovingFormation-v0 with the shape placed: at every keyframe it turns within
@@ -41,6 +43,7 @@ _V1_FILTER = {"barrier": "distance", "decay": 50.0, "kappa": 0.5, "epsilon": 5.0
 # paths clear of every start (holding still is safe), and the filter keeps each path out whole (docs/ENVIRONMENTS.md)
 _CLEAR_PATHS = {"obstacle_speed": (0.05, 0.2), "clear_paths": True, "lookahead": float("inf")}
 _FAULTS = {"fault_probability": 0.5, "fault_time": (1.0, 10.0), "passive_damping": 0.5}
+_FAULT_MARGIN = {"fault_margin": True}  # every damped arm's drift stoppable short of the obstacles (docs/MODEL.md §5c)
 _MOVING = {"formation_scale": (0.8, 1.2), "scale_period": 15.0}
 _RING = {"shape": "ring", "arm_redraws": 20}
 _PLACED = {"formation_turn": (-0.5, 0.5), "formation_travel": (0.0, 0.1)}  # where the law forms half the teams
@@ -60,6 +63,7 @@ ENV_IDS = {
                                       "random_options": _WHOLE_ARM | _V1_FILTER | {"obstacle_speed": (0.05, 0.2)}},
     "pan1_env/WholeArmFormation-v2": {"scenario": "random", "random_options": _WHOLE_ARM | _V1_FILTER | _CLEAR_PATHS},
     "pan1_env/FaultFormation-v0": {"scenario": "random", "random_options": _V1_FILTER | _FAULTS},
+    "pan1_env/FaultFormation-v1": {"scenario": "random", "random_options": _V1_FILTER | _FAULTS | _FAULT_MARGIN},
     "pan1_env/MovingFormation-v0": {"scenario": "random", "random_options": _V1_FILTER | _MOVING,
                                     "success_hold": MOVING_SUCCESS_HOLD},
     "pan1_env/MovingFormation-v1": {"scenario": "random", "random_options": _V1_FILTER | _MOVING | _PLACED,

@@ -32,8 +32,12 @@ class PiqpFilter:
     name = "piqp"
 
     @staticmethod
-    def check(copies: int, torque: bool = False, faults: bool = False) -> None:
-        """Refuse what this filter cannot do: more than one copy, torque mode, or arms that lose an actuator."""
+    def check(copies: int, torque: bool = False, faults: bool = False, fault_margin: bool = False) -> None:
+        """Refuse what this filter cannot do: more than one copy, torque mode, arms that lose an actuator, or the
+        fault margin (whose momentum rows follow the compiled tracker)."""
+        if fault_margin:
+            raise ValueError("qp_solver='piqp' does not keep the fault margin (FilterParams.fault_margin); use the "
+                             "compiled 'active_set' QP")
         if faults:
             raise ValueError("qp_solver='piqp' does not step arms that lose an actuator (Scenario.fault_times); "
                              "use the compiled 'active_set' QP")
@@ -48,7 +52,7 @@ class PiqpFilter:
         if engine.filter is None:
             engine.advance_compiled(command, substeps, torque, rec)
             return
-        self.check(engine.copies, torque)
+        self.check(engine.copies, torque, fault_margin=engine.filter.fault_margin)
         if engine.whole_arm:
             for _ in range(substeps):
                 self._whole_arm_substep(engine, command, rec)
@@ -142,7 +146,8 @@ def whole_arm_rows(engine: Engine, kind, r: int, v0: np.ndarray, epsilon: float)
                             whole.skin,
                             engine.physics_dt, lane(kind.lengths[r]), kind.base[r, :1].copy(),
                             kind.base[r, 1:].copy(), lane(np.cos(angles)), lane(np.sin(angles)), lane(kind.qd[r]),
-                            lane(mass_matrix(arm, q)), float(kind.momentum[r]), caps, whole.n_world,
+                            lane(mass_matrix(arm, q)), float(kind.momentum[r]),
+                            (float(kind.damping[r]) if f.fault_margin else 0.0, 1.0, 0.0), caps, whole.n_world,
                             whole.start_time[r], f.kappa, epsilon, f.margin,
                             f.barrier == "distance", f.decay, f.lookahead, engine.max_speed, v0.copy(), A, b, active,
                             np.empty((n + 1, 2)), np.empty((caps.shape[1], K.NEAR_COLUMNS)))
@@ -152,10 +157,10 @@ def whole_arm_rows(engine: Engine, kind, r: int, v0: np.ndarray, epsilon: float)
 def least_violation(v0: np.ndarray, A: np.ndarray, b: np.ndarray, speed_box: bool, by_rate: bool = False) -> np.ndarray:
     """The kernel's last resort for an infeasible whole-arm QP (its rows end with the speed box when
     ``speed_box``; violation measured by the barrier's rate with ``by_rate``, else per unit of a row's norm):
-    :func:`pan1_env.kernels.capsules.least_violation`."""
+    :func:`pan1_env.kernels.last_resort.least_violation`."""
     m, k = A.shape
     v = np.empty(k)
-    kernels().capsules.least_violation(
+    kernels().last_resort.least_violation(
         v0.copy(), A.copy(), b.copy(), np.ones(m, dtype=bool), m, k, 2 * k if speed_box else 0, by_rate, v,
         np.empty(m), np.empty(m), np.empty(m, dtype=np.int64), np.empty(k, dtype=np.int64), np.empty((k, k)),
         np.empty(k), np.empty(k), np.empty(k), np.empty((k, k)), np.empty(k), np.empty(m), np.empty(m))

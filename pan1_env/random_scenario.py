@@ -100,7 +100,9 @@ class RandomScenarioOptions:
             (0: a hard range; :class:`pan1_env.safety.FilterParams`).
         fallback: the whole-arm filter's last resort in the drawn scenario (:class:`pan1_env.safety.FilterParams`).
         lookahead: how far ahead (s) the whole-arm filter keeps moving obstacles' paths out in the drawn scenario
-            (0: where they are; inf: their whole paths). None of these five changes what is drawn.
+            (0: where they are; inf: their whole paths).
+        fault_margin: whether the drawn scenario's filter keeps a lost actuator's drift stoppable short of the
+            obstacles (:class:`pan1_env.safety.FilterParams`). None of these six changes what is drawn.
         passive_damping: viscous damping b ≥ 0 (N·m·s/rad) of every arm's first joint while it is passive
             (:class:`pan1_env.dynamics.ArmParams`; 0: the paper's frictionless joint). It changes no draw: the
             start is the frictionless arm's, from which the target is reached with p₁ = 0 (with damping p₁
@@ -153,6 +155,7 @@ class RandomScenarioOptions:
     gate: float = 0.0
     fallback: str = "command"
     lookahead: float = 0.0
+    fault_margin: bool = False
     passive_damping: float = 0.0
     fault_probability: float = 0.0
     fault_time: tuple[float, float] = (1.0, 10.0)
@@ -215,6 +218,9 @@ class RandomScenarioOptions:
             raise ValueError(f"RandomScenarioOptions.fallback must be one of {FALLBACKS}, got {self.fallback!r}")
         object.__setattr__(self, "lookahead", real("RandomScenarioOptions.lookahead", self.lookahead,
                                                    non_negative=True, allow_inf=True))
+        if not isinstance(self.fault_margin, (bool, np.bool_)):
+            raise ValueError(f"RandomScenarioOptions.fault_margin must be True or False, got {self.fault_margin!r}")
+        object.__setattr__(self, "fault_margin", bool(self.fault_margin))
         object.__setattr__(self, "passive_damping",
                            real("RandomScenarioOptions.passive_damping", self.passive_damping, non_negative=True))
         self._check_faults()
@@ -438,7 +444,7 @@ def drawn_scenario(opt: RandomScenarioOptions, arms: list[ArmParams], q0: list[n
         control_dt=opt.control_dt, horizon=opt.horizon, source="<random>", bodies=opt.bodies,
         link_radius=opt.link_radius, inter_arm=opt.inter_arm, obstacle_paths=paths, obstacle_speeds=speeds,
         safety_barrier=opt.barrier, safety_decay=opt.decay, safety_gate=opt.gate, safety_fallback=opt.fallback,
-        safety_lookahead=opt.lookahead, fault_times=fault_times,
+        safety_lookahead=opt.lookahead, safety_fault_margin=opt.fault_margin, fault_times=fault_times,
         motion=motion,
     )
 

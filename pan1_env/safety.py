@@ -29,18 +29,8 @@ module, like the rest of the reference layer, imports nothing compiled.
 :class:`FilterParams` holds κ, ε and the margin (and the whole-arm filter's sensing range) as the
 envs and the engine take them (:func:`filter_parameters`).
 
-**Barrier choices** (docs/MODEL.md §5, *Barrier choices*; the numpy specification the compiled filter
-will be tested against). Every protected pair (end-effector–obstacle, link–obstacle, link–link) has a
-distance d ≥ 0 to keep above a radius R (r, r + ρ or 2ρ):
-
-* barrier ``"squared"`` (the paper's): h = d² − R², its row 2 d ∇d g0;
-* barrier ``"distance"``: h = d − R (metres, ‖∇_p h‖ = 1), its row ∇d g0 (:func:`shaped_barrier`);
-* robust term ‖L_g0 h‖² / ε(h̃) with ε(h̃) = ε e^{λ h̃} (:func:`robust_epsilon`; λ = 0 is the paper's
-  constant ε; a tunable ISSf term after Alan, Taylor, He, Orosz & Ames, arXiv 2103.08041);
-* activation: every pair, a hard range, or a smooth gate σ(clearance) that relaxes a row before it
-  drops it (:func:`activation_gate`, :func:`cbf_rows`).
-
-:func:`robust_margin` Γ(δ) and :func:`tracking_bound` δ̄(margin) hold for each choice.
+**Barrier choices** (the distance barrier, the tunable robust term, the activation gate, the fault margin) and the
+robust margin Γ(δ) are :mod:`pan1_env.barriers`'; this module takes its rows from there and re-exports them.
 
 If the desired velocity already satisfies every row it is the optimum and is returned unchanged.
 If the QP is infeasible (or the solver fails) the documented fallback is **braking**: v* = 0, so
@@ -59,6 +49,17 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
+from .barriers import (
+    BARRIERS,
+    activation_gate,
+    cbf_rows,
+    fault_rows,
+    momentum_rows,
+    robust_epsilon,
+    robust_margin,
+    shaped_barrier,
+    tracking_bound,
+)
 from .validation import real
 
 if TYPE_CHECKING:
@@ -75,6 +76,8 @@ __all__ = [
     "shaped_barrier",
     "activation_gate",
     "cbf_rows",
+    "fault_rows",
+    "momentum_rows",
     "rcbf_constraints",
     "BARRIERS",
     "FALLBACKS",
@@ -90,8 +93,6 @@ __all__ = [
 ]
 
 QP_SOLVERS = ("active_set", "piqp")
-#: the barrier forms of :func:`shaped_barrier`: the paper's squared distance, or the distance itself
-BARRIERS = ("squared", "distance")
 #: how the whole-arm filter's last resort measures a row's violation (:attr:`FilterParams.fallback`)
 FALLBACKS = ("command", "barrier_rate")
 
@@ -139,138 +140,6 @@ def barrier_lie_derivative(p: np.ndarray, Jbar: np.ndarray, centers: np.ndarray)
     """L_g0 h_j = 2 (p − o_j)ᵀ J̄ for ``p (..., 2)`` and ``J̄ (..., 2, k)``: shape ``(..., O, k)``."""
     d = p[..., None, :] - centers
     return 2.0 * np.einsum("...oc,...ck->...ok", d, Jbar)
-
-
-def robust_margin(delta: float, kappa: float, epsilon: float, decay: float = 0.0, arms: int = 1) -> float:
-    """Γ(δ): how far below zero a tracking error ‖v − v*‖ ≤ δ can push the filtered barrier h̃ = h − margin
-    (Eq. 57, docs/MODEL.md §5). In the barrier's own unit (m² squared, m distance).
-
-    On a row, ḣ̃ = L_g0 h · (v* + ẽ) ≥ −κ h̃ + ‖L_g0 h‖²/ε(h̃) − ‖L_g0 h‖ δ ≥ −κ h̃ − ε(h̃) δ²/4 (the
-    square completed in ‖L_g0 h‖), whatever the row's gradient and so whatever the barrier's form.
-    ε(h̃) = ε e^{λ h̃} (``decay`` λ, :func:`robust_epsilon`) is increasing, so ḣ̃ ≥ 0 wherever
-    κ (−h̃) ≥ ε e^{λ h̃} δ²/4, i.e. below h̃ = −Γ with
-
-        κ Γ e^{λ Γ} = arms · ε δ² / 4,     Γ = W(λ · arms · ε δ² / (4 κ)) / λ    (Lambert W; λ → 0: arms · ε δ²/(4κ))
-
-    and {h̃ ≥ −Γ} is forward invariant. ``arms`` is how many arms' tracking errors act on the row: 2 for
-    an inter-arm row that both arms filter with half the rate each (each brings its own −ε δ²/4)."""
-    delta, kappa, epsilon, decay = float(delta), float(kappa), float(epsilon), _decay("robust_margin", decay, arms)
-    x = arms * epsilon * delta**2 / (4.0 * kappa)
-    if decay == 0.0 or x == 0.0:
-        return x
-    from scipy.special import lambertw  # here, not at import: scipy.special costs `import pan1_env` time
-
-    return float(lambertw(decay * x).real) / decay
-
-
-def tracking_bound(margin: float, kappa: float, epsilon: float, decay: float = 0.0, arms: int = 1) -> float:
-    """δ̄: the largest tracking error that a filter with ``margin`` still keeps out of the obstacles (h ≥ 0),
-    the inverse of :func:`robust_margin`: Γ(δ̄) = margin gives δ̄ = 2 √(κ · margin · e^{λ · margin} / (arms · ε)).
-    A tracking error δ ≤ δ̄ keeps h̃ ≥ −Γ(δ) ≥ −margin, so h = h̃ + margin ≥ 0."""
-    margin, kappa, epsilon, decay = float(margin), float(kappa), float(epsilon), _decay("tracking_bound", decay, arms)
-    return 2.0 * float(np.sqrt(kappa * margin * np.exp(decay * margin) / (arms * epsilon)))
-
-
-def _decay(owner: str, decay: float, arms: int) -> float:
-    """λ as a float, refused below 0: Γ's formula needs an ε(h̃) that does not fall as h̃ grows."""
-    if isinstance(arms, bool) or not isinstance(arms, (int, np.integer)) or arms < 1:
-        raise ValueError(f"{owner}: arms must be an integer ≥ 1, got {arms!r}")
-    return real(f"{owner}: decay", decay, non_negative=True)
-
-
-def robust_epsilon(h: np.ndarray, epsilon: float, decay: float = 0.0) -> np.ndarray:
-    """The tunable robustness ε(h̃) = ε e^{λ h̃} (λ = ``decay`` ≥ 0, in the barrier's inverse unit).
-
-    At the set's edge (h̃ = 0) it is the paper's ε; far inside it grows, so the robust term
-    ‖L_g0 h‖²/ε(h̃) fades where the class-K term κ h̃ already keeps the row slack (Alan et al., arXiv
-    2103.08041, use this exponential as their example of an increasing tuning function). λ = 0 is the
-    paper's constant ε. The exponent is capped so that far rows give a finite ε (then 1/ε ≈ 0)."""
-    return epsilon * np.exp(np.minimum(decay * np.asarray(h, dtype=float), 700.0))
-
-
-def shaped_barrier(h_squared: np.ndarray, radius: np.ndarray | float, barrier: str,
-                   *derivatives: np.ndarray) -> tuple[np.ndarray, ...]:
-    """A squared barrier h = d² − R² and its derivatives (rows L_g0 h, ∂h/∂t, each ``(..., k)`` or
-    ``(...)``) in the chosen form: ``"squared"`` returns them unchanged; ``"distance"`` returns
-    h = d − R with d = √(h + R²) and every derivative divided by 2d (∂d = ∂(d²)/(2d)).
-
-    The distance barrier has ‖∇_p h‖ = 1 for the body's point p, so its row ‖L_g0 h‖ = ‖J̄ᵀ n‖ stays
-    bounded by the arm's reach while κ h grows with d: far pairs stop binding (the squared barrier's
-    row and κ h both grow like d²). Its gradient is undefined at d = 0 (the body's point on the
-    obstacle's centre or segment, deep inside); there the rows are 0 and h = −R.
-
-    ``radius`` broadcasts against ``h_squared``. Returns ``(h, *derivatives)``."""
-    if barrier not in BARRIERS:
-        raise ValueError(f"unknown barrier {barrier!r}; choose one of {BARRIERS}")
-    h_squared = np.asarray(h_squared, dtype=float)
-    if barrier == "squared":
-        return (h_squared, *(np.asarray(x, dtype=float) for x in derivatives))
-    radius = np.asarray(radius, dtype=float)
-    d = np.sqrt(np.maximum(h_squared + radius**2, 0.0))
-    inv = np.where(d > 0.0, 0.5 / np.where(d > 0.0, d, 1.0), 0.0)
-    out = []
-    for x in derivatives:
-        x = np.asarray(x, dtype=float)
-        out.append(x * (inv[..., None] if x.ndim > inv.ndim else inv))
-    return (d - radius, *out)
-
-
-def activation_gate(clearance: np.ndarray, on: float, width: float) -> np.ndarray:
-    """The smooth activation σ ∈ [0, 1] of a row by its pair's clearance c (m):
-
-        σ = 1 for c ≤ on,   σ = 0 for c ≥ on + width,   σ = 1 − (3 s² − 2 s³), s = (c − on)/width, between
-
-    (C¹: the cubic's slope vanishes at both ends, its steepest is 1.5/width). ``width`` = 0 is a hard
-    range (σ = 1 up to ``on``, then 0). What :func:`cbf_rows` does with σ, and why rows it relaxes
-    cannot be violated: docs/MODEL.md §5, *Activation*."""
-    on = real("activation_gate: on", on, non_negative=True)
-    width = real("activation_gate: width", width, non_negative=True)
-    c = np.asarray(clearance, dtype=float)
-    if width == 0.0:
-        return np.where(c <= on, 1.0, 0.0)
-    s = np.clip((c - on) / width, 0.0, 1.0)
-    return 1.0 - s * s * (3.0 - 2.0 * s)
-
-
-def cbf_rows(
-    h: np.ndarray,
-    row: np.ndarray,
-    kappa: float,
-    epsilon: float,
-    margin: float = 0.0,
-    decay: float = 0.0,
-    dh_dt: np.ndarray | float = 0.0,
-    share: np.ndarray | float = 1.0,
-    gate: np.ndarray | None = None,
-    speed: float | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """The QP rows ``A v ≤ b`` of any barrier ``h (...)`` with row L_g0 h ``(..., k)`` (either form):
-
-        −L_g0 h · v ≤ share · κ h̃ + ∂h/∂t − ‖L_g0 h‖² / ε(h̃),      h̃ = h − margin,  ε(h̃) = ε e^{λ h̃}
-
-    (the robust ISSf condition of Eq. 56 with the tightened barrier, a moving obstacle's ∂h/∂t, and the
-    rate ``share`` of a pair two arms filter: ½ each). With ``gate`` σ ``(...)`` in [0, 1]
-    (:func:`activation_gate`) the row becomes the convex combination of itself and the trivially true
-    0 ≤ S, S = ``speed`` · Σ_t |L_g0 h_t| (the most −L_g0 h · v can be inside the speed box |v_t| ≤ speed):
-
-        −σ L_g0 h · v ≤ σ b + (1 − σ) S.
-
-    σ = 1 is the row itself, σ = 0 a zero row with b ≥ 0 (the QP drops it), and in between a relaxation
-    that every v meeting the row meets: the gate can only enlarge the feasible set, and it moves the
-    half-space continuously (no jump of v* when a pair comes into range). Returns ``(A, b)``."""
-    h = np.asarray(h, dtype=float)
-    row = np.asarray(row, dtype=float)
-    ht = h - margin
-    A = -row
-    b = share * kappa * ht + dh_dt - np.sum(row * row, axis=-1) / robust_epsilon(ht, epsilon, decay)
-    if gate is not None:
-        if speed is None or not np.isfinite(speed):
-            raise ValueError("cbf_rows: a gate needs the finite speed bound of the box rows")
-        sigma = np.asarray(gate, dtype=float)
-        S = speed * np.sum(np.abs(row), axis=-1)
-        A = sigma[..., None] * A
-        b = sigma * b + (1.0 - sigma) * S
-    return A, b
 
 
 def rcbf_constraints(
@@ -528,7 +397,14 @@ class FilterParams:
 
     ``lookahead`` (s): what the whole-arm rows keep out of a moving obstacle: 0 (the default) the disk where it
     is now; T > 0 the capsule of the stretch of its path it covers in the next T s, inf (or a full period or
-    more) its whole path, which the filter then treats as a still obstacle (docs/MODEL.md §5b)."""
+    more) its whole path, which the filter then treats as a still obstacle (docs/MODEL.md §5b).
+
+    ``fault_margin``: keep every arm able to stop a lost actuator's drift short of the world's obstacles
+    (docs/MODEL.md §5c). An arm whose first joint is damped (b > 0, passive now or once it faults) keeps
+    h ≥ (reach / b) |p₁| against each world obstacle: while passive as two rows a pair (:func:`fault_rows`), while
+    fully actuated by holding its first joint's momentum within b h / reach (:func:`momentum_rows`). It needs the
+    distance barrier, a finite speed bound and no gate, and it filters through the whole-arm rows (an end-effector
+    scenario with the end-effector as the body, as a ``sensing_radius`` does)."""
 
     kappa: float
     epsilon: float
@@ -539,12 +415,13 @@ class FilterParams:
     gate: float = 0.0
     fallback: str = "command"
     lookahead: float = 0.0
+    fault_margin: bool = False
 
     def __post_init__(self) -> None:
         checked = _checked("FilterParams", self.kappa, self.epsilon, self.margin, self.sensing_radius, self.barrier,
-                           self.decay, self.gate, self.fallback, self.lookahead)
+                           self.decay, self.gate, self.fallback, self.lookahead, self.fault_margin)
         for name, value in zip(("kappa", "epsilon", "margin", "sensing_radius", "barrier", "decay", "gate",
-                                "fallback", "lookahead"), checked, strict=True):
+                                "fallback", "lookahead", "fault_margin"), checked, strict=True):
             object.__setattr__(self, name, value)
 
     @property
@@ -573,14 +450,16 @@ class FilterParams:
         gate: float | None = None,
         fallback: str | None = None,
         lookahead: float | None = None,
+        fault_margin: bool | None = None,
     ) -> FilterParams:
-        """The scenario's κ, ε, margin, barrier, λ, gate, fallback and look-ahead, each replaced where given.
+        """The scenario's κ, ε, margin, barrier, λ, gate, fallback, look-ahead and fault margin, each replaced where
+        given.
         ``tracking_bound`` δ̄ instead of a margin sets it to Γ(δ̄) (:func:`robust_margin`, with the filter's λ), so
         that an arm tracking within δ̄ stays in the original set. Errors name the argument, prefixed by ``owner``
         (the API that took it)."""
         if margin is not None and tracking_bound is not None:
             raise ValueError(f"{owner}: give margin or tracking_bound, not both")
-        kappa, epsilon, margin, sensing_radius, barrier, decay, gate, fallback, lookahead = _checked(
+        kappa, epsilon, margin, sensing_radius, barrier, decay, gate, fallback, lookahead, fault_margin = _checked(
             owner,
             scenario.kappa if kappa is None else kappa,
             scenario.epsilon if epsilon is None else epsilon,
@@ -591,23 +470,27 @@ class FilterParams:
             scenario.safety_gate if gate is None else gate,
             scenario.safety_fallback if fallback is None else fallback,
             scenario.safety_lookahead if lookahead is None else lookahead,
+            scenario.safety_fault_margin if fault_margin is None else fault_margin,
         )
         if tracking_bound is not None:
             delta = real(f"{owner}: tracking_bound", tracking_bound, non_negative=True)
             margin = robust_margin(delta, kappa, epsilon, decay)
-        return cls(kappa, epsilon, margin, sensing_radius, barrier, decay, gate, fallback, lookahead)
+        return cls(kappa, epsilon, margin, sensing_radius, barrier, decay, gate, fallback, lookahead, fault_margin)
 
 
 def _checked(
     owner: str, kappa: float, epsilon: float, margin: float, sensing_radius: float | None, barrier: str = "squared",
     decay: float = 0.0, gate: float = 0.0, fallback: str = "command", lookahead: float = 0.0,
-) -> tuple[float, float, float, float | None, str, float, float, str, float]:
+    fault_margin: bool = False,
+) -> tuple[float, float, float, float | None, str, float, float, str, float, bool]:
     """The filter's parameters as floats (the barrier a name of :data:`BARRIERS`, the fallback one of
-    :data:`FALLBACKS`), or a ValueError naming the first bad one."""
+    :data:`FALLBACKS`, the fault margin a bool), or a ValueError naming the first bad one."""
     if not isinstance(barrier, str) or barrier not in BARRIERS:
         raise ValueError(f"{owner}: barrier must be one of {BARRIERS}, got {barrier!r}")
     if not isinstance(fallback, str) or fallback not in FALLBACKS:
         raise ValueError(f"{owner}: fallback must be one of {FALLBACKS}, got {fallback!r}")
+    if not isinstance(fault_margin, (bool, np.bool_)):
+        raise ValueError(f"{owner}: fault_margin must be True or False, got {fault_margin!r}")
     return (
         real(f"{owner}: kappa", kappa, positive=True),
         real(f"{owner}: epsilon", epsilon, positive=True),
@@ -618,6 +501,7 @@ def _checked(
         real(f"{owner}: gate", gate, non_negative=True),
         fallback,
         real(f"{owner}: lookahead", lookahead, non_negative=True, allow_inf=True),
+        bool(fault_margin),
     )
 
 
@@ -631,8 +515,13 @@ def check_choices(params: FilterParams, whole_arm: bool, max_speed: float, reach
     - ``lookahead`` > 0 shapes the whole-arm rows (the end-effector filter sees obstacles where they are);
     - ``gate`` > 0 widens the whole-arm rows' sensing range, relaxes rows towards the speed box, and is a gate only
       if it is wider than what a body covers in a sub-step (its far end turning at ``max_speed``; docs/MODEL.md
-      §5, *Activation*)."""
-    rows = whole_arm or params.sensing_radius is not None
+      §5, *Activation*);
+    - ``fault_margin`` is written for the distance barrier, bounds the momentum the speed box allows, and has no
+      gate (its range is the margin's own)."""
+    if params.fault_margin and (params.barrier != "distance" or not np.isfinite(max_speed) or params.gate > 0.0):
+        raise ValueError("FilterParams.fault_margin needs barrier='distance', a finite max_speed and gate=0, got "
+                         f"barrier={params.barrier!r}, max_speed={max_speed:g}, gate={params.gate:g}")
+    rows = whole_arm or params.sensing_radius is not None or params.fault_margin
     if params.fallback != "command" and not rows:
         raise ValueError(f"FilterParams.fallback={params.fallback!r} measures the whole-arm filter's last resort: "
                          "it needs whole-arm bodies or a sensing_radius (the end-effector filter brakes instead)")

@@ -12,7 +12,8 @@ the README ("Scenario files"); in short::
     [safety]      kappa, epsilon, margin = 0, ignore_unreachable_obstacles = true,
                   bodies = "end_effector" | "links", link_radius = 0, inter_arm = false,
                   barrier = "squared" | "distance", decay = 0, gate = 0 (m; a smooth activation past the sensing range),
-                  fallback = "command" | "barrier_rate", lookahead = 0 (s; inf keeps moving obstacles' whole paths out)
+                  fallback = "command" | "barrier_rate", lookahead = 0 (s; inf keeps moving obstacles' whole paths out),
+                  fault_margin = false (keep a lost actuator's drift stoppable short of the obstacles)
     [arm_defaults] masses, lengths, com, inertias, passive_first_joint, phi,
                   passive_damping = 0 (N·m·s/rad at a passive first joint)   (optional)
     [[arms]]      base, q0, and any arm_defaults key to override it
@@ -27,7 +28,6 @@ Angles (``q0``, ``phi``, a turn's angles) are numbers in radians or strings such
 from __future__ import annotations
 
 import math
-import re
 import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -49,6 +49,7 @@ from .dynamics import ArmParams
 from .formation import Formation, FormationError
 from .motion import FormationMotion, check_motion, switch_shape
 from .safety import BARRIERS, FALLBACKS, Obstacles, clearance
+from .toml_values import FILTER_KEYS, ScenarioError, angle, filter_settings, known_keys, number, table, vector
 from .validation import real
 
 if sys.version_info >= (3, 11):
@@ -60,14 +61,6 @@ __all__ = ["Scenario", "ScenarioError", "load", "from_dict", "builtin_names", "B
 
 #: What the ``[safety]`` table's ``bodies`` key may protect: the end-effectors (the paper) or every link.
 BODIES = ("end_effector", "links")
-
-
-class ScenarioError(ValueError):
-    """An invalid scenario: the message names the source, the key and the problem."""
-
-    def __init__(self, source: str, key: str, problem: str) -> None:
-        self.source, self.key, self.problem = source, key, problem
-        super().__init__(f"{source}: {key}: {problem}")
 
 
 @dataclass(frozen=True)
@@ -101,13 +94,14 @@ class Scenario:
     inter_arm: bool = False
     obstacle_paths: np.ndarray | None = None
     obstacle_speeds: np.ndarray | None = None
-    #: the filter's barrier, λ of its tunable ε(h̃), activation gate, last resort's measure and look-ahead along
-    #: moving obstacles' paths (:class:`pan1_env.safety.FilterParams`)
+    #: the filter's barrier, λ of its tunable ε(h̃), activation gate, last resort's measure, look-ahead along
+    #: moving obstacles' paths and fault margin (:class:`pan1_env.safety.FilterParams`)
     safety_barrier: str = "squared"
     safety_decay: float = 0.0
     safety_gate: float = 0.0
     safety_fallback: str = "command"
     safety_lookahead: float = 0.0
+    safety_fault_margin: bool = False
     #: ``(N,)`` s: when each arm's first joint loses its actuator (inf: never; docs/MODEL.md §7); None: no arm
     #: of this team or of the teams an engine loads after it can fault
     fault_times: np.ndarray | None = None
@@ -130,6 +124,8 @@ class Scenario:
         if self.safety_fallback not in FALLBACKS:
             raise ValueError(f"Scenario.safety_fallback must be one of {FALLBACKS}, got {self.safety_fallback!r}")
         real("Scenario.safety_lookahead", self.safety_lookahead, non_negative=True, allow_inf=True)
+        if not isinstance(self.safety_fault_margin, (bool, np.bool_)):
+            raise ValueError(f"Scenario.safety_fault_margin must be True or False, got {self.safety_fault_margin!r}")
         n_obs = len(self.obstacles)
         if (self.obstacle_paths is None) != (self.obstacle_speeds is None):
             raise ValueError("Scenario.obstacle_paths and obstacle_speeds go together: give both or neither")
@@ -221,106 +217,12 @@ _TOP_KEYS = {"name", "description", "simulation", "controller", "safety", "arm_d
 _ARM_PARAM_KEYS = {"masses", "lengths", "com", "inertias", "passive_first_joint", "phi", "passive_damping"}
 _ARM_KEYS = _ARM_PARAM_KEYS | {"base", "q0"}
 
-_ANGLE = re.compile(
-    r"^\s*(?P<sign>[+-])?\s*(?P<num>\d+(?:\.\d*)?|\.\d+)?\s*\*?\s*(?P<pi>pi|π)?"
-    r"\s*(?:/\s*(?P<den>\d+(?:\.\d*)?))?\s*$"
-)
-
-
 MAX_SUBSTEPS = 1_000_000  # physics sub-steps per control step
-MAX_MAGNITUDE = 1e9  # every number in a scenario file must satisfy |x| ≤ MAX_MAGNITUDE
-
-
-def _float(value: int | float, src: str, key: str) -> float:
-    """A TOML number as a float within ±MAX_MAGNITUDE (TOML integers can be arbitrarily large)."""
-    if isinstance(value, int) and abs(value) > MAX_MAGNITUDE:
-        raise ScenarioError(src, key, f"an integer of {len(str(abs(value)))} digits is out of range: numbers "
-                            f"must lie within ±{MAX_MAGNITUDE:g}")
-    out = float(value)
-    if math.isfinite(out) and abs(out) > MAX_MAGNITUDE:
-        raise ScenarioError(src, key, f"{out:g} is out of range: numbers must lie within ±{MAX_MAGNITUDE:g}")
-    return out
-
-
-def _angle(value: Any, src: str, key: str) -> float:
-    if isinstance(value, bool):
-        raise ScenarioError(src, key, f"expected an angle, got {value!r}")
-    if isinstance(value, (int, float)):
-        out = _float(value, src, key)
-    elif isinstance(value, str):
-        m = _ANGLE.match(value)
-        if not m or not (m.group("num") or m.group("pi")):
-            raise ScenarioError(src, key, f"cannot read angle {value!r}; write e.g. 0.5 or '-3*pi/4'")
-        out = _float(float(m.group("num") or 1.0), src, key) * (math.pi if m.group("pi") else 1.0)
-        if m.group("den"):
-            den = _float(float(m.group("den")), src, key)
-            if den == 0:
-                raise ScenarioError(src, key, f"division by zero in angle {value!r}")
-            out /= den
-        if m.group("sign") == "-":
-            out = -out
-    else:
-        raise ScenarioError(src, key, f"expected an angle (number or string like 'pi/3'), got {value!r}")
-    if not math.isfinite(out):
-        raise ScenarioError(src, key, f"angle must be finite, got {value!r}")
-    return out
-
-
-def _number(table: Mapping[str, Any], key: str, src: str, prefix: str, *, positive: bool = True,
-            default: float | None = None, infinite: bool = False) -> float:
-    full = f"{prefix}.{key}"
-    if key not in table:
-        if default is None:
-            raise ScenarioError(src, full, "missing")
-        return default
-    value = table[key]
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ScenarioError(src, full, f"expected a number, got {value!r}")
-    value = _float(value, src, full)
-    if not math.isfinite(value) and not (infinite and value == math.inf):
-        raise ScenarioError(src, full, f"must be {'a number or inf' if infinite else 'finite'}, got {value!r}")
-    if positive and value <= 0:
-        raise ScenarioError(src, full, f"must be positive, got {value!r}")
-    if not positive and value < 0:
-        raise ScenarioError(src, full, f"must be non-negative, got {value!r}")
-    return value
-
-
-def _vector(value: Any, src: str, key: str, size: int | None = None) -> np.ndarray:
-    if not isinstance(value, list) or not value:
-        raise ScenarioError(src, key, f"expected a non-empty list of numbers, got {value!r}")
-    if any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in value):
-        raise ScenarioError(src, key, f"expected a list of numbers, got {value!r}")
-    arr = np.array([_float(x, src, key) for x in value], dtype=float)
-    if not np.all(np.isfinite(arr)):
-        raise ScenarioError(src, key, f"values must be finite, got {value!r}")
-    if size is not None and arr.size != size:
-        raise ScenarioError(src, key, f"expected {size} numbers, got {arr.size}")
-    return arr
-
-
-def _table(data: Mapping[str, Any], key: str, src: str, allowed: set[str],
-           required: bool = True) -> dict[str, Any]:
-    if key not in data:
-        if required:
-            raise ScenarioError(src, key, "missing table")
-        return {}
-    return _known_keys(data[key], key, src, allowed)
-
-
-def _known_keys(table: Any, key: str, src: str, allowed: set[str]) -> dict[str, Any]:
-    """``table`` checked to be a TOML table whose keys are all in ``allowed``."""
-    if not isinstance(table, dict):
-        raise ScenarioError(src, key, f"expected a table, got {type(table).__name__}")
-    unknown = set(table) - allowed
-    if unknown:
-        raise ScenarioError(src, f"{key}.{sorted(unknown)[0]}", f"unknown key; allowed keys are {sorted(allowed)}")
-    return table
 
 
 def _arm(entry: Any, defaults: Mapping[str, Any], src: str, index: int) -> tuple[ArmParams, np.ndarray]:
     prefix = f"arms[{index}]"
-    _known_keys(entry, prefix, src, _ARM_KEYS)
+    known_keys(entry, prefix, src, _ARM_KEYS)
     merged = {**defaults, **entry}
 
     def where(key: str) -> str:
@@ -331,7 +233,7 @@ def _arm(entry: Any, defaults: Mapping[str, Any], src: str, index: int) -> tuple
     for key in ("masses", "lengths", "com", "inertias"):
         if key not in merged:
             raise ScenarioError(src, f"{prefix}.{key}", "missing (give it here or in [arm_defaults])")
-        vectors[key] = _vector(merged[key], src, where(key))
+        vectors[key] = vector(merged[key], src, where(key))
     # the odd one out is the list whose size most of the others disagree with (masses on a tie)
     sizes = [arr.size for arr in vectors.values()]
     n = max(sizes, key=lambda s: (sizes.count(s), s == vectors["masses"].size))
@@ -351,8 +253,8 @@ def _arm(entry: Any, defaults: Mapping[str, Any], src: str, index: int) -> tuple
                             f"lengths={vectors['lengths'].tolist()}")
     if "base" not in merged:
         raise ScenarioError(src, f"{prefix}.base", "missing")
-    base = _vector(merged["base"], src, f"{prefix}.base", size=2)
-    phi = _angle(merged.get("phi", 0.0), src, f"{prefix}.phi")
+    base = vector(merged["base"], src, f"{prefix}.base", size=2)
+    phi = angle(merged.get("phi", 0.0), src, f"{prefix}.phi")
     passive = merged.get("passive_first_joint", True)
     if not isinstance(passive, bool):
         raise ScenarioError(src, f"{prefix}.passive_first_joint", f"expected true or false, got {passive!r}")
@@ -361,9 +263,9 @@ def _arm(entry: Any, defaults: Mapping[str, Any], src: str, index: int) -> tuple
     q0_raw = merged["q0"]
     if not isinstance(q0_raw, list) or len(q0_raw) != n:
         raise ScenarioError(src, f"{prefix}.q0", f"expected a list of {n} angles, got {q0_raw!r}")
-    q0 = np.array([_angle(x, src, f"{prefix}.q0[{k}]") for k, x in enumerate(q0_raw)])
+    q0 = np.array([angle(x, src, f"{prefix}.q0[{k}]") for k, x in enumerate(q0_raw)])
     table = entry if "passive_damping" in entry else defaults  # where the key is, for the error
-    damping = _number(table, "passive_damping", src, where("passive_damping").rpartition(".")[0], positive=False,
+    damping = number(table, "passive_damping", src, where("passive_damping").rpartition(".")[0], positive=False,
                       default=0.0)
     arm = ArmParams(base=base, phi=phi, passive_first_joint=passive, passive_damping=damping, **vectors)
     q0.setflags(write=False)
@@ -385,10 +287,10 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
     if not isinstance(description, str):
         raise ScenarioError(src, "description", f"expected a string, got {description!r}")
 
-    sim = _table(data, "simulation", src, {"physics_dt", "control_dt", "horizon"})
-    physics_dt = _number(sim, "physics_dt", src, "simulation")
-    control_dt = _number(sim, "control_dt", src, "simulation", default=physics_dt)
-    horizon = _number(sim, "horizon", src, "simulation")
+    sim = table(data, "simulation", src, {"physics_dt", "control_dt", "horizon"})
+    physics_dt = number(sim, "physics_dt", src, "simulation")
+    control_dt = number(sim, "control_dt", src, "simulation", default=physics_dt)
+    horizon = number(sim, "horizon", src, "simulation")
     ratio = control_dt / physics_dt
     if not ratio <= MAX_SUBSTEPS:
         raise ScenarioError(src, "simulation.control_dt", f"control_dt / physics_dt = {ratio:.3g} sub-steps per "
@@ -397,31 +299,20 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
         raise ScenarioError(src, "simulation.control_dt",
                             f"must be a whole multiple of physics_dt={physics_dt}, got {control_dt}")
 
-    ctrl = _table(data, "controller", src, {"kp", "ke"})
-    kp = _number(ctrl, "kp", src, "controller")
-    ke = _number(ctrl, "ke", src, "controller")
-    saf = _table(data, "safety", src, {"kappa", "epsilon", "margin", "ignore_unreachable_obstacles", "bodies",
-                                       "link_radius", "inter_arm", "barrier", "decay", "gate", "fallback", "lookahead"})
-    kappa = _number(saf, "kappa", src, "safety")
-    epsilon = _number(saf, "epsilon", src, "safety")
-    margin = _number(saf, "margin", src, "safety", positive=False, default=0.0)
+    ctrl = table(data, "controller", src, {"kp", "ke"})
+    kp = number(ctrl, "kp", src, "controller")
+    ke = number(ctrl, "ke", src, "controller")
+    saf = table(data, "safety", src, {"kappa", "epsilon", "margin", "ignore_unreachable_obstacles", "bodies",
+                                       "link_radius", "inter_arm", *FILTER_KEYS})
+    kappa = number(saf, "kappa", src, "safety")
+    epsilon = number(saf, "epsilon", src, "safety")
+    margin = number(saf, "margin", src, "safety", positive=False, default=0.0)
     ignore = saf.get("ignore_unreachable_obstacles", True)
     if not isinstance(ignore, bool):
         raise ScenarioError(src, "safety.ignore_unreachable_obstacles", f"expected true or false, got {ignore!r}")
     bodies, link_radius, inter_arm = _bodies(saf, src)
-    barrier = saf.get("barrier", "squared")
-    if barrier not in BARRIERS:
-        raise ScenarioError(src, "safety.barrier", f"unknown barrier {barrier!r}; allowed values are "
-                            + ", ".join(f'"{b}"' for b in BARRIERS))
-    decay = _number(saf, "decay", src, "safety", positive=False, default=0.0)
-    gate = _number(saf, "gate", src, "safety", positive=False, default=0.0)
-    fallback = saf.get("fallback", "command")
-    if fallback not in FALLBACKS:
-        raise ScenarioError(src, "safety.fallback", f"unknown fallback {fallback!r}; allowed values are "
-                            + ", ".join(f'"{f}"' for f in FALLBACKS))
-    lookahead = _number(saf, "lookahead", src, "safety", positive=False, default=0.0, infinite=True)
 
-    defaults = _table(data, "arm_defaults", src, _ARM_PARAM_KEYS, required=False)
+    defaults = table(data, "arm_defaults", src, _ARM_PARAM_KEYS, required=False)
     arms_raw = data.get("arms")
     if not isinstance(arms_raw, list) or not arms_raw:
         raise ScenarioError(src, "arms", "missing: give at least one [[arms]] entry")
@@ -429,14 +320,14 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
     arms = tuple(a for a, _ in built)
     q0 = tuple(q for _, q in built)
 
-    form = _table(data, "formation", src, {"shape", "size", "edges", "distances", "motion"})
+    form = table(data, "formation", src, {"shape", "size", "edges", "distances", "motion"})
     try:
         if "shape" in form:
             if "edges" in form or "distances" in form:
                 raise ScenarioError(src, "formation", "give either shape + size or edges + distances, not both")
             if not isinstance(form["shape"], str):
                 raise ScenarioError(src, "formation.shape", f"expected a string, got {form['shape']!r}")
-            size = _number(form, "size", src, "formation")
+            size = number(form, "size", src, "formation")
             formation = Formation.from_shape(form["shape"], size, len(arms))
         else:
             for key in ("edges", "distances"):
@@ -448,7 +339,7 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
                 for e in edges
             ):
                 raise ScenarioError(src, "formation.edges", f"expected a list of [i, j] integer pairs, got {edges!r}")
-            distances = _vector(form["distances"], src, "formation.distances")
+            distances = vector(form["distances"], src, "formation.distances")
             formation = Formation.from_edges(edges, distances, len(arms))
     except FormationError as err:
         raise ScenarioError(src, "formation", str(err)) from None
@@ -459,11 +350,11 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
     centers, radii, paths, speeds = [], [], [], []
     for j, entry in enumerate(obs_raw):
         key = f"obstacles[{j}]"
-        _known_keys(entry, key, src, {"center", "radius", "path_end", "speed"})
+        known_keys(entry, key, src, {"center", "radius", "path_end", "speed"})
         if "center" not in entry:
             raise ScenarioError(src, f"{key}.center", "missing")
-        centers.append(_vector(entry["center"], src, f"{key}.center", size=2))
-        radii.append(_number(entry, "radius", src, key))
+        centers.append(vector(entry["center"], src, f"{key}.center", size=2))
+        radii.append(number(entry, "radius", src, key))
         paths.append(centers[-1])
         speeds.append(0.0)
         if "speed" in entry and "path_end" not in entry:
@@ -472,8 +363,8 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
         if "path_end" in entry:
             if "speed" not in entry:
                 raise ScenarioError(src, f"{key}.path_end", "a path without a speed: give speed (m/s, > 0) too")
-            paths[-1] = _vector(entry["path_end"], src, f"{key}.path_end", size=2)
-            speeds[-1] = _number(entry, "speed", src, key)
+            paths[-1] = vector(entry["path_end"], src, f"{key}.path_end", size=2)
+            speeds[-1] = number(entry, "speed", src, key)
             if np.array_equal(paths[-1], centers[-1]):
                 raise ScenarioError(src, f"{key}.path_end", f"equals center {centers[-1].tolist()}: a moving "
                                     "obstacle needs a path of positive length")
@@ -502,8 +393,7 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
         control_dt=control_dt, horizon=horizon, safety_margin=margin,
         ignore_unreachable_obstacles=ignore, source=source, bodies=bodies, link_radius=link_radius,
         inter_arm=inter_arm, obstacle_paths=obstacle_paths, obstacle_speeds=obstacle_speeds,
-        safety_barrier=barrier, safety_decay=decay, safety_gate=gate, safety_fallback=fallback,
-        safety_lookahead=lookahead, fault_times=_fault_times(data, arms, horizon, src),
+        **filter_settings(saf, src), fault_times=_fault_times(data, arms, horizon, src),
         motion=_motion(form, formation, arms, horizon, src),
     )
 
@@ -519,9 +409,9 @@ def _keyframe_list(table: Mapping[str, Any], key: str, src: str, what: str, defa
     for m, k in enumerate(keyframes):
         name = f"formation.motion.{key}[{m}]"
         if angle and len(k) == 2:
-            out.append([*_vector(k[:1], src, name), _angle(k[1], src, name)])
+            out.append([*vector(k[:1], src, name), angle(k[1], src, name)])
         else:
-            out.append(_vector(k, src, name, size=width))
+            out.append(vector(k, src, name, size=width))
     return np.array(out, dtype=float)
 
 
@@ -534,21 +424,21 @@ def _motion(form: Mapping[str, Any], formation: Formation, arms: tuple[ArmParams
     (:func:`pan1_env.motion.check_motion`)."""
     if "motion" not in form:
         return None
-    table = _known_keys(form["motion"], "formation.motion", src,
+    table = known_keys(form["motion"], "formation.motion", src,
                         {"scale", "switch_distances", "switch_time", "switch_duration", "centre", "turn", "path"})
     keyframes = _keyframe_list(table, "scale", src, "[time, scale] pairs", [[0.0, 1.0]])
     placed = {}
     if "centre" in table:
         turn = _keyframe_list(table, "turn", src, "[time, angle] pairs", [[0.0, 0.0]], angle=True)
         path = _keyframe_list(table, "path", src, "[time, dx, dy] triples", [[0.0, 0.0, 0.0]])
-        placed = {"centre": _vector(table["centre"], src, "formation.motion.centre", size=2),
+        placed = {"centre": vector(table["centre"], src, "formation.motion.centre", size=2),
                   "turn_times": turn[:, 0], "turns": turn[:, 1], "path_times": path[:, 0], "path": path[:, 1:]}
     elif "turn" in table or "path" in table:
         raise ScenarioError(src, "formation.motion.centre", "a turn or a path places the shape: it needs centre = "
                             "[x, y], the point (m) where the shape's centroid starts")
     switch = {}
     if "switch_distances" in table:
-        distances = _vector(table["switch_distances"], src, "formation.motion.switch_distances")
+        distances = vector(table["switch_distances"], src, "formation.motion.switch_distances")
         try:
             Formation.from_edges(formation.edges.tolist(), distances, formation.n_agents)
         except FormationError as err:
@@ -559,8 +449,8 @@ def _motion(form: Mapping[str, Any], formation: Formation, arms: tuple[ArmParams
                                 "next to the formation turns a triangle over on the way (the blend degenerates): "
                                 "choose lengths closer to the formation's")
         switch = {"switch_shape": shape,
-                  "switch_time": _number(table, "switch_time", src, "formation.motion", positive=False),
-                  "switch_duration": _number(table, "switch_duration", src, "formation.motion", positive=False,
+                  "switch_time": number(table, "switch_time", src, "formation.motion", positive=False),
+                  "switch_duration": number(table, "switch_duration", src, "formation.motion", positive=False,
                                              default=0.0)}
     elif "switch_time" in table or "switch_duration" in table:
         raise ScenarioError(src, "formation.motion.switch_time", "a switch needs switch_distances (the edges' "
@@ -584,7 +474,7 @@ def _fault_times(data: Mapping[str, Any], arms: tuple[ArmParams, ...], horizon: 
     times = np.full(len(arms), np.inf)
     for f, entry in enumerate(entries):
         key = f"faults[{f}]"
-        _known_keys(entry, key, src, {"arm", "time"})
+        known_keys(entry, key, src, {"arm", "time"})
         i = entry.get("arm")
         if isinstance(i, bool) or not isinstance(i, int) or not 0 <= i < len(arms):
             raise ScenarioError(src, f"{key}.arm", f"expected an arm index from 0 to {len(arms) - 1}, got {i!r}")
@@ -593,7 +483,7 @@ def _fault_times(data: Mapping[str, Any], arms: tuple[ArmParams, ...], horizon: 
                                 "actuated arm (passive_first_joint = false) can lose its first joint's actuator")
         if np.isfinite(times[i]):
             raise ScenarioError(src, f"{key}.arm", f"arm {i} has a fault already: one [[faults]] entry per arm")
-        times[i] = _number(entry, "time", src, key, positive=False)
+        times[i] = number(entry, "time", src, key, positive=False)
         if times[i] > horizon:
             raise ScenarioError(src, f"{key}.time", f"{times[i]:g} s is after the episode's end "
                                 f"(simulation.horizon = {horizon:g} s)")
@@ -606,7 +496,7 @@ def _bodies(saf: Mapping[str, Any], src: str) -> tuple[str, float, bool]:
     if not isinstance(bodies, str) or bodies not in BODIES:
         raise ScenarioError(src, "safety.bodies", f"unknown protected bodies {bodies!r}; allowed values are "
                             + " or ".join(f'"{b}"' for b in BODIES))
-    link_radius = _number(saf, "link_radius", src, "safety", positive=False, default=0.0)
+    link_radius = number(saf, "link_radius", src, "safety", positive=False, default=0.0)
     inter_arm = saf.get("inter_arm", False)
     if not isinstance(inter_arm, bool):
         raise ScenarioError(src, "safety.inter_arm", f"expected true or false, got {inter_arm!r}")

@@ -114,7 +114,8 @@ def test_env_constructors_name_their_arguments() -> None:
 
 #: The numpy reference formulas (docs/ARCHITECTURE.md): the compiled kernels are tested against them,
 #: so they must not run on the kernels themselves.
-REFERENCE_LAYER = {f"pan1_env.{name}" for name in ("dynamics", "cascade", "formation", "safety", "control", "bodies")}
+REFERENCE_LAYER = {f"pan1_env.{name}" for name in ("dynamics", "cascade", "formation", "barriers", "safety", "control",
+                                                   "bodies")}
 COMPILED = ("pan1_env.kernels", "pan1_env.compiled", "numba")
 
 
@@ -259,8 +260,8 @@ def test_no_private_name_is_imported_from_another_module() -> None:
 #: The layers, lowest first (docs/ARCHITECTURE.md): a module imports only from its own layer or a lower one. Every
 #: module of the package is in exactly one; ``pan1_env.wrappers`` and ``pan1_env.baselines`` are front ends whole.
 LAYERS = {
-    "reference": ("validation", "dynamics", "cascade", "formation", "motion", "safety", "control", "bodies", "scenario",
-                  "random_scenario", "scenarios"),
+    "reference": ("validation", "dynamics", "cascade", "formation", "motion", "barriers", "safety", "control",
+                  "bodies", "toml_values", "scenario", "random_scenario", "scenarios"),
     "compiled": ("kernels", "compiled", "compile_notice", "draw_kernel", "team_draw"),
     "engine": ("engine", "kinds", "piqp_filter"),
     "tasks": ("env_ids", "config", "tasks", "observation"),

@@ -140,9 +140,13 @@ def test_the_reference_law_through_a_fault_is_the_tasks() -> None:
             np.testing.assert_allclose(ref.act(agent, obs[agent], ones), ref.act(agent, obs[agent]))
 
 
-def test_the_fault_env_passes_the_api_tests() -> None:
-    parallel_api_test(_fault_env(max_steps=40), num_cycles=40)
-    env = gymnasium.make("pan1_env:pan1_env/FaultFormation-v0", random_options=EARLY, max_steps=40)
+@pytest.mark.parametrize("env_id", ["pan1_env/FaultFormation-v0", "pan1_env/FaultFormation-v1"])
+def test_the_fault_env_passes_the_api_tests(env_id: str) -> None:
+    """Both fault tasks (v1: behind the fault margin, in the whole-arm rows) pass PettingZoo's and Gymnasium's own
+    API checks, with faults early in the episode."""
+    name, args = env_arguments(env_id, {"random_options": EARLY, "max_steps": 40})
+    parallel_api_test(parallel_env(name, **args), num_cycles=40)
+    env = gymnasium.make(f"pan1_env:{env_id}", random_options=EARLY, max_steps=40)
     from gymnasium.utils.env_checker import check_env
 
     check_env(env.unwrapped, skip_render_check=True)

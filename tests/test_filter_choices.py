@@ -272,6 +272,51 @@ def test_the_look_ahead_is_checked_and_travels_with_the_scenario(tmp_path) -> No
     venv.close()
 
 
+def test_the_fault_margin_is_checked_and_travels_with_the_scenario(tmp_path) -> None:
+    """``fault_margin`` is a bool where it is given, refused with the squared barrier, a gate or no speed bound (it is
+    written for the distance barrier and bounds what the box allows), read from ``[safety] fault_margin``, carried by
+    FaultFormation-v1's drawn teams to every way of switching the filter on, and it puts an end-effector team's
+    filter into the whole-arm rows."""
+    from importlib import resources
+
+    import gymnasium
+
+    from pan1_env.engine import Engine
+    from pan1_env.scenario import ScenarioError
+    from pan1_env.vector import Pan1VectorEnv
+    from pan1_env.wrappers import GymSafetyShield
+
+    team = load("paper_pa3_square")
+    assert FilterParams.of(team).fault_margin is False
+    for bad in ("yes", 1, 0.0):
+        with pytest.raises(ValueError, match="SafetyShield: fault_margin must be True or False"):
+            FilterParams.of(team, owner="SafetyShield", fault_margin=bad)
+    for params, what in ((FilterParams(0.5, 5.0, fault_margin=True), "barrier='squared'"),
+                         (FilterParams(0.5, 5.0, barrier="distance", gate=0.05, fault_margin=True), "gate=0.05")):
+        with pytest.raises(ValueError, match=f"fault_margin needs barrier='distance'.*{what}"):
+            Engine(team, safety_filter=params, max_speed=2.0)
+    with pytest.raises(ValueError, match="fault_margin needs .*max_speed=inf"):
+        Engine(team, safety_filter=FilterParams(0.5, 5.0, barrier="distance", fault_margin=True))
+    engine = Engine(team, safety_filter=FilterParams(0.5, 5.0, barrier="distance", fault_margin=True), max_speed=2.0)
+    assert engine.whole_arm and not engine.link_bodies
+    text = resources.files("pan1_env.scenarios").joinpath("paper_pa3_square.toml").read_text()
+    good = tmp_path / "margin.toml"
+    good.write_text(text.replace("[safety]", '[safety]\nfault_margin = true\nbarrier = "distance"', 1))
+    assert FilterParams.of(load(str(good))).fault_margin is True
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text.replace("[safety]", "[safety]\nfault_margin = 1", 1))
+    with pytest.raises(ScenarioError, match=r"safety\.fault_margin: expected true or false, got 1"):
+        load(str(bad))
+    v1 = dataclasses.replace(parallel_env("pan1_env/FaultFormation-v0", safety_filter=True).safety_filter,
+                             fault_margin=True)
+    assert parallel_env("pan1_env/FaultFormation-v1", safety_filter=True).safety_filter == v1
+    assert GymSafetyShield(gymnasium.make("pan1_env:pan1_env/FaultFormation-v1")).unwrapped.parallel \
+        .safety_filter == v1
+    venv = Pan1VectorEnv("pan1_env/FaultFormation-v1", 2)
+    assert venv.safety_filter == v1 and venv.engine.whole_arm
+    venv.close()
+
+
 def test_a_link_beside_a_kept_out_path_cannot_swing_its_far_end_in() -> None:
     """WholeArmFormation-v2's held-out team 2000023 under the vector adversary: a PA arm's last link lies
     parallel to an obstacle's path, and the closest pair jumps to its inner end. With a row at the closest pair

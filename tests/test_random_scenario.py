@@ -171,11 +171,13 @@ def test_inter_arm_keeps_crowded_random_arms_apart() -> None:
     ({"fallback": "brake"}, "RandomScenarioOptions.fallback must be one of ('command', 'barrier_rate'), got 'brake'"),
     ({"lookahead": -1.0}, "RandomScenarioOptions.lookahead must be non-negative"),
     ({"lookahead": float("nan")}, "RandomScenarioOptions.lookahead must be finite"),
+    ({"fault_margin": "yes"}, "RandomScenarioOptions.fault_margin must be True or False, got 'yes'"),
 ], ids=["bodies_misspelt", "negative_link_radius", "link_radius_without_links", "inter_arm_without_links",
         "inter_arm_not_bool", "speed_range_reversed", "negative_speed", "speed_not_a_range", "zero_path_length",
         "negative_damping", "fault_probability_above_1", "negative_fault_probability", "fault_time_reversed",
         "fault_time_after_horizon", "fault_time_not_a_range", "negative_redraws", "fractional_redraws",
-        "shape_misspelt", "clear_paths_not_bool", "fallback_misspelt", "negative_lookahead", "nan_lookahead"])
+        "shape_misspelt", "clear_paths_not_bool", "fallback_misspelt", "negative_lookahead", "nan_lookahead",
+         "fault_margin_not_bool"])
 def test_random_options_bad_input(options: dict, message: str) -> None:
     with pytest.raises(ValueError) as err:
         RandomScenarioOptions(**options)

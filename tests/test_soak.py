@@ -177,31 +177,33 @@ def test_soak_whole_arm_moving_obstacles(capsys, env_id) -> None:
     assert stats["rss_growth_after_warmup_mb"] < 100.0
 
 
-#: arm-steps per policy of the WholeArmFormation-v2 soak; PAN1_SOAK_ARM_STEPS=1000000 runs the full claim
+#: arm-steps per policy of the WholeArmFormation-v2 soak (a third of the claim in CI) and of the FaultFormation-v1
+#: one (all of it: its end-effector rows are cheap); PAN1_SOAK_ARM_STEPS sets both (docs/ENVIRONMENTS.md)
 V2_ARM_STEPS = int(os.environ.get("PAN1_SOAK_ARM_STEPS", ARM_STEPS // 3))
+FAULT_ARM_STEPS = int(os.environ.get("PAN1_SOAK_ARM_STEPS", ARM_STEPS))
 
 
-@pytest.mark.parametrize("policy", ["random", "bang_bang", "adversarial"])
-def test_soak_whole_arm_v2_never_touches(capsys, policy) -> None:
-    """WholeArmFormation-v2 (paths clear of every start, each path kept out whole) behind its own filter:
-    no capsule ever inside an obstacle or another arm's capsule, by the engine's cost at every sub-step
-    (control_dt = physics_dt = 0.01 s) and by the tests' own geometry (tests/geometry.py) from every copy's
-    joint angles at every step; uniform random actions, bang-bang ones held for 40 steps, or the vector
-    adversary driving every arm at its nearest obstacle; a new team when a 250-step episode ends."""
+def _policy_soak(env_id: str, policy: str, seed: int, arm_steps: int, **env_kwargs) -> dict:
+    """``arm_steps`` shielded arm-steps of ``env_id`` in the vector env (128 copies, control_dt = physics_dt =
+    0.01 s, a new team when a 250-step episode ends) under one policy: uniform random actions, bang-bang ones held
+    for 40 steps, or the vector adversary driving every arm at its nearest obstacle. The engine's cost is counted
+    at every sub-step, and the tests' own geometry (tests/geometry.py) measures every copy's clearance from its
+    joint angles at every step: the link capsules against the obstacles and each other, or the end-effectors
+    against the obstacles."""
     from geometry import batched_clearances, batched_joints
 
     from pan1_env.baselines import VectorAdversary
     from pan1_env.vector import Pan1VectorEnv
 
     B = 128
-    venv = Pan1VectorEnv("pan1_env/WholeArmFormation-v2", B, control_dt=0.01, physics_dt=0.01, max_steps=250)
-    obs, _ = venv.reset(seed=7_500_000 + ["random", "bang_bang", "adversarial"].index(policy) * 100_000)
-    engine, rho = venv.engine, venv.engine.teams[0].link_radius
+    venv = Pan1VectorEnv(env_id, B, control_dt=0.01, physics_dt=0.01, max_steps=250, **env_kwargs)
+    obs, _ = venv.reset(seed=seed)
+    engine, links = venv.engine, venv.engine.teams[0].bodies == "links"
     adversary = VectorAdversary().attach(venv)
     rng = np.random.default_rng(1)
     held = rng.choice([-1.0, 1.0], size=venv.action_space.shape)
     stats = {"arm_steps": 0, "episodes": 0, "cost": 0.0, "fallback_copy_steps": 0, "non_finite": 0,
-             "min_clearance_m": float("inf"), "independent_min_clearance_m": float("inf")}
+             "faulted_copy_steps": 0, "min_clearance_m": float("inf"), "independent_min_clearance_m": float("inf")}
 
     def arms() -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # every copy's link lengths, bases and φ
         teams = [engine.teams[b] for b in range(B)]
@@ -211,7 +213,7 @@ def test_soak_whole_arm_v2_never_touches(capsys, policy) -> None:
                                                                                       for t in teams])
 
     geometry = arms()
-    for t in range(-(-V2_ARM_STEPS // (B * engine.n_arms))):
+    for t in range(-(-arm_steps // (B * engine.n_arms))):
         if policy == "adversarial":
             actions = adversary(obs)
         elif policy == "bang_bang":
@@ -227,58 +229,48 @@ def test_soak_whole_arm_v2_never_touches(capsys, policy) -> None:
         stats["arm_steps"] += B * engine.n_arms
         done = terminated | truncated
         stats["episodes"] += int(done.sum())
+        stats["faulted_copy_steps"] += int((infos["actuator_lost"] > 0).sum()) if "actuator_lost" in infos else 0
         if done.any():  # the copies that ended hold new teams now
             geometry = arms()
         q, _ = engine.joint_state(pad=0.0)
-        to_obstacles, between = batched_clearances(batched_joints(q, *geometry), engine.centers, engine.radii, rho)
-        stats["independent_min_clearance_m"] = min(stats["independent_min_clearance_m"], float(to_obstacles.min()),
-                                                   float(between.min()))
-    with capsys.disabled():
-        print(f"\nWholeArmFormation-v2 soak, {policy}:", json.dumps(stats))
-    assert stats["arm_steps"] >= V2_ARM_STEPS and stats["episodes"] >= 100
+        P = batched_joints(q, *geometry)
+        if links:
+            to_obstacles, between = batched_clearances(P, engine.centers, engine.radii, engine.teams[0].link_radius)
+            worst = min(float(to_obstacles.min()), float(between.min()))
+        else:
+            gap = P[:, :, -1, None, :] - engine.centers[:, None]
+            worst = float((np.linalg.norm(gap, axis=-1) - engine.radii[:, None]).min())
+        stats["independent_min_clearance_m"] = min(stats["independent_min_clearance_m"], worst)
+    return stats
+
+
+def _assert_never_touched(stats: dict, arm_steps: int) -> None:
+    assert stats["arm_steps"] >= arm_steps and stats["episodes"] >= 100
     assert stats["cost"] == 0.0 and stats["min_clearance_m"] >= 0.0, stats
     assert stats["independent_min_clearance_m"] >= -1e-9, stats
     assert stats["non_finite"] == 0, stats
 
 
-def test_soak_actuator_faults(capsys) -> None:
-    """10⁶ shielded arm-steps on ``FaultFormation-v0``'s teams (v1's filter, passive joints damped) with every
-    fully actuated arm losing its first joint's actuator at a time drawn from 0.2–2 s of its 2.5 s episode,
-    control_dt = physics_dt = 0.01 s: half the copies take uniform random actions, half the vector adversary's
-    (every end-effector straight at its nearest obstacle). Still obstacles: a penetration (the step's cost)
-    may begin only in a step whose shield report says fallback (momentum carrying an arm in faster than
-    its actuated joints can pull it back), and in at most 2 % of the episodes."""
-    from pan1_env.baselines import VectorAdversary
-    from pan1_env.vector import Pan1VectorEnv
-
-    B, steps = 128, 2000
-    venv = Pan1VectorEnv("pan1_env/FaultFormation-v0", B, control_dt=0.01, physics_dt=0.01, max_steps=250,
-                         random_options={"fault_probability": 1.0, "fault_time": (0.2, 2.0)})
-    obs, _ = venv.reset(seed=8_000_000)
-    adversary = VectorAdversary().attach(venv)
-    rng = np.random.default_rng(0)
-    adversarial = np.arange(B) >= B // 2
-    inside = np.zeros(B, dtype=bool)
-    hit_this_episode, faulted_this_episode = np.zeros(B, dtype=bool), np.zeros(B, dtype=bool)
-    stats = {"arm_steps": 0, "episodes": 0, "episodes_with_a_fault": 0, "episodes_with_penetration": 0,
-             "penetrations_begun": 0, "begun_outside_fallback": 0, "fallback_copy_steps": 0, "non_finite": 0,
-             "min_clearance_m": float("inf")}
-    for _ in range(steps):
-        actions = rng.uniform(-1.0, 1.0, venv.action_space.shape)
-        actions[adversarial] = adversary(obs)[adversarial]
-        obs, _, terminated, truncated, infos = venv.step(actions)
-        now_inside = _count_step(stats, venv, obs, infos, inside)
-        hit_this_episode |= now_inside
-        faulted_this_episode |= infos["actuator_lost"] > 0
-        done = terminated | truncated
-        stats["episodes"] += int(done.sum())
-        stats["episodes_with_penetration"] += int((hit_this_episode & done).sum())
-        stats["episodes_with_a_fault"] += int((faulted_this_episode & done).sum())
-        hit_this_episode[done] = faulted_this_episode[done] = False
-        inside = now_inside & ~done
+@pytest.mark.parametrize("policy", ["random", "bang_bang", "adversarial"])
+def test_soak_whole_arm_v2_never_touches(capsys, policy) -> None:
+    """WholeArmFormation-v2 (paths clear of every start, each path kept out whole) behind its own filter: no
+    capsule ever inside an obstacle or another arm's capsule (:func:`_policy_soak`)."""
+    seed = 7_500_000 + ["random", "bang_bang", "adversarial"].index(policy) * 100_000
+    stats = _policy_soak("pan1_env/WholeArmFormation-v2", policy, seed, V2_ARM_STEPS)
     with capsys.disabled():
-        print("\nfault soak:", json.dumps(stats))
-    assert stats["arm_steps"] >= ARM_STEPS and stats["episodes_with_a_fault"] >= 0.9 * stats["episodes"] >= 900
-    assert stats["begun_outside_fallback"] == 0
-    assert stats["episodes_with_penetration"] <= 0.02 * stats["episodes"]
-    assert stats["non_finite"] == 0
+        print(f"\nWholeArmFormation-v2 soak, {policy}:", json.dumps(stats))
+    _assert_never_touched(stats, V2_ARM_STEPS)
+
+
+@pytest.mark.parametrize("policy", ["random", "bang_bang", "adversarial"])
+def test_soak_faults_behind_the_fault_margin_never_touch(capsys, policy) -> None:
+    """FaultFormation-v1's teams behind its filter (the fault margin) with every fully actuated arm losing its first
+    joint's actuator at a time drawn from 0.2–2 s of its 2.5 s episode: no end-effector ever inside an obstacle
+    (:func:`_policy_soak`), in copy-steps most of which have a faulted arm."""
+    seed = 8_000_000 + ["random", "bang_bang", "adversarial"].index(policy) * 100_000
+    stats = _policy_soak("pan1_env/FaultFormation-v1", policy, seed, FAULT_ARM_STEPS,
+                         random_options={"fault_probability": 1.0, "fault_time": (0.2, 2.0)})
+    with capsys.disabled():
+        print(f"\nFaultFormation-v1 soak, {policy}:", json.dumps(stats))
+    _assert_never_touched(stats, FAULT_ARM_STEPS)
+    assert stats["faulted_copy_steps"] >= 0.5 * stats["arm_steps"] / 4, stats

@@ -160,15 +160,15 @@ def test_a_reset_mask_resets_only_its_copies(key) -> None:
 
 
 def test_fault_task_specs_hold() -> None:
-    """``FaultFormation-v0`` with every full arm faulting within 0.3 s: both TorchRL views pass their spec check
-    through the faults, and the infos carry ``actuator_lost``."""
+    """``FaultFormation-v1`` (behind the fault margin) with every full arm faulting within 0.3 s: both TorchRL views
+    pass their spec check through the faults, and the infos carry ``actuator_lost``."""
     early = {"fault_probability": 1.0, "fault_time": (0.1, 0.3)}
-    native = torchrl_env("pan1_env/FaultFormation-v0", num_envs=3, max_steps=10, safety_filter=True,
+    native = torchrl_env("pan1_env/FaultFormation-v1", num_envs=3, max_steps=10, safety_filter=True,
                          random_options=early)
     check_env_specs(native, seed=0)
     lost = native.rollout(10, break_when_any_done=False)["next", "arms", "info", "actuator_lost"]
     assert lost[:, -1].sum() >= 3 and not lost[:, 0].any()
-    env = PadToLargestArm(SafetyShield(parallel_env("pan1_env/FaultFormation-v0", max_steps=12, random_options=early)))
+    env = PadToLargestArm(SafetyShield(parallel_env("pan1_env/FaultFormation-v1", max_steps=12, random_options=early)))
     wrapped = PettingZooWrapper(env=env, use_mask=False, return_state=True)
     check_env_specs(wrapped, seed=0)
     assert wrapped.rollout(12, break_when_any_done=False)["next", "arm", "info", "actuator_lost"][-1].sum() >= 1

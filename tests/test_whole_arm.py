@@ -32,9 +32,11 @@ def _lanes(arm: ArmParams, q: np.ndarray) -> dict:
 def _rows(arm: ArmParams, q: np.ndarray, caps: np.ndarray, *, links: bool = True, rho: float = 0.0,
           time: float = 0.0, kappa: float = 1.0, epsilon: float = 10.0, margin: float = 0.0, v_max: float = np.inf,
           sensing: float = np.inf, skin: float = 0.0, dt: float = 0.0, qd: np.ndarray | None = None,
-          distance: bool = False, decay: float = 0.0, gate: float = 0.0, p1: float = 0.0, lookahead: float = 0.0):
-    """kernels.capsules.whole_arm_rows for one arm at q (one lane; ``p1`` its passive momentum): (A, b, h_min)
-    of the rows written."""
+          distance: bool = False, decay: float = 0.0, gate: float = 0.0, p1: float = 0.0, lookahead: float = 0.0,
+          damping: float = 0.0, gain: float = 1.0, offset: float = 0.0):
+    """kernels.capsules.whole_arm_rows for one arm at q (one lane; ``p1`` its passive momentum, ``damping`` the
+    fault margin's b, a full arm's momentum at the sub-step's end ``gain`` M₀ v + ``offset``): (A, b, h_min) of the
+    rows written."""
     n = arm.n_links
     k = n - 1 if arm.passive_first_joint else n
     m_max = kernels().capsules.most_rows(n if links else 1, caps.shape[1], caps.shape[1], k)
@@ -43,8 +45,8 @@ def _rows(arm: ArmParams, q: np.ndarray, caps: np.ndarray, *, links: bool = True
     qd = np.zeros((n, 1)) if qd is None else np.asarray(qd, float).reshape(n, 1)
     m, h_min = kernels().capsules.whole_arm_rows(
         0, 0, n, k, arm.passive_first_joint, links, rho, sensing, gate, skin, dt, lane["lengths"], lane["bx"],
-        lane["by"], lane["c"], lane["s"], qd, lane["M"], p1, caps, caps.shape[1], time, kappa, epsilon, margin,
-        distance, decay, lookahead, v_max, np.zeros(k), A, b, active, P,
+        lane["by"], lane["c"], lane["s"], qd, lane["M"], p1, (damping, gain, offset), caps, caps.shape[1], time, kappa,
+        epsilon, margin, distance, decay, lookahead, v_max, np.zeros(k), A, b, active, P,
         np.empty((caps.shape[1], kernels().capsules.NEAR_COLUMNS)))
     return A[:m], b[:m], h_min
 
@@ -138,6 +140,78 @@ def test_whole_arm_rows_with_the_filter_choices_match_the_numpy_reference(distan
     A_ref, b_ref = cbf_rows(h, row, kappa, epsilon, 0.0, decay, rate, share=0.5)
     np.testing.assert_allclose(A, A_ref, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(b, b_ref, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("passive", [True, False])
+def test_fault_margin_rows_match_the_numpy_twin(passive: bool) -> None:
+    """With a damping b > 0 (the fault margin), a PAn−1 arm's link rows are cbf_rows of safety.fault_rows (each pair
+    as h − c p₁ and h + c p₁, c = reach / b, with the rows and rates its damped momentum gives), its h_min still the
+    geometric one; a fully actuated arm's rows are its rows without the margin, then safety.momentum_rows of its
+    smallest clearance."""
+    from pan1_env.safety import cbf_rows, fault_rows, momentum_rows, shaped_barrier
+
+    K = kernels().capsules
+    rng = np.random.default_rng(23 + passive)
+    n = 3
+    arm = _arm(rng, n, passive)
+    q = rng.uniform(-1.5, 1.5, n)
+    centers, radii, rho = arm.base + rng.uniform(-1.0, 1.0, (5, 2)), rng.uniform(0.05, 0.2, 5), 0.03
+    kappa, epsilon, margin, decay, damping = 0.8, 20.0, 0.01, 50.0, 0.5
+    caps = _capsules(K, centers, centers, radii, np.ones(5))
+    M, reach = mass_matrix(arm, q), float(np.sum(arm.lengths))
+    p1 = -0.29 if passive else 0.0
+    gain, offset = (1.0, 0.0) if passive else (1.7, 0.04)  # a full arm's momentum at the sub-step's end: g M₀ v + p₀
+    A, b, h_min = _rows(arm, q, caps, rho=rho, kappa=kappa, epsilon=epsilon, margin=margin, distance=True,
+                        decay=decay, p1=p1, damping=damping, gain=gain, offset=offset)
+    ref = bodies.link_obstacle_barrier(arm, q, centers, radii, rho)
+    k = n - 1 if passive else n
+    rate = ref.dh_dt.reshape(15) + ref.grad_q.reshape(15, n)[:, 0] * p1 / M[0, 0]
+    h, row, rate = shaped_barrier(ref.h.reshape(15), (radii[None, :] + rho).repeat(n, 0).reshape(15), "distance",
+                                  ref.row.reshape(15, k), rate)
+    assert h_min == pytest.approx(h.min(), rel=1e-12)
+    if passive:  # two rows a pair, h − c p₁ and h + c p₁, with κ at least b / M₀₀
+        h_f, row_f, rate_f, floor = fault_rows(h, row, rate, p1, M[0], reach, damping)
+        A_ref, b_ref = cbf_rows(h_f.reshape(30), row_f.reshape(30, k), max(kappa, floor), epsilon, margin, decay,
+                                rate_f.reshape(30))
+    else:
+        A_ref, b_ref = cbf_rows(h, row, kappa, epsilon, margin, decay, rate)
+        A_m, b_m = momentum_rows(M[0], h.min(), reach, damping, margin, gain, offset)
+        A_ref, b_ref = np.concatenate([A_ref, A_m]), np.concatenate([b_ref, b_m])
+    np.testing.assert_allclose(A, A_ref, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(b, b_ref, rtol=1e-10, atol=1e-12)
+    # without the margin: the plain rows, which a passive arm's margin doubles and a full arm's leaves as they are
+    A0, b0, _ = _rows(arm, q, caps, rho=rho, kappa=kappa, epsilon=epsilon, margin=margin, distance=True, decay=decay,
+                      p1=p1)
+    assert A0.shape == (15, k) and A.shape[0] == (30 if passive else 17)
+    assert passive or (np.allclose(A0, A[:15]) and np.allclose(b0, b[:15]))
+
+
+def test_the_momentum_rows_hold_the_velocity_the_tracker_reaches() -> None:
+    """The fault margin's momentum rows take a full arm's velocity at the sub-step's end as the tracker's one-step
+    result, q̇⁺ = (1 + a) v* + (1 − a) q̇ − v*₋ (a = K_e dt; the kernel's _momentum_ahead): the engine's velocity
+    after a jump of the command agrees with it to the sub-step's change of M, and overshoots the command."""
+    from pan1_env.engine import Engine
+    from pan1_env.scenario import load
+
+    team = load("paper_pa_mixed_square")
+    assert sum(not arm.passive_first_joint for arm in team.arms) >= 1
+    engine = Engine(team, 1, max_speed=2.0, physics_dt=0.002)
+    a = team.ke * engine.physics_dt
+    first = np.zeros((1, engine.n_arms, engine.k_max))
+    first[0, :, :] = 0.3
+    engine.step(first, 5)
+    _, qd0 = engine.joint_state()
+    jump = first.copy()
+    jump[0, :, :] = -0.8
+    engine.step(jump, 1)
+    _, qd1 = engine.joint_state()
+    for i, arm in enumerate(team.arms):
+        if arm.passive_first_joint:
+            continue
+        n = arm.n_links
+        predicted = (1 + a) * jump[0, i, :n] + (1 - a) * qd0[0, i, :n] - first[0, i, :n]
+        np.testing.assert_allclose(qd1[0, i, :n], predicted, atol=0.02)
+        assert np.all(np.abs(qd1[0, i, :n] - jump[0, i, :n]) > 0.05)  # not v* itself
 
 
 @pytest.mark.parametrize(("lookahead", "distance"), [(0.7, False), (2.5, True), (np.inf, True)])
@@ -432,7 +506,7 @@ def test_least_violation_relaxes_conflicting_rows_uniformly() -> None:
     """Rows x ≤ −1 and −x ≤ −1 (x ≥ 1) cannot both hold: relaxed by t‖A_j‖ they first can at t = 1, with
     x = 0; the speed bounds |v| ≤ 2 are kept, so from v0 = (3, 3) the answer is (0, 2). A zero row
     with b < 0 (nothing the arm can do about it) is dropped."""
-    K = kernels().capsules
+    K = kernels().last_resort
     A = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 0.0], [1, 0], [-1, 0], [0, 1], [0, -1]])
     b = np.array([-1.0, -1.0, -5.0, 2, 2, 2, 2])
     active = np.ones(7, bool)
@@ -451,7 +525,7 @@ def test_least_violation_by_rate_does_not_let_a_short_lever_outweigh_a_long_one(
     they meet at t = 1 and x = 0: the long lever's row gives up as much command as the short one's. Relaxed
     by rate, b_j + t, they meet at t = 2/11 and x = −9/11: each row's rate falls short by the same 2/11, and
     the long lever's row is nearly kept. The speed bounds |v| ≤ 2 hold the other coordinate at 2."""
-    K = kernels().capsules
+    K = kernels().last_resort
     A = np.array([[-0.1, 0.0], [1.0, 0.0], [1, 0], [-1, 0], [0, 1], [0, -1]])
     b = np.array([-0.1, -1.0, 2, 2, 2, 2])
     m, k = 6, 2
@@ -771,7 +845,7 @@ def test_farkas_certificate_skips_only_searches_that_fail(by_rate: bool) -> None
     rows relaxed per unit of norm or by the same rate."""
     from pan1_env.kernels.qp import STATUS_FALLBACK, _project_one
 
-    K = kernels().capsules
+    K = kernels().last_resort
     rng = np.random.default_rng(11)
     certified = checked = settled = 0
     for trial in range(240):

@@ -26,7 +26,7 @@ Importing this module imports numba (about half a second); :mod:`pan1_env` itsel
 from __future__ import annotations
 
 from .. import compile_notice
-from . import capsules, specialise, team_geometry
+from . import capsules, last_resort, specialise, team_geometry
 from .observe import (
     edge_length_errors,
     formation_observations,
@@ -48,6 +48,7 @@ __all__ = [
     "GENERIC_MAX_LINKS",
     "specialise",
     "capsules",
+    "last_resort",
     "team_geometry",
     "group_end_effectors",
     "group_observations",

@@ -35,14 +35,13 @@ import numpy as np
 from numba import njit
 
 from ._numba_ext import _JIT
-from .qp import STATUS_FALLBACK, _project_one
 
 (CAP_AX, CAP_AY, CAP_BX, CAP_BY, CAP_RADIUS, CAP_SHARE, CAP_UX, CAP_UY, CAP_PATH, CAP_SPEED, CAP_ACTIVE, CAP_ARM,
  CAP_LINK, CAP_FLOOR) = range(14)
 CAPSULE_COLUMNS = 14  #: columns of a capsule row; ``CAP_ARM`` is −1 for a world obstacle or an unused slot
 #: :func:`whole_arm_rows`' scratch: segment now, its start's velocity, half length, reach, range, share, its end's
-#: velocity, whether it is a stretch of path
-NEAR_COLUMNS = 13
+#: velocity, whether it is a stretch of path, how much farther the fault margin looks (−1: another arm's link)
+NEAR_COLUMNS = 14
 
 
 @njit(**_JIT, forceinline=True)
@@ -161,8 +160,9 @@ def _body(P, n, links, body):
 @njit(**_JIT)
 def most_rows(bodies, capsules, n_world, k):
     """The most rows :func:`whole_arm_rows` writes for an arm of ``bodies`` bodies and ``k`` actuated joints against
-    ``capsules`` capsules, the first ``n_world`` the world's (two rows a body with a look-ahead), and its speed box."""
-    return bodies * (capsules + n_world) + 2 * k
+    ``capsules`` capsules, the first ``n_world`` the world's (two rows a body with a look-ahead, and twice that with
+    the fault margin), the fault margin's two momentum rows and its speed box."""
+    return bodies * (capsules + 3 * n_world) + 2 + 2 * k
 
 
 @njit(**_JIT, forceinline=True)
@@ -193,9 +193,107 @@ def _pair_row(m, ell, tau, rx, ry, passive, n, k, w, lengths, c, s, M, A):
     return grad0
 
 
+@njit(**_JIT, forceinline=True)
+def _near_capsules(i, links, rho, sensing, gate, skin, dt, reach_speed, fault_reach, caps, n_world, time, lookahead,
+                   P, n, near):
+    """The capsules whose segment's box comes within range of the bodies' box (``P`` the arm's joints) into
+    ``near``: returns how many. A capsule is out of range of every body if its box is farther than the range along
+    an axis (the gap along an axis bounds the distance from below). ``fault_reach`` widens the world capsules' range
+    for the fault margin (:func:`whole_arm_rows`)."""
+    first = 0 if links else n
+    lox, hix, loy, hiy = P[first, 0], P[first, 0], P[first, 1], P[first, 1]
+    for a in range(first + 1, n + 1):
+        lox, hix = min(lox, P[a, 0]), max(hix, P[a, 0])
+        loy, hiy = min(loy, P[a, 1]), max(hiy, P[a, 1])
+    n_near = 0
+    for j in range(caps.shape[1]):
+        if caps[i, j, CAP_ACTIVE] == 0.0:
+            if j >= n_world:  # the other arms' active links come first
+                break
+            continue
+        if lookahead > 0.0 and j < n_world:
+            a2x, a2y, d2x, d2y, vx, vy, ex, ey = _capsule_ahead(caps, i, j, time, lookahead)
+        else:
+            a2x, a2y, d2x, d2y, vx, vy = _capsule_now(caps, i, j, time)
+            ex, ey = vx, vy
+        reach = caps[i, j, CAP_RADIUS] + (rho if links else 0.0) + skin + caps[i, j, CAP_SPEED] * dt
+        within = reach + sensing + 2.0 * (reach_speed + caps[i, j, CAP_SPEED]) * dt + gate
+        extra = fault_reach if j < n_world else 0.0
+        if min(a2x, a2x + d2x) - within - extra > hix or max(a2x, a2x + d2x) + within + extra < lox or \
+                min(a2y, a2y + d2y) - within - extra > hiy or max(a2y, a2y + d2y) + within + extra < loy:
+            continue
+        near[n_near, 0], near[n_near, 1], near[n_near, 2], near[n_near, 3] = a2x, a2y, d2x, d2y
+        near[n_near, 4], near[n_near, 5], near[n_near, 6] = vx, vy, 0.5 * np.sqrt(d2x * d2x + d2y * d2y)
+        near[n_near, 7], near[n_near, 8], near[n_near, 9] = reach, within, caps[i, j, CAP_SHARE]
+        near[n_near, 10], near[n_near, 11] = ex, ey
+        near[n_near, 12] = 1.0 if lookahead > 0.0 and j < n_world and d2x * d2x + d2y * d2y > 0.0 else 0.0
+        near[n_near, 13] = extra if j < n_world else -1.0  # < 0: another arm's link, which the margin leaves out
+        n_near += 1
+    return n_near
+
+
+@njit(**_JIT, forceinline=True)
+def _momentum_rows(m, k, w, c_fault, gain, offset, clearance, margin, cull, v_max, M, A, b, active):
+    """The fault margin of a fully actuated arm (:func:`whole_arm_rows`): the first joint's momentum at the
+    sub-step's end, p₁ = ``gain`` M₀ v + ``offset``, kept within b h / reach, as the two rows
+    ±c (g M₀ v + p₀) ≤ max(h − margin, 0), c = reach / b, with h the arm's smallest clearance to a world obstacle
+    (``clearance``); left out where the speed box keeps them slack. Returns the rows written."""
+    rhs = max(clearance - margin, 0.0)
+    bound = 0.0
+    for t in range(k):
+        bound += abs(M[0, t, w])
+    if clearance == np.inf or (cull and c_fault * (gain * bound * v_max + abs(offset)) <= rhs):
+        return m
+    for sign in (1.0, -1.0):
+        for t in range(k):
+            A[m, t] = sign * c_fault * gain * M[0, t, w]
+        b[m] = rhs - sign * c_fault * offset
+        active[m] = True
+        m += 1
+    return m
+
+
+@njit(**_JIT, forceinline=True)
+def _fault_reach(passive, distance, arm_reach, damping, gain, offset, p1, v_max, k, w, M):
+    """The fault margin's c = reach / b (0: no margin) and how much farther it looks at world obstacles: c |p₁| for a
+    PAn−1 arm (its rows keep h ≥ c |p₁|), the most c |p₁| can be inside the speed box for a fully actuated one, whose
+    momentum at the sub-step's end is p₁ = g M₀ v + p₀ (``gain``, ``offset``; its smallest clearance within that
+    range)."""
+    c_fault = arm_reach / damping if damping > 0.0 and distance else 0.0
+    fault_reach = 0.0
+    if c_fault > 0.0 and passive:
+        fault_reach = c_fault * abs(p1)
+    elif c_fault > 0.0:
+        for t in range(k):
+            fault_reach += c_fault * gain * v_max * abs(M[0, t, w])
+        fault_reach += c_fault * abs(offset)
+    return c_fault, fault_reach
+
+
+@njit(**_JIT, forceinline=True)
+def _keep_row(m, k, A, b, active, bm, bound, gate, gap, within, v_max, cull):
+    """Row m (``A[m]``, right side ``bm``, Σ|A_m| = ``bound``) relaxed by the smooth activation past the range
+    (``gate`` > 0: σ = 1 − (3 u² − 2 u³), u = (gap − on) / gate, on = ``within`` − gate; :func:`whole_arm_rows`) and
+    kept unless it cannot bind inside the speed box: returns the rows written."""
+    sigma = 1.0
+    if gate > 0.0:
+        u = min(max((gap - (within - gate)) / gate, 0.0), 1.0)
+        sigma = 1.0 - u * u * (3.0 - 2.0 * u)
+        if sigma < 1.0:
+            bm = sigma * bm + (1.0 - sigma) * v_max * bound
+            for t in range(k):
+                A[m, t] = sigma * A[m, t]
+    if cull and sigma * bound * v_max <= bm:
+        return m
+    b[m] = bm
+    active[m] = True
+    return m + 1
+
+
 @njit(**_JIT)
-def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, lengths, bx, by, c, s, qd, M, p1, caps,
-                   n_world, time, kappa, epsilon, margin, distance, decay, lookahead, v_max, v0, A, b, active, P, near):
+def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, lengths, bx, by, c, s, qd, M, p1, faults,
+                   caps, n_world, time, kappa, epsilon, margin, distance, decay, lookahead, v_max, v0, A, b, active, P,
+                   near):
     """The whole-arm RCBF rows of arm i (lane w of the kernel's scratch) at ``time``, then its speed
     bounds (finite ``v_max``), into ``A``, ``b``, ``active``: returns (rows written, smallest barrier h).
     A PAn−1 arm's passive momentum ``p1`` drifts its bodies, q̇ = g0 v + e₁ p₁ / M_11 (docs/MODEL.md §7):
@@ -204,6 +302,14 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
     ``lookahead`` T > 0 (s) puts, in place of each moving world obstacle's disk, the capsule of the stretch of
     path it covers in the next T s (:func:`_capsule_ahead`; inf: its whole path), and gives each link two rows
     per stretch, at the closest pair and at the link's other end (docs/MODEL.md §5b).
+
+    ``faults`` = (b, g, p₀): the first joint's damping b (passive or once passive; 0: no margin) and, for a fully
+    actuated arm, its momentum at the sub-step's end p₁ = g M₀ v + p₀ (the tracker's; g = 1, p₀ = 0: v itself).
+    b > 0 turns on the fault margin against the
+    world's obstacles (distance barrier; docs/MODEL.md §5c), with c = reach / b: a PAn−1 arm's pair keeps two rows
+    in place of one, for h − c p₁ ≥ 0 and h + c p₁ ≥ 0 (h ≥ c |p₁|), each gaining ±reach M₀a / M₀₀ and its b the
+    rate ±reach p₁ / M₀₀, with κ at least b / M₀₀; a fully actuated arm keeps c |M₀ v| within its smallest clearance
+    (:func:`_momentum_rows`), so that if its first joint's actuator is lost it starts with h ≥ c |p₁|.
 
     Only pairs that are close get a row: clearance d − r − ρ at most ``sensing`` plus twice what the
     gap can close in the sub-step ``dt`` (no point of the arm moves faster than its reach times
@@ -226,9 +332,8 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
     without the skin let capsules graze obstacles by fractions of a millimetre.
 
     ``near (C, NEAR_COLUMNS)`` is scratch: the capsules whose box comes within range of the bodies' box."""
-    C = caps.shape[1]
     m = 0
-    h_min = np.inf
+    h_min, h_fault = np.inf, np.inf
     cull = v_max < np.inf
     # a bound on the joint speeds Σ|q̇_a| during the sub-step: now, and what the filtered command can
     # reach within it (in torque mode the arm is driven to v* in one sub-step): |v_t| ≤ v_max, the
@@ -244,45 +349,23 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
     for t in range(k):
         commanded += min(abs(v0[t]), v_max)
     reach_speed = arm_reach * max(joint_speed, coupling * commanded + abs(drift_speed))
+    damping, gain, offset = faults
+    c_fault, fault_reach = _fault_reach(passive, distance, arm_reach, damping, gain, offset, p1, v_max, k, w, M)
     _joints(lengths, bx, by, c, s, n, w, P)
-    # the bodies' bounding box: a capsule whose segment's box is farther than its range along an axis is
-    # out of range of every body (the gap along an axis bounds the distance from below)
-    first = 0 if links else n
-    lox, hix, loy, hiy = P[first, 0], P[first, 0], P[first, 1], P[first, 1]
-    for a in range(first + 1, n + 1):
-        lox, hix = min(lox, P[a, 0]), max(hix, P[a, 0])
-        loy, hiy = min(loy, P[a, 1]), max(hiy, P[a, 1])
-    n_near = 0
-    for j in range(C):
-        if caps[i, j, CAP_ACTIVE] == 0.0:
-            if j >= n_world:  # the other arms' active links come first
-                break
-            continue
-        if lookahead > 0.0 and j < n_world:
-            a2x, a2y, d2x, d2y, vx, vy, ex, ey = _capsule_ahead(caps, i, j, time, lookahead)
-        else:
-            a2x, a2y, d2x, d2y, vx, vy = _capsule_now(caps, i, j, time)
-            ex, ey = vx, vy
-        reach = caps[i, j, CAP_RADIUS] + (rho if links else 0.0) + skin + caps[i, j, CAP_SPEED] * dt
-        within = reach + sensing + 2.0 * (reach_speed + caps[i, j, CAP_SPEED]) * dt + gate
-        if min(a2x, a2x + d2x) - within > hix or max(a2x, a2x + d2x) + within < lox or \
-                min(a2y, a2y + d2y) - within > hiy or max(a2y, a2y + d2y) + within < loy:
-            continue
-        near[n_near, 0], near[n_near, 1], near[n_near, 2], near[n_near, 3] = a2x, a2y, d2x, d2y
-        near[n_near, 4], near[n_near, 5], near[n_near, 6] = vx, vy, 0.5 * np.sqrt(d2x * d2x + d2y * d2y)
-        near[n_near, 7], near[n_near, 8], near[n_near, 9] = reach, within, caps[i, j, CAP_SHARE]
-        near[n_near, 10], near[n_near, 11] = ex, ey
-        near[n_near, 12] = 1.0 if lookahead > 0.0 and j < n_world and d2x * d2x + d2y * d2y > 0.0 else 0.0
-        n_near += 1
+    n_near = _near_capsules(i, links, rho, sensing, gate, skin, dt, reach_speed, fault_reach, caps, n_world, time,
+                            lookahead, P, n, near)
     for body in range(n if links else 1):
         a1x, a1y, d1x, d1y, ell = _body(P, n, links, body)
         half_body = 0.5 * np.sqrt(d1x * d1x + d1y * d1y)
         for x in range(n_near):
             a2x, a2y, d2x, d2y = near[x, 0], near[x, 1], near[x, 2], near[x, 3]
-            reach, within = near[x, 7], near[x, 8]
+            reach, within, extra, world = near[x, 7], near[x, 8], max(near[x, 13], 0.0), near[x, 13] >= 0.0
+            if passive:  # its rows keep h_f = h − c |p₁| ≥ 0: the range is h_f's
+                within += extra
+            look = within if passive else within + extra  # a fully actuated arm's smallest clearance looks farther
             # the segments' midpoints, less their half lengths, bound their distance from below
             mx, my = a1x + 0.5 * (d1x - d2x) - a2x, a1y + 0.5 * (d1y - d2y) - a2y
-            if sensing < np.inf and mx * mx + my * my > (within + half_body + near[x, 6]) ** 2:
+            if sensing < np.inf and mx * mx + my * my > (look + half_body + near[x, 6]) ** 2:
                 continue
             sp, rx, ry = _gap(a1x, a1y, d1x, d1y, a2x, a2y, d2x, d2y)
             # a link beside a stretch of path gets a second row, for its other end: segments nearly parallel
@@ -292,49 +375,54 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
                 if pick == 1:
                     sp = 1.0 if sp < 0.5 else 0.0
                     _, rx, ry = _gap(a1x + sp * d1x, a1y + sp * d1y, 0.0, 0.0, a2x, a2y, d2x, d2y)
-                if np.sqrt(rx * rx + ry * ry) > within:
+                gap = np.sqrt(rx * rx + ry * ry)
+                if not passive and c_fault > 0.0 and world and gap <= look:
+                    h_fault = min(h_fault, gap - reach)
+                if gap > within:
                     continue
-                h = rx * rx + ry * ry - reach * reach
-                # the closest point's velocity: r·d2 > 0 only where the pair meets at the stretch's far end (≤ 0 at
-                # its start); inside, the gap is normal to the path and either end's velocity, along it, adds nothing
-                vx, vy = (near[x, 10], near[x, 11]) if rx * d2x + ry * d2y > 0.0 else (near[x, 4], near[x, 5])
-                lg2 = 0.0
-                grad0 = _pair_row(m, ell, sp if links else 1.0, rx, ry, passive, n, k, w, lengths, c, s, M, A)
-                if distance:
-                    # h = d − R (pan1_env.safety.shaped_barrier): the row and ∂h/∂t of the squared barrier
-                    # over 2d, d from the squared h as the reference takes it; a zero row at d = 0
-                    d = np.sqrt(max(h + reach * reach, 0.0))
-                    scale = 0.5 / d if d > 0.0 else 0.0
-                    h = d - reach
-                    for t in range(k):
-                        A[m, t] = A[m, t] * scale
-                else:
-                    scale = 1.0
-                h_min = min(h_min, h)
-                bound = 0.0
-                for t in range(k):
-                    lg2 += A[m, t] * A[m, t]
-                    bound += abs(A[m, t])
-                if not distance and decay == 0.0:  # the paper's row, its operations as before the choices existed
-                    bm = near[x, 9] * kappa * (h - margin) - 2.0 * (rx * vx + ry * vy) - lg2 / epsilon \
-                        + grad0 * drift_speed
-                else:  # ε(h̃) = ε e^{min(λ h̃, 700)} (pan1_env.safety.robust_epsilon); ε = inf: the fallback's rows
-                    ht = h - margin
-                    bm = near[x, 9] * kappa * ht + (grad0 * drift_speed - 2.0 * (rx * vx + ry * vy)) * \
-                        scale - lg2 / (epsilon * np.exp(min(decay * ht, 700.0)))
-                sigma = 1.0
-                if gate > 0.0:  # the smooth activation past the range: σ = 1 − (3 u² − 2 u³), u = (c − on)/gate
-                    u = min(max((np.sqrt(rx * rx + ry * ry) - (within - gate)) / gate, 0.0), 1.0)
-                    sigma = 1.0 - u * u * (3.0 - 2.0 * u)
-                    if sigma < 1.0:
-                        bm = sigma * bm + (1.0 - sigma) * v_max * bound
+                # a damped passive arm's world pairs (the fault margin) keep both h − c p₁ ≥ 0 and h + c p₁ ≥ 0,
+                # i.e. h ≥ c |p₁|, each a smooth barrier, with κ at least b / M₀₀ so that braking meets both
+                sides = 2 if passive and c_fault > 0.0 and world else 1
+                kap = max(kappa, damping / M[0, 0, w]) if sides == 2 else kappa
+                for side in range(sides):
+                    h = rx * rx + ry * ry - reach * reach
+                    # the closest point's velocity: r·d2 > 0 only where the pair meets at the stretch's far end (≤ 0
+                    # at its start); inside, the gap is normal to the path and either end's velocity adds nothing
+                    vx, vy = (near[x, 10], near[x, 11]) if rx * d2x + ry * d2y > 0.0 else (near[x, 4], near[x, 5])
+                    lg2 = 0.0
+                    grad0 = _pair_row(m, ell, sp if links else 1.0, rx, ry, passive, n, k, w, lengths, c, s, M, A)
+                    fault_rate = 0.0
+                    if distance:
+                        # h = d − R (pan1_env.safety.shaped_barrier): the row and ∂h/∂t of the squared barrier
+                        # over 2d, d from the squared h as the reference takes it; a zero row at d = 0
+                        d = np.sqrt(max(h + reach * reach, 0.0))
+                        scale = 0.5 / d if d > 0.0 else 0.0
+                        h = d - reach
                         for t in range(k):
-                            A[m, t] = sigma * A[m, t]
-                if cull and sigma * bound * v_max <= bm:
-                    continue
-                b[m] = bm
-                active[m] = True
-                m += 1
+                            A[m, t] = A[m, t] * scale
+                    else:
+                        scale = 1.0
+                    h_min = min(h_min, h)
+                    if sides == 2:  # h ∓ c p₁: d/dt(∓ c p₁) = ±reach q̇₁, ṗ₁ = −b q̇₁, q̇₁ = (p₁ − M₀a v) / M₀₀
+                        pm = 1.0 - 2.0 * side
+                        h -= pm * c_fault * p1
+                        fault_rate = pm * arm_reach * p1 / M[0, 0, w]
+                        for t in range(k):
+                            A[m, t] += pm * arm_reach * M[0, t + 1, w] / M[0, 0, w]
+                    bound = 0.0
+                    for t in range(k):
+                        lg2 += A[m, t] * A[m, t]
+                        bound += abs(A[m, t])
+                    if not distance and decay == 0.0:  # the paper's row, its operations as before the choices existed
+                        bm = near[x, 9] * kap * (h - margin) - 2.0 * (rx * vx + ry * vy) - lg2 / epsilon \
+                            + grad0 * drift_speed
+                    else:  # ε(h̃) = ε e^{min(λ h̃, 700)} (pan1_env.safety.robust_epsilon); ε = inf: the fallback's rows
+                        ht = h - margin
+                        bm = near[x, 9] * kap * ht + (grad0 * drift_speed - 2.0 * (rx * vx + ry * vy)) * \
+                            scale + fault_rate - lg2 / (epsilon * np.exp(min(decay * ht, 700.0)))
+                    m = _keep_row(m, k, A, b, active, bm, bound, gate, gap, within, v_max, cull)
+    if c_fault > 0.0 and not passive:
+        m = _momentum_rows(m, k, w, c_fault, gain, offset, h_fault, margin, cull, v_max, M, A, b, active)
     if cull:
         for t0 in range(k):
             for sign in (1.0, -1.0):
@@ -387,227 +475,3 @@ def whole_arm_clearance_lanes(arm, live, n, W, links, rho, lengths, bx, by, c, s
                 rx, ry = ax + u * dx - ox[w], ay + u * dy - oy[w]
                 cl = np.sqrt(rx * rx + ry * ry) - orad[w] - radius
                 clear[w] = cl if live[w] and cl < clear[w] else clear[w]
-
-
-@njit(**_JIT)
-def _speed_box(A, b, active, m, k, n_box):
-    """v_max of the speed bounds, if the last ``n_box`` rows are the box +v_t ≤ v_max, −v_t ≤ v_max
-    (t = 0 … k − 1, active, finite) as :func:`whole_arm_rows` writes it; else −1."""
-    if n_box != 2 * k:
-        return -1.0
-    box = 0.0
-    for x in range(n_box):
-        j = m - n_box + x
-        sign = 1.0 if x % 2 == 0 else -1.0
-        if not active[j] or not (0.0 <= b[j] < np.inf):
-            return -1.0
-        for t in range(k):
-            if A[j, t] != (sign if t == x // 2 else 0.0):
-                return -1.0
-        box = max(box, b[j])
-    return box
-
-
-@njit(**_JIT, inline="always")
-def _weight(by_rate, norm):
-    """A barrier row's weight in :func:`least_violation`'s relaxation: 1 by rate, its norm by command; 0 for
-    the speed box's rows (their ``norm`` is kept 0), which are never relaxed."""
-    return (1.0 if norm > 0.0 else 0.0) if by_rate else norm
-
-
-@njit(**_JIT)
-def _farkas_weights(A, b, norms, active, m, k, n_box, box, by_rate, y):
-    """Weights y ≥ 0 on the active barrier rows (j < m − ``n_box``), Σ_j y_j w_j = 1 (w_j = ‖A_j‖, or 1
-    ``by_rate``: :func:`_weight`), that make D(y) = −Σ_j y_j b_j − ``box`` Σ_t |Σ_j y_j A_jt| large: the
-    best vertex of the dual of min_{|v_t| ≤ box} max_j (A_j v − b_j)/w_j, so D is that minimum (the uniform
-    violation the box cannot avoid) when it is positive. A vertex has a support S of at most k + 1 rows and
-    |S| − 1 of the k sums Σ_j y_j A_jt zero; all are tried (at most 6 rows: the 2k that least_violation
-    keeps, k ≤ 3). Writes ``y`` (0 off the support); returns D(y), −inf if no vertex was found. Any y ≥ 0
-    gives a valid bound (weak duality), so the small solves' rounding costs optimality, never soundness."""
-    rows = np.empty(6, dtype=np.int64)
-    p = 0
-    for j in range(m - n_box):
-        if active[j]:
-            if p == 6:
-                return -np.inf
-            rows[p] = j
-            p += 1
-    for j in range(m):
-        y[j] = 0.0
-    sel, M, sol, g = np.empty(4, dtype=np.int64), np.empty((4, 5)), np.empty(4), np.empty(k)
-    best = -np.inf
-    for mask in range(1, 1 << p):
-        size = 0
-        for x in range(p):
-            size += mask >> x & 1
-        if size > k + 1:
-            continue
-        size = 0
-        for x in range(p):
-            if mask >> x & 1:
-                sel[size] = rows[x]
-                size += 1
-        for zeros in range(1 << k):
-            nz = 0
-            for t in range(k):
-                nz += zeros >> t & 1
-            if nz != size - 1:
-                continue
-            # size equations: Σ_j y_j A_jt = 0 for t in zeros, Σ_j y_j w_j = 1 (augmented, last column)
-            e = 0
-            for t in range(k):
-                if zeros >> t & 1:
-                    for c in range(size):
-                        M[e, c] = A[sel[c], t]
-                    M[e, size] = 0.0
-                    e += 1
-            for c in range(size):
-                M[e, c] = _weight(by_rate, norms[sel[c]])
-            M[e, size] = 1.0
-            singular = False
-            for c in range(size):  # Gaussian elimination with partial pivoting
-                piv, big = c, abs(M[c, c])
-                for e in range(c + 1, size):
-                    if abs(M[e, c]) > big:
-                        piv, big = e, abs(M[e, c])
-                if not big > 1e-12:
-                    singular = True
-                    break
-                for x in range(size + 1):
-                    M[c, x], M[piv, x] = M[piv, x], M[c, x]
-                for e in range(c + 1, size):
-                    f = M[e, c] / M[c, c]
-                    for x in range(c, size + 1):
-                        M[e, x] -= f * M[c, x]
-            if singular:
-                continue
-            for c in range(size - 1, -1, -1):
-                acc = M[c, size]
-                for x in range(c + 1, size):
-                    acc -= M[c, x] * sol[x]
-                sol[c] = acc / M[c, c]
-            total = 0.0
-            for c in range(size):
-                sol[c] = max(sol[c], 0.0)
-                total += sol[c] * _weight(by_rate, norms[sel[c]])
-            if not total > 0.0:
-                continue
-            value = 0.0
-            for t in range(k):
-                g[t] = 0.0
-            for c in range(size):
-                value -= sol[c] / total * b[sel[c]]
-                for t in range(k):
-                    g[t] += sol[c] / total * A[sel[c], t]
-            for t in range(k):
-                value -= box * abs(g[t])
-            if value > best:
-                best = value
-                for j in range(m):
-                    y[j] = 0.0
-                for c in range(size):
-                    y[sel[c]] = sol[c] / total
-    return best
-
-
-@njit(**_JIT)
-def _certainly_infeasible(A, b, norms, m, k, n_box, box, y):
-    """Whether rows A v ≤ b (the barrier rows as relaxed now, and the speed box |v_t| ≤ ``box``) are so
-    far from feasible that :func:`_project_one` must answer FALLBACK: Farkas weights ``y`` ≥ 0 prove that
-    for every v in the box (widened by what the search's tolerance lets through) Σ_j y_j (A_j v − b_j)
-    exceeds what the search's tolerances allow any candidate (:data:`CANDIDATE_TOLERANCE`, here taken
-    twice, with the sum's own rounding on top)."""
-    root_k = np.sqrt(k)
-    widen = 2e-9 * (2.0 + box * (1.0 + root_k))  # how far a candidate the search accepts may leave the box
-    value, weight, worst, size = 0.0, 0.0, 0.0, 0.0
-    g = np.zeros(k)
-    for j in range(m - n_box):
-        if y[j] > 0.0:
-            value -= y[j] * b[j]
-            weight += y[j]
-            size += y[j] * (abs(b[j]) + norms[j] * root_k * (box + widen))
-            worst = max(worst, 1.0 + abs(b[j]) + norms[j] * (1.0 + root_k * (box + widen)))
-            for t in range(k):
-                g[t] += y[j] * A[j, t]
-    spread = 0.0
-    for t in range(k):
-        spread += abs(g[t])
-    value -= (box + widen) * spread
-    return value > 2e-9 * weight * worst + 1e-12 * size
-
-
-@njit(**_JIT)
-def least_violation(v0, A, b, active, m, k, n_box, by_rate, v_out, b_given, norms, rows, idx, G, r, lam, cand, L, y,
-                    viol, rnorm):
-    """The fallback's last resort for an infeasible whole-arm QP: the velocity closest to ``v0`` among
-    those that violate the barrier rows least, uniformly: every row j < m − ``n_box`` relaxed to
-    A_j v ≤ b_j + t w_j with the smallest t ≥ 0 that makes the QP feasible (20 steps of bisection; the
-    last ``n_box`` rows, the speed bounds, are kept). The weight w_j is the row's norm ‖A_j‖ (t is then a
-    speed of the command, rad/s), or 1 with ``by_rate`` (t is a rate of the barrier, ḣ: m/s of clearance for
-    the distance barrier), which does not let a row of short lever, that asks for a large command to
-    gain a little rate, outweigh the others. Only the 2k most demanding barrier rows (smallest b_j/w_j)
-    take part. v = 0 is feasible at t = max_j −b_j/w_j, so this always answers. A row of zero norm cannot
-    be acted on and is dropped. Writes ``v_out``; ``b`` and ``active`` are left changed, ``b_given`` and
-    ``norms`` are scratch. Returns t."""
-    hi = 0.0
-    for j in range(m):
-        b_given[j] = b[j]
-        nrm = 0.0
-        for t in range(k):
-            nrm += A[j, t] * A[j, t]
-        norms[j] = np.sqrt(nrm) if j < m - n_box else 0.0
-        if j < m - n_box and nrm == 0.0:
-            active[j] = False
-        elif j < m - n_box:
-            hi = max(hi, -b[j] / _weight(by_rate, norms[j]))
-    # the search tries sets of up to k rows: keep the 2k most demanding barrier rows (smallest b_j/w_j),
-    # so that a crowd of rows cannot make the ~20 solves below slow (a fallback, not the guarantee)
-    for _ in range(m - n_box - 2 * k):
-        worst, worst_j = -np.inf, -1
-        kept = 0
-        for j in range(m - n_box):
-            if active[j]:
-                kept += 1
-                if b[j] / _weight(by_rate, norms[j]) > worst:
-                    worst, worst_j = b[j] / _weight(by_rate, norms[j]), j
-        if kept <= 2 * k:
-            break
-        active[worst_j] = False
-    # Farkas weights for the kept rows (k ≤ 3, with the speed box): the bisection's steps below the least
-    # uniform violation would each search every set of rows to the end, and the weights show that such
-    # a search must fail, so it is skipped (its answer, FALLBACK, is the same)
-    box = _speed_box(A, b, active, m, k, n_box) if k <= 3 else -1.0
-    farkas = np.empty(m)
-    certify = box >= 0.0 and _farkas_weights(A, b_given, norms, active, m, k, n_box, box, by_rate, farkas) > 0.0
-    # relaxing rows never makes a feasible QP infeasible: if the kept rows are feasible as given (t = 0;
-    # no certificate says otherwise, and often none does: without the rows left out they rarely conflict),
-    # every step below would find its QP feasible and halve hi, so the steps go without their searches.
-    # (The search's tolerance can accept rows as given that it rejects relaxed, with b within about 1e-9
-    # of a nearly degenerate set; there the answer is the one at t ≈ 0 the tolerance accepted.)
-    settled = False
-    if not certify:
-        for j in range(m):
-            b[j] = b_given[j]
-        settled = _project_one(v0, A, b, active, m, k, v_out, rows, idx, G, r, lam, cand, L, y, viol, rnorm) \
-            != STATUS_FALLBACK
-    lo = 0.0
-    for _ in range(20):
-        mid = 0.5 * (lo + hi)
-        if settled:
-            hi = mid
-            continue
-        for j in range(m):
-            b[j] = b_given[j] + mid * _weight(by_rate, norms[j])
-        if certify and _certainly_infeasible(A, b, norms, m, k, n_box, box, farkas):
-            lo = mid
-        elif _project_one(v0, A, b, active, m, k, v_out, rows, idx, G, r, lam, cand, L, y, viol, rnorm) \
-                == STATUS_FALLBACK:
-            lo = mid
-        else:
-            hi = mid
-    for j in range(m):
-        b[j] = b_given[j] + hi * _weight(by_rate, norms[j])
-    if _project_one(v0, A, b, active, m, k, v_out, rows, idx, G, r, lam, cand, L, y, viol, rnorm) == STATUS_FALLBACK:
-        for t in range(k):
-            v_out[t] = 0.0
-    return hi

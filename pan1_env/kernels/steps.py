@@ -8,7 +8,8 @@ import numpy as np
 from numba import njit
 
 from ._numba_ext import _JIT
-from .capsules import CAP_ACTIVE, _joints, least_violation, whole_arm_rows
+from .capsules import CAP_ACTIVE, _joints, whole_arm_rows
+from .last_resort import least_violation
 from .physics import (
     _acceleration_lanes,
     _drift_lanes,
@@ -142,11 +143,13 @@ def _desired_velocity(n, k, W, passive, any_filter, torque_mode, dt, command, ar
 
 @njit(**_JIT, inline="always")
 def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodies, scratch, arm, real, ln, bx, by, c,
-                      s, dyn, pj, use_filter, live, vdes, vs, status, arm_h, search):
+                      s, dyn, pj, tracker, use_filter, live, vdes, vs, status, arm_h, search):
     """Whole-arm safety: each filtered lane's rows are its bodies against its capsules at the sub-step's
     time, solved by the full search, one lane at a time. ``bodies`` = (link radius, link bodies or the
-    end-effector only, sensing range, gate, skin); ``pj`` the lanes' passive momenta (their drift)."""
-    kappa, epsilon, margin, distance, decay, by_rate, lookahead, v_max = fparams
+    end-effector only, sensing range, gate, skin); ``pj`` the lanes' passive momenta (their drift) and dampings;
+    ``tracker`` = (torque mode, K_e, q̇, the last v*, whether it is set), for the fault margin's momentum at the
+    sub-step's end (:func:`_momentum_ahead`)."""
+    kappa, epsilon, margin, distance, decay, by_rate, lookahead, fault, v_max = fparams
     M, R, Sn, Mc, Hc, qd, thd, H = dyn
     Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy = search
     wA, wb, wact, wP, wnear, wrows, wviol, wnorm, wb0, wn0, joints_x, joints_y, ox, oy, orad = scratch
@@ -157,9 +160,12 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
                 qv0[t] = vdes[t, w]
             time = start_time[arm[w]] + sub * dt
             p1 = pj[0][w] if passive else 0.0
+            # the fault margin (docs/MODEL.md §5c): the damping, and a full arm's momentum at the sub-step's end
+            gain, offset = _momentum_ahead(k, w, dt, tracker, M) if fault and not passive else (1.0, 0.0)
+            faults = (pj[1][w] if fault else 0.0, gain, offset)
             m_w, h_w = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, gate, skin, dt, ln, bx, by,
-                                      c, s, qd, M, p1, caps, n_world, time, kappa, epsilon, margin, distance, decay,
-                                      lookahead, v_max, qv0, wA, wb, wact, wP, wnear)
+                                      c, s, qd, M, p1, faults, caps, n_world, time, kappa, epsilon, margin, distance,
+                                      decay, lookahead, v_max, qv0, wA, wb, wact, wP, wnear)
             arm_h[w] = min(arm_h[w], h_w)
             status[w] = _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand, qL, qy, wviol,
                                      wnorm)
@@ -169,7 +175,8 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
                 # velocity that violates the rows least (braking does not keep a moving obstacle out);
                 # reported as a fallback either way
                 m_w, _ = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, gate, skin, dt, ln, bx,
-                                        by, c, s, qd, M, p1, caps, n_world, time, kappa, np.inf, margin, distance,
+                                        by, c, s, qd, M, p1, faults, caps, n_world, time, kappa, np.inf, margin,
+                                        distance,
                                         decay, lookahead, v_max, qv0, wA, wb, wact, wP, wnear)
                 if _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand, qL, qy, wviol,
                                 wnorm) == STATUS_FALLBACK:
@@ -180,13 +187,29 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
 
 
 @njit(**_JIT, inline="always")
+def _momentum_ahead(k, w, dt, tracker, M):
+    """A fully actuated arm's first-joint momentum at the end of the sub-step, p₁ = M₀ q̇⁺ = g M₀ v* + p₀, as
+    (g, p₀): the velocity the tracker reaches there from q̇ under the computed torque (:func:`_track`): in torque
+    mode v* itself; in velocity mode q̇⁺ = q̇ + v* − v*₋ − K_e dt (q̇ − v*) = (1 + a) v* + (1 − a) q̇ − v*₋,
+    a = K_e dt (before a last v* is set: a v* + (1 − a) q̇). The overshoot of a jump in v* is then in the margin."""
+    torque_mode, ke, vi, vp, prev_ok = tracker
+    if torque_mode:
+        return 1.0, 0.0
+    a = ke * dt
+    gain, offset = (1.0 + a, 0.0) if prev_ok[w] else (a, 0.0)
+    for t in range(k):
+        offset += M[0, t, w] * ((1.0 - a) * vi[t, w] - (vp[t, w] if prev_ok[w] else 0.0))
+    return gain, offset
+
+
+@njit(**_JIT, inline="always")
 def _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, ln, bx, by, c, s, dyn, pj, px, py,
                          obstacles, lane_active, use_filter, live, vdes, vs, status, arm_h, ee, search):
     """The paper's end-effector filter on every lane at once as far as one active row settles it
     (:func:`_first_projection_lanes`), then the full active-set search lane by lane. A PAn−1 arm's
     rows take the end-effector's drift J₁ p₁ / M_11 (docs/MODEL.md §7), and where p₁ ≠ 0 its fallback
     holds the end-effector instead of braking (:func:`_hold_end_effector`)."""
-    kappa, epsilon, margin, distance, decay, by_rate, lookahead, v_max = fparams
+    kappa, epsilon, margin, distance, decay, by_rate, lookahead, fault, v_max = fparams
     M, R, Sn, Mc, Hc, qd, thd, H = dyn
     J, Jbar, drift, filtered, row_A, row_b, row_h, row_norm, row_act, obst_rows, needs_qp, q_best, q_best_viol, q_Ab, \
         q_bb, q_cand, q_found = ee

@@ -123,8 +123,8 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     ee = _borrowed((J, Jbar, drift, filtered, row_A, row_b, row_h, row_norm, row_act, obst_rows, needs_qp, q_best,
                     q_best_viol, q_Ab, q_bb, q_cand, q_found))
     search = _borrowed((Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy))
-    kappa, epsilon, margin, distance, decay, by_rate, lookahead = rcbf
-    fparams = (kappa, epsilon, margin, distance, decay, by_rate, lookahead, v_max)
+    kappa, epsilon, margin, distance, decay, by_rate, lookahead, fault = rcbf
+    fparams = (kappa, epsilon, margin, distance, decay, by_rate, lookahead, fault, v_max)
     if whole is not None:  # whole-arm scratch: one lane's rows (bodies × capsules, speed bounds) and joints
         caps, start_time, rho, link_bodies, sensing, gate, skin, joints_out, n_world, angles, carried, finish = whole
         jw = (links + (0,), lanes)  # joints: n + 1 per lane
@@ -150,10 +150,10 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     for first in range(lo, hi, W):
         _load_arms(first, hi, rows, n, k, W, lam, lengths, base, phi, q, v, v_prev, whole, arm, real, counts, lm, ln,
                    qi, vi, vp, bx, by, ph, vs_last, tau_last, c, s)
-        if passive:
-            for w in range(W):
+        for w in range(W):  # damping also for a fully actuated arm: the fault margin's b once it is passive
+            pj[1][w] = damping[arm[w]]
+            if passive:
                 pj[0][w] = momentum[arm[w]]
-                pj[1][w] = damping[arm[w]]
         any_filter = _load_filter(W, O, filter_on, torque_mode, v_max, centers, radii, mask, has_prev, min_clear, min_h,
                                   max_track, finite_out, whole, arm, real, obstacles, lane_active, use_filter, prev_ok,
                                   live, arm_clear, arm_h, arm_track)
@@ -166,7 +166,8 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                               tau, acc, vdes, vs, status)
             if any_filter and whole is not None:
                 _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodies, scratch, arm, real, ln,
-                                  bx, by, c, s, dyn, pj, use_filter, live, vdes, vs, status, arm_h, search)
+                                  bx, by, c, s, dyn, pj, (torque_mode, ke, vi, vp, prev_ok), use_filter, live, vdes, vs,
+                                  status, arm_h, search)
             elif any_filter:
                 _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, ln, bx, by, c, s, dyn, pj,
                                      px, py, obstacles, lane_active, use_filter, live, vdes, vs, status, arm_h, ee,
@@ -219,14 +220,16 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     ``centers (A, O, 2)``, ``radii (A, O)`` and ``mask (A, O)`` (the obstacles each arm's filter
     sees; a team's obstacles are broadcast to every arm).
 
-    ``rcbf`` is the filter's settings, one tuple ``(kappa, epsilon, margin, distance, decay, by_rate, lookahead)``
+    ``rcbf`` is the filter's settings, one tuple ``(kappa, epsilon, margin, distance, decay, by_rate, lookahead,
+    fault)``
     (:func:`pan1_env.compiled.kernel_filter`): the end-effector filter's rows
     (:func:`pan1_env.kernels.qp._rcbf_row_lanes`) take κ, ε, the margin, the barrier (``distance`` True:
     h = ‖p − o‖ − r, else the paper's squared one) and λ ``decay`` of the tunable ε(h̃) = ε e^{λ h̃} (0: the
     paper's constant ε); ``min_h`` is then in that barrier's unit. The whole-arm rows (``whole``) take the same
     choices, ``by_rate`` picks their last-resort fallback's measure of violation
-    (:func:`pan1_env.kernels.capsules.least_violation`) and ``lookahead`` (s, 0: the obstacles where they are)
-    the stretch of each moving obstacle's path that they keep out (:func:`pan1_env.kernels.capsules._capsule_ahead`).
+    (:func:`pan1_env.kernels.last_resort.least_violation`) and ``lookahead`` (s, 0: the obstacles where they are)
+    the stretch of each moving obstacle's path that they keep out (:func:`pan1_env.kernels.capsules._capsule_ahead`);
+    ``fault`` keeps the fault margin with each arm's ``damping`` (:func:`pan1_env.kernels.capsules.whole_arm_rows`).
 
     Velocity mode (``torque_mode`` False): ``command`` is the desired active velocity; each
     sub-step filters it through the RCBF-QP when ``filter_on`` (against the obstacles of ``mask``)
