@@ -65,7 +65,7 @@ SUITE = (
               target="success ≥ 65 % and above the law's, cost 0"),
     # v1: the fault margin, so that no lost actuator's drift reaches an obstacle (v0's law: 76 %, cost 0 on these
     # teams, but penetrations when arms fault at speed)
-    SuiteTask("faults", "pan1_env/FaultFormation-v1", law_success=0.705, target="success ≥ 88 %, cost 0"),
+    SuiteTask("faults", "pan1_env/FaultFormation-v1", law_success=0.65, target="success ≥ 88 %, cost 0"),
     SuiteTask("placed, turning, travelling", "pan1_env/MovingFormation-v1", law_success=0.50, target="success ≥ 75 %"),
     SuiteTask("random teams", "pan1_env/RandomFormation-v1", law_success=0.955,
               target="success ≥ the law's, time ≤ 0.75× the law's"),

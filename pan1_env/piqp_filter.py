@@ -147,7 +147,7 @@ def whole_arm_rows(engine: Engine, kind, r: int, v0: np.ndarray, epsilon: float)
                             engine.physics_dt, lane(kind.lengths[r]), kind.base[r, :1].copy(),
                             kind.base[r, 1:].copy(), lane(np.cos(angles)), lane(np.sin(angles)), lane(kind.qd[r]),
                             lane(mass_matrix(arm, q)), float(kind.momentum[r]),
-                            (float(kind.damping[r]) if f.fault_margin else 0.0, 1.0, 0.0), caps, whole.n_world,
+                            (0.0, 1.0, 0.0), caps, whole.n_world,  # no fault margin: PIQP refuses it
                             whole.start_time[r], f.kappa, epsilon, f.margin,
                             f.barrier == "distance", f.decay, f.lookahead, engine.max_speed, v0.copy(), A, b, active,
                             np.empty((n + 1, 2)), np.empty((caps.shape[1], K.NEAR_COLUMNS)))

@@ -49,7 +49,7 @@ from .dynamics import ArmParams
 from .formation import Formation, FormationError
 from .motion import FormationMotion, check_motion, switch_shape
 from .safety import BARRIERS, FALLBACKS, Obstacles, clearance
-from .toml_values import FILTER_KEYS, ScenarioError, angle, filter_settings, known_keys, number, table, vector
+from .toml_values import FILTER_KEYS, ScenarioError, as_angle, filter_settings, known_keys, number, table, vector
 from .validation import real
 
 if sys.version_info >= (3, 11):
@@ -254,7 +254,7 @@ def _arm(entry: Any, defaults: Mapping[str, Any], src: str, index: int) -> tuple
     if "base" not in merged:
         raise ScenarioError(src, f"{prefix}.base", "missing")
     base = vector(merged["base"], src, f"{prefix}.base", size=2)
-    phi = angle(merged.get("phi", 0.0), src, f"{prefix}.phi")
+    phi = as_angle(merged.get("phi", 0.0), src, f"{prefix}.phi")
     passive = merged.get("passive_first_joint", True)
     if not isinstance(passive, bool):
         raise ScenarioError(src, f"{prefix}.passive_first_joint", f"expected true or false, got {passive!r}")
@@ -263,7 +263,7 @@ def _arm(entry: Any, defaults: Mapping[str, Any], src: str, index: int) -> tuple
     q0_raw = merged["q0"]
     if not isinstance(q0_raw, list) or len(q0_raw) != n:
         raise ScenarioError(src, f"{prefix}.q0", f"expected a list of {n} angles, got {q0_raw!r}")
-    q0 = np.array([angle(x, src, f"{prefix}.q0[{k}]") for k, x in enumerate(q0_raw)])
+    q0 = np.array([as_angle(x, src, f"{prefix}.q0[{k}]") for k, x in enumerate(q0_raw)])
     table = entry if "passive_damping" in entry else defaults  # where the key is, for the error
     damping = number(table, "passive_damping", src, where("passive_damping").rpartition(".")[0], positive=False,
                       default=0.0)
@@ -409,7 +409,7 @@ def _keyframe_list(table: Mapping[str, Any], key: str, src: str, what: str, defa
     for m, k in enumerate(keyframes):
         name = f"formation.motion.{key}[{m}]"
         if angle and len(k) == 2:
-            out.append([*vector(k[:1], src, name), angle(k[1], src, name)])
+            out.append([*vector(k[:1], src, name), as_angle(k[1], src, name)])
         else:
             out.append(vector(k, src, name, size=width))
     return np.array(out, dtype=float)

@@ -13,7 +13,7 @@ import numpy as np
 
 from .safety import BARRIERS, FALLBACKS
 
-__all__ = ["ScenarioError", "MAX_MAGNITUDE", "FILTER_KEYS", "as_float", "angle", "number", "vector", "table",
+__all__ = ["ScenarioError", "MAX_MAGNITUDE", "FILTER_KEYS", "as_float", "as_angle", "number", "vector", "table",
            "known_keys", "filter_settings"]
 
 MAX_MAGNITUDE = 1e9  # every number in a scenario file must satisfy |x| ≤ MAX_MAGNITUDE
@@ -45,7 +45,7 @@ def as_float(value: int | float, src: str, key: str) -> float:
     return out
 
 
-def angle(value: Any, src: str, key: str) -> float:
+def as_angle(value: Any, src: str, key: str) -> float:
     if isinstance(value, bool):
         raise ScenarioError(src, key, f"expected an angle, got {value!r}")
     if isinstance(value, (int, float)):

@@ -233,12 +233,13 @@ def _near_capsules(i, links, rho, sensing, gate, skin, dt, reach_speed, fault_re
 
 
 @njit(**_JIT, forceinline=True)
-def _momentum_rows(m, k, w, c_fault, gain, offset, clearance, margin, cull, v_max, M, A, b, active):
+def _momentum_rows(m, k, w, c_fault, gain, offset, clearance, closing, margin, cull, v_max, M, A, b, active):
     """The fault margin of a fully actuated arm (:func:`whole_arm_rows`): the first joint's momentum at the
     sub-step's end, p₁ = ``gain`` M₀ v + ``offset``, kept within b h / reach, as the two rows
-    ±c (g M₀ v + p₀) ≤ max(h − margin, 0), c = reach / b, with h the arm's smallest clearance to a world obstacle
-    (``clearance``); left out where the speed box keeps them slack. Returns the rows written."""
-    rhs = max(clearance - margin, 0.0)
+    ±c (g M₀ v + p₀) ≤ max(h − ``closing`` − margin, 0), c = reach / b, with h the arm's smallest clearance to a
+    world obstacle now (``clearance``) less what it can lose within the sub-step (a pair beyond the rows' range has
+    no row to slow it); left out where the speed box keeps them slack. Returns the rows written."""
+    rhs = max(clearance - closing - margin, 0.0)
     bound = 0.0
     for t in range(k):
         bound += abs(M[0, t, w])
@@ -308,8 +309,9 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
     b > 0 turns on the fault margin against the
     world's obstacles (distance barrier; docs/MODEL.md §5c), with c = reach / b: a PAn−1 arm's pair keeps two rows
     in place of one, for h − c p₁ ≥ 0 and h + c p₁ ≥ 0 (h ≥ c |p₁|), each gaining ±reach M₀a / M₀₀ and its b the
-    rate ±reach p₁ / M₀₀, with κ at least b / M₀₀; a fully actuated arm keeps c |M₀ v| within its smallest clearance
-    (:func:`_momentum_rows`), so that if its first joint's actuator is lost it starts with h ≥ c |p₁|.
+    rate ±reach p₁ / M₀₀, with κ at least b / M₀₀; a fully actuated arm keeps c |g M₀ v + p₀|, its momentum at the
+    sub-step's end, within its smallest clearance (:func:`_momentum_rows`), so that if its first joint's actuator is
+    lost it starts with h ≥ c |p₁|.
 
     Only pairs that are close get a row: clearance d − r − ρ at most ``sensing`` plus twice what the
     gap can close in the sub-step ``dt`` (no point of the arm moves faster than its reach times
@@ -360,7 +362,7 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
         for x in range(n_near):
             a2x, a2y, d2x, d2y = near[x, 0], near[x, 1], near[x, 2], near[x, 3]
             reach, within, extra, world = near[x, 7], near[x, 8], max(near[x, 13], 0.0), near[x, 13] >= 0.0
-            if passive:  # its rows keep h_f = h − c |p₁| ≥ 0: the range is h_f's
+            if passive:  # its rows keep the smaller of its two barriers h ∓ c p₁, h − c |p₁|, in range
                 within += extra
             look = within if passive else within + extra  # a fully actuated arm's smallest clearance looks farther
             # the segments' midpoints, less their half lengths, bound their distance from below
@@ -422,7 +424,8 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
                             scale + fault_rate - lg2 / (epsilon * np.exp(min(decay * ht, 700.0)))
                     m = _keep_row(m, k, A, b, active, bm, bound, gate, gap, within, v_max, cull)
     if c_fault > 0.0 and not passive:
-        m = _momentum_rows(m, k, w, c_fault, gain, offset, h_fault, margin, cull, v_max, M, A, b, active)
+        m = _momentum_rows(m, k, w, c_fault, gain, offset, h_fault, reach_speed * dt, margin, cull, v_max, M, A, b,
+                           active)
     if cull:
         for t0 in range(k):
             for sign in (1.0, -1.0):

@@ -161,7 +161,7 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
             time = start_time[arm[w]] + sub * dt
             p1 = pj[0][w] if passive else 0.0
             # the fault margin (docs/MODEL.md §5c): the damping, and a full arm's momentum at the sub-step's end
-            gain, offset = _momentum_ahead(k, w, dt, tracker, M) if fault and not passive else (1.0, 0.0)
+            gain, offset = _momentum_ahead(k, w, dt, tracker, M, H) if fault and not passive else (1.0, 0.0)
             faults = (pj[1][w] if fault else 0.0, gain, offset)
             m_w, h_w = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, gate, skin, dt, ln, bx, by,
                                       c, s, qd, M, p1, faults, caps, n_world, time, kappa, epsilon, margin, distance,
@@ -176,8 +176,7 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
                 # reported as a fallback either way
                 m_w, _ = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, gate, skin, dt, ln, bx,
                                         by, c, s, qd, M, p1, faults, caps, n_world, time, kappa, np.inf, margin,
-                                        distance,
-                                        decay, lookahead, v_max, qv0, wA, wb, wact, wP, wnear)
+                                        distance, decay, lookahead, v_max, qv0, wA, wb, wact, wP, wnear)
                 if _project_one(qv0, wA, wb, wact, m_w, k, qvs, wrows, qidx, qG, qr, qlam, qcand, qL, qy, wviol,
                                 wnorm) == STATUS_FALLBACK:
                     least_violation(qv0, wA, wb, wact, m_w, k, 2 * k if v_max < np.inf else 0, by_rate, qvs, wb0, wn0,
@@ -187,16 +186,18 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
 
 
 @njit(**_JIT, inline="always")
-def _momentum_ahead(k, w, dt, tracker, M):
-    """A fully actuated arm's first-joint momentum at the end of the sub-step, p₁ = M₀ q̇⁺ = g M₀ v* + p₀, as
-    (g, p₀): the velocity the tracker reaches there from q̇ under the computed torque (:func:`_track`): in torque
-    mode v* itself; in velocity mode q̇⁺ = q̇ + v* − v*₋ − K_e dt (q̇ − v*) = (1 + a) v* + (1 − a) q̇ − v*₋,
-    a = K_e dt (before a last v* is set: a v* + (1 − a) q̇). The overshoot of a jump in v* is then in the margin."""
+def _momentum_ahead(k, w, dt, tracker, M, H):
+    """A fully actuated arm's first-joint momentum at the end of the sub-step, p₁⁺ = g M₀ v* + p₀, as (g, p₀). q₁ is
+    cyclic, so ṗ₁ = τ₁ exactly, and τ is held over the sub-step: p₁⁺ = M₀ q̇ + dt τ₁, τ = H + M acc the computed
+    torque of :func:`_track`. In velocity mode acc = (v* − v*₋)/dt − K_e (q̇ − v*), so p₁⁺ = M₀ ((1 + a) v* + (1 − a) q̇
+    − v*₋) + dt H₀, a = K_e dt (before a last v* is set, M₀ (a v* + (1 − a) q̇) + dt H₀); in torque mode, which reaches
+    v* in one sub-step, M₀ v* + dt H₀. A jump of v* and its overshoot are then in the margin."""
     torque_mode, ke, vi, vp, prev_ok = tracker
+    offset = dt * H[0, w]
     if torque_mode:
-        return 1.0, 0.0
+        return 1.0, offset
     a = ke * dt
-    gain, offset = (1.0 + a, 0.0) if prev_ok[w] else (a, 0.0)
+    gain = 1.0 + a if prev_ok[w] else a
     for t in range(k):
         offset += M[0, t, w] * ((1.0 - a) * vi[t, w] - (vp[t, w] if prev_ok[w] else 0.0))
     return gain, offset
