@@ -184,14 +184,14 @@ def fault_rows(
 
 
 def momentum_rows(mass_row: np.ndarray, clearance: float, reach: float, damping: float, margin: float = 0.0,
-                  gain: float = 1.0, offset: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+                  gain: float = 1.0, offset: float = 0.0, closing: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """A fully actuated arm's fault margin (docs/MODEL.md §5c): the momentum its first joint would keep if that
     joint's actuator were lost at the end of the sub-step, p₁ = g M₀ v + p₀ (``gain`` g and ``offset`` p₀: the
-    tracker's velocity there, linear in the command v; g = 1, p₀ = 0 for v itself), within b (h − margin) / reach
-    of its smallest clearance h to the world's obstacles, as two QP rows ``A (2, k) v ≤ b (2,)``:
-    ±c (g M₀ v + p₀) ≤ max(h − margin, 0), c = reach / b. The arm then starts its passive life with h ≥ c |p₁|
-    (:func:`fault_rows`)."""
+    tracker's momentum there, linear in the command v; g = 1, p₀ = 0 for v itself), within b (h − s − margin) / reach
+    of its smallest clearance h to the world's obstacles less ``closing`` s, what h can lose within the sub-step, as
+    two QP rows ``A (2, k) v ≤ b (2,)``: ±c (g M₀ v + p₀) ≤ max(h − s − margin, 0), c = reach / b. The arm then
+    starts its passive life with h ≥ c |p₁| (:func:`fault_rows`)."""
     c = reach / damping
     mass_row = np.asarray(mass_row, dtype=float)
     A = c * gain * np.stack([mass_row, -mass_row])
-    return A, max(clearance - margin, 0.0) - c * offset * np.array([1.0, -1.0])
+    return A, max(clearance - closing - margin, 0.0) - c * offset * np.array([1.0, -1.0])

@@ -176,7 +176,7 @@ def test_fault_margin_rows_match_the_numpy_twin(passive: bool) -> None:
                                 rate_f.reshape(30))
     else:
         A_ref, b_ref = cbf_rows(h, row, kappa, epsilon, margin, decay, rate)
-        A_m, b_m = momentum_rows(M[0], h.min(), reach, damping, margin, gain, offset)
+        A_m, b_m = momentum_rows(M[0], h.min(), reach, damping, margin, gain, offset, closing=0.0)  # dt = 0: none
         A_ref, b_ref = np.concatenate([A_ref, A_m]), np.concatenate([b_ref, b_m])
     np.testing.assert_allclose(A, A_ref, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(b, b_ref, rtol=1e-10, atol=1e-12)
