@@ -23,7 +23,7 @@ import numpy as np
 from .validation import real
 
 __all__ = ["BARRIERS", "robust_margin", "tracking_bound", "robust_epsilon", "shaped_barrier", "activation_gate",
-           "cbf_rows", "fault_rows", "momentum_rows"]
+           "cbf_rows", "fault_rows", "momentum_rows", "torque_rows"]
 
 #: the barrier forms of :func:`shaped_barrier`: the paper's squared distance, or the distance itself
 BARRIERS = ("squared", "distance")
@@ -195,3 +195,18 @@ def momentum_rows(mass_row: np.ndarray, clearance: float, reach: float, damping:
     mass_row = np.asarray(mass_row, dtype=float)
     A = c * gain * np.stack([mass_row, -mass_row])
     return A, max(clearance - closing - margin, 0.0) - c * offset * np.array([1.0, -1.0])
+
+
+def torque_rows(mass: np.ndarray, bias: np.ndarray, qd: np.ndarray, dt: float, max_torque: float,
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Torque mode's input bound (docs/MODEL.md §5d) as QP rows ``A (2k, k) v ≤ b (2k,)`` on the filtered velocity v of
+    the actuated joints: the torque that reaches v from ``qd`` in one sub-step ``dt``, τ = H + M (v − q̇) / dt (the
+    engine's torque where the filter changed the command), within ±``max_torque`` in every joint. ``mass`` M (k, k)
+    and ``bias`` H (k,) are the actuated joints' (for a PAn−1 arm its reduced terms, with the passive joint's
+    acceleration eliminated). Rows 2r and 2r + 1 bound joint r from above and below:
+    ±M_r v ≤ dt (τ_max ∓ H_r) ± M_r q̇."""
+    mass, bias, qd = (np.asarray(x, dtype=float) for x in (mass, bias, qd))
+    side = np.array([1.0, -1.0])
+    A = (side[None, :, None] * mass[:, None, :]).reshape(-1, mass.shape[1])
+    b = dt * (max_torque - side[None, :] * bias[:, None]) + side[None, :] * (mass @ qd)[:, None]
+    return A, b.reshape(-1)

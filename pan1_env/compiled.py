@@ -49,14 +49,15 @@ def kernel_sizes(n: int, k: int) -> tuple[tuple[int, ...], tuple[int, ...]]:
     return (0,) * n, (0,) * k
 
 
-def kernel_filter(params: FilterParams) -> tuple[float, float, float, bool, float, bool, float, bool]:
+def kernel_filter(params: FilterParams, max_torque: float = float("inf")) -> tuple:
     """The filter's settings as the sub-step kernel takes them, its ``rcbf`` argument, in this order: κ, ε,
     the margin, the distance barrier (else the squared one), λ of ε(h̃), whether the whole-arm last
     resort measures violation by the barrier's rate (:attr:`pan1_env.safety.FilterParams.fallback`), how far
-    ahead (s) they keep moving obstacles out (:attr:`~pan1_env.safety.FilterParams.lookahead`), and whether they
-    keep the fault margin (:attr:`~pan1_env.safety.FilterParams.fault_margin`)."""
+    ahead (s) they keep moving obstacles out (:attr:`~pan1_env.safety.FilterParams.lookahead`), whether they
+    keep the fault margin (:attr:`~pan1_env.safety.FilterParams.fault_margin`), and the actuated joints' torque
+    bound (N·m) that the torque-mode filter keeps (the engine's ``max_torque``; inf: none)."""
     return (params.kappa, params.epsilon, params.margin, params.barrier == "distance", params.decay, params.by_rate,
-            params.lookahead, params.fault_margin)
+            params.lookahead, params.fault_margin, float(max_torque))
 
 
 def plain(group: tuple | None) -> tuple | None:

@@ -92,6 +92,9 @@ class FormationConfig:
       only; default 0, no gate).
     * ``gain_range``: ``action_mode="gain"``: gains from 1/``gain_range`` to ``gain_range`` (> 1, default 4).
     * ``max_joint_speed`` (rad/s, default 2), ``max_torque`` (N·m, default 5): what an action of 1 means.
+    * ``torque_bound``: in torque mode behind the filter, keep its torques within ``max_torque`` too, as a
+      constraint of its QP (docs/MODEL.md §5d). Default False: the filter reaches its answer in one sub-step
+      whatever the torque, as the recorded torque-mode runs did.
     * ``n_obstacle_obs``: K, obstacle slots per observation (default 3).
     * ``random_options``: a :class:`~pan1_env.random_scenario.RandomScenarioOptions` or a dict of its
       fields, for ``scenario="random"``.
@@ -123,6 +126,7 @@ class FormationConfig:
     gain_range: float = DEFAULT_GAIN_RANGE
     max_joint_speed: float = MAX_JOINT_SPEED
     max_torque: float = 5.0
+    torque_bound: bool = False
     n_obstacle_obs: int = 3
     random_options: RandomScenarioOptions | Mapping[str, Any] | None = None
     qp_solver: str = "active_set"
@@ -141,6 +145,8 @@ class FormationConfig:
             raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {self.action_mode!r}")
         for name in ("control_dt", "success_tolerance", "max_joint_speed", "max_torque"):
             put(name, real(name, getattr(self, name), positive=True))
+        if not isinstance(self.torque_bound, (bool, np.bool_)):
+            raise ValueError(f"torque_bound must be True or False, got {self.torque_bound!r}")
         for name in ("formation_weight", "effort_weight", "collision_penalty", "success_bonus",
                      "intervention_penalty", "gain_range"):
             put(name, real(name, getattr(self, name)))
@@ -270,6 +276,7 @@ class ReachConfig:
     substeps: int = field(init=False, repr=False)
 
     action_mode = "velocity"
+    torque_bound = False  # velocity mode only
     qp_solver = "active_set"
     random = False
     random_options = None

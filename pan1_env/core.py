@@ -37,8 +37,9 @@ from gymnasium.utils.seeding import np_random
 
 from .compiled import kernels
 from .config import FormationConfig, ReachConfig
-from .engine import Engine, StepRecord
+from .engine import Engine
 from .observation import OBS_BOUND, ObservationLayout
+from .step_record import StepRecord
 from .tasks import FormationTask, ReachTask
 from .team_draw import draw_teams
 from .validation import positive_int
@@ -86,8 +87,9 @@ class FormationCore:
         self.config = c = config
         self.copies = B = positive_int("num_envs", copies)
         team = c.team
-        self.engine = Engine(team, B, physics_dt=c.physics_dt, max_speed=c.max_joint_speed, qp_solver=c.qp_solver,
-                             threads=threads)
+        torque_bound = c.max_torque if c.torque_bound else np.inf
+        self.engine = Engine(team, B, physics_dt=c.physics_dt, max_speed=c.max_joint_speed, max_torque=torque_bound,
+                             qp_solver=c.qp_solver, threads=threads)
         self.set_safety_filter(c.safety_filter or False)  # refused here, as later, where the solver cannot do it
         self.task = TASKS[type(c)](c, B)
         self.layout: ObservationLayout | None = getattr(self.task, "layout", None)

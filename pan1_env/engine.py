@@ -20,7 +20,6 @@ a time (velocity mode, one copy; slow, for cross-checks). A step goes through th
 from __future__ import annotations
 
 from collections import namedtuple
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -30,6 +29,7 @@ from .kinds import Kind
 from .piqp_filter import PiqpFilter
 from .safety import QP_SOLVERS, FilterParams, check_choices, clearance, filter_parameters
 from .scenario import Scenario
+from .step_record import StepRecord
 from .team_draw import TeamDraws, Teams
 from .validation import real
 
@@ -45,32 +45,7 @@ SENSING_RADIUS = 0.1
 #: sub-step) farther out than its radius, against what a sub-step's discretisation lets through
 SKIN = 0.002
 #: the kernel's rcbf (compiled.kernel_filter) with the filter off: it reads none of it
-_UNUSED_RCBF = (1.0, 1.0, 0.0, False, 0.0, False, 0.0, False)
-
-
-@dataclass
-class StepRecord:
-    """What one :meth:`Engine.step` produced, per copy and arm (arrays with leading axes ``(B, N)``)."""
-
-    v_star: np.ndarray  # (B, N, k_max) v* of the last sub-step (NaN in unfiltered torque mode, and as padding)
-    tau: np.ndarray  # (B, N, n_max) joint torques of the last sub-step (passive entry 0; NaN padding)
-    min_clearance: np.ndarray  # (B, N) smallest clearance of the arm's protected bodies after any sub-step (inf: none)
-    min_barrier: np.ndarray  # (B, N) smallest filtered barrier value h seen (inf: no row)
-    qp_counts: np.ndarray  # (B, N, 3) sub-steps per QP status: nominal, solved, fallback
-    max_tracking_error: np.ndarray  # (B, N) largest ‖v − v*‖ at the start of a sub-step
-    finite: np.ndarray  # (B, N) False where the state went non-finite (left at its last finite state)
-    all_finite: bool = True  # every arm of every copy stayed finite
-
-    @property
-    def intervened(self) -> np.ndarray:
-        """``(B, N)``: the filter changed the command (or braked) in some sub-step."""
-        return (self.qp_counts[..., 1] + self.qp_counts[..., 2]) > 0
-
-    @property
-    def fallback(self) -> np.ndarray:
-        """``(B, N)``: the filter's QP was infeasible and its fallback ran in some sub-step (braking; with
-        whole-arm safety the relaxed QPs of docs/SCENARIOS.md)."""
-        return self.qp_counts[..., 2] > 0
+_UNUSED_RCBF = (1.0, 1.0, 0.0, False, 0.0, False, 0.0, False, float("inf"))
 
 
 #: a kind's outputs from the kernel (views of a step's record, or gathered rows of it), in the kernel's order
@@ -107,6 +82,8 @@ class Engine:
         physics_dt: the RK4 sub-step, seconds (default: the scenario's).
         safety_filter: ``False``, ``True`` (the scenario's κ, ε, margin) or a :class:`FilterParams`.
         max_speed: with the filter on, its QP also bounds every filtered speed by this (rad/s).
+        max_torque: with the filter on in torque mode, its QP also bounds every actuated joint's torque by this
+            (N·m; docs/MODEL.md §5d).
         qp_solver: ``"active_set"`` (exact, in the kernel: :class:`KernelQP`) or ``"piqp"`` (the same rows,
             whole-arm ones included, solved by qpsolvers + PIQP: :class:`~pan1_env.piqp_filter.PiqpFilter`;
             one copy, velocity mode only).
@@ -115,7 +92,7 @@ class Engine:
     """
 
     def __init__(self, scenario: Scenario, copies: int = 1, *, physics_dt: float | None = None,
-                 safety_filter: bool | FilterParams = False, max_speed: float = np.inf,
+                 safety_filter: bool | FilterParams = False, max_speed: float = np.inf, max_torque: float = np.inf,
                  qp_solver: str = "active_set", threads: bool | str = "auto") -> None:
         if qp_solver not in QP_SOLVERS:
             raise ValueError(f"unknown qp_solver {qp_solver!r}; choose one of {QP_SOLVERS}")
@@ -127,6 +104,7 @@ class Engine:
         self.physics_dt = real("physics_dt", scenario.physics_dt if physics_dt is None else physics_dt, positive=True)
         self.copies, self.qp_solver, self.threads = int(copies), qp_solver, threads
         self.max_speed = float(max_speed)
+        self.max_torque = real("max_torque", max_torque, positive=True, allow_inf=True)
         self.ke = scenario.ke
         self.n_arms = scenario.n_arms
         self.n_links = [a.n_links for a in scenario.arms]
@@ -636,7 +614,7 @@ class Engine:
         if clear is not None:
             clear[:], finite[:] = out.min_clear, out.finite
             out = out._replace(min_clear=clear, finite=finite)
-        rcbf = _UNUSED_RCBF if params is None else kernel_filter(params)
+        rcbf = _UNUSED_RCBF if params is None else kernel_filter(params, self.max_torque)
         obstacles = (kind.centers, kind.radii, kind.mask) if kind.whole is None else kind.no_obstacles
         args = (*kind.state_args, cmd, torque, params is not None, *obstacles, rcbf, self.ke, self.physics_dt,
                 substeps, self.max_speed, out.v_star, out.tau, kind.qd, kind.p, out.min_clear, out.min_h,

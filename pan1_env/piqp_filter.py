@@ -19,7 +19,8 @@ from .dynamics import link_angles, mass_matrix
 from .safety import QPStatus, project_velocity, rcbf_constraints
 
 if TYPE_CHECKING:
-    from .engine import Engine, StepRecord
+    from .engine import Engine
+    from .step_record import StepRecord
 
 __all__ = ["PiqpFilter", "whole_arm_rows", "least_violation"]
 

@@ -58,6 +58,7 @@ from .barriers import (
     robust_epsilon,
     robust_margin,
     shaped_barrier,
+    torque_rows,
     tracking_bound,
 )
 from .validation import real
@@ -78,6 +79,7 @@ __all__ = [
     "cbf_rows",
     "fault_rows",
     "momentum_rows",
+    "torque_rows",
     "rcbf_constraints",
     "BARRIERS",
     "FALLBACKS",

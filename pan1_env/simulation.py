@@ -15,10 +15,11 @@ from __future__ import annotations
 import numpy as np
 
 from .control import MAX_JOINT_SPEED
-from .engine import Engine, StepRecord
+from .engine import Engine
 from .formation import edge_errors, edge_vectors, formation_gradient
 from .motion import MotionTable
 from .scenario import Scenario
+from .step_record import StepRecord
 from .tasks import law_velocity
 
 __all__ = ["Simulation", "StepRecord"]

@@ -16,13 +16,14 @@ from .compiled import kernels
 from .config import FormationConfig, ReachConfig
 from .control import nominal_velocity, within_speed
 from .dynamics import end_effector
-from .engine import Engine, StepRecord
+from .engine import Engine
 from .formation import SparseIncidence, edge_errors, edge_length_errors
 from .motion import MotionTable
 from .observation import OBS_BOUND, OBSTACLE_FEATURES, ObservationLayout
 from .random_scenario import zero_momentum_start
 from .safety import clearance
 from .scenario import Scenario
+from .step_record import StepRecord
 from .team_draw import TeamDraws
 
 __all__ = ["FormationTask", "ReachTask", "Outcome", "law_velocity"]

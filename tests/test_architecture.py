@@ -263,7 +263,7 @@ LAYERS = {
     "reference": ("validation", "dynamics", "cascade", "formation", "motion", "barriers", "safety", "control",
                   "bodies", "toml_values", "scenario", "random_scenario", "scenarios"),
     "compiled": ("kernels", "compiled", "compile_notice", "draw_kernel", "team_draw"),
-    "engine": ("engine", "kinds", "piqp_filter"),
+    "engine": ("engine", "kinds", "step_record", "piqp_filter"),
     "tasks": ("env_ids", "config", "tasks", "observation"),
     "core": ("core",),
     "views": ("environment", "centralized", "vector", "reach", "marl", "masked_distribution", "render", "registration",

@@ -15,13 +15,20 @@ from pan1_env.kernels._numba_ext import _JIT, _LANES, _local, _slp_vectorised
 from pan1_env.kernels.physics import _SERIES_MAX, _SERIES_SHORT, _rotate_lanes, _spd_solve
 from pan1_env.kernels.qp import _first_projection_lanes
 from pan1_env.kernels.substep import _advance_arms
-from pan1_env.safety import FilterParams, active_set_projection, clearance, project_velocity, rcbf_constraints
+from pan1_env.safety import (
+    FilterParams,
+    active_set_projection,
+    clearance,
+    project_velocity,
+    rcbf_constraints,
+    torque_rows,
+)
 
 
-def _rcbf(kappa: float, epsilon: float, margin: float, distance: bool, decay: float) -> tuple:
+def _rcbf(kappa: float, epsilon: float, margin: float, distance: bool, decay: float, tau_max: float = np.inf) -> tuple:
     """The kernels' ``rcbf`` for these settings, built as the engine builds it."""
     return kernel_filter(FilterParams(kappa, epsilon, margin, barrier="distance" if distance else "squared",
-                                      decay=decay))
+                                      decay=decay), tau_max)
 
 def _group(rng: np.random.Generator, n: int, passive: bool, count: int = 5):
     arms = []
@@ -86,7 +93,7 @@ def test_group_terms_match_reference(n: int, passive: bool) -> None:
 def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False, centers=None, radii=None,
              mask=None, kappa=0.5, eps=5.0, margin=0.0, distance=False, decay=0.0,
              ke=100.0, dt=1e-3, n_sub=1, v_max=np.inf, parallel=False,
-             sizes=None, n_chunks=2, momentum=None, damping=None, rows=None, window=None):
+             sizes=None, n_chunks=2, momentum=None, damping=None, rows=None, window=None, tau_max=np.inf):
     A, k = v.shape
     centers = np.zeros((0, 2)) if centers is None else centers
     radii = np.zeros(0) if radii is None else radii
@@ -103,9 +110,9 @@ def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False
             batch.passive_first_joint, q, v, momentum, prev, has_prev, np.arange(A) if rows is None else rows,
             _window(A, n_sub) if window is None else window, command, torque, filter_on,
             np.broadcast_to(centers, (A, *centers.shape)).copy(),
-            np.broadcast_to(radii, (A, len(radii))).copy(), mask, _rcbf(kappa, eps, margin, distance, decay), ke, dt,
-            n_sub, v_max, out["v_star"], out["tau"], out["qd"], out["p"], out["clear"], out["min_h"], out["counts"],
-            out["track"], out["finite"], None)
+            np.broadcast_to(radii, (A, len(radii))).copy(), mask, _rcbf(kappa, eps, margin, distance, decay, tau_max),
+            ke, dt, n_sub, v_max, out["v_star"], out["tau"], out["qd"], out["p"], out["clear"], out["min_h"],
+            out["counts"], out["track"], out["finite"], None)
     if parallel:
         kernels.group_advance_parallel(*args, n_chunks)
     else:
@@ -337,6 +344,42 @@ def test_advance_torque_filter_projects_the_one_step_velocity() -> None:
     tau = np.where(changed[:, None],
                    np.einsum("aij,aj->ai", ref.M_comb, (expected.v - v) / dt) + ref.H_comb, tau_cmd)
     np.testing.assert_allclose(out["tau"], tau, rtol=1e-5, atol=1e-4)
+
+
+@pytest.mark.parametrize("passive", [True, False])
+def test_advance_torque_filter_keeps_the_torque_bound(passive: bool) -> None:
+    """With ``tau_max``, a lane whose filtered velocity needs more torque than the bound in its sub-step gets the
+    projection onto its RCBF rows, the speed box and barriers.torque_rows (PIQP on the numpy rows), or, where those
+    have no solution, the velocity nearest the unbounded filter's answer within the torque rows alone. No torque
+    exceeds the bound, where the unbounded filter's do."""
+    rng = np.random.default_rng(31 + passive)
+    count, dt, v_max, tau_max = 12, 1e-2, 2.5, 3.0
+    batch, q, v = _group(rng, 3, passive, count=count)
+    t, centers, radii = _binding_obstacles(rng, batch, q, v)
+    mask = np.ones((count, 3), bool)
+    tau_cmd = rng.uniform(-tau_max, tau_max, v.shape)
+    run = dict(torque=True, filter_on=True, centers=centers, radii=radii, mask=mask, v_max=v_max, dt=dt)
+    free = _advance(batch, q, v, tau_cmd, **run)[4]
+    out = _advance(batch, q, v, tau_cmd, tau_max=tau_max, **run)[4]
+    assert np.abs(out["tau"]).max() <= tau_max * (1 + 1e-9)
+    ref = cascade_terms(batch, q, v)
+    torque = [torque_rows(ref.M_comb[a], ref.H_comb[a], v[a], dt, tau_max) for a in range(count)]
+    beyond = np.array([np.any(A @ free["v_star"][a] > b + 1e-9) for a, (A, b) in enumerate(torque)])
+    assert beyond.any() and np.abs(free["tau"]).max() > tau_max, "the test should need the bound"
+    v_des = v + dt * np.linalg.solve(ref.M_comb, (tau_cmd - ref.H_comb)[..., None])[..., 0]
+    A_rows, b_rows, _ = rcbf_constraints(t["p"], t["Jbar"], centers, radii, 0.5, 5.0, active=mask)
+    k = v.shape[1]
+    box = np.broadcast_to(np.concatenate([np.eye(k), -np.eye(k)]), (count, 2 * k, k))
+    A_all = np.concatenate([A_rows, box, np.stack([A for A, _ in torque])], axis=1)
+    b_all = np.concatenate([b_rows, np.full((count, 2 * k), v_max), np.stack([b for _, b in torque])], axis=1)
+    bounded = project_velocity(v_des, A_all, b_all, solver="piqp")
+    nearest = project_velocity(free["v_star"], np.stack([A for A, _ in torque]), np.stack([b for _, b in torque]),
+                               solver="piqp")
+    solved = bounded.status != 2
+    expected = np.where(beyond[:, None], np.where(solved[:, None], bounded.v, nearest.v), free["v_star"])
+    assert (beyond & solved).any() and (beyond & ~solved).any(), "the test should reach both answers"
+    np.testing.assert_allclose(out["v_star"], expected, atol=1e-6)
+    np.testing.assert_array_equal(out["counts"][:, 2] > 0, beyond & ~solved | (free["counts"][:, 2] > 0))
 
 
 @pytest.mark.parametrize("torque", [False, True])

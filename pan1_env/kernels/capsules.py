@@ -161,8 +161,8 @@ def _body(P, n, links, body):
 def most_rows(bodies, capsules, n_world, k):
     """The most rows :func:`whole_arm_rows` writes for an arm of ``bodies`` bodies and ``k`` actuated joints against
     ``capsules`` capsules, the first ``n_world`` the world's (two rows a body with a look-ahead, and twice that with
-    the fault margin), the fault margin's two momentum rows and its speed box."""
-    return bodies * (capsules + 3 * n_world) + 2 + 2 * k
+    the fault margin), the fault margin's two momentum rows, its speed box and torque mode's input bound."""
+    return bodies * (capsules + 3 * n_world) + 2 + 4 * k
 
 
 @njit(**_JIT, forceinline=True)

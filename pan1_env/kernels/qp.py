@@ -145,6 +145,63 @@ def qp_project(v0, A, b, active, v_out, status):
 
 
 @njit(**_JIT, forceinline=True)
+def _torque_rows(w, k, dt, tau_max, Mc, Hc, vi, A, b, active, first):
+    """Torque mode's input bound |τ_r| ≤ τ_max as rows ``first`` … ``first`` + 2k − 1 of A v ≤ b on lane w's filtered
+    velocity v, whose torque is the one that reaches it in one sub-step, τ = H_c + M_c (v − q̇) / dt
+    (:func:`pan1_env.kernels.steps._track`); times dt: ±M_c[r] v ≤ dt (τ_max ∓ H_c[r]) ± M_c[r] q̇. Returns the row
+    after them."""
+    for r in range(k):
+        mv = 0.0
+        for t in range(k):
+            mv += Mc[r, t, w] * vi[t, w]
+        for x in range(2):
+            sign, j = 1.0 - 2.0 * x, first + 2 * r + x
+            for t in range(k):
+                A[j, t] = sign * Mc[r, t, w]
+            b[j] = dt * (tau_max - sign * Hc[r, w]) + sign * mv
+            active[j] = True
+    return first + 2 * k
+
+
+@njit(**_JIT, forceinline=True)
+def _torque_within(w, k, dt, tau_max, Mc, Hc, vi, v):
+    """Whether lane w's velocity ``v`` is reached in one sub-step within ±τ_max (:func:`_torque_rows`, to the QP's
+    row tolerance)."""
+    for r in range(k):
+        acc, mv = 0.0, 0.0
+        for t in range(k):
+            acc += Mc[r, t, w] * v[t]
+            mv += Mc[r, t, w] * vi[t, w]
+        for sign in (1.0, -1.0):
+            bound = dt * (tau_max - sign * Hc[r, w]) + sign * mv
+            if sign * acc > bound + ROW_TOLERANCE * (1.0 + abs(bound)):
+                return False
+    return True
+
+
+@njit(**_JIT, forceinline=True)
+def _keep_torque(w, k, dt, tau_max, Mc, Hc, vi, v0, target, A, b, active, m, v_out, rows, idx, G, r, lam, cand, L, y,
+                 viol, rnorm):
+    """Torque mode's input bound on lane w, whose filtered velocity needs more than ±τ_max (docs/MODEL.md §5d): the
+    QP again from ``v0`` with its rows A v ≤ b (j < m) and the torque rows (written at m … m + 2k − 1: A, b and
+    ``active`` need the room); where that has no solution, the velocity nearest ``target`` (the filter's own last
+    resort: braking, holding the end-effector, or the least violation) within the torque bound alone, which always
+    holds the velocity the commanded torque reaches (and that one itself if it is all there is). Rows j < m are left
+    inactive then. Returns the status: solved, or fallback."""
+    _torque_rows(w, k, dt, tau_max, Mc, Hc, vi, A, b, active, m)
+    if _project_one(v0, A, b, active, m + 2 * k, k, v_out, rows, idx, G, r, lam, cand, L, y, viol,
+                    rnorm) != STATUS_FALLBACK:
+        return STATUS_SOLVED
+    for j in range(m):
+        active[j] = False
+    if _project_one(target, A, b, active, m + 2 * k, k, v_out, rows, idx, G, r, lam, cand, L, y, viol,
+                    rnorm) == STATUS_FALLBACK:
+        for t in range(k):
+            v_out[t] = v0[t]
+    return STATUS_FALLBACK
+
+
+@njit(**_JIT, forceinline=True)
 def _rcbf_row_lanes(j, px, py, Jbar, drift, obstacles, kappa, epsilon, margin, distance, decay, k, W, A, b, h):
     """The RCBF row of obstacle j for W lanes, A_j v ≤ b_j, into ``A (k, W)``, ``b (W)``:
     A_j = −L_g0 h_j and b_j = κ h̃_j − ‖L_g0 h_j‖²/ε(h̃_j) + ∇h_j · d, h̃_j = h_j − margin (also writes h_j

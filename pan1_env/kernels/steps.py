@@ -25,7 +25,9 @@ from .qp import (
     STATUS_SOLVED,
     _filter_rows_lanes,
     _first_projection_lanes,
+    _keep_torque,
     _project_one,
+    _torque_within,
 )
 
 # The steps of _advance_arms, inlined by numba (inline="always": typed and compiled once, as part of it,
@@ -147,11 +149,12 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
     """Whole-arm safety: each filtered lane's rows are its bodies against its capsules at the sub-step's
     time, solved by the full search, one lane at a time. ``bodies`` = (link radius, link bodies or the
     end-effector only, sensing range, gate, skin); ``pj`` the lanes' passive momenta (their drift) and dampings;
-    ``tracker`` = (torque mode, K_e, q̇, the last v*, whether it is set), for the fault margin's momentum at the
-    sub-step's end (:func:`_momentum_ahead`)."""
-    kappa, epsilon, margin, distance, decay, by_rate, lookahead, fault, v_max = fparams
+    ``tracker`` = (torque mode, K_e, dt, q̇, the last v*, whether it is set), for the fault margin's momentum at the
+    sub-step's end (:func:`_momentum_ahead`) and torque mode's input bound
+    (:func:`pan1_env.kernels.qp._keep_torque`)."""
+    kappa, epsilon, margin, distance, decay, by_rate, lookahead, fault, tau_max, v_max = fparams
     M, R, Sn, Mc, Hc, qd, thd, H = dyn
-    Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy = search
+    Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy, qtarget = search
     wA, wb, wact, wP, wnear, wrows, wviol, wnorm, wb0, wn0, joints_x, joints_y, ox, oy, orad = scratch
     rho, link_bodies, sensing, gate, skin, n_world = bodies
     for w in range(W):
@@ -181,6 +184,12 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
                                 wnorm) == STATUS_FALLBACK:
                     least_violation(qv0, wA, wb, wact, m_w, k, 2 * k if v_max < np.inf else 0, by_rate, qvs, wb0, wn0,
                                     wrows, qidx, qG, qr, qlam, qcand, qL, qy, wviol, wnorm)
+            if tracker[0] and tau_max < np.inf and status[w] != STATUS_NOMINAL and \
+                    not _torque_within(w, k, dt, tau_max, Mc, Hc, tracker[3], qvs):
+                for t in range(k):  # the target of the torque bound's last resort: the filter's own answer
+                    qtarget[t] = qvs[t]
+                status[w] = _keep_torque(w, k, dt, tau_max, Mc, Hc, tracker[3], qv0, qtarget, wA, wb, wact, m_w, qvs,
+                                         wrows, qidx, qG, qr, qlam, qcand, qL, qy, wviol, wnorm)
             for t in range(k):
                 vs[t, w] = qvs[t]
 
@@ -192,7 +201,7 @@ def _momentum_ahead(k, w, dt, tracker, M, H):
     torque of :func:`_track`. In velocity mode acc = (v* − v*₋)/dt − K_e (q̇ − v*), so p₁⁺ = M₀ ((1 + a) v* + (1 − a) q̇
     − v*₋) + dt H₀, a = K_e dt (before a last v* is set, M₀ (a v* + (1 − a) q̇) + dt H₀); in torque mode, which reaches
     v* in one sub-step, M₀ v* + dt H₀. A jump of v* and its overshoot are then in the margin."""
-    torque_mode, ke, vi, vp, prev_ok = tracker
+    torque_mode, ke, _, vi, vp, prev_ok = tracker
     offset = dt * H[0, w]
     if torque_mode:
         return 1.0, offset
@@ -205,16 +214,16 @@ def _momentum_ahead(k, w, dt, tracker, M, H):
 
 @njit(**_JIT, inline="always")
 def _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, ln, bx, by, c, s, dyn, pj, px, py,
-                         obstacles, lane_active, use_filter, live, vdes, vs, status, arm_h, ee, search):
+                         obstacles, lane_active, use_filter, live, vdes, vs, status, arm_h, ee, search, tracker):
     """The paper's end-effector filter on every lane at once as far as one active row settles it
     (:func:`_first_projection_lanes`), then the full active-set search lane by lane. A PAn−1 arm's
     rows take the end-effector's drift J₁ p₁ / M_11 (docs/MODEL.md §7), and where p₁ ≠ 0 its fallback
     holds the end-effector instead of braking (:func:`_hold_end_effector`)."""
-    kappa, epsilon, margin, distance, decay, by_rate, lookahead, fault, v_max = fparams
+    kappa, epsilon, margin, distance, decay, by_rate, lookahead, fault, tau_max, v_max = fparams
     M, R, Sn, Mc, Hc, qd, thd, H = dyn
     J, Jbar, drift, filtered, row_A, row_b, row_h, row_norm, row_act, obst_rows, needs_qp, q_best, q_best_viol, q_Ab, \
         q_bb, q_cand, q_found = ee
-    Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy = search
+    Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy, qtarget = search
     _position_lanes(ln, bx, by, c, s, n, W, px, py)
     _jacobian_lanes(ln, c, s, M, passive, n, k, W, J, Jbar)
     _drift_lanes(J, M, pj[0], passive, W, drift)
@@ -253,6 +262,41 @@ def _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, 
                 _hold_end_effector(k, w, Jbar, drift, v_max, qvs)
             for t in range(k):
                 vs[t, w] = qvs[t]
+    if tracker[0] and tau_max < np.inf:
+        _bound_torque(k, W, O, m, tau_max, v_max, Mc, Hc, tracker, obst_rows, lane_active, filtered, vdes, vs, status,
+                      search)
+
+
+@njit(**_JIT, inline="always")
+def _bound_torque(k, W, O, m, tau_max, v_max, Mc, Hc, tracker, obst_rows, lane_active, filtered, vdes, vs, status,
+                  search):
+    """Torque mode's input bound on the end-effector filter's lanes (docs/MODEL.md §5d): a lane whose filtered
+    velocity needs more than ±τ_max in its sub-step takes the QP again with the torque rows
+    (:func:`pan1_env.kernels.qp._keep_torque`), and where that has no solution, the velocity nearest the filter's
+    own answer (its braking or hold included) within the bound: as far towards it as the bound allows."""
+    Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy, qtarget = search
+    _, _, dt, vi, _, _ = tracker
+    for w in range(W):
+        if not filtered[w] or status[w] == STATUS_NOMINAL:
+            continue
+        for t in range(k):
+            qvs[t] = vs[t, w]
+        if _torque_within(w, k, dt, tau_max, Mc, Hc, vi, qvs):
+            continue
+        for j in range(O):
+            for t in range(k):
+                Arows[j, t] = obst_rows[j, t, w]
+            brows[j] = obst_rows[j, k, w]
+            active[j] = lane_active[j, w]
+        for t in range(k):  # the last resort's target: the filter's own answer (its braking or hold included)
+            qv0[t] = vdes[t, w]
+            qtarget[t] = vs[t, w]
+        status[w] = _keep_torque(w, k, dt, tau_max, Mc, Hc, vi, qv0, qtarget, Arows, brows, active, m, qvs, qrows, qidx,
+                                 qG, qr, qlam, qcand, qL, qy, qviol, qnorm)
+        for t in range(k):
+            vs[t, w] = qvs[t]
+        for j in range(O, m):  # the speed rows, which the fallback's search left inactive
+            active[j] = v_max < np.inf
 
 
 @njit(**_JIT)  # not inlined: the same types in every kind, so compiled once, not once per kind

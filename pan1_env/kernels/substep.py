@@ -109,10 +109,11 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     row_act, filtered, needs_qp = _local(lw, b1), _local(lw, b1), _local(lw, b1)
     q_best, q_best_viol, q_found = _local(lw, np.int64), _local(lw, f8), _local(lw, b1)
     q_Ab, q_bb, q_cand = _local(kw, f8), _local(lw, f8), _local(kw, f8)
-    # one lane's full QP search (_project_one)
-    Arows, brows, active = np.zeros((m, kk)), np.zeros(m), np.zeros(m, dtype=np.bool_)
-    qrows, qviol, qnorm, qidx = np.empty(m, dtype=np.int64), np.empty(m), np.empty(m), _local(kx, np.int64)
-    qv0, qvs = _local(kx, f8), _local(kx, f8)
+    # one lane's full QP search (_project_one), with room for torque mode's input bound (2k rows more)
+    mt = m + 2 * k
+    Arows, brows, active = np.zeros((mt, kk)), np.zeros(mt), np.zeros(mt, dtype=np.bool_)
+    qrows, qviol, qnorm, qidx = np.empty(mt, dtype=np.int64), np.empty(mt), np.empty(mt), _local(kx, np.int64)
+    qv0, qvs, qtarget = _local(kx, f8), _local(kx, f8), _local(kx, f8)
     qG, qL, qr, qlam, qcand, qy = _local(kkx, f8), _local(kkx, f8), _local(kx, f8), _local(kx, f8), _local(kx, f8), \
         _local(kx, f8)
     # RK4: trial state, stage derivative, weighted sums
@@ -122,9 +123,11 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     # the groups' heap arrays unreferenced (_borrowed), kept alive to the end (_keep_alive below)
     ee = _borrowed((J, Jbar, drift, filtered, row_A, row_b, row_h, row_norm, row_act, obst_rows, needs_qp, q_best,
                     q_best_viol, q_Ab, q_bb, q_cand, q_found))
-    search = _borrowed((Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy))
-    kappa, epsilon, margin, distance, decay, by_rate, lookahead, fault = rcbf
-    fparams = (kappa, epsilon, margin, distance, decay, by_rate, lookahead, fault, v_max)
+    search = _borrowed((Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy,
+                        qtarget))
+    kappa, epsilon, margin, distance, decay, by_rate, lookahead, fault, tau_max = rcbf
+    fparams = (kappa, epsilon, margin, distance, decay, by_rate, lookahead, fault, tau_max, v_max)
+    tracker = (torque_mode, ke, dt, vi, vp, prev_ok)  # the tracker's terms the filters look ahead with
     if whole is not None:  # whole-arm scratch: one lane's rows (bodies × capsules, speed bounds) and joints
         caps, start_time, rho, link_bodies, sensing, gate, skin, joints_out, n_world, angles, carried, finish = whole
         jw = (links + (0,), lanes)  # joints: n + 1 per lane
@@ -166,12 +169,11 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
                               tau, acc, vdes, vs, status)
             if any_filter and whole is not None:
                 _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodies, scratch, arm, real, ln,
-                                  bx, by, c, s, dyn, pj, (torque_mode, ke, vi, vp, prev_ok), use_filter, live, vdes, vs,
-                                  status, arm_h, search)
+                                  bx, by, c, s, dyn, pj, tracker, use_filter, live, vdes, vs, status, arm_h, search)
             elif any_filter:
                 _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, ln, bx, by, c, s, dyn, pj,
                                      px, py, obstacles, lane_active, use_filter, live, vdes, vs, status, arm_h, ee,
-                                     search)
+                                     search, tracker)
             _track(k, W, torque_mode, ke, inv_dt, vi, vp, Mc, Hc, use_filter, live, prev_ok, status, counts,
                    arm_track, vs, acc, tau, vs_last, tau_last)
             _rk4(n, k, W, passive, dt, finite_out, arm, real, live, lm, qi, vi, pj, tau, c, s, c0, s0, dyn, chol,
@@ -221,7 +223,7 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     sees; a team's obstacles are broadcast to every arm).
 
     ``rcbf`` is the filter's settings, one tuple ``(kappa, epsilon, margin, distance, decay, by_rate, lookahead,
-    fault)``
+    fault, tau_max)``
     (:func:`pan1_env.compiled.kernel_filter`): the end-effector filter's rows
     (:func:`pan1_env.kernels.qp._rcbf_row_lanes`) take κ, ε, the margin, the barrier (``distance`` True:
     h = ‖p − o‖ − r, else the paper's squared one) and λ ``decay`` of the tunable ε(h̃) = ε e^{λ h̃} (0: the
@@ -229,7 +231,8 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     choices, ``by_rate`` picks their last-resort fallback's measure of violation
     (:func:`pan1_env.kernels.last_resort.least_violation`) and ``lookahead`` (s, 0: the obstacles where they are)
     the stretch of each moving obstacle's path that they keep out (:func:`pan1_env.kernels.capsules._capsule_ahead`);
-    ``fault`` keeps the fault margin with each arm's ``damping`` (:func:`pan1_env.kernels.capsules.whole_arm_rows`).
+    ``fault`` keeps the fault margin with each arm's ``damping`` (:func:`pan1_env.kernels.capsules.whole_arm_rows`),
+    and ``tau_max`` (N·m, inf: none) is torque mode's input bound (:func:`pan1_env.kernels.qp._keep_torque`).
 
     Velocity mode (``torque_mode`` False): ``command`` is the desired active velocity; each
     sub-step filters it through the RCBF-QP when ``filter_on`` (against the obstacles of ``mask``)
