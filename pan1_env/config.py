@@ -147,6 +147,9 @@ class FormationConfig:
             put(name, real(name, getattr(self, name), positive=True))
         if not isinstance(self.torque_bound, (bool, np.bool_)):
             raise ValueError(f"torque_bound must be True or False, got {self.torque_bound!r}")
+        if self.torque_bound and self.action_mode != "torque":
+            raise ValueError(f"torque_bound=True bounds the filter's torques in action_mode='torque' only, got "
+                             f"action_mode={self.action_mode!r}")
         for name in ("formation_weight", "effort_weight", "collision_penalty", "success_bonus",
                      "intervention_penalty", "gain_range"):
             put(name, real(name, getattr(self, name)))

@@ -82,8 +82,9 @@ class Engine:
         physics_dt: the RK4 sub-step, seconds (default: the scenario's).
         safety_filter: ``False``, ``True`` (the scenario's κ, ε, margin) or a :class:`FilterParams`.
         max_speed: with the filter on, its QP also bounds every filtered speed by this (rad/s).
-        max_torque: with the filter on in torque mode, its QP also bounds every actuated joint's torque by this
-            (N·m; docs/MODEL.md §5d).
+        max_torque: with the filter on in torque mode, its QP also bounds by this (N·m) every actuated joint's
+            torque where it changes the command (docs/MODEL.md §5d); a command's own torque is the caller's to bound
+            (the envs' actions are at most ±``max_torque``).
         qp_solver: ``"active_set"`` (exact, in the kernel: :class:`KernelQP`) or ``"piqp"`` (the same rows,
             whole-arm ones included, solved by qpsolvers + PIQP: :class:`~pan1_env.piqp_filter.PiqpFilter`;
             one copy, velocity mode only).

@@ -180,17 +180,18 @@ def _torque_within(w, k, dt, tau_max, Mc, Hc, vi, v):
 
 
 @njit(**_JIT, forceinline=True)
-def _keep_torque(w, k, dt, tau_max, Mc, Hc, vi, v0, target, A, b, active, m, v_out, rows, idx, G, r, lam, cand, L, y,
-                 viol, rnorm):
-    """Torque mode's input bound on lane w, whose filtered velocity needs more than ±τ_max (docs/MODEL.md §5d): the
-    QP again from ``v0`` with its rows A v ≤ b (j < m) and the torque rows (written at m … m + 2k − 1: A, b and
-    ``active`` need the room); where that has no solution, the velocity nearest ``target`` (the filter's own last
-    resort: braking, holding the end-effector, or the least violation) within the torque bound alone, which always
-    holds the velocity the commanded torque reaches (and that one itself if it is all there is). Rows j < m are left
-    inactive then. Returns the status: solved, or fallback."""
+def _keep_torque(w, k, dt, tau_max, Mc, Hc, vi, v0, target, retry, A, b, active, m, v_out, rows, idx, G, r, lam, cand,
+                 L, y, viol, rnorm):
+    """Torque mode's input bound on lane w, whose filtered velocity ``target`` needs more than ±τ_max
+    (docs/MODEL.md §5d). With ``retry`` (the filter's QP had a solution), the QP again from ``v0`` with its rows
+    A v ≤ b (j < m) and the torque rows (written at m … m + 2k − 1: A, b and ``active`` need the room). Without it
+    (the filter fell back, and its rows may have been relaxed since), or where that has no solution, the velocity
+    nearest ``target`` (then the filter's own last resort: braking, holding the end-effector, or the least
+    violation) within the torque bound alone, which always holds the velocity the commanded torque reaches (and that
+    one itself if it is all there is). Rows j < m are left inactive then. Returns the status: solved, or fallback."""
     _torque_rows(w, k, dt, tau_max, Mc, Hc, vi, A, b, active, m)
-    if _project_one(v0, A, b, active, m + 2 * k, k, v_out, rows, idx, G, r, lam, cand, L, y, viol,
-                    rnorm) != STATUS_FALLBACK:
+    if retry and _project_one(v0, A, b, active, m + 2 * k, k, v_out, rows, idx, G, r, lam, cand, L, y, viol,
+                              rnorm) != STATUS_FALLBACK:
         return STATUS_SOLVED
     for j in range(m):
         active[j] = False

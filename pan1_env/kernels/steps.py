@@ -188,8 +188,9 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
                     not _torque_within(w, k, dt, tau_max, Mc, Hc, tracker[3], qvs):
                 for t in range(k):  # the target of the torque bound's last resort: the filter's own answer
                     qtarget[t] = qvs[t]
-                status[w] = _keep_torque(w, k, dt, tau_max, Mc, Hc, tracker[3], qv0, qtarget, wA, wb, wact, m_w, qvs,
-                                         wrows, qidx, qG, qr, qlam, qcand, qL, qy, wviol, wnorm)
+                status[w] = _keep_torque(w, k, dt, tau_max, Mc, Hc, tracker[3], qv0, qtarget,
+                                         status[w] != STATUS_FALLBACK, wA, wb, wact, m_w, qvs, wrows, qidx, qG, qr,
+                                         qlam, qcand, qL, qy, wviol, wnorm)
             for t in range(k):
                 vs[t, w] = qvs[t]
 
@@ -291,8 +292,8 @@ def _bound_torque(k, W, O, m, tau_max, v_max, Mc, Hc, tracker, obst_rows, lane_a
         for t in range(k):  # the last resort's target: the filter's own answer (its braking or hold included)
             qv0[t] = vdes[t, w]
             qtarget[t] = vs[t, w]
-        status[w] = _keep_torque(w, k, dt, tau_max, Mc, Hc, vi, qv0, qtarget, Arows, brows, active, m, qvs, qrows, qidx,
-                                 qG, qr, qlam, qcand, qL, qy, qviol, qnorm)
+        status[w] = _keep_torque(w, k, dt, tau_max, Mc, Hc, vi, qv0, qtarget, status[w] != STATUS_FALLBACK, Arows,
+                                 brows, active, m, qvs, qrows, qidx, qG, qr, qlam, qcand, qL, qy, qviol, qnorm)
         for t in range(k):
             vs[t, w] = qvs[t]
         for j in range(O, m):  # the speed rows, which the fallback's search left inactive
