@@ -34,13 +34,16 @@ from .team_draw import TeamDraws, Teams
 from .validation import real
 
 __all__ = ["Engine", "KernelQP", "FilterParams", "KindTerms", "StepRecord", "filter_parameters", "PARALLEL_THRESHOLD",
-           "SENSING_RADIUS", "SKIN"]
+           "SENSING_RADIUS", "BRAKING_SENSING_RADIUS", "SKIN"]
 
 PARALLEL_THRESHOLD = 256  # arms of one kind from which the kernel runs on numba's thread pool
-#: m: with whole-arm safety, a body's filter takes a row for a capsule only when their clearance is at
 FLOOR_SLACK = 1e-9  #: m taken off the capsules' floors (Engine._load_capsules)
+#: m: with whole-arm safety, a body's filter takes a row for a capsule only when their clearance is at
 #: most this plus what the gap can close in a sub-step (:func:`pan1_env.kernels.capsules.whole_arm_rows`)
 SENSING_RADIUS = 0.1
+#: m: the range instead with torque mode's bound, from where an arm at full speed can still brake within it
+#: (docs/MODEL.md §5d: at 0.1 m, bang-bang torques drove links 130 mm into obstacles)
+BRAKING_SENSING_RADIUS = 1.0
 #: m: with whole-arm safety the filter keeps every capsule this much (plus an obstacle's travel in one
 #: sub-step) farther out than its radius, against what a sub-step's discretisation lets through
 SKIN = 0.002
@@ -256,8 +259,10 @@ class Engine:
     def whole_arm_args(self, kind: Kind) -> WholeArm:
         """The kernel's ``whole`` argument for a kind (:func:`pan1_env.kernels.substep.group_advance`)."""
         sensing = None if self.filter is None else self.filter.sensing_radius
+        if sensing is None:
+            sensing = SENSING_RADIUS if self.max_torque == np.inf else BRAKING_SENSING_RADIUS
         return WholeArm(caps=kind.caps, start_time=kind.start_time, link_radius=self.link_radius,
-                        link_bodies=self.link_bodies, sensing=SENSING_RADIUS if sensing is None else sensing,
+                        link_bodies=self.link_bodies, sensing=sensing,
                         gate=0.0 if self.filter is None else self.filter.gate, skin=SKIN, joints=kind.joints,
                         n_world=self.radii.shape[1], angles=kind.angles, carried=False, finish=True)
 

@@ -188,33 +188,36 @@ def test_soak_whole_arm_moving_obstacles(capsys, env_id) -> None:
     assert stats["rss_growth_after_warmup_mb"] < 100.0
 
 
-#: arm-steps per policy of the WholeArmFormation-v2 soak (a third of the claim in CI) and of the FaultFormation-v1
-#: one (all of it: its end-effector rows are cheap); PAN1_SOAK_ARM_STEPS sets both (docs/ENVIRONMENTS.md)
+#: arm-steps per policy of the WholeArmFormation-v2 soak and the whole-arm torque-mode one (a third of the claim in
+#: CI) and of the FaultFormation-v1 one (all of it: its end-effector rows are cheap); PAN1_SOAK_ARM_STEPS sets all
+#: three (docs/ENVIRONMENTS.md)
 V2_ARM_STEPS = int(os.environ.get("PAN1_SOAK_ARM_STEPS", ARM_STEPS // 3))
 FAULT_ARM_STEPS = int(os.environ.get("PAN1_SOAK_ARM_STEPS", ARM_STEPS))
 
 
-def _policy_soak(env_id: str, policy: str, seed: int, arm_steps: int, **env_kwargs) -> dict:
-    """``arm_steps`` shielded arm-steps of ``env_id`` in the vector env (128 copies, control_dt = physics_dt =
-    0.01 s, a new team when a 250-step episode ends) under one policy: uniform random actions, bang-bang ones held
-    for 40 steps, or the vector adversary driving every arm at its nearest obstacle. The engine's cost is counted
-    at every sub-step, and the tests' own geometry (tests/geometry.py) measures every copy's clearance from its
-    joint angles at every step: the link capsules against the obstacles and each other, or the end-effectors
-    against the obstacles."""
+def _policy_soak(env_id: str, policy: str, seed: int, arm_steps: int, dt: float = 0.01, B: int = 128,
+                 episode: float = 2.5, **env_kwargs) -> dict:
+    """``arm_steps`` shielded arm-steps of ``env_id`` in the vector env (``B`` copies, control_dt = physics_dt =
+    ``dt``, a new team when an ``episode`` s long episode ends) under one policy: uniform random actions,
+    bang-bang ones held for 0.4 s, or the vector adversary driving every arm at its nearest obstacle. The engine's
+    cost is counted at every sub-step, and the tests' own geometry (tests/geometry.py) measures every copy's
+    clearance from its joint angles at every step: the link capsules against the obstacles and each other, or the
+    end-effectors against the obstacles. In torque mode it records the largest |τ| / ``max_torque``."""
     from geometry import batched_clearances, batched_joints
 
     from pan1_env.baselines import VectorAdversary
     from pan1_env.vector import Pan1VectorEnv
 
-    B = 128
-    venv = Pan1VectorEnv(env_id, B, control_dt=0.01, physics_dt=0.01, max_steps=250, **env_kwargs)
+    venv = Pan1VectorEnv(env_id, B, control_dt=dt, physics_dt=dt, max_steps=round(episode / dt), **env_kwargs)
+    hold = round(0.4 / dt)
     obs, _ = venv.reset(seed=seed)
     engine, links = venv.engine, venv.engine.teams[0].bodies == "links"
     adversary = VectorAdversary().attach(venv)
     rng = np.random.default_rng(1)
     held = rng.choice([-1.0, 1.0], size=venv.action_space.shape)
     stats = {"arm_steps": 0, "copy_steps": 0, "episodes": 0, "cost": 0.0, "fallback_copy_steps": 0, "non_finite": 0,
-             "faulted_copy_steps": 0, "min_clearance_m": float("inf"), "independent_min_clearance_m": float("inf")}
+             "faulted_copy_steps": 0, "min_clearance_m": float("inf"), "independent_min_clearance_m": float("inf"),
+             "largest_torque_ratio": 0.0}
 
     def arms() -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # every copy's link lengths, bases and φ
         teams = [engine.teams[b] for b in range(B)]
@@ -228,7 +231,7 @@ def _policy_soak(env_id: str, policy: str, seed: int, arm_steps: int, **env_kwar
         if policy == "adversarial":
             actions = adversary(obs)
         elif policy == "bang_bang":
-            held = rng.choice([-1.0, 1.0], size=venv.action_space.shape) if t % 40 == 0 else held
+            held = rng.choice([-1.0, 1.0], size=venv.action_space.shape) if t % hold == 0 else held
             actions = held
         else:
             actions = rng.uniform(-1.0, 1.0, venv.action_space.shape)
@@ -236,6 +239,9 @@ def _policy_soak(env_id: str, policy: str, seed: int, arm_steps: int, **env_kwar
         stats["cost"] += float(infos["cost"].sum())
         stats["fallback_copy_steps"] += int(infos["shield_fallback"].sum())
         stats["non_finite"] += int((~np.isfinite(obs)).any(axis=1).sum()) + int("fault" in infos)
+        if venv.core.config.action_mode == "torque":
+            torque = float(np.nanmax(np.abs(venv.core.record.tau))) / venv.core.config.max_torque
+            stats["largest_torque_ratio"] = max(stats["largest_torque_ratio"], torque)
         stats["min_clearance_m"] = min(stats["min_clearance_m"], float(infos["min_clearance"].min()))
         stats["arm_steps"] += B * engine.n_arms
         stats["copy_steps"] += B
@@ -286,3 +292,18 @@ def test_soak_faults_behind_the_fault_margin_never_touch(capsys, policy) -> None
         print(f"\nFaultFormation-v1 soak, {policy}:", json.dumps(stats))
     _assert_never_touched(stats, FAULT_ARM_STEPS)
     assert stats["faulted_copy_steps"] >= 0.5 * stats["copy_steps"], stats
+
+
+@pytest.mark.parametrize("policy", ["random", "bang_bang", "adversarial"])
+def test_soak_whole_arm_torque_mode_behind_the_torque_bound(capsys, policy) -> None:
+    """WholeArmStaticFormation-v1 in torque mode behind the torque bound (docs/MODEL.md §5d), one 2 ms physics
+    sub-step a step so that every torque is seen, 1 s episodes from rest (a torque-driven arm reaches the speed
+    bound within a few tenths of a second): no capsule ever inside an obstacle or another arm's capsule
+    (:func:`_policy_soak`), and no torque above ``max_torque``."""
+    seed = 8_500_000 + ["random", "bang_bang", "adversarial"].index(policy) * 100_000
+    stats = _policy_soak("pan1_env/WholeArmStaticFormation-v1", policy, seed, V2_ARM_STEPS, dt=0.002, B=32,
+                         episode=1.0, action_mode="torque", torque_bound=True)
+    with capsys.disabled():
+        print(f"\nWholeArmStaticFormation-v1 torque soak, {policy}:", json.dumps(stats))
+    _assert_never_touched(stats, V2_ARM_STEPS)
+    assert stats["largest_torque_ratio"] <= 1.0 + 1e-9, stats
