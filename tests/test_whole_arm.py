@@ -187,11 +187,14 @@ def test_fault_margin_rows_match_the_numpy_twin(passive: bool) -> None:
     assert passive or (np.allclose(A0, A[:15]) and np.allclose(b0, b[:15]))
 
 
-def test_the_momentum_rows_hold_the_momentum_at_the_sub_steps_end() -> None:
+@pytest.mark.parametrize("tracked", [True, False])
+def test_the_momentum_rows_hold_the_momentum_at_the_sub_steps_end(tracked: bool) -> None:
     """The fault margin's momentum rows take a full arm's first-joint momentum at the sub-step's end as
-    p₁⁺ = M₀ ((1 + a) v* + (1 − a) q̇ − v*₋) + dt H₀ (a = K_e dt; the kernel's _momentum_ahead): q₁ is cyclic, so
-    ṗ₁ = τ₁ over the sub-step, τ the tracker's computed torque. The engine's momentum after a jump of the command
-    agrees to RK4's error, and neither the command's momentum nor the one without dt H₀ does."""
+    p₁⁺ = M₀ ((1 + a) v* + (1 − a) q̇ − v*₋) + dt H₀ (a = K_e dt; the kernel's _momentum_ahead), or before a last v*
+    is set (``tracked`` False: the first sub-step after the tracker starts afresh) M₀ (a v* + (1 − a) q̇) + dt H₀:
+    q₁ is cyclic, so ṗ₁ = τ₁ over the sub-step, τ the tracker's computed torque. The engine's momentum after a jump
+    of the command agrees to RK4's error, and neither the one without dt H₀ nor the other case's does (tracked: the
+    command's momentum; afresh, where a = 1 here: the tracked formula's)."""
     from pan1_env.dynamics import coriolis_vector
     from pan1_env.engine import Engine
     from pan1_env.scenario import load
@@ -204,6 +207,9 @@ def test_the_momentum_rows_hold_the_momentum_at_the_sub_steps_end() -> None:
     first = np.full((1, engine.n_arms, engine.k_max), 1.5)
     engine.step(first, 3)
     q0, qd0 = (x.copy() for x in engine.joint_state())
+    if not tracked:  # the same state, the tracker afresh (no v*₋)
+        engine.set_state(0, [q0[0, i, :arm.n_links] for i, arm in enumerate(team.arms)],
+                         [qd0[0, i, :arm.n_links] for i, arm in enumerate(team.arms)])
     jump = np.full_like(first, -0.8)
     engine.step(jump, 1)
     q1, qd1 = engine.joint_state()
@@ -212,10 +218,15 @@ def test_the_momentum_rows_hold_the_momentum_at_the_sub_steps_end() -> None:
         M0 = mass_matrix(arm, q0[0, i, :n])[0]
         p1_after = mass_matrix(arm, q1[0, i, :n])[0] @ qd1[0, i, :n]
         H0 = coriolis_vector(arm, q0[0, i, :n], qd0[0, i, :n])[0]
-        lin = M0 @ ((1 + a) * jump[0, i, :n] + (1 - a) * qd0[0, i, :n] - first[0, i, :n])
+        if tracked:
+            lin = M0 @ ((1 + a) * jump[0, i, :n] + (1 - a) * qd0[0, i, :n] - first[0, i, :n])
+        else:
+            lin = M0 @ (a * jump[0, i, :n] + (1 - a) * qd0[0, i, :n])
         # to RK4's error (p₁ is not one of its states): ten times smaller than dt H₀ here
         assert p1_after == pytest.approx(lin + dt * H0, abs=3e-5)
-        assert abs(dt * H0) > 3e-4 and abs(M0 @ jump[0, i, :n] - p1_after) > 1e-2
+        # what the wrong momentum would miss: the tracker's overshoot (tracked), or the v*₋ it has not got yet
+        wrong = M0 @ (jump[0, i, :n] if tracked else 2 * jump[0, i, :n] - first[0, i, :n])
+        assert abs(dt * H0) > 3e-4 and abs(wrong - p1_after) > 1e-2
 
 
 @pytest.mark.parametrize(("lookahead", "distance"), [(0.7, False), (2.5, True), (np.inf, True)])
