@@ -258,13 +258,18 @@ class Engine:
 
     def whole_arm_args(self, kind: Kind) -> WholeArm:
         """The kernel's ``whole`` argument for a kind (:func:`pan1_env.kernels.substep.group_advance`)."""
-        sensing = None if self.filter is None else self.filter.sensing_radius
-        if sensing is None:
-            sensing = SENSING_RADIUS if self.max_torque == np.inf else BRAKING_SENSING_RADIUS
         return WholeArm(caps=kind.caps, start_time=kind.start_time, link_radius=self.link_radius,
-                        link_bodies=self.link_bodies, sensing=sensing,
+                        link_bodies=self.link_bodies, sensing=self.filter_range(False),
                         gate=0.0 if self.filter is None else self.filter.gate, skin=SKIN, joints=kind.joints,
                         n_world=self.radii.shape[1], angles=kind.angles, carried=False, finish=True)
+
+    def filter_range(self, torque: bool) -> float:
+        """The whole-arm filter's range for a step (m): the filter's ``sensing_radius``, else :data:`SENSING_RADIUS`,
+        or in torque mode behind the torque bound :data:`BRAKING_SENSING_RADIUS` (docs/MODEL.md §5d)."""
+        sensing = None if self.filter is None else self.filter.sensing_radius
+        if sensing is None:
+            return BRAKING_SENSING_RADIUS if torque and self.max_torque < np.inf else SENSING_RADIUS
+        return sensing
 
     def _load_team_capsules(self, b: int, scenario: Scenario, mask: np.ndarray) -> None:
         """Copy b's capsules (:meth:`_load_capsules`) from its ``scenario`` and obstacle ``mask (N, O)``."""
@@ -542,7 +547,8 @@ class Engine:
                 # a call after the step's first starts from the link angles' sines and cosines the
                 # previous one ended with (`carried`, as one call's sub-steps do); only the last
                 # computes the joint velocities and end-effectors (`finish`)
-                self._call(kind, args, kind.whole._replace(carried=sub > 0, finish=sub == substeps - 1))
+                self._call(kind, args, kind.whole._replace(carried=sub > 0, finish=sub == substeps - 1,
+                                                           sensing=self.filter_range(torque)))
             # the kernel placed the obstacles from the clock itself; the clock moves on here
             self._geometry("after_substep", B * N, self.copy_rows, self._team_joints, clear, finite,
                            ok, self._team_start_time, self._team_caps, self.radii.shape[1], self.link_radius,
@@ -591,8 +597,9 @@ class Engine:
         if faults is not None and (kind.twin is not None or kind.faulted):
             rows = np.flatnonzero(faults[1][:, kind.ids])
             kind.window[rows, end] = faults[0][:, kind.ids].ravel()[rows]
+        whole = None if kind.whole is None else kind.whole._replace(sensing=self.filter_range(torque))
         try:
-            self._call(kind, args, kind.whole)
+            self._call(kind, args, whole)
         finally:
             kind.window[rows, end] = kind.window_default[end]
         self._finish(kind, out, torque, rec)

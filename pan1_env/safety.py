@@ -375,7 +375,8 @@ class FilterParams:
 
     ``sensing_radius`` (m): None (the paper's filter: an end-effector row for every obstacle in reach),
     or the range within which the whole-arm filter gives a body a row (docs/SCENARIOS.md, *Whole-arm
-    safety*; default there :data:`pan1_env.engine.SENSING_RADIUS`). Given for an end-effector scenario,
+    safety*; default there :data:`pan1_env.engine.SENSING_RADIUS`, or in torque mode behind its torque bound
+    :data:`pan1_env.engine.BRAKING_SENSING_RADIUS`). Given for an end-effector scenario,
     the engine filters through the whole-arm rows with the end-effector as the body: far obstacles then
     hold no arm back.
 

@@ -39,6 +39,33 @@ def test_a_torque_bound_that_is_not_a_bool_or_outside_torque_mode_is_refused() -
         Pan1VectorEnv("random", 2, random_options=TEAM, action_mode="velocity", torque_bound=True)
 
 
+def _same_range_unbounded(engine) -> None:
+    """Give the bounded engine's filter its braking range explicitly, so that an unbounded twin of it (max_torque
+    = inf) filters with the same rows and only the bound differs."""
+    import dataclasses
+
+    from pan1_env.engine import BRAKING_SENSING_RADIUS
+
+    engine.set_safety_filter(dataclasses.replace(engine.filter, sensing_radius=BRAKING_SENSING_RADIUS))
+
+
+def test_the_whole_arm_range_widens_behind_the_bound_in_torque_mode_only() -> None:
+    """The whole-arm filter's range (docs/MODEL.md §5d): 1 m in torque mode behind the bound, the default 0.1 m in
+    velocity mode and without the bound, and a filter's own sensing_radius in every case."""
+    import dataclasses
+
+    from pan1_env.engine import BRAKING_SENSING_RADIUS, SENSING_RADIUS
+
+    engine = Pan1VectorEnv("pan1_env/WholeArmStaticFormation-v1", 1, action_mode="torque", torque_bound=True).engine
+    assert engine.filter_range(True) == BRAKING_SENSING_RADIUS == 1.0
+    assert engine.filter_range(False) == SENSING_RADIUS == 0.1
+    engine.max_torque = np.inf
+    assert engine.filter_range(True) == SENSING_RADIUS
+    engine.max_torque = 5.0
+    engine.set_safety_filter(dataclasses.replace(engine.filter, sensing_radius=0.3))
+    assert engine.filter_range(True) == engine.filter_range(False) == 0.3
+
+
 def _pose_inside_an_obstacle(team, centers, radii, rng) -> tuple[int, np.ndarray]:
     """A fully actuated arm of ``team`` and joint angles that put one of its links 6-12 cm inside an obstacle."""
     from pan1_env.dynamics import joint_positions
@@ -79,6 +106,7 @@ def test_a_whole_arm_fallback_stays_one_and_moves_towards_the_filters_answer_wit
     arm, pose = _pose_inside_an_obstacle(team, engine.centers[0], engine.radii[0], np.random.default_rng(0))
     q[arm] = pose
     engine.set_state(0, q, qd)
+    _same_range_unbounded(engine)
     assert engine.clearance()[0, arm] < -0.05
     free_engine = pickle.loads(pickle.dumps(engine))
     free_engine.max_torque = np.inf
@@ -108,6 +136,7 @@ def test_behind_the_bound_every_fallback_of_the_filter_is_still_reported_one() -
                          max_steps=100_000, max_torque=tau_max, torque_bound=True)
     venv.reset(seed=5)
     engine, rng = venv.engine, np.random.default_rng(0)
+    _same_range_unbounded(engine)
     shape = (engine.copies, engine.n_arms, engine.k_max)
     unbounded_fallbacks = 0
     for _ in range(950):
