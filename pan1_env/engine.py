@@ -597,7 +597,9 @@ class Engine:
         if faults is not None and (kind.twin is not None or kind.faulted):
             rows = np.flatnonzero(faults[1][:, kind.ids])
             kind.window[rows, end] = faults[0][:, kind.ids].ravel()[rows]
-        whole = None if kind.whole is None else kind.whole._replace(sensing=self.filter_range(torque))
+        whole = kind.whole  # holds the velocity-mode range (whole_arm_args); torque mode's may differ
+        if whole is not None and torque:
+            whole = whole._replace(sensing=self.filter_range(True))
         try:
             self._call(kind, args, whole)
         finally:

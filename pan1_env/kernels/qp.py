@@ -145,20 +145,27 @@ def qp_project(v0, A, b, active, v_out, status):
 
 
 @njit(**_JIT, forceinline=True)
+def _torque_rhs(w, k, r, sign, dt, tau_max, Mc, Hc, vi):
+    """The right-hand side of torque row (r, ``sign``) of :func:`_torque_rows` on lane w: dt (τ_max ∓ H_c[r]) ± M_c[r] q̇
+    (``sign`` +1: the upper bound, −1: the lower)."""
+    mv = 0.0
+    for t in range(k):
+        mv += Mc[r, t, w] * vi[t, w]
+    return dt * (tau_max - sign * Hc[r, w]) + sign * mv
+
+
+@njit(**_JIT, forceinline=True)
 def _torque_rows(w, k, dt, tau_max, Mc, Hc, vi, A, b, active, first):
     """Torque mode's input bound |τ_r| ≤ τ_max as rows ``first`` … ``first`` + 2k − 1 of A v ≤ b on lane w's filtered
     velocity v, whose torque is the one that reaches it in one sub-step, τ = H_c + M_c (v − q̇) / dt
     (:func:`pan1_env.kernels.steps._track`); times dt: ±M_c[r] v ≤ dt (τ_max ∓ H_c[r]) ± M_c[r] q̇. Returns the row
     after them."""
     for r in range(k):
-        mv = 0.0
-        for t in range(k):
-            mv += Mc[r, t, w] * vi[t, w]
         for x in range(2):
             sign, j = 1.0 - 2.0 * x, first + 2 * r + x
             for t in range(k):
                 A[j, t] = sign * Mc[r, t, w]
-            b[j] = dt * (tau_max - sign * Hc[r, w]) + sign * mv
+            b[j] = _torque_rhs(w, k, r, sign, dt, tau_max, Mc, Hc, vi)
             active[j] = True
     return first + 2 * k
 
@@ -168,12 +175,11 @@ def _torque_within(w, k, dt, tau_max, Mc, Hc, vi, v):
     """Whether lane w's velocity ``v`` is reached in one sub-step within ±τ_max (:func:`_torque_rows`, to the QP's
     row tolerance)."""
     for r in range(k):
-        acc, mv = 0.0, 0.0
+        acc = 0.0
         for t in range(k):
             acc += Mc[r, t, w] * v[t]
-            mv += Mc[r, t, w] * vi[t, w]
         for sign in (1.0, -1.0):
-            bound = dt * (tau_max - sign * Hc[r, w]) + sign * mv
+            bound = _torque_rhs(w, k, r, sign, dt, tau_max, Mc, Hc, vi)
             if sign * acc > bound + ROW_TOLERANCE * (1.0 + abs(bound)):
                 return False
     return True

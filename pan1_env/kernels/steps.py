@@ -157,6 +157,7 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
     Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy, qtarget = search
     wA, wb, wact, wP, wnear, wrows, wviol, wnorm, wb0, wn0, joints_x, joints_y, ox, oy, orad = scratch
     rho, link_bodies, sensing, gate, skin, n_world = bodies
+    torque_mode, _, _, vi, _, _ = tracker
     for w in range(W):
         if use_filter[w] and live[w] and real[w]:
             for t in range(k):
@@ -184,11 +185,11 @@ def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodi
                                 wnorm) == STATUS_FALLBACK:
                     least_violation(qv0, wA, wb, wact, m_w, k, 2 * k if v_max < np.inf else 0, by_rate, qvs, wb0, wn0,
                                     wrows, qidx, qG, qr, qlam, qcand, qL, qy, wviol, wnorm)
-            if tracker[0] and tau_max < np.inf and status[w] != STATUS_NOMINAL and \
-                    not _torque_within(w, k, dt, tau_max, Mc, Hc, tracker[3], qvs):
+            if torque_mode and tau_max < np.inf and status[w] != STATUS_NOMINAL and \
+                    not _torque_within(w, k, dt, tau_max, Mc, Hc, vi, qvs):
                 for t in range(k):  # the target of the torque bound's last resort: the filter's own answer
                     qtarget[t] = qvs[t]
-                status[w] = _keep_torque(w, k, dt, tau_max, Mc, Hc, tracker[3], qv0, qtarget,
+                status[w] = _keep_torque(w, k, dt, tau_max, Mc, Hc, vi, qv0, qtarget,
                                          status[w] != STATUS_FALLBACK, wA, wb, wact, m_w, qvs, wrows, qidx, qG, qr,
                                          qlam, qcand, qL, qy, wviol, wnorm)
             for t in range(k):
