@@ -363,6 +363,7 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
 
     from pan1_env import kernels
     from pan1_env.compiled import kernel_filter
+    from pan1_env.kernel_groups import ArmState, Command, EndEffectorObstacles, StepOutputs, Stepping, plain
     from pan1_env.vector import Pan1VectorEnv
 
     venv = Pan1VectorEnv("paper_pa3_square", 1024)
@@ -384,13 +385,19 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
 
         def run():
             q, v, momentum, v_prev, has_prev = (state[name].copy() for name in names)
-            args = (*kind.sizes, kind.lam, kind.lengths, kind.base, kind.phi, kind.damping, kind.passive, q, v,
-                    momentum, v_prev, has_prev, kind.stepped, kind.window,
-                    command * (0.3 if torque else t.max_joint_speed), torque, not torque,
-                    kind.centers, kind.radii, kind.mask, rcbf(distance, decay), ke,
-                    t.physics_dt, t.substeps, np.inf if torque else t.max_joint_speed, np.empty((A, k)),
-                    np.empty((A, k)), np.empty((A, n)), np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf),
-                    np.zeros((A, 3), np.int64), np.zeros(A), np.ones(A, bool), None)
+            groups = (kind.model, ArmState(q=q, v=v, momentum=momentum, v_prev=v_prev, has_prev=has_prev),
+                      kind.selection,
+                      Command(command=command * (0.3 if torque else t.max_joint_speed), torque_mode=torque,
+                              filter_on=not torque),
+                      EndEffectorObstacles(centers=kind.centers, radii=kind.radii, mask=kind.mask),
+                      rcbf(distance, decay),
+                      Stepping(ke=ke, dt=t.physics_dt, n_sub=t.substeps,
+                               v_max=np.inf if torque else t.max_joint_speed),
+                      StepOutputs(v_star=np.empty((A, k)), tau=np.empty((A, k)), qd=np.empty((A, n)),
+                                  p=np.empty((A, 2)), min_clear=np.full(A, np.inf), min_h=np.full(A, np.inf),
+                                  qp_counts=np.zeros((A, 3), np.int64), max_track=np.zeros(A),
+                                  finite=np.ones(A, bool)))
+            args = (*kind.sizes, *map(plain, groups), None)
             if threads > 1:
                 kernels.group_advance_parallel(*args, 4 * threads)
             else:

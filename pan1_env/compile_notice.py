@@ -24,6 +24,8 @@ import time
 
 from numba.core import event as numba_event
 
+from .kernel_groups import KERNEL_GROUPS
+
 __all__ = ["KERNELS_PER_KIND", "describe_kind", "install", "notify"]
 
 logger = logging.getLogger("pan1_env")
@@ -76,9 +78,11 @@ class _KernelCompileNotice(numba_event.Listener):
         if not module.startswith("pan1_env.kernels"):
             return None
         args = event.data.get("args") or ()
-        # the whole-arm argument (last, or before the parallel kernel's chunk count) is a tuple of arrays,
-        # else None; its branch about doubles the compiled code (on_start's estimate)
-        whole = ", whole-arm safety" if any(str(a).startswith("Tuple(array") for a in args[-2:]) else ""
+        # the whole-arm group (after the groups: group_advance's size tuples, _advance_arms' size tuples, lanes,
+        # run-time sizes, QP flag and arm bounds come first) is a tuple, else None; its branch about doubles the
+        # compiled code (on_start's estimate)
+        at = (2 if name in KERNELS_PER_KIND else 7) + len(KERNEL_GROUPS)
+        whole = ", whole-arm safety" if len(args) > at and str(args[at]) != "none" else ""
         if name == GENERIC:  # compiled on its own only as the generic kernel (else inside a per-kind one)
             if len(args) < 4 or args[3] is None or "none" in str(args[3]).lower():
                 return None

@@ -24,7 +24,16 @@ from collections import namedtuple
 import numpy as np
 
 from .bodies import arm_pair_floors, capsule_clearance, obstacle_floors, obstacle_velocities
-from .compiled import WholeArm, kernel_filter, kernels, plain
+from .compiled import kernel_filter, kernels
+from .kernel_groups import (
+    FILTER_OFF,
+    Command,
+    EndEffectorObstacles,
+    StepOutputs,
+    Stepping,
+    WholeArm,
+    plain,
+)
 from .kinds import Kind
 from .piqp_filter import PiqpFilter
 from .safety import QP_SOLVERS, FilterParams, check_choices, clearance, filter_parameters
@@ -47,17 +56,14 @@ BRAKING_SENSING_RADIUS = 1.0
 #: m: with whole-arm safety the filter keeps every capsule this much (plus an obstacle's travel in one
 #: sub-step) farther out than its radius, against what a sub-step's discretisation lets through
 SKIN = 0.002
-#: the kernel's rcbf (compiled.kernel_filter) with the filter off: it reads none of it
-_UNUSED_RCBF = (1.0, 1.0, 0.0, False, 0.0, False, 0.0, False, float("inf"))
 
 
-#: a kind's outputs from the kernel (views of a step's record, or gathered rows of it), in the kernel's order
 #: :meth:`Engine.kind_terms`: a kind's end-effectors, reduced Jacobians, passive momenta and end-effector drifts
 KindTerms = namedtuple("KindTerms", "p Jbar momentum drift")
-_Outputs = namedtuple("_Outputs", "v_star tau min_clear min_h qp_counts max_track finite")
-#: the record's field each of them goes to
-_RECORD_FIELDS = dict(zip(_Outputs._fields, ("v_star", "tau", "min_clearance", "min_barrier", "qp_counts",
-                                              "max_tracking_error", "finite"), strict=True))
+#: the record's field each of the kernel's outputs that the record holds goes to (the kind's own ``qd`` and ``p``
+#: complete :class:`~pan1_env.kernel_groups.StepOutputs`)
+_RECORD_FIELDS = {"v_star": "v_star", "tau": "tau", "min_clear": "min_clearance", "min_h": "min_barrier",
+                  "qp_counts": "qp_counts", "max_track": "max_tracking_error", "finite": "finite"}
 
 
 class KernelQP:
@@ -252,7 +258,8 @@ class Engine:
                 self.copy_rows[:, kind.ids] = first + np.arange(rows).reshape(B, kind.A)
             kind.angles = np.zeros((rows, 2, kind.n))
             kind.whole = self.whole_arm_args(kind)
-            kind.no_obstacles = (np.empty((rows, 0, 2)), np.empty((rows, 0)), np.empty((rows, 0), dtype=bool))
+            kind.world = plain(EndEffectorObstacles(np.empty((rows, 0, 2)), np.empty((rows, 0)),
+                                                    np.empty((rows, 0), dtype=bool)))
             first += rows
         self._team_joints, self._team_caps, self._team_start_time = joints, caps, start_time
 
@@ -536,7 +543,7 @@ class Engine:
                                    None if clear is None else clear[kind.block],
                                    None if finite is None else finite[kind.block]) for kind in kinds]
         if clear is None:
-            first = calls[0][1]
+            _, first = calls[0]
             clear, finite = first.min_clear, first.finite
         ok = finite.copy()  # the kernel marks an arm finite afresh each call
         P = self.joint_positions()
@@ -608,54 +615,53 @@ class Engine:
 
     def _kernel_args(self, kind: Kind, command: np.ndarray, substeps: int, torque: bool,
                      params: FilterParams | None, rec: StepRecord, clear: np.ndarray | None = None,
-                     finite: np.ndarray | None = None) -> tuple[tuple, _Outputs]:
-        """The kernel's arguments for a kind but the last (``whole``: :meth:`_call`), and its outputs: views
-        of the record when one kind is the team in order, else gathered copies of the record's rows (the
-        kernel accumulates into them), or for the running clearance and finite flags the caller's ``clear``
-        and ``finite`` (filled with them)."""
+                     finite: np.ndarray | None = None) -> tuple[tuple, StepOutputs]:
+        """The kernel's groups for a kind but ``whole`` (:meth:`_call`), plain, and its outputs: views of the
+        record when one kind is the team in order, else gathered copies of the record's rows (the kernel
+        accumulates into them), or for the running clearance and finite flags the caller's ``clear`` and
+        ``finite`` (filled with them)."""
         B, A, n, k = self.copies, kind.A, kind.n, kind.k
         rows = B * A
         if self.team_order:
-            out = _Outputs(rec.v_star.reshape(rows, k), rec.tau.reshape(rows, n), rec.min_clearance.reshape(rows),
-                           rec.min_barrier.reshape(rows), rec.qp_counts.reshape(rows, 3),
-                           rec.max_tracking_error.reshape(rows), rec.finite.reshape(rows))
+            out = StepOutputs(v_star=rec.v_star.reshape(rows, k), tau=rec.tau.reshape(rows, n), qd=kind.qd, p=kind.p,
+                              min_clear=rec.min_clearance.reshape(rows), min_h=rec.min_barrier.reshape(rows),
+                              qp_counts=rec.qp_counts.reshape(rows, 3), max_track=rec.max_tracking_error.reshape(rows),
+                              finite=rec.finite.reshape(rows))
             cmd = np.ascontiguousarray(command.reshape(rows, k))
         else:
-            out = _Outputs(np.empty((rows, k)), kind.from_team(rec.tau, n, first=0),
-                           kind.from_team(rec.min_clearance), kind.from_team(rec.min_barrier),
-                           np.zeros((rows, 3), dtype=np.int64),
-                           kind.from_team(rec.max_tracking_error), np.ones(rows, dtype=bool))
+            out = StepOutputs(v_star=np.empty((rows, k)), tau=kind.from_team(rec.tau, n, first=0), qd=kind.qd,
+                              p=kind.p, min_clear=kind.from_team(rec.min_clearance),
+                              min_h=kind.from_team(rec.min_barrier), qp_counts=np.zeros((rows, 3), dtype=np.int64),
+                              max_track=kind.from_team(rec.max_tracking_error), finite=np.ones(rows, dtype=bool))
             cmd = kind.from_team(command, k)
         if clear is not None:
             clear[:], finite[:] = out.min_clear, out.finite
             out = out._replace(min_clear=clear, finite=finite)
-        rcbf = _UNUSED_RCBF if params is None else kernel_filter(params, self.max_torque)
-        obstacles = (kind.centers, kind.radii, kind.mask) if kind.whole is None else kind.no_obstacles
-        args = (*kind.state_args, cmd, torque, params is not None, *obstacles, rcbf, self.ke, self.physics_dt,
-                substeps, self.max_speed, out.v_star, out.tau, kind.qd, kind.p, out.min_clear, out.min_h,
-                out.qp_counts, out.max_track, out.finite)
-        return args, out
+        rcbf = plain(FILTER_OFF if params is None else kernel_filter(params, self.max_torque))
+        held = plain(Command(command=cmd, torque_mode=torque, filter_on=params is not None))
+        stepping = plain(Stepping(ke=self.ke, dt=self.physics_dt, n_sub=substeps, v_max=self.max_speed))
+        return (kind.model, kind.state, kind.selection, held, kind.world, rcbf, stepping, plain(out)), out
 
-    def _call(self, kind: Kind, args: tuple, whole: WholeArm | None) -> None:
+    def _call(self, kind: Kind, groups: tuple, whole: WholeArm | None) -> None:
         """One call of the sub-step kernel on every arm of a kind: the multi-threaded one for large batches,
         else the kind's own or the generic one (:meth:`_specialised`); ``whole`` goes as a plain tuple."""
         whole = plain(whole)
         chunks = self.chunks(len(kind.q))
         if chunks:
-            kernels().group_advance_parallel(*args, whole, chunks)
-        elif kind.specialised or self._specialised(kind, (*args, whole)):
-            kernels().group_advance(*args, whole)
+            kernels().group_advance_parallel(*kind.sizes, *groups, whole, chunks)
+        elif kind.specialised or self._specialised(kind, (*kind.sizes, *groups, whole)):
+            kernels().group_advance(*kind.sizes, *groups, whole)
         else:
-            kernels().group_advance_generic(*args, whole)
+            kernels().group_advance_generic(*kind.sizes, *groups, whole)
 
-    def _finish(self, kind: Kind, out: _Outputs, torque: bool, rec: StepRecord) -> None:
+    def _finish(self, kind: Kind, out: StepOutputs, torque: bool, rec: StepRecord) -> None:
         """After a kind's kernel call(s): scatter gathered outputs back into the record (counts add up, and an
         arm is finite if it was in every call)."""
         if torque:
             kind.has_prev[:] = False
         if not self.team_order:
-            for name, value in zip(_Outputs._fields, out, strict=True):
-                kind.to_team(getattr(rec, _RECORD_FIELDS[name]), value, add=name == "qp_counts", both=name == "finite",
+            for name, field in _RECORD_FIELDS.items():
+                kind.to_team(getattr(rec, field), getattr(out, name), add=name == "qp_counts", both=name == "finite",
                              first=0 if name in ("tau", "qp_counts") else None)
 
     @staticmethod

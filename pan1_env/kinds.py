@@ -20,6 +20,7 @@ import numpy as np
 from .cascade import passive_momentum
 from .compiled import kernel_sizes, kernels
 from .dynamics import ArmBatch
+from .kernel_groups import ArmModel, ArmState, EndEffectorObstacles, Stepped, plain
 from .scenario import Scenario
 
 if TYPE_CHECKING:
@@ -59,6 +60,8 @@ class Kind:
         self.base, self.phi, self.damping = np.empty((rows, 2)), np.empty(rows), np.empty(rows)
         self.centers, self.radii = np.empty((rows, O, 2)), np.empty((rows, O))
         self.mask, self.q0 = np.empty((rows, O), dtype=bool), np.empty((rows, self.n))
+        #: the kernel's end-effector obstacles (none with whole-arm safety: Engine._whole_arm_setup)
+        self.world = plain(EndEffectorObstacles(centers=self.centers, radii=self.radii, mask=self.mask))
         # the state, updated in place (views of it stay valid for the engine's life)
         self.q, self.v, self.qd, self.p = (np.zeros((rows, self.n)), np.zeros((rows, self.k)),
                                            np.zeros((rows, self.n)), np.zeros((rows, 2)))
@@ -78,12 +81,15 @@ class Kind:
         self.whole = None  # the kernel's whole-arm argument (Engine._whole_arm_setup)
 
     def set_stepped(self) -> None:
-        """After ``active`` changed: the rows the kernel steps, and its leading arguments (sizes, parameters
-        and state: arrays updated in place, never replaced)."""
+        """After ``active`` changed: the rows the kernel steps, and the kind's kernel groups (arrays updated in
+        place, never replaced): its arms' constants, their state, and which of them a call steps."""
         self.stepped = np.flatnonzero(self.active).astype(np.int64)
         self.complete = len(self.stepped) == len(self.active)
-        self.state_args = (*self.sizes, self.lam, self.lengths, self.base, self.phi, self.damping, self.passive,
-                           self.q, self.v, self.momentum, self.v_prev, self.has_prev, self.stepped, self.window)
+        self.model = plain(ArmModel(lam=self.lam, lengths=self.lengths, base=self.base, phi=self.phi,
+                                    damping=self.damping, passive=self.passive))
+        self.state = plain(ArmState(q=self.q, v=self.v, momentum=self.momentum, v_prev=self.v_prev,
+                                    has_prev=self.has_prev))
+        self.selection = plain(Stepped(rows=self.stepped, window=self.window))
 
     def __getstate__(self) -> dict:
         state = {**self.__dict__, "specialised": None}  # another process decides for itself

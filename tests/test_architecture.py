@@ -262,7 +262,7 @@ def test_no_private_name_is_imported_from_another_module() -> None:
 LAYERS = {
     "reference": ("validation", "dynamics", "cascade", "formation", "motion", "barriers", "safety", "control",
                   "bodies", "toml_values", "scenario", "random_scenario", "scenarios"),
-    "compiled": ("kernels", "compiled", "compile_notice", "draw_kernel", "team_draw"),
+    "compiled": ("kernels", "kernel_groups", "compiled", "compile_notice", "draw_kernel", "team_draw"),
     "engine": ("engine", "kinds", "step_record", "piqp_filter"),
     "tasks": ("env_ids", "config", "tasks", "observation"),
     "core": ("core",),

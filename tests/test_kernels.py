@@ -11,6 +11,16 @@ from pan1_env.cascade import cascade_rk4_step, cascade_terms, end_effector_drift
 from pan1_env.compiled import kernel_filter, kernel_sizes
 from pan1_env.control import backstepping_torque
 from pan1_env.dynamics import ArmBatch, ArmParams, end_effector
+from pan1_env.kernel_groups import (
+    ArmModel,
+    ArmState,
+    Command,
+    EndEffectorObstacles,
+    StepOutputs,
+    Stepped,
+    Stepping,
+    plain,
+)
 from pan1_env.kernels._numba_ext import _JIT, _LANES, _local, _slp_vectorised
 from pan1_env.kernels.physics import _SERIES_MAX, _SERIES_SHORT, _rotate_lanes, _spd_solve
 from pan1_env.kernels.qp import _first_projection_lanes
@@ -27,8 +37,20 @@ from pan1_env.safety import (
 
 def _rcbf(kappa: float, epsilon: float, margin: float, distance: bool, decay: float, tau_max: float = np.inf) -> tuple:
     """The kernels' ``rcbf`` for these settings, built as the engine builds it."""
-    return kernel_filter(FilterParams(kappa, epsilon, margin, barrier="distance" if distance else "squared",
-                                      decay=decay), tau_max)
+    return plain(kernel_filter(FilterParams(kappa, epsilon, margin, barrier="distance" if distance else "squared",
+                                            decay=decay), tau_max))
+
+
+def _kernel_groups(batch, damping, passive, q, v, momentum, v_prev, has_prev, rows, window, command, torque, filter_on,
+                   centers, radii, mask, rcbf, ke, dt, n_sub, v_max, outputs) -> tuple:
+    """group_advance's plain groups after its size tuples, built by name; ``outputs`` in StepOutputs' order."""
+    return tuple(plain(group) for group in (
+        ArmModel(lam=batch.lam, lengths=batch.lengths, base=batch.base, phi=batch.phi, damping=damping,
+                 passive=passive),
+        ArmState(q=q, v=v, momentum=momentum, v_prev=v_prev, has_prev=has_prev),
+        Stepped(rows=rows, window=window), Command(command=command, torque_mode=torque, filter_on=filter_on),
+        EndEffectorObstacles(centers=centers, radii=radii, mask=mask), rcbf,
+        Stepping(ke=ke, dt=dt, n_sub=n_sub, v_max=v_max), StepOutputs(*outputs)))
 
 def _group(rng: np.random.Generator, n: int, passive: bool, count: int = 5):
     arms = []
@@ -106,13 +128,13 @@ def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False
                track=np.zeros(A), finite=np.zeros(A, bool))
     sizes = kernel_sizes(q.shape[1], k) if sizes is None else sizes
     momentum = _per_arm(momentum, A)
-    args = (*sizes, batch.lam, batch.lengths, batch.base, batch.phi, _per_arm(damping, A),
-            batch.passive_first_joint, q, v, momentum, prev, has_prev, np.arange(A) if rows is None else rows,
-            _window(A, n_sub) if window is None else window, command, torque, filter_on,
-            np.broadcast_to(centers, (A, *centers.shape)).copy(),
-            np.broadcast_to(radii, (A, len(radii))).copy(), mask, _rcbf(kappa, eps, margin, distance, decay, tau_max),
-            ke, dt, n_sub, v_max, out["v_star"], out["tau"], out["qd"], out["p"], out["clear"], out["min_h"],
-            out["counts"], out["track"], out["finite"], None)
+    args = (*sizes, *_kernel_groups(batch, _per_arm(damping, A), batch.passive_first_joint, q, v, momentum, prev,
+                                    has_prev, np.arange(A) if rows is None else rows,
+                                    _window(A, n_sub) if window is None else window, command, torque, filter_on,
+                                    np.broadcast_to(centers, (A, *centers.shape)).copy(),
+                                    np.broadcast_to(radii, (A, len(radii))).copy(), mask,
+                                    _rcbf(kappa, eps, margin, distance, decay, tau_max), ke, dt, n_sub, v_max,
+                                    out.values()), None)
     if parallel:
         kernels.group_advance_parallel(*args, n_chunks)
     else:
@@ -473,11 +495,11 @@ def test_per_arm_obstacles_equal_one_arm_at_a_time() -> None:
                 clear=np.full(A, np.inf), min_h=np.full(A, np.inf), counts=np.zeros((A, 3), np.int64),
                 track=np.zeros(A), finite=np.zeros(A, bool))
     q_all, v_all = q.copy(), v.copy()
-    kernels.group_advance(*kernel_sizes(q.shape[1], k), batch.lam, batch.lengths, batch.base, batch.phi, np.zeros(A),
-                          True, q_all, v_all, np.zeros(A), np.zeros((A, k)), np.zeros(A, bool), np.arange(A),
-                          _window(A, 3), command, False, True,
-                          centers, radii, np.ones((A, 2), bool), _rcbf(0.5, 5.0, 0.0, False, 0.0), 100.0, 1e-3, 3,
-                          2.0, *args.values(), None)
+    kernels.group_advance(*kernel_sizes(q.shape[1], k),
+                          *_kernel_groups(batch, np.zeros(A), True, q_all, v_all, np.zeros(A), np.zeros((A, k)),
+                                          np.zeros(A, bool), np.arange(A), _window(A, 3), command, False, True, centers,
+                                          radii, np.ones((A, 2), bool), _rcbf(0.5, 5.0, 0.0, False, 0.0), 100.0, 1e-3,
+                                          3, 2.0, args.values()), None)
     for i in range(A):
         one = ArmBatch(lam=batch.lam[i : i + 1], lengths=batch.lengths[i : i + 1], base=batch.base[i : i + 1],
                        phi=batch.phi[i : i + 1], passive_first_joint=True)
@@ -608,7 +630,7 @@ def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
     from numba.core import config
 
     before = config.SLP_VECTORIZE
-    plain = plain_njit(error_model="numpy", fastmath=_JIT["fastmath"])(_advance_arms.py_func)
+    unvectorised = plain_njit(error_model="numpy", fastmath=_JIT["fastmath"])(_advance_arms.py_func)
     rng = np.random.default_rng(51)
     A = 37
     batch, q, v = _group(rng, 3, True, count=A)
@@ -626,14 +648,14 @@ def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
             out = [np.zeros((A, 2)), np.zeros(A, bool), np.empty((A, 2)), np.empty((A, 2)), np.empty((A, 3)),
                    np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64), np.zeros(A),
                    np.zeros(A, bool)]
-            args = [batch.lam, batch.lengths, batch.base, batch.phi, np.zeros(A), True, qk, vk, np.zeros(A), out[0],
-                    out[1], np.arange(A), _window(A, 5), command, torque,
-                    True, np.broadcast_to(centers, (A, 3, 2)).copy(), np.broadcast_to(radii, (A, 3)).copy(), mask,
-                    _rcbf(0.5, 5.0, 0.01, distance, decay), 100.0, 1e-2, 5, v_max, *out[2:], None]
+            groups = _kernel_groups(batch, np.zeros(A), True, qk, vk, np.zeros(A), out[0], out[1], np.arange(A),
+                                    _window(A, 5), command, torque, True, np.broadcast_to(centers, (A, 3, 2)).copy(),
+                                    np.broadcast_to(radii, (A, 3)).copy(), mask, _rcbf(0.5, 5.0, 0.01, distance, decay),
+                                    100.0, 1e-2, 5, v_max, out[2:])
             if kernel == "slp":
-                kernels.group_advance(*kernel_sizes(3, 2), *args)
+                kernels.group_advance(*kernel_sizes(3, 2), *groups, None)
             else:
-                plain(*kernel_sizes(3, 2), _LANES, None, True, 0, A, *args)
+                unvectorised(*kernel_sizes(3, 2), _LANES, None, True, 0, A, *groups, None)
             runs.append([qk, vk, *out])
         finite, counts = runs[0][-1], runs[0][-3]
         assert not finite[3] and finite.sum() == A - 1
@@ -673,10 +695,12 @@ def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> Non
                    np.zeros(A, bool)]
             pk = momentum.copy()
             for _ in range(2):  # the second call starts from the first's v_prev / has_prev
-                kernel(*kernel_sizes(n, k), batch.lam, batch.lengths, batch.base, batch.phi, damping, passive, qk,
-                       vk, pk, out[0], out[1], np.arange(A), _window(A, 5), command, torque, filter_on,
-                       np.broadcast_to(centers, (A, 3, 2)).copy(), np.broadcast_to(radii, (A, 3)).copy(), mask,
-                       _rcbf(0.5, 5.0, 0.01, distance, decay), 100.0, 1e-2, 5, v_max, *out[2:], None)
+                kernel(*kernel_sizes(n, k),
+                       *_kernel_groups(batch, damping, passive, qk, vk, pk, out[0], out[1], np.arange(A),
+                                       _window(A, 5), command, torque, filter_on,
+                                       np.broadcast_to(centers, (A, 3, 2)).copy(),
+                                       np.broadcast_to(radii, (A, 3)).copy(), mask,
+                                       _rcbf(0.5, 5.0, 0.01, distance, decay), 100.0, 1e-2, 5, v_max, out[2:]), None)
             runs.append([qk, vk, pk, *out])
         finite, counts = runs[0][-1], runs[0][-3]
         assert not finite[3]
@@ -688,22 +712,30 @@ def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> Non
 
 def test_generic_kernel_checks_its_sizes() -> None:
     rng = np.random.default_rng(0)
+
+    def call(n: int, k: int, batch, q, v, damping=None, rows=None) -> None:
+        damping = np.zeros(1) if damping is None else damping
+        rows = np.arange(1) if rows is None else rows
+        outputs = (np.empty((1, k)), np.empty((1, k)), np.empty((1, n)), np.empty((1, 2)), np.full(1, np.inf),
+                   np.full(1, np.inf), np.zeros((1, 3), np.int64), np.zeros(1), np.zeros(1, bool))
+        groups = _kernel_groups(batch, damping, True, q, v, np.zeros(1), np.zeros((1, k)), np.zeros(1, bool), rows,
+                                _window(1, 1), np.zeros((1, k)), False, False, np.zeros((1, 0, 2)), np.zeros((1, 0)),
+                                np.zeros((1, 0), bool), _rcbf(0.5, 5.0, 0.0, False, 0.0), 100.0, 1e-3, 1, np.inf,
+                                outputs)
+        kernels.group_advance_generic(*kernel_sizes(n, k), *groups, None)
+
     batch, q, v = _group(rng, 9, True, count=1)
-    rest = (np.zeros((1, 8)), np.zeros(1, bool), np.arange(1), _window(1, 1))
-    args = (batch.lam, batch.lengths, batch.base, batch.phi, np.zeros(1), True, q, v, np.zeros(1), *rest)
     with pytest.raises(ValueError, match="n ≤ 8"):
-        kernels.group_advance_generic(*kernel_sizes(9, 8), *args)
+        call(9, 8, batch, q, v)
     batch, q, v = _group(rng, 3, True, count=1)
+    call(3, 2, batch, q, v)  # the sizes the checks below break, one at a time
     with pytest.raises(ValueError, match="kernel_sizes"):
-        kernels.group_advance_generic(*kernel_sizes(3, 3), batch.lam, batch.lengths, batch.base, batch.phi,
-                                      np.zeros(1), True, q, v, np.zeros(1), *rest)
+        call(3, 3, batch, q, np.zeros((1, 3)))
     with pytest.raises(ValueError, match="momentum and damping"):
-        kernels.group_advance_generic(*kernel_sizes(3, 2), batch.lam, batch.lengths, batch.base, batch.phi,
-                                      np.zeros(2), True, q, v, np.zeros(1), *rest)
+        call(3, 2, batch, q, v, damping=np.zeros(2))
     for rows in (np.array([1]), np.array([0.0]), np.zeros((1, 1), np.int64)):
         with pytest.raises(ValueError, match="rows must be int64 indices"):
-            kernels.group_advance_generic(*kernel_sizes(3, 2), batch.lam, batch.lengths, batch.base, batch.phi,
-                                          np.zeros(1), True, q, v, np.zeros(1), *rest[:2], rows, rest[3])
+            call(3, 2, batch, q, v, rows=rows)
 
 
 @pytest.mark.parametrize(("barrier", "decay"), [("squared", 0.0), ("squared", 20.0), ("distance", 0.0),

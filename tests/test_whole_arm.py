@@ -719,7 +719,7 @@ def test_a_sensing_radius_frees_the_reference_and_keeps_it_safe() -> None:
     for name, params in (("paper", True), ("sensing", FilterParams(0.5, 5.0, 0.0, sensing_radius=0.1))):
         venv = Pan1VectorEnv("random", len(seeds), safety_filter=params, action_mode="residual", max_steps=1200)
         if name == "sensing":
-            assert venv.engine.whole_arm and all(kind.whole[4] == 0.1 for kind in venv.engine.kinds)
+            assert venv.engine.whole_arm and all(kind.whole.sensing == 0.1 for kind in venv.engine.kinds)
         venv.reset(seed=seeds)
         cost = 0.0
         for _ in range(1200):

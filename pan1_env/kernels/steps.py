@@ -4,6 +4,8 @@ the store back to the arms. Each is inlined into the kernel by numba."""
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
@@ -33,15 +35,119 @@ from .qp import (
 # The steps of _advance_arms, inlined by numba (inline="always": typed and compiled once, as part of it,
 # so LLVM sees one function and keeps the stack arrays in registers; as separate compiled functions a
 # new kind's first compilation took a quarter to a half longer, measured). Each takes the arrays it
-# reads and writes by name, the lanes their last axis; scratch that travels together comes as a tuple
-# (numba inlines no call of more than 30 arguments: CPython passes those as *args), its heap arrays
-# unreferenced by the kernel (_borrowed). A step tests ``whole is not None`` only on the kernel's own
-# argument: numba prunes the untaken branch of an inlined step on an argument's None type, not on a local.
-#   dyn    = (M, R, Sn, Mc, Hc, qd, thd, H): the terms at a state (_mass_lanes);
-#   pj     = (p1, damping): a PAn−1 arm's passive momentum p₁ (state) and damping b per lane (docs/MODEL.md §7);
-#   chol   = (rhs, Lc, yc, ok): the solve for the accelerations (_acceleration_lanes);
-#   ee     = the end-effector filter's Jacobians and rows (_filter_end_effector);
-#   search = one lane's full QP search (_project_one); scratch = the whole-arm rows' (None without).
+# reads and writes by name, the lanes their last axis; scratch that travels together comes as one of the
+# named groups below (numba inlines no call of more than 30 arguments: CPython passes those as *args), its
+# heap arrays unreferenced by the kernel (_borrowed). A step tests ``whole is not None`` only on the kernel's
+# own argument: numba prunes the untaken branch of an inlined step on an argument's None type, not on a local.
+
+
+class Dynamics(NamedTuple):
+    """The terms at a state, per lane (:func:`pan1_env.kernels.physics._mass_lanes`)."""
+    M: np.ndarray
+    R: np.ndarray
+    Sn: np.ndarray
+    Mc: np.ndarray
+    Hc: np.ndarray
+    qd: np.ndarray
+    thd: np.ndarray
+    H: np.ndarray
+
+
+class PassiveJoint(NamedTuple):
+    """Per lane: a PAn−1 arm's passive momentum p₁ (state) and the first joint's damping b (docs/MODEL.md §7)."""
+    p1: np.ndarray
+    damping: np.ndarray
+
+
+class AccelerationSolve(NamedTuple):
+    """The solve for the accelerations (:func:`pan1_env.kernels.physics._acceleration_lanes`)."""
+    rhs: np.ndarray
+    Lc: np.ndarray
+    yc: np.ndarray
+    ok: np.ndarray
+
+
+class Rk4Stages(NamedTuple):
+    """RK4's trial state, stage derivative and weighted sums (:func:`_rk4`)."""
+    qt: np.ndarray
+    vt: np.ndarray
+    dv: np.ndarray
+    sq: np.ndarray
+    sv: np.ndarray
+    pt: np.ndarray
+    sp: np.ndarray
+
+
+class Tracker(NamedTuple):
+    """The tracker's terms the filters look ahead with: torque mode, K_e, dt, the lanes' q̇ (actuated), their
+    last v* and whether it is set."""
+    torque_mode: bool
+    ke: float
+    dt: float
+    v: np.ndarray
+    v_prev: np.ndarray
+    has_prev: np.ndarray
+
+
+class QpSearch(NamedTuple):
+    """One lane's full QP search (:func:`pan1_env.kernels.qp._project_one`): its rows, the target and answer."""
+    Arows: np.ndarray
+    brows: np.ndarray
+    active: np.ndarray
+    qrows: np.ndarray
+    qviol: np.ndarray
+    qnorm: np.ndarray
+    qidx: np.ndarray
+    qv0: np.ndarray
+    qvs: np.ndarray
+    qG: np.ndarray
+    qL: np.ndarray
+    qr: np.ndarray
+    qlam: np.ndarray
+    qcand: np.ndarray
+    qy: np.ndarray
+    qtarget: np.ndarray
+
+
+class EndEffectorScratch(NamedTuple):
+    """The end-effector filter's Jacobians, rows and lane-batched first candidate (:func:`_filter_end_effector`)."""
+    J: np.ndarray
+    Jbar: np.ndarray
+    drift: np.ndarray
+    filtered: np.ndarray
+    row_A: np.ndarray
+    row_b: np.ndarray
+    row_h: np.ndarray
+    row_norm: np.ndarray
+    row_act: np.ndarray
+    obst_rows: np.ndarray
+    needs_qp: np.ndarray
+    q_best: np.ndarray
+    q_best_viol: np.ndarray
+    q_Ab: np.ndarray
+    q_bb: np.ndarray
+    q_cand: np.ndarray
+    q_found: np.ndarray
+
+
+class WholeArmScratch(NamedTuple):
+    """One lane's whole-arm rows (bodies × capsules, speed bounds), its joints, and the lanes' joints and nearest
+    obstacle (:func:`_filter_whole_arm`)."""
+    wA: np.ndarray
+    wb: np.ndarray
+    wact: np.ndarray
+    wP: np.ndarray
+    wnear: np.ndarray
+    wrows: np.ndarray
+    wviol: np.ndarray
+    wnorm: np.ndarray
+    wb0: np.ndarray
+    wn0: np.ndarray
+    joints_x: np.ndarray
+    joints_y: np.ndarray
+    ox: np.ndarray
+    oy: np.ndarray
+    orad: np.ndarray
 
 
 @njit(**_JIT, inline="always")
@@ -51,7 +157,7 @@ def _load_arms(first, hi, rows, n, k, W, lam, lengths, base, phi, q, v, v_prev, 
     state and link angles (computed from q, or with whole-arm ``carried`` where the control step's
     previous call left them)."""
     if whole is not None:
-        caps, start_time, rho, link_bodies, sensing, gate, skin, joints_out, n_world, angles, carried, finish = whole
+        angles, carried = whole.angles, whole.carried
     for w in range(W):
         i = rows[min(first + w, hi - 1)]
         arm[w] = i
@@ -84,7 +190,7 @@ def _load_filter(W, O, filter_on, torque_mode, v_max, centers, radii, mask, has_
     """The lanes' obstacles, whether each is filtered, and their running outputs; returns whether any
     lane is filtered."""
     if whole is not None:
-        caps, start_time, rho, link_bodies, sensing, gate, skin, joints_out, n_world, angles, carried, finish = whole
+        caps, n_world = whole.caps, whole.n_world
     for w in range(W):
         i = arm[w]
         if real[w]:
@@ -120,9 +226,9 @@ def _desired_velocity(n, k, W, passive, any_filter, torque_mode, dt, command, ar
                       acc, vdes, vs, status):
     """The terms at the sub-step's state, and the velocity to filter: the command, or the one-step
     result of the commanded torque; the filtered velocity starts as it, the status as nominal."""
-    M, R, Sn, Mc, Hc, qd, thd, H = dyn
-    rhs, Lc, yc, ok = chol
-    _mass_lanes(lm, c, s, vi, pj[0], pj[1], passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H)
+    M, R, Sn, Mc, Hc, qd, thd, H = dyn.M, dyn.R, dyn.Sn, dyn.Mc, dyn.Hc, dyn.qd, dyn.thd, dyn.H
+    rhs, Lc, yc, ok = chol.rhs, chol.Lc, chol.yc, chol.ok
+    _mass_lanes(lm, c, s, vi, pj.p1, pj.damping, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H)
     if torque_mode:
         for t in range(k):
             for w in range(W):
@@ -144,29 +250,32 @@ def _desired_velocity(n, k, W, passive, any_filter, torque_mode, dt, command, ar
 
 
 @njit(**_JIT, inline="always")
-def _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodies, scratch, arm, real, ln, bx, by, c,
-                      s, dyn, pj, tracker, use_filter, live, vdes, vs, status, arm_h, search):
-    """Whole-arm safety: each filtered lane's rows are its bodies against its capsules at the sub-step's
-    time, solved by the full search, one lane at a time. ``bodies`` = (link radius, link bodies or the
-    end-effector only, sensing range, gate, skin); ``pj`` the lanes' passive momenta (their drift) and dampings;
-    ``tracker`` = (torque mode, K_e, dt, q̇, the last v*, whether it is set), for the fault margin's momentum at the
+def _filter_whole_arm(sub, n, k, W, passive, rcbf, v_max, dt, whole, scratch, arm, real, ln, bx, by, c, s, dyn, pj,
+                      tracker, use_filter, live, vdes, vs, status, arm_h, search):
+    """Whole-arm safety: each filtered lane's rows are its bodies (``whole``: :class:`pan1_env.kernel_groups.WholeArm`)
+    against its capsules at the sub-step's time, solved by the full search, one lane at a time. ``pj`` holds the
+    lanes' passive momenta (their drift) and dampings; ``tracker`` the terms for the fault margin's momentum at the
     sub-step's end (:func:`_momentum_ahead`) and torque mode's input bound
     (:func:`pan1_env.kernels.qp._keep_torque`)."""
-    kappa, epsilon, margin, distance, decay, by_rate, lookahead, fault, tau_max, v_max = fparams
-    M, R, Sn, Mc, Hc, qd, thd, H = dyn
-    Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy, qtarget = search
-    wA, wb, wact, wP, wnear, wrows, wviol, wnorm, wb0, wn0, joints_x, joints_y, ox, oy, orad = scratch
-    rho, link_bodies, sensing, gate, skin, n_world = bodies
-    torque_mode, _, _, vi, _, _ = tracker
+    kappa, epsilon, margin, distance, decay = rcbf.kappa, rcbf.epsilon, rcbf.margin, rcbf.distance, rcbf.decay
+    by_rate, lookahead, fault, tau_max = rcbf.by_rate, rcbf.lookahead, rcbf.fault_margin, rcbf.tau_max
+    M, Mc, Hc, qd, H = dyn.M, dyn.Mc, dyn.Hc, dyn.qd, dyn.H
+    qidx, qv0, qvs, qtarget = search.qidx, search.qv0, search.qvs, search.qtarget
+    qG, qL, qr, qlam, qcand, qy = search.qG, search.qL, search.qr, search.qlam, search.qcand, search.qy
+    wA, wb, wact, wP, wnear = scratch.wA, scratch.wb, scratch.wact, scratch.wP, scratch.wnear
+    wrows, wviol, wnorm, wb0, wn0 = scratch.wrows, scratch.wviol, scratch.wnorm, scratch.wb0, scratch.wn0
+    caps, start_time, n_world = whole.caps, whole.start_time, whole.n_world
+    rho, link_bodies, sensing, gate, skin = whole.link_radius, whole.link_bodies, whole.sensing, whole.gate, whole.skin
+    torque_mode, vi = tracker.torque_mode, tracker.v
     for w in range(W):
         if use_filter[w] and live[w] and real[w]:
             for t in range(k):
                 qv0[t] = vdes[t, w]
             time = start_time[arm[w]] + sub * dt
-            p1 = pj[0][w] if passive else 0.0
+            p1 = pj.p1[w] if passive else 0.0
             # the fault margin (docs/MODEL.md §5c): the damping, and a full arm's momentum at the sub-step's end
             gain, offset = _momentum_ahead(k, w, dt, tracker, M, H) if fault and not passive else (1.0, 0.0)
-            faults = (pj[1][w] if fault else 0.0, gain, offset)
+            faults = (pj.damping[w] if fault else 0.0, gain, offset)
             m_w, h_w = whole_arm_rows(arm[w], w, n, k, passive, link_bodies, rho, sensing, gate, skin, dt, ln, bx, by,
                                       c, s, qd, M, p1, faults, caps, n_world, time, kappa, epsilon, margin, distance,
                                       decay, lookahead, v_max, qv0, wA, wb, wact, wP, wnear)
@@ -203,7 +312,7 @@ def _momentum_ahead(k, w, dt, tracker, M, H):
     torque of :func:`_track`. In velocity mode acc = (v* − v*₋)/dt − K_e (q̇ − v*), so p₁⁺ = M₀ ((1 + a) v* + (1 − a) q̇
     − v*₋) + dt H₀, a = K_e dt (before a last v* is set, M₀ (a v* + (1 − a) q̇) + dt H₀); in torque mode, which reaches
     v* in one sub-step, M₀ v* + dt H₀. A jump of v* and its overshoot are then in the margin."""
-    torque_mode, ke, _, vi, vp, prev_ok = tracker
+    torque_mode, ke, vi, vp, prev_ok = tracker.torque_mode, tracker.ke, tracker.v, tracker.v_prev, tracker.has_prev
     offset = dt * H[0, w]
     if torque_mode:
         return 1.0, offset
@@ -215,20 +324,28 @@ def _momentum_ahead(k, w, dt, tracker, M, H):
 
 
 @njit(**_JIT, inline="always")
-def _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, ln, bx, by, c, s, dyn, pj, px, py,
+def _filter_end_effector(n, k, W, passive, sizes, lane_qp, rcbf, v_max, real, ln, bx, by, c, s, dyn, pj, px, py,
                          obstacles, lane_active, use_filter, live, vdes, vs, status, arm_h, ee, search, tracker):
     """The paper's end-effector filter on every lane at once as far as one active row settles it
     (:func:`_first_projection_lanes`), then the full active-set search lane by lane. A PAn−1 arm's
     rows take the end-effector's drift J₁ p₁ / M_11 (docs/MODEL.md §7), and where p₁ ≠ 0 its fallback
-    holds the end-effector instead of braking (:func:`_hold_end_effector`)."""
-    kappa, epsilon, margin, distance, decay, by_rate, lookahead, fault, tau_max, v_max = fparams
-    M, R, Sn, Mc, Hc, qd, thd, H = dyn
-    J, Jbar, drift, filtered, row_A, row_b, row_h, row_norm, row_act, obst_rows, needs_qp, q_best, q_best_viol, q_Ab, \
-        q_bb, q_cand, q_found = ee
-    Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy, qtarget = search
+    holds the end-effector instead of braking (:func:`_hold_end_effector`). The search's rows are the obstacles'
+    then the speed bounds'."""
+    O = obstacles.shape[1]
+    m = O + 2 * k
+    kappa, epsilon, margin, distance, decay = rcbf.kappa, rcbf.epsilon, rcbf.margin, rcbf.distance, rcbf.decay
+    tau_max = rcbf.tau_max
+    M, Mc, Hc = dyn.M, dyn.Mc, dyn.Hc
+    J, Jbar, drift, filtered, row_A, row_b = ee.J, ee.Jbar, ee.drift, ee.filtered, ee.row_A, ee.row_b
+    row_h, row_norm, row_act, obst_rows, needs_qp = ee.row_h, ee.row_norm, ee.row_act, ee.obst_rows, ee.needs_qp
+    q_best, q_best_viol, q_Ab, q_bb = ee.q_best, ee.q_best_viol, ee.q_Ab, ee.q_bb
+    q_cand, q_found = ee.q_cand, ee.q_found
+    Arows, brows, active, qrows = search.Arows, search.brows, search.active, search.qrows
+    qviol, qnorm, qidx, qv0, qvs = search.qviol, search.qnorm, search.qidx, search.qv0, search.qvs
+    qG, qL, qr, qlam, qcand, qy = search.qG, search.qL, search.qr, search.qlam, search.qcand, search.qy
     _position_lanes(ln, bx, by, c, s, n, W, px, py)
     _jacobian_lanes(ln, c, s, M, passive, n, k, W, J, Jbar)
-    _drift_lanes(J, M, pj[0], passive, W, drift)
+    _drift_lanes(J, M, pj.p1, passive, W, drift)
     for w in range(W):
         filtered[w] = use_filter[w] & live[w] & real[w]  # a padded lane's result is never used
     # numba prunes a branch only on an argument that is None: lane_qp is None in the generic kernel,
@@ -260,11 +377,11 @@ def _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, 
                 qv0[t] = vdes[t, w]
             status[w] = _project_one(qv0, Arows, brows, active, m, k, qvs, qrows, qidx, qG, qr, qlam, qcand, qL, qy,
                                      qviol, qnorm)
-            if status[w] == STATUS_FALLBACK and passive and pj[0][w] != 0.0:
+            if status[w] == STATUS_FALLBACK and passive and pj.p1[w] != 0.0:
                 _hold_end_effector(k, w, Jbar, drift, v_max, qvs)
             for t in range(k):
                 vs[t, w] = qvs[t]
-    if tracker[0] and tau_max < np.inf:
+    if tracker.torque_mode and tau_max < np.inf:
         _bound_torque(k, W, O, m, tau_max, v_max, Mc, Hc, tracker, obst_rows, lane_active, filtered, vdes, vs, status,
                       search)
 
@@ -276,8 +393,11 @@ def _bound_torque(k, W, O, m, tau_max, v_max, Mc, Hc, tracker, obst_rows, lane_a
     velocity needs more than ±τ_max in its sub-step takes the QP again with the torque rows
     (:func:`pan1_env.kernels.qp._keep_torque`), and where that has no solution, the velocity nearest the filter's
     own answer (its braking or hold included) within the bound: as far towards it as the bound allows."""
-    Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy, qtarget = search
-    _, _, dt, vi, _, _ = tracker
+    Arows, brows, active, qrows = search.Arows, search.brows, search.active, search.qrows
+    qviol, qnorm, qidx, qv0, qvs = search.qviol, search.qnorm, search.qidx, search.qv0, search.qvs
+    qG, qL, qr, qlam, qcand, qy = search.qG, search.qL, search.qr, search.qlam, search.qcand, search.qy
+    qtarget = search.qtarget
+    dt, vi = tracker.dt, tracker.v
     for w in range(W):
         if not filtered[w] or status[w] == STATUS_NOMINAL:
             continue
@@ -382,10 +502,10 @@ def _rk4(n, k, W, passive, dt, finite_out, arm, real, live, lm, qi, vi, pj, tau,
     at the current state, and every stage's link angles come from the current ones (c0, s0) by a small
     rotation. A PAn−1 arm's momentum p₁ is integrated with them, ṗ₁ = −b q̇₁ (constant without damping).
     A lane whose state goes non-finite stops at its last finite state."""
-    M, R, Sn, Mc, Hc, qd, thd, H = dyn
-    rhs, Lc, yc, ok = chol
-    qt, vt, dv, sq, sv, pt, sp = stages
-    p1, damping = pj
+    M, R, Sn, Mc, Hc, qd, thd, H = dyn.M, dyn.R, dyn.Sn, dyn.Mc, dyn.Hc, dyn.qd, dyn.thd, dyn.H
+    rhs, Lc, yc, ok = chol.rhs, chol.Lc, chol.yc, chol.ok
+    qt, vt, dv, sq, sv, pt, sp = stages.qt, stages.vt, stages.dv, stages.sq, stages.sv, stages.pt, stages.sp
+    p1, damping = pj.p1, pj.damping
     for a in range(n):
         for w in range(W):
             c0[a, w] = c[a, w]
@@ -485,16 +605,15 @@ def _store_state(n, k, W, passive, whole, scratch, q, momentum, qd_out, p_out, a
     """The real lanes' joint angles back to their arms, with the joint velocities and end-effector at the
     (last finite) state (a stopped arm's angles from q), and with whole-arm safety its joints and link
     angles; a whole-arm call that does not ``finish`` leaves the joint velocities and end-effectors out."""
-    M, R, Sn, Mc, Hc, qd, thd, H = dyn
+    M, R, Sn, Mc, Hc, qd, thd, H = dyn.M, dyn.R, dyn.Sn, dyn.Mc, dyn.Hc, dyn.qd, dyn.thd, dyn.H
     finish = True
     if whole is not None:
-        caps, start_time, rho, link_bodies, sensing, gate, skin, joints_out, n_world, angles, carried, finish = whole
-        wA, wb, wact, wP, wnear, wrows, wviol, wnorm, wb0, wn0, joints_x, joints_y, ox, oy, orad = scratch
+        joints_out, angles, finish, wP = whole.joints, whole.angles, whole.finish, scratch.wP
     for w in range(W):
         if not live[w]:
             _lane_angles(qi, ph, n, w, c, s)
     if finish:
-        _mass_lanes(lm, c, s, vi, pj[0], pj[1], passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H)
+        _mass_lanes(lm, c, s, vi, pj.p1, pj.damping, passive, n, k, W, M, R, Sn, Mc, Hc, qd, thd, H)
         _position_lanes(ln, bx, by, c, s, n, W, px, py)
     for w in range(W):
         if real[w]:
@@ -502,7 +621,7 @@ def _store_state(n, k, W, passive, whole, scratch, q, momentum, qd_out, p_out, a
             for a in range(n):
                 q[i, a] = qi[a, w]
             if passive:
-                momentum[i] = pj[0][w]
+                momentum[i] = pj.p1[w]
             if finish:
                 for a in range(n):
                     qd_out[i, a] = qd[a, w]

@@ -43,10 +43,30 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from ..kernel_groups import (
+    ArmModel,
+    ArmState,
+    Command,
+    EndEffectorObstacles,
+    FilterSettings,
+    StepOutputs,
+    Stepped,
+    Stepping,
+    WholeArm,
+    plain,
+)
 from ._numba_ext import _JIT, _LANES, _borrowed, _check_chunks, _keep_alive, _local, _quick_when, _slp_vectorised
 from .capsules import NEAR_COLUMNS, most_rows, whole_arm_clearance_lanes
 from .physics import _position_lanes
 from .steps import (
+    AccelerationSolve,
+    Dynamics,
+    EndEffectorScratch,
+    PassiveJoint,
+    QpSearch,
+    Rk4Stages,
+    Tracker,
+    WholeArmScratch,
     _desired_velocity,
     _filter_end_effector,
     _filter_whole_arm,
@@ -60,12 +80,23 @@ from .steps import (
 
 
 @njit(**_JIT)
-def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, base, phi, damping, _passive, q, v,
-                  momentum, v_prev, has_prev, rows, window, command, torque_mode, filter_on, centers, radii, mask,
-                  rcbf, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts,
-                  max_track, finite_out, whole):
-    """Arms ``rows[lo … hi−1]`` of :func:`group_advance` (the loop body, with its own scratch space): see the
-    module's docstring for the lanes, the per-kind and generic signatures and the whole-arm calls."""
+def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, model_, state_, stepped_, held_, world_, rcbf_,
+                  stepping_, out_, whole):
+    """Arms ``rows[lo … hi−1]`` of :func:`group_advance` (the loop body, with its own scratch space), its plain groups
+    named here (:mod:`pan1_env.kernel_groups`) and ``whole`` named by the caller (a :class:`WholeArm` or None, on
+    whose type numba prunes the inlined steps' whole-arm branches): see the module's docstring for the lanes, the
+    per-kind and generic signatures and the whole-arm calls."""
+    model, state, stepped, held = ArmModel(*model_), ArmState(*state_), Stepped(*stepped_), Command(*held_)
+    world, rcbf, stepping = EndEffectorObstacles(*world_), FilterSettings(*rcbf_), Stepping(*stepping_)
+    out = StepOutputs(*out_)
+    lam, lengths, base, phi, damping = model.lam, model.lengths, model.base, model.phi, model.damping
+    q, v, momentum, v_prev, has_prev = state.q, state.v, state.momentum, state.v_prev, state.has_prev
+    rows, window = stepped.rows, stepped.window
+    command, torque_mode, filter_on = held.command, held.torque_mode, held.filter_on
+    centers, radii, mask = world.centers, world.radii, world.mask
+    ke, dt, n_sub, v_max = stepping.ke, stepping.dt, stepping.n_sub, stepping.v_max
+    v_star_out, tau_out, qd_out, p_out, min_clear = out.v_star, out.tau, out.qd, out.p, out.min_clear
+    min_h, qp_counts, max_track, finite_out = out.min_h, out.qp_counts, out.max_track, out.finite
     if sizes is None:  # the per-kind kernel (numba prunes the other branch by the argument's type)
         n = len(links)
         k = len(actuated)
@@ -86,7 +117,7 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     arm, real = _local(lw, np.int64), _local(lw, b1)
     lm, ln, qi, vi, vp = _local(nnw, f8), _local(nw, f8), _local(nw, f8), _local(kw, f8), _local(kw, f8)
     bx, by, ph = _local(lw, f8), _local(lw, f8), _local(lw, f8)
-    pj = (_local(lw, f8), _local(lw, f8))  # a PAn−1 arm's passive momentum p₁ and damping b
+    pj = PassiveJoint(_local(lw, f8), _local(lw, f8))  # a PAn−1 arm's passive momentum p₁ and damping b
     # kinematics and dynamics at a state
     c, s, qd, thd, H = _local(nw, f8), _local(nw, f8), _local(nw, f8), _local(nw, f8), _local(nw, f8)
     c0, s0, px, py = _local(nw, f8), _local(nw, f8), _local(lw, f8), _local(lw, f8)
@@ -119,17 +150,17 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
     # RK4: trial state, stage derivative, weighted sums
     qt, vt, dv, sq, sv = _local(nw, f8), _local(kw, f8), _local(kw, f8), _local(nw, f8), _local(kw, f8)
     pt, sp = _local(lw, f8), _local(lw, f8)
-    dyn, chol, stages = (M, R, Sn, Mc, Hc, qd, thd, H), (rhs, Lc, yc, ok), (qt, vt, dv, sq, sv, pt, sp)
+    dyn, chol = Dynamics(M, R, Sn, Mc, Hc, qd, thd, H), AccelerationSolve(rhs, Lc, yc, ok)
+    stages = Rk4Stages(qt, vt, dv, sq, sv, pt, sp)
     # the groups' heap arrays unreferenced (_borrowed), kept alive to the end (_keep_alive below)
-    ee = _borrowed((J, Jbar, drift, filtered, row_A, row_b, row_h, row_norm, row_act, obst_rows, needs_qp, q_best,
-                    q_best_viol, q_Ab, q_bb, q_cand, q_found))
-    search = _borrowed((Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy,
-                        qtarget))
-    kappa, epsilon, margin, distance, decay, by_rate, lookahead, fault, tau_max = rcbf
-    fparams = (kappa, epsilon, margin, distance, decay, by_rate, lookahead, fault, tau_max, v_max)
-    tracker = (torque_mode, ke, dt, vi, vp, prev_ok)  # the tracker's terms the filters look ahead with
+    ee = _borrowed(EndEffectorScratch(J, Jbar, drift, filtered, row_A, row_b, row_h, row_norm, row_act, obst_rows,
+                                      needs_qp, q_best, q_best_viol, q_Ab, q_bb, q_cand, q_found))
+    search = _borrowed(QpSearch(Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy,
+                                qtarget))
+    tracker = Tracker(torque_mode, ke, dt, vi, vp, prev_ok)  # the tracker's terms the filters look ahead with
     if whole is not None:  # whole-arm scratch: one lane's rows (bodies × capsules, speed bounds) and joints
-        caps, start_time, rho, link_bodies, sensing, gate, skin, joints_out, n_world, angles, carried, finish = whole
+        caps, start_time, n_world = whole.caps, whole.start_time, whole.n_world
+        rho, link_bodies = whole.link_radius, whole.link_bodies
         jw = (links + (0,), lanes)  # joints: n + 1 per lane
         joints_x, joints_y = _local(jw, f8), _local(jw, f8)
         ox, oy, orad = _local(lw, f8), _local(lw, f8), _local(lw, f8)
@@ -138,9 +169,9 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
         wrows, wviol, wnorm, wP = np.empty(m_whole, dtype=np.int64), np.empty(m_whole), np.empty(m_whole), \
             np.empty((n + 1, 2))
         wb0, wn0, wnear = np.empty(m_whole), np.empty(m_whole), np.empty((caps.shape[1], NEAR_COLUMNS))
-        owned = (wA, wb, wact, wP, wnear, wrows, wviol, wnorm, wb0, wn0, joints_x, joints_y, ox, oy, orad)
+        owned = WholeArmScratch(wA, wb, wact, wP, wnear, wrows, wviol, wnorm, wb0, wn0, joints_x, joints_y, ox, oy,
+                                orad)
         scratch = _borrowed(owned)
-        bodies = (rho, link_bodies, sensing, gate, skin, n_world)
     else:  # no whole-arm scratch: the steps read it only where the kernel's own `whole` is not None
         owned = None
         scratch = None
@@ -154,9 +185,9 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
         _load_arms(first, hi, rows, n, k, W, lam, lengths, base, phi, q, v, v_prev, whole, arm, real, counts, lm, ln,
                    qi, vi, vp, bx, by, ph, vs_last, tau_last, c, s)
         for w in range(W):  # damping also for a fully actuated arm: the fault margin's b once it is passive
-            pj[1][w] = damping[arm[w]]
+            pj.damping[w] = damping[arm[w]]
             if passive:
-                pj[0][w] = momentum[arm[w]]
+                pj.p1[w] = momentum[arm[w]]
         any_filter = _load_filter(W, O, filter_on, torque_mode, v_max, centers, radii, mask, has_prev, min_clear, min_h,
                                   max_track, finite_out, whole, arm, real, obstacles, lane_active, use_filter, prev_ok,
                                   live, arm_clear, arm_h, arm_track)
@@ -168,10 +199,10 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
             _desired_velocity(n, k, W, passive, any_filter, torque_mode, dt, command, arm, lm, vi, pj, c, s, dyn, chol,
                               tau, acc, vdes, vs, status)
             if any_filter and whole is not None:
-                _filter_whole_arm(sub, n, k, W, passive, fparams, dt, caps, start_time, bodies, scratch, arm, real, ln,
-                                  bx, by, c, s, dyn, pj, tracker, use_filter, live, vdes, vs, status, arm_h, search)
+                _filter_whole_arm(sub, n, k, W, passive, rcbf, v_max, dt, whole, scratch, arm, real, ln, bx, by, c, s,
+                                  dyn, pj, tracker, use_filter, live, vdes, vs, status, arm_h, search)
             elif any_filter:
-                _filter_end_effector(n, k, W, O, m, passive, sizes, lane_qp, fparams, real, ln, bx, by, c, s, dyn, pj,
+                _filter_end_effector(n, k, W, passive, sizes, lane_qp, rcbf, v_max, real, ln, bx, by, c, s, dyn, pj,
                                      px, py, obstacles, lane_active, use_filter, live, vdes, vs, status, arm_h, ee,
                                      search, tracker)
             _track(k, W, torque_mode, ke, inv_dt, vi, vp, Mc, Hc, use_filter, live, prev_ok, status, counts,
@@ -203,36 +234,42 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, lam, lengths, 
 
 _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a held command (in place).
 
+    ``group_advance(links, actuated, model, state, stepped, held, world, rcbf, stepping, out, whole)``: after the
+    size tuples, one plain tuple per group of :mod:`pan1_env.kernel_groups` (:data:`~pan1_env.kernel_groups.
+    KERNEL_GROUPS`, each built by name and passed through :func:`~pan1_env.kernel_groups.plain`), then ``whole``.
+
     ``links, actuated = kernel_sizes(n, k)`` are tuples of length n and k, the arms' numbers of
     links and actuated joints (``q.shape[1]`` and ``v.shape[1]``, else ValueError): numba types a
     tuple by its length, so n and k are compile-time constants and the kernel is compiled once per
-    (n, k) pair, on its first use, and cached on disk. ``passive`` must agree with them (k = n − 1
+    (n, k) pair, on its first use, and cached on disk. ``model.passive`` must agree with them (k = n − 1
     for a PAn−1 arm, k = n for a fully actuated one, else ValueError): the kernel takes it from k < n,
     a compile-time constant too.
 
-    Arrays are per arm (leading axis A): parameters ``lam, lengths, base, phi`` (see
-    :class:`~pan1_env.dynamics.ArmBatch`) and ``damping (A,)`` (b of a passive first joint), state
-    ``q (A, n)``, ``v (A, k)`` and ``momentum (A,)`` (a PAn−1 arm's passive momentum p₁: q̇₁ =
-    (p₁ − M_1a v) / M_11, ṗ₁ = −b q̇₁, docs/MODEL.md §7; a fully actuated arm ignores both). ``rows (R,)``
+    Arrays are per arm (leading axis A). ``model`` (:class:`~pan1_env.kernel_groups.ArmModel`) holds the
+    parameters and ``damping (A,)`` (b of a passive first joint); ``state`` (:class:`~pan1_env.kernel_groups.
+    ArmState`) ``q (A, n)``, ``v (A, k)`` and ``momentum (A,)`` (a PAn−1 arm's passive momentum p₁: q̇₁ =
+    (p₁ − M_1a v) / M_11, ṗ₁ = −b q̇₁, docs/MODEL.md §7; a fully actuated arm ignores both). ``stepped.rows (R,)``
     (int64, distinct) are the arms advanced: the others, their outputs included, are left as they are
-    (an engine's arm that has changed kind keeps a row here, unused, until its next reset). ``window (A, 2)``
+    (an engine's arm that has changed kind keeps a row here, unused, until its next reset). ``stepped.window (A, 2)``
     (int64): arm i is advanced in the call's sub-steps ``window[i, 0] ≤ s < window[i, 1]`` only and held
     where it is outside them (as a non-finite arm is), so that one call can stop an arm where it loses an
-    actuator and the next start it there in another kind; ``(0, n_sub)`` or wider: every sub-step. Obstacles
-    ``centers (A, O, 2)``, ``radii (A, O)`` and ``mask (A, O)`` (the obstacles each arm's filter
-    sees; a team's obstacles are broadcast to every arm).
+    actuator and the next start it there in another kind; ``(0, n_sub)`` or wider: every sub-step. ``world``
+    (:class:`~pan1_env.kernel_groups.EndEffectorObstacles`) holds the obstacles each arm's filter sees (a team's
+    obstacles are broadcast to every arm).
 
-    ``rcbf`` is the filter's settings, one tuple ``(kappa, epsilon, margin, distance, decay, by_rate, lookahead,
-    fault, tau_max)``
-    (:func:`pan1_env.compiled.kernel_filter`): the end-effector filter's rows
+    ``rcbf`` (:class:`~pan1_env.kernel_groups.FilterSettings`, :func:`pan1_env.compiled.kernel_filter`) is the
+    filter's settings: the end-effector filter's rows
     (:func:`pan1_env.kernels.qp._rcbf_row_lanes`) take κ, ε, the margin, the barrier (``distance`` True:
     h = ‖p − o‖ − r, else the paper's squared one) and λ ``decay`` of the tunable ε(h̃) = ε e^{λ h̃} (0: the
     paper's constant ε); ``min_h`` is then in that barrier's unit. The whole-arm rows (``whole``) take the same
     choices, ``by_rate`` picks their last-resort fallback's measure of violation
     (:func:`pan1_env.kernels.last_resort.least_violation`) and ``lookahead`` (s, 0: the obstacles where they are)
     the stretch of each moving obstacle's path that they keep out (:func:`pan1_env.kernels.capsules._capsule_ahead`);
-    ``fault`` keeps the fault margin with each arm's ``damping`` (:func:`pan1_env.kernels.capsules.whole_arm_rows`),
-    and ``tau_max`` (N·m, inf: none) is torque mode's input bound (:func:`pan1_env.kernels.qp._keep_torque`).
+    ``fault_margin`` keeps the fault margin with each arm's ``damping``
+    (:func:`pan1_env.kernels.capsules.whole_arm_rows`), and ``tau_max`` (N·m, inf: none) is torque mode's input bound
+    (:func:`pan1_env.kernels.qp._keep_torque`). ``stepping`` (:class:`~pan1_env.kernel_groups.Stepping`) holds the
+    tracker's gain ``ke``, the sub-step ``dt``, ``n_sub`` and the speed bound ``v_max``; ``held``
+    (:class:`~pan1_env.kernel_groups.Command`) the command, ``torque_mode`` and ``filter_on``.
 
     Velocity mode (``torque_mode`` False): ``command`` is the desired active velocity; each
     sub-step filters it through the RCBF-QP when ``filter_on`` (against the obstacles of ``mask``)
@@ -247,69 +284,69 @@ _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a
     safe set's boundary, and a nearly degenerate RCBF row, tiny ‖L_g0 h‖ with b < 0, has a huge
     exact optimum). A problem the box makes infeasible takes the braking fallback.
 
-    ``whole``: None for the end-effector filter above (the paper's); a tuple ``(capsules (A, C,
-    CAPSULE_COLUMNS), start_time (A,), link_radius, links, sensing, gate, skin, joints (A, L + 1, 2), n_world,
-    angles (A, 2, n), carried, finish)`` for whole-arm safety
+    ``whole``: None for the end-effector filter above (the paper's); a plain
+    :class:`~pan1_env.kernel_groups.WholeArm` for whole-arm safety
     (:mod:`pan1_env.kernels.capsules`): the obstacle arrays are then empty, each filtered arm's rows
     are its bodies against its capsules at the sub-step's time (``start_time`` + elapsed sub-steps),
     solved by the full search, with a fallback that drops the robust term, then takes the least
     violating velocity, ``min_clear`` is its bodies' clearance to the world obstacles, and ``joints``
     gets the arms' base, joints and end-effector at the final state and ``angles`` their link angles'
-    cosines and sines, from which a call with ``carried`` starts (with ``finish`` False, ``qd_out`` and
-    ``p_out`` are left as they were).
+    cosines and sines, from which a call with ``carried`` starts (with ``finish`` False, ``out.qd`` and
+    ``out.p`` are left as they were).
 
-    Outputs (per arm): ``v_star_out``/``tau_out`` of the last sub-step (``tau_out`` either
-    ``(A, k)`` actuated torques or full ``(A, n)`` rows, whose passive entry is left as passed in), ``qd_out`` the joint
-    velocities q̇ = g0 v and ``p_out`` the end-effector at the final state, ``min_clear`` the
+    Outputs (per arm, ``out``: :class:`~pan1_env.kernel_groups.StepOutputs`): ``v_star``/``tau`` of the last
+    sub-step (``tau`` either ``(A, k)`` actuated torques or full ``(A, n)`` rows, whose passive entry is left as
+    passed in), ``qd`` the joint velocities q̇ = g0 v and ``p`` the end-effector at the final state, ``min_clear`` the
     smallest clearance ‖p − o_j‖ − r_j to any obstacle after every sub-step (running minimum with
     the value passed in), ``min_h`` the smallest filtered barrier seen, ``qp_counts[i, s]`` the
     number of sub-steps with QP status s, ``max_track`` the largest tracking error ‖v − v*‖ at the
-    start of a sub-step (velocity mode; running maximum with the value passed in), ``finite_out``
+    start of a sub-step (velocity mode; running maximum with the value passed in), ``finite``
     False for an arm whose state went non-finite (left at its last finite value). The first stage
     of each RK4 step reuses the terms the filter and tracker computed at the same state.
     """
 
 
 @njit(**_JIT)
-def _check_sizes(links, actuated, passive, q, v, momentum, damping, rows, window):
+def _check_sizes(links, actuated, model_, state_, stepped_):
+    model, state, stepped = ArmModel(*model_), ArmState(*state_), Stepped(*stepped_)
+    q, window = state.q, stepped.window
     if window.shape[0] != q.shape[0] or window.shape[1] != 2:
         raise ValueError("group_advance: window needs a (start, stop) pair of sub-steps per arm (q.shape[0], 2)")
-    for r in rows:  # the lanes index the arrays by them unchecked
+    for r in stepped.rows:  # the lanes index the arrays by them unchecked
         if r < 0 or r >= q.shape[0]:
             raise ValueError("group_advance: rows must index the arms (0 <= row < q.shape[0])")
-    if q.shape[1] != len(links) or v.shape[1] != len(actuated):
+    if q.shape[1] != len(links) or state.v.shape[1] != len(actuated):
         raise ValueError("group_advance: links, actuated must be kernel_sizes(q.shape[1], v.shape[1])")
-    if momentum.shape[0] != q.shape[0] or damping.shape[0] != q.shape[0]:
+    if state.momentum.shape[0] != q.shape[0] or model.damping.shape[0] != q.shape[0]:
         raise ValueError("group_advance: momentum and damping need one value per arm (q.shape[0])")
-    if len(actuated) != len(links) - (1 if passive else 0):
+    if len(actuated) != len(links) - (1 if model.passive else 0):
         raise ValueError("group_advance: a PAn-1 arm (passive) has k = n - 1 actuated joints, a full one k = n")
 
 
 @njit(**_JIT)
-def group_advance(links, actuated, lam, lengths, base, phi, damping, passive, q, v, momentum, v_prev, has_prev, rows,
-                  window, command, torque_mode, filter_on, centers, radii, mask, rcbf, ke, dt, n_sub, v_max,
-                  v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out, whole):
-    _check_sizes(links, actuated, passive, q, v, momentum, damping, rows, window)
-    lo = rows.shape[0] * 0  # an int64, like the parallel kernel's chunk bounds
-    _advance_arms(links, actuated, _LANES, None, True, lo, rows.shape[0], lam, lengths, base, phi, damping, passive, q,
-                  v, momentum, v_prev, has_prev, rows, window, command, torque_mode, filter_on, centers, radii, mask,
-                  rcbf, ke, dt, n_sub, v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts,
-                  max_track, finite_out, whole)
+def group_advance(links, actuated, model, state, stepped, held, world, rcbf, stepping, out, whole):
+    _check_sizes(links, actuated, model, state, stepped)
+    hi = len(Stepped(*stepped).rows)
+    lo = hi * 0  # an int64, like the parallel kernel's chunk bounds
+    groups = (model, state, stepped, held, world, rcbf, stepping, out)
+    if whole is None:  # numba prunes the other branch by the argument's type
+        _advance_arms(links, actuated, _LANES, None, True, lo, hi, *groups, None)
+    else:
+        _advance_arms(links, actuated, _LANES, None, True, lo, hi, *groups, WholeArm(*whole))
 
 
-@njit(cache=True, error_model="numpy", fastmath=_JIT["fastmath"], parallel=True)
-def group_advance_parallel(links, actuated, lam, lengths, base, phi, damping, passive, q, v, momentum, v_prev, has_prev,
-                           rows, window, command, torque_mode, filter_on, centers, radii, mask, rcbf, ke, dt, n_sub,
-                           v_max, v_star_out, tau_out, qd_out, p_out, min_clear, min_h, qp_counts, max_track,
-                           finite_out, whole, n_chunks):
-    _check_sizes(links, actuated, passive, q, v, momentum, damping, rows, window)
+@njit(**_JIT, parallel=True)
+def group_advance_parallel(links, actuated, model, state, stepped, held, world, rcbf, stepping, out, whole, n_chunks):
+    _check_sizes(links, actuated, model, state, stepped)
     _check_chunks(n_chunks)
-    R = rows.shape[0]
+    R = len(Stepped(*stepped).rows)
     for c in prange(n_chunks):
-        _advance_arms(links, actuated, _LANES, None, True, c * R // n_chunks, (c + 1) * R // n_chunks, lam, lengths,
-                      base, phi, damping, passive, q, v, momentum, v_prev, has_prev, rows, window, command,
-                      torque_mode, filter_on, centers, radii, mask, rcbf, ke, dt, n_sub, v_max, v_star_out, tau_out,
-                      qd_out, p_out, min_clear, min_h, qp_counts, max_track, finite_out, whole)
+        lo, hi = c * R // n_chunks, (c + 1) * R // n_chunks
+        groups = (model, state, stepped, held, world, rcbf, stepping, out)
+        if whole is None:
+            _advance_arms(links, actuated, _LANES, None, True, lo, hi, *groups, None)
+        else:  # named in the loop: numba's parallel loops take plain tuples in, not named ones
+            _advance_arms(links, actuated, _LANES, None, True, lo, hi, *groups, WholeArm(*whole))
 
 
 # The generic kernel: arms of any kind up to GENERIC_MAX_LINKS links, n and k read at run time, one
@@ -320,29 +357,30 @@ _GENERIC_SIZES = (0,) * GENERIC_MAX_LINKS
 _ONE_LANE = (0,)
 
 
-def group_advance_generic(links, actuated, lam, lengths, base, phi, damping, passive, q, v, momentum, v_prev, has_prev,
-                          rows, window, *args):
+def group_advance_generic(links, actuated, model, state, stepped, held, world, rcbf, stepping, out, whole):
     """:func:`group_advance` (same arguments, same results bit for bit) through one kernel compiled for
     every arm kind of at most ``GENERIC_MAX_LINKS`` links: a new kind costs no compilation, and the
     kernel steps 3–4× slower (one arm at a time, loops of run-time length). The engine uses it while a
     kind's own kernel is neither compiled nor in the disk cache (:mod:`pan1_env.kernels.specialise`).
-    It calls :func:`_advance_arms` from Python: a compiled wrapper would compile its code a second time
-    (numba links a callee into its caller's module), about 2 s more."""
-    n, k = len(links), len(actuated)
-    if q.shape[1] != n or v.shape[1] != k or not 1 <= k <= n <= GENERIC_MAX_LINKS or k != n - bool(passive):
+    It calls :func:`_advance_arms` from Python (``whole`` named here): a compiled wrapper would compile its code a
+    second time (numba links a callee into its caller's module), about 2 s more."""
+    arms, now, which = ArmModel(*model), ArmState(*state), Stepped(*stepped)  # the checks read them by name
+    n, k = now.q.shape[1], now.v.shape[1]
+    if not 1 <= k <= n <= GENERIC_MAX_LINKS or k != n - bool(arms.passive):
         raise ValueError(f"group_advance_generic: arms of n ≤ {GENERIC_MAX_LINKS} links (q.shape[1]) and k actuated "
                          "joints (v.shape[1]), links, actuated = kernel_sizes(n, k): k = n − 1 with a passive first "
                          "joint, else k = n")
-    if len(momentum) != len(q) or len(damping) != len(q):
+    if len(now.momentum) != len(now.q) or len(arms.damping) != len(now.q):
         raise ValueError("group_advance_generic: momentum and damping need one value per arm (q.shape[0])")
-    rows = np.asarray(rows)
-    if rows.dtype != np.int64 or rows.ndim != 1 or (len(rows) and not 0 <= rows.min() <= rows.max() < len(q)):
+    rows = np.asarray(which.rows)
+    if rows.dtype != np.int64 or rows.ndim != 1 or (len(rows) and not 0 <= rows.min() <= rows.max() < len(now.q)):
         raise ValueError("group_advance_generic: rows must be int64 indices of the arms (0 <= row < q.shape[0])")
-    window = np.asarray(window)
-    if window.dtype != np.int64 or window.shape != (len(q), 2):
+    window = np.asarray(which.window)
+    if window.dtype != np.int64 or window.shape != (len(now.q), 2):
         raise ValueError("group_advance_generic: window needs an int64 (start, stop) pair of sub-steps per arm")
-    _advance_arms(_GENERIC_SIZES, _GENERIC_SIZES, _ONE_LANE, (n, k), None, 0, len(rows), lam, lengths, base, phi,
-                  damping, bool(passive), q, v, momentum, v_prev, has_prev, rows, window, *args)
+    _advance_arms(_GENERIC_SIZES, _GENERIC_SIZES, _ONE_LANE, (n, k), None, 0, len(rows), model, state,
+                  plain(Stepped(rows, window)), held, world, rcbf, stepping, out,
+                  None if whole is None else WholeArm(*whole))
 
 
 group_advance.__doc__ = _ADVANCE_DOC
