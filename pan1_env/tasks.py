@@ -109,22 +109,15 @@ class FormationTask:
     """
 
     def __init__(self, config: FormationConfig, copies: int) -> None:
+        self.config = config  # the task's settings, read from it where they are used (weights, gates, tolerances)
         scenario = config.team
         self.layout = layout = ObservationLayout.from_scenario(scenario, config.neighbour_slots, config.n_obstacle_obs,
                                                                ring=config.ring)
-        self.gain_range = config.gain_range
-        self.max_joint_speed, self.success_tolerance = config.max_joint_speed, config.success_tolerance
-        self.weights = (config.formation_weight, config.effort_weight, config.collision_penalty, config.success_bonus,
-                        config.intervention_penalty)
-        self.terminate_on_collision, self.terminate_on_success = config.terminate_on_collision, \
-            config.terminate_on_success
-        self.residual_gate, self.blocked_gate = config.residual_gate, config.blocked_gate
         self.blocked = np.zeros((copies, layout.n.size))  # the filter's change of each arm's last command
         self.edges = np.ascontiguousarray(scenario.formation.edges, dtype=np.int64)
         self.incidence = SparseIncidence.of(self.edges, scenario.n_arms)  # for the law and the residual gate
         self.distances = np.tile(np.asarray(scenario.formation.distances, dtype=float)[None], (copies, 1))
         self.kp = np.full(copies, float(scenario.kp))
-        self.success_hold = config.success_hold
         self.below_since = np.zeros(copies)  # the clock when the error last was at or above the tolerance
         self.motion = None
         if layout.motion:
@@ -202,7 +195,7 @@ class FormationTask:
         z = self.incidence.edge_vectors(engine.positions())  # (B, E, 2)
         e_hat = self.incidence.gradient(z, edge_errors(z, self.distances))  # (B, N, 2)
         return law_velocity(engine, e_hat, self.kp, self.feed_forward if self.motion is not None else None, gain,
-                            self.max_joint_speed)
+                            self.config.max_joint_speed)
 
     def compose(self, action_mode: str, command: np.ndarray, engine: Engine) -> None:
         """Turn the scaled actions ``command (B, N, k_max)`` into velocities in place: :meth:`add_nominal`
@@ -220,7 +213,7 @@ class FormationTask:
         never ascends V (before the filter, velocity tracked exactly), and the formed shape (ê = 0)
         stays an equilibrium whatever the policy outputs; it re-weights the law, it cannot point
         against it."""
-        command[:] = self.nominal_velocity(engine, self.gain_range ** command)
+        command[:] = self.nominal_velocity(engine, self.config.gain_range ** command)
 
     def add_nominal(self, command: np.ndarray, engine: Engine) -> None:
         """Residual actions: add :meth:`nominal_velocity` to the scaled corrections ``command
@@ -231,14 +224,15 @@ class FormationTask:
         scaled by ``min(1, blocked_i / c)``, ``blocked_i`` the filter's change of the arm's previous
         command (the intervention term's measure): the correction acts only where the filter holds the
         paper's law back."""
-        if self.blocked_gate > 0:
-            command *= np.minimum(1.0, self.blocked / self.blocked_gate)[..., None]
-        if self.residual_gate > 0:
+        c = self.config
+        if c.blocked_gate > 0:
+            command *= np.minimum(1.0, self.blocked / c.blocked_gate)[..., None]
+        if c.residual_gate > 0:
             err = np.abs(edge_length_errors(self.incidence.edge_vectors(engine.positions()), self.distances))
             arm_err = self.incidence.largest_at_vertex(err)  # (B, N)
-            command *= np.minimum(1.0, (arm_err / self.residual_gate) ** 2)[..., None]
+            command *= np.minimum(1.0, (arm_err / c.residual_gate) ** 2)[..., None]
         command += self.nominal_velocity(engine)
-        np.clip(command, -self.max_joint_speed, self.max_joint_speed, out=command)
+        np.clip(command, -c.max_joint_speed, c.max_joint_speed, out=command)
 
     def observe(self, engine: Engine) -> tuple[np.ndarray, list[np.ndarray]]:
         """The edges' length errors ``(B, E)`` and every agent's observation, one float32 array
@@ -247,7 +241,7 @@ class FormationTask:
         q, qd = engine.joint_state()
         velocities = engine.obstacle_velocities() if self.layout.obstacle_velocity else None
         return self.layout.build_with_errors(q, qd, engine.positions(), engine.bases, self.edges, self.distances,
-                                             engine.centers, engine.radii, self.max_joint_speed,
+                                             engine.centers, engine.radii, self.config.max_joint_speed,
                                              engine.chunks(engine.copies * engine.n_arms), velocities=velocities,
                                              faulted=engine.faulted, formation_velocity=self.feed_forward)
 
@@ -267,31 +261,33 @@ class FormationTask:
         effort ``‖a_i‖²/k_i (B, N)``; at a reset (``record`` None) of the state in ``engine``. The
         intervention term needs the commanded velocities ``command (B, N, k_max)`` (rad/s; None in
         torque mode, where the term is left out)."""
-        w_form, w_effort, penalty, bonus, w_intervention = self.weights
+        c = self.config
         min_clear = record.min_clearance if record is not None else engine.clearance()
         B = len(err)
         formation, formation_error, success = np.empty(B), np.empty(B), np.empty(B, dtype=bool)
         cost = np.empty(min_clear.shape)
-        kernels().formation_outcome(err, min_clear, w_form, self.success_tolerance, formation, formation_error,
+        kernels().formation_outcome(err, min_clear, c.formation_weight, c.success_tolerance, formation, formation_error,
                                     success, cost)
         if self.motion is not None and self.motion.placed.any():  # a placed shape: each arm also at its point
-            formation -= w_form * self.misplacement.mean(axis=1)
+            formation -= c.formation_weight * self.misplacement.mean(axis=1)
             formation_error = np.maximum(formation_error, self.misplacement.max(axis=1))
-            success &= formation_error < self.success_tolerance
-        if self.success_hold > 0:
+            success &= formation_error < c.success_tolerance
+        if c.success_hold > 0:
             clock = engine.elapsed
             self.below_since = np.where(success, self.below_since, clock)
-            success &= clock - self.below_since >= self.success_hold - 1e-9
+            success &= clock - self.below_since >= c.success_hold - 1e-9
         reward = np.empty_like(cost)
         reward[:] = formation[:, None]
         intervention = 0.0
-        if record is not None and command is not None and (w_intervention or self.blocked_gate):
-            change = ((command - record.v_star) / self.max_joint_speed) ** 2  # NaN in the padding
+        if record is not None and command is not None and (c.intervention_penalty or c.blocked_gate):
+            change = ((command - record.v_star) / c.max_joint_speed) ** 2  # NaN in the padding
             intervention = np.nansum(change, axis=-1) / np.isfinite(change).sum(axis=-1)
             self.blocked[:] = intervention
-        terms = _terms(reward, {"formation": formation[:, None]}, effort=(w_effort, effort), collision=(penalty, cost),
-                       success=(-bonus, success[:, None].astype(float)), intervention=(w_intervention, intervention))
-        terminated = _terminated(success, cost, self.terminate_on_success, self.terminate_on_collision)
+        terms = _terms(reward, {"formation": formation[:, None]}, effort=(c.effort_weight, effort),
+                       collision=(c.collision_penalty, cost),
+                       success=(-c.success_bonus, success[:, None].astype(float)),
+                       intervention=(c.intervention_penalty, intervention))
+        terminated = _terminated(success, cost, c)
         return Outcome(reward, terms, cost, success, terminated,
                        {"formation_error": formation_error, "min_clearance": min_clear})
 
@@ -305,10 +301,11 @@ def _terms(reward: np.ndarray, terms: dict[str, np.ndarray], **weighted: tuple[f
     return terms
 
 
-def _terminated(success: np.ndarray, cost: np.ndarray, on_success: bool, on_collision: bool) -> np.ndarray:
-    """Per copy: success ends the episode with ``on_success``, any arm's collision with ``on_collision``."""
-    terminated = success & on_success
-    if on_collision:
+def _terminated(success: np.ndarray, cost: np.ndarray, config: FormationConfig | ReachConfig) -> np.ndarray:
+    """Per copy: success ends the episode with the config's ``terminate_on_success``, any arm's collision with its
+    ``terminate_on_collision``."""
+    terminated = success & config.terminate_on_success
+    if config.terminate_on_collision:
         terminated |= cost.any(axis=1) > 0
     return terminated
 
@@ -325,10 +322,6 @@ class ReachTask:
         self.config = c = config
         self.arm, self.q0 = c.team.arms[0], np.asarray(c.team.q0[0], dtype=float)
         self.goal = np.zeros((copies, 2))
-        self.n_obstacle_obs, self.max_joint_speed, self.goal_tolerance = c.n_obstacle_obs, c.max_joint_speed, \
-            c.goal_tolerance
-        self.weights = (c.effort_weight, c.collision_penalty)
-        self.terminate_on_success, self.terminate_on_collision = c.terminate_on_success, c.terminate_on_collision
         self.size = 3 * self.arm.n_links + 4 + OBSTACLE_FEATURES * c.n_obstacle_obs
 
     @staticmethod
@@ -388,7 +381,7 @@ class ReachTask:
         n = self.arm.n_links
         low, high = np.full(self.size, -OBS_BOUND, dtype=np.float32), np.full(self.size, OBS_BOUND, dtype=np.float32)
         low[: 2 * n], high[: 2 * n] = -1.0, 1.0
-        flags = [3 * n + 4 + OBSTACLE_FEATURES * s for s in range(self.n_obstacle_obs)]
+        flags = [3 * n + 4 + OBSTACLE_FEATURES * s for s in range(self.config.n_obstacle_obs)]
         low[flags], high[flags] = 0.0, 1.0
         return low, high
 
@@ -397,7 +390,7 @@ class ReachTask:
         kind = engine.kinds[0]
         out = np.empty((engine.copies, self.size), dtype=np.float32)
         kernels().reach_observations(kind.q, kind.qd, kind.p, kind.base, self.goal, engine.centers, engine.radii,
-                                     self.n_obstacle_obs, 1.0 / self.max_joint_speed, OBS_BOUND, out)
+                                     self.config.n_obstacle_obs, 1.0 / self.config.max_joint_speed, OBS_BOUND, out)
         return None, [out[:, None]]
 
     def flat(self, mats: list[np.ndarray]) -> np.ndarray:
@@ -406,13 +399,14 @@ class ReachTask:
     def evaluate(self, record: StepRecord | None, engine: Engine, state: None, effort: np.ndarray,
                  command: np.ndarray | None = None) -> Outcome:
         """The step's outcome (``record`` None at a reset) for effort ``‖a‖²/k (B, 1)``."""
-        w_effort, penalty = self.weights
+        c = self.config
         d = self.goal - engine.positions()[:, 0]
         distance = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
         min_clear = engine.clearance() if record is None else record.min_clearance
         cost = (min_clear < 0).astype(float)
         reward = -distance[:, None]
-        terms = _terms(reward, {"distance": reward.copy()}, effort=(w_effort, effort), collision=(penalty, cost))
-        success = distance < self.goal_tolerance
-        terminated = _terminated(success, cost, self.terminate_on_success, self.terminate_on_collision)
+        terms = _terms(reward, {"distance": reward.copy()}, effort=(c.effort_weight, effort),
+                       collision=(c.collision_penalty, cost))
+        success = distance < c.goal_tolerance
+        terminated = _terminated(success, cost, c)
         return Outcome(reward, terms, cost, success, terminated, {"distance": distance, "min_clearance": min_clear})
