@@ -729,7 +729,9 @@ def test_generic_kernel_checks_its_sizes() -> None:
         call(9, 8, batch, q, v)
     batch, q, v = _group(rng, 3, True, count=1)
     call(3, 2, batch, q, v)  # the sizes the checks below break, one at a time
-    with pytest.raises(ValueError, match="kernel_sizes"):
+    with pytest.raises(ValueError, match="kernel_sizes"):  # size tuples that disagree with the arrays
+        call(3, 3, batch, q, v)
+    with pytest.raises(ValueError, match="kernel_sizes"):  # a passive first joint needs k = n − 1
         call(3, 3, batch, q, np.zeros((1, 3)))
     with pytest.raises(ValueError, match="momentum and damping"):
         call(3, 2, batch, q, v, damping=np.zeros(2))

@@ -119,16 +119,6 @@ _SWITCH = r"""
 import os, time
 import numpy as np
 from pan1_env.environment import parallel_env
-from pan1_env.kernel_groups import (
-    ArmModel,
-    ArmState,
-    Command,
-    EndEffectorObstacles,
-    Stepped,
-    Stepping,
-    StepOutputs,
-    plain,
-)
 from pan1_env.kernels import specialise
 env = parallel_env("random", random_options={"n_arms": 2, "links": (3, 2)}, safety_filter=True)
 env.reset(seed=0)
@@ -153,16 +143,6 @@ _ONE_KIND = {"n_arms": 2, "links": 2, "passive_fraction": 0.0}  # two fully actu
 _EARLY = r"""
 import numpy as np
 from pan1_env.environment import parallel_env
-from pan1_env.kernel_groups import (
-    ArmModel,
-    ArmState,
-    Command,
-    EndEffectorObstacles,
-    Stepped,
-    Stepping,
-    StepOutputs,
-    plain,
-)
 from pan1_env.kernels import specialise
 env = parallel_env("random", random_options=KIND)
 env.reset(seed=0)
@@ -174,16 +154,6 @@ print([kind.specialised for kind in env.unwrapped.engine.kinds], specialise._chi
 _NEXT = r"""
 import numpy as np
 from pan1_env.environment import parallel_env
-from pan1_env.kernel_groups import (
-    ArmModel,
-    ArmState,
-    Command,
-    EndEffectorObstacles,
-    Stepped,
-    Stepping,
-    StepOutputs,
-    plain,
-)
 from pan1_env.kernels import specialise
 env = parallel_env("random", random_options=KIND)
 env.reset(seed=0)
@@ -196,16 +166,6 @@ _UNTIL = r"""
 import time
 import numpy as np
 from pan1_env.environment import parallel_env
-from pan1_env.kernel_groups import (
-    ArmModel,
-    ArmState,
-    Command,
-    EndEffectorObstacles,
-    Stepped,
-    Stepping,
-    StepOutputs,
-    plain,
-)
 from pan1_env.kernels import specialise
 env = parallel_env("random", random_options=KIND)
 env.reset(seed=0)

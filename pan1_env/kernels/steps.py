@@ -79,8 +79,8 @@ class Rk4Stages(NamedTuple):
 
 
 class Tracker(NamedTuple):
-    """The tracker's terms the filters look ahead with: torque mode, K_e, dt, the lanes' q̇ (actuated), their
-    last v* and whether it is set."""
+    """The tracker's terms the filters look ahead with: torque mode, K_e, dt, the lanes' actuated velocities v,
+    their last v* and whether it is set."""
     torque_mode: bool
     ke: float
     dt: float

@@ -365,8 +365,9 @@ def group_advance_generic(links, actuated, model, state, stepped, held, world, r
     It calls :func:`_advance_arms` from Python (``whole`` named here): a compiled wrapper would compile its code a
     second time (numba links a callee into its caller's module), about 2 s more."""
     arms, now, which = ArmModel(*model), ArmState(*state), Stepped(*stepped)  # the checks read them by name
-    n, k = now.q.shape[1], now.v.shape[1]
-    if not 1 <= k <= n <= GENERIC_MAX_LINKS or k != n - bool(arms.passive):
+    n, k = len(links), len(actuated)
+    if now.q.shape[1] != n or now.v.shape[1] != k or not 1 <= k <= n <= GENERIC_MAX_LINKS or \
+            k != n - bool(arms.passive):
         raise ValueError(f"group_advance_generic: arms of n ≤ {GENERIC_MAX_LINKS} links (q.shape[1]) and k actuated "
                          "joints (v.shape[1]), links, actuated = kernel_sizes(n, k): k = n − 1 with a passive first "
                          "joint, else k = n")
@@ -378,6 +379,7 @@ def group_advance_generic(links, actuated, model, state, stepped, held, world, r
     window = np.asarray(which.window)
     if window.dtype != np.int64 or window.shape != (len(now.q), 2):
         raise ValueError("group_advance_generic: window needs an int64 (start, stop) pair of sub-steps per arm")
+    model = plain(arms._replace(passive=bool(arms.passive)))  # one type for every caller's flag: one compilation
     _advance_arms(_GENERIC_SIZES, _GENERIC_SIZES, _ONE_LANE, (n, k), None, 0, len(rows), model, state,
                   plain(Stepped(rows, window)), held, world, rcbf, stepping, out,
                   None if whole is None else WholeArm(*whole))
