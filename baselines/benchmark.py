@@ -70,11 +70,11 @@ def run_episode(env, policy, seed: int, shield: bool) -> dict[str, Any]:
             intervened_steps += any(info["shield_intervened"] for info in infos.values())
         team = next(iter(infos.values()))
         tracking += team["formation_error"]
-        if team["formation_error"] >= core.success_tolerance:  # not is_success, which lags by success_hold
-            last_failure = steps * core.control_dt
+        if team["formation_error"] >= core.config.success_tolerance:  # not is_success, which lags by success_hold
+            last_failure = steps * core.dt
         now_lost = sum(bool(info.get("actuator_lost", False)) for info in infos.values())
         if now_lost > lost:
-            lost, last_fault = now_lost, steps * core.control_dt
+            lost, last_fault = now_lost, steps * core.dt
     final = next(iter(infos.values())) if infos else {"is_success": False}
     success = bool(final["is_success"])
     return {"success": success, "time_to_formation": last_failure if success else None, "return": ret,

@@ -85,7 +85,7 @@ class CirculatingPolicy:
 
     def __init__(self, env, gain: float = 1.0, sense: str = "ccw", activation: float = 0.1, flip_after: float = 15.0,
                  delay: float = 5.0) -> None:
-        if env.action_mode != "velocity":
+        if env.config.action_mode != "velocity":
             raise ValueError("the circulating law outputs velocities: use action_mode='velocity'")
         if sense not in SENSES:
             raise ValueError(f"sense must be one of {sorted(SENSES)}, got {sense!r}")
@@ -100,7 +100,7 @@ class CirculatingPolicy:
     def __call__(self, observations: dict) -> dict:
         actions = self.law(observations)
         team = self.env.unwrapped
-        dt, scenario, speed = team.control_dt, team.scenario, team.max_joint_speed
+        dt, scenario, speed = team.dt, team.scenario, team.config.max_joint_speed
         if team.num_steps == 0 or not self.arms:  # a new episode
             self.arms = [{"sense": self.sense, "acting": 0.0, "pause": 0.0, "flipped": False}
                          for _ in team.possible_agents]

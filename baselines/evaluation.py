@@ -54,7 +54,7 @@ def evaluate(policy: Callable[[np.ndarray], np.ndarray], scenario: str = "random
     venv = Pan1VectorEnv(scenario, len(seeds), safety_filter=shield, **(env_kwargs or {}))
     if hasattr(policy, "attach"):
         policy.attach(venv)
-    B, dt = len(seeds), venv.control_dt
+    B, dt = len(seeds), venv.dt
     obs, _ = venv.reset(seed=seeds)
     live = np.ones(B, dtype=bool)
     ret, cost, clearance = np.zeros(B), np.zeros(B), np.full(B, np.inf)

@@ -135,7 +135,7 @@ def make_policy(name: str, env, seed: int | None = 0) -> Policy:
 
 
 def _reference(env, seed: int | None) -> Policy:
-    if env.action_mode != "velocity":
+    if env.config.action_mode != "velocity":
         raise ValueError("the reference policy outputs velocities: use action_mode='velocity'")
     return ReferencePolicy(env)
 

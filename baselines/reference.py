@@ -71,13 +71,13 @@ class ReferencePolicy:
     Args:
         env: the parallel env, wrapped (e.g. in :class:`~pan1_env.wrappers.SafetyShield`) or not; only
             its public attributes are read: ``possible_agents``, ``scenario`` (each arm's parameters
-            and K_P, re-read at every call, so random scenarios work), ``observation_layout``,
-            ``max_joint_speed`` and ``action_mode``.
+            and K_P, re-read at every call, so random scenarios work), ``observation_layout`` and ``config``
+            (its ``max_joint_speed`` and ``action_mode``).
         kp: overrides the scenario's K_P.
     """
 
     def __init__(self, env, kp: float | None = None) -> None:
-        if getattr(env, "action_mode", "velocity") != "velocity":
+        if getattr(env.config, "action_mode", "velocity") != "velocity":
             raise ValueError("ReferencePolicy outputs velocities: use action_mode='velocity'")
         self.env = env
         self.kp = kp
@@ -96,7 +96,7 @@ class ReferencePolicy:
         lost, drift = d.get("actuator_lost", False), None
         arm = faulted(arm) if lost else arm
         if lost or (arm.passive_first_joint and arm.passive_damping > 0):  # p₁ ≠ 0 possible (else exactly 0)
-            p1 = passive_momentum(arm, d["q"], d["qd_scaled"] * env.max_joint_speed)
+            p1 = passive_momentum(arm, d["q"], d["qd_scaled"] * env.config.max_joint_speed)
             drift = end_effector_drift(arm, d["q"], p1)
         v0 = nominal_velocity(reduced_jacobian(arm, d["q"]), e_hat, kp, drift, d.get("formation_velocity"))
         if gain is not None:
@@ -105,7 +105,7 @@ class ReferencePolicy:
             if gain.shape != v0.shape or not np.all(gain > 0):
                 raise ValueError(f"gain for {agent} must be {v0.shape[0]} positive numbers, got {gain.tolist()}")
             v0 = v0 * gain
-        a = within_speed(v0, env.max_joint_speed) / env.max_joint_speed
+        a = within_speed(v0, env.config.max_joint_speed) / env.config.max_joint_speed
         if lost:  # the action keeps the full arm's shape; the lost joint's entry is ignored
             a = np.concatenate([[0.0], a])
         return a.astype(np.float32)

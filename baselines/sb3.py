@@ -92,13 +92,14 @@ def sb3_policy(path: Path, env) -> Callable[[Mapping[str, np.ndarray]], dict[str
     blocked_gate = float(trained.get("blocked_gate", 0.0))
     gain_range = float(trained.get("gain_range", DEFAULT_GAIN_RANGE))
     last: dict[str, np.ndarray] = {}  # the velocity actions sent at the previous step (blocked gate)
-    if trained_mode == env.action_mode == "gain" and env.gain_range != gain_range:
-        raise ValueError(f"{path} was trained with gain_range={gain_range}; this env has gain_range={env.gain_range}")
+    if trained_mode == env.config.action_mode == "gain" and env.config.gain_range != gain_range:
+        raise ValueError(f"{path} was trained with gain_range={gain_range}; this env has "
+                         f"gain_range={env.config.gain_range}")
     reference = None
-    if trained_mode != env.action_mode:
-        if trained_mode not in ("residual", "gain") or env.action_mode != "velocity":
+    if trained_mode != env.config.action_mode:
+        if trained_mode not in ("residual", "gain") or env.config.action_mode != "velocity":
             raise ValueError(f"{path} was trained with action_mode={trained_mode!r}; this env has "
-                             f"action_mode={env.action_mode!r}")
+                             f"action_mode={env.config.action_mode!r}")
         reference = ReferencePolicy(env)  # the paper's law from observations, corrected or re-weighted
     splits = np.cumsum(sizes)[:-1]
 

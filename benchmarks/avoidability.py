@@ -130,7 +130,7 @@ def _spells(env, policy, seed: int, horizon: float, after: float, samples: int) 
     spell is recorded, not judged (``avoidable`` None)."""
     team = env.unwrapped
     obs, _ = env.reset(seed=seed)
-    scenario, dt = team.scenario, team.control_dt
+    scenario, dt = team.scenario, team.dt
     centers, radii = scenario.obstacles.centers, scenario.obstacles.radii
     moving = scenario.obstacle_paths is not None
     path_ends = scenario.obstacle_paths if moving else centers
@@ -157,7 +157,7 @@ def _spells(env, policy, seed: int, horizon: float, after: float, samples: int) 
             p1 = float(passive_momentum(arm, q[i, :n], qd[i, :n])) if arm.passive_first_joint else 0.0
             window = step * dt - t0 + after
             verdict = judge(arm, q[i, :n], p1, centers, path_ends, speeds, radii, link_radius=scenario.link_radius,
-                            max_speed=team.max_joint_speed, t0=t0, window=window, samples=samples, seed=seed)
+                            max_speed=team.config.max_joint_speed, t0=t0, window=window, samples=samples, seed=seed)
             out.append({"team": seed, "arm": int(i), "contact_s": step * dt, "from_s": t0,
                         "faulted": bool(was_lost[i]), "avoidable": verdict.avoidable,
                         "best_clearance_m": verdict.best_clearance})

@@ -177,7 +177,7 @@ def bench_vector(repeats: int, sizes: tuple[int, ...]) -> list[tuple[str, float,
         arms = B * 4
         per_arm[B], fastest[B] = t / arms, min(samples) / arms
         rows.append((f"vector env step, B = {B} (× 4 arms)", t, ""))
-        rows.append((f"  arm-steps per second at B = {B} (×{venv.substeps} physics sub-steps each)",
+        rows.append((f"  arm-steps per second at B = {B} (×{venv.config.substeps} physics sub-steps each)",
                      arms / t, "rate"))
     single_step = _gym_stepper(GymSafetyShield(CentralizedEnv("paper_pa3_square")))
     t_single = _median_time(single_step, repeats, 200)
@@ -305,7 +305,7 @@ def bench_gate(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
             step()
         steppers[gate] = step
     hard, gated = _alternating_medians(*steppers.values(), repeats, 5)
-    sub_steps = B * venv.engine.n_arms * venv.substeps
+    sub_steps = B * venv.engine.n_arms * venv.config.substeps
     return [(f"whole-arm v1 with a 5 cm smooth gate, per arm-sub-step (B = {B})", gated / sub_steps, ""),
             ("  ratio to the hard sensing range (target ≤ 1.2)", gated / hard, "ratio")]
 
@@ -331,7 +331,7 @@ def bench_whole_arm(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]
         step = _vector_stepper(venv)
         for _ in range(3):
             step()
-        steppers[name] = (step, B * venv.engine.n_arms * venv.substeps, B * venv.engine.n_arms, venv)
+        steppers[name] = (step, B * venv.engine.n_arms * venv.config.substeps, B * venv.engine.n_arms, venv)
     times = {name: [] for name in variants}
     for _ in range(repeats):  # in alternation, so that a slow spell of the machine hits every variant
         for name, (step, *_) in steppers.items():

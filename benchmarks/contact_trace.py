@@ -92,8 +92,8 @@ def main(argv: list[str] | None = None) -> int:
     radii = drawn.obstacles.radii
     print(f"{args.task}, team {args.seed}, arm {args.arm}: {arm.n_links} links, "
           f"{'passive' if arm.passive_first_joint else 'actuated'} first joint; speed bound "
-          f"{team.max_joint_speed} rad/s. Per link: clearance mm / closing m/s / escape m/s (nearest obstacle)")
-    step, dt = 0, team.control_dt
+          f"{team.config.max_joint_speed} rad/s. Per link: clearance mm / closing m/s / escape m/s (nearest obstacle)")
+    step, dt = 0, team.dt
     while env.agents and step * dt <= args.stop + 1e-9:
         now = step * dt
         q, qd = team.joint_state()
@@ -103,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
             continue
         n = arm.n_links
         links = escape_speeds(arm, q[args.arm, :n], drawn.obstacle_centers(now), drawn.obstacle_velocities(now),
-                              radii, drawn.link_radius, team.max_joint_speed)
+                              radii, drawn.link_radius, team.config.max_joint_speed)
         faced = "  ".join(f"L{ell}:{c * 1e3:+6.1f}/{v:+.2f}/{e:.2f}(o{o})"
                           for ell, (c, v, e, o) in enumerate(zip(links.clearance, links.closing, links.escape,
                                                                  links.obstacle, strict=True)))

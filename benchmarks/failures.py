@@ -201,7 +201,7 @@ def run_episode(env, policy, seed: int) -> dict:
     scenario = core.scenario
     agents = list(core.possible_agents)
     n_arms = len(agents)
-    window = max(1, round(WINDOW_S / core.control_dt))
+    window = max(1, round(WINDOW_S / core.dt))
     positions = deque(maxlen=window + 1)
     errors = deque(maxlen=window + 1)
     blocked = deque(maxlen=window)  # per step: (N,) substantial shield change

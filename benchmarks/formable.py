@@ -225,7 +225,7 @@ def main(argv: list[str] | None = None) -> None:
           f"a team at the defaults ...", file=sys.stderr, flush=True)
 
     env = pan1_env.parallel_env("random")
-    max_speed = env.unwrapped.max_joint_speed
+    max_speed = env.unwrapped.config.max_joint_speed
     records = []
     for k, seed in enumerate(range(args.first, args.first + args.teams)):
         env.reset(seed=seed)

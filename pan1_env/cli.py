@@ -442,7 +442,7 @@ def _cmd_animate(args) -> int:
         from .wrappers import SafetyShield
 
         env = SafetyShield(env)
-    steps = args.steps or env.max_steps
+    steps = args.steps or env.config.max_steps
     every = max(1, int(np.ceil(steps / args.frames)))
     obs, _ = env.reset(seed=args.seed)
     policy = make_policy(args.policy, env, args.seed)

@@ -28,7 +28,6 @@ Infos (:meth:`FormationCore.infos`) are flat arrays, the same keys after a reset
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -44,7 +43,7 @@ from .tasks import FormationTask, ReachTask
 from .team_draw import draw_teams
 from .validation import positive_int
 
-__all__ = ["FormationCore", "CoreStep", "copy_generator", "CoreView", "config_attributes", "per_arm", "FAULT",
+__all__ = ["FormationCore", "CoreStep", "copy_generator", "CoreView", "per_arm", "FAULT",
            "view_repr"]
 
 FAULT = "non-finite state in the physics step; episode truncated"
@@ -439,9 +438,9 @@ def _gather(rule: str, row: list) -> Any:
 
 
 class CoreView:
-    """What every view of a :class:`FormationCore` (``self.core``) exposes besides its own API: the config's
-    arguments as attributes (``env.control_dt``, ``env.max_steps``, …), the engine, task and layout,
-    and the safety filter's switch."""
+    """What every view of a :class:`FormationCore` (``self.core``) exposes besides its own API: the config
+    (``env.config.max_steps``: every argument, validated, defaults resolved), the step's length ``env.dt``, the
+    engine, task and layout, and the safety filter's switch."""
 
     core: FormationCore
 
@@ -529,16 +528,3 @@ def view_repr(view: Any) -> str:
     return (f"{type(view).__name__}({str(scenario)!r}, copies={c.copies}, arms={len(c.agents)}, "
             f"safety_filter={'on' if c.engine.filter is not None else 'off'}, "
             f"action_mode={getattr(c.config, 'action_mode', 'velocity')!r})")
-
-
-def config_attributes(view: type, config: type, skip: tuple[str, ...] = ()) -> type:
-    """Give the view class read-only attributes for the config's arguments (``env.control_dt`` is
-    ``env.core.config.control_dt``), except ``skip`` and those the view names itself (the scenario, the filter)."""
-    for f in dataclasses.fields(config):
-        if f.name not in ("scenario", "safety_filter", "team", "arguments", *skip) and f.name not in view.__dict__:
-            setattr(view, f.name, property(lambda v, name=f.name: getattr(v.core.config, name),
-                                           doc=f"The config's ``{f.name}``."))
-    return view
-
-
-config_attributes(CoreView, FormationConfig)

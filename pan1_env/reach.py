@@ -20,7 +20,7 @@ import numpy as np
 
 from .centralized import OneCopyGymEnv
 from .config import ReachConfig, config_arguments
-from .core import FormationCore, config_attributes
+from .core import FormationCore
 from .safety import FilterParams
 from .scenario import Scenario
 from .validation import hints_unknown_keywords
@@ -153,6 +153,3 @@ class PAReachEnv(OneCopyGymEnv):
     def end_effector(self) -> np.ndarray:
         """The end-effector position (2,) (a copy)."""
         return self.engine.kinds[0].p[0].copy()
-
-
-config_attributes(PAReachEnv, ReachConfig, skip=("arm",))  # env.max_steps, env.goal_tolerance, … read the config

@@ -110,12 +110,12 @@ class Renderer:
         err = np.abs(np.linalg.norm(P[f.edges[:, 0]] - P[f.edges[:, 1]], axis=-1) - distances)
         for (a, b), e in zip(f.edges, err, strict=True):
             ax.plot(*fitted[[a, b]].T, "--", color="0.5", lw=1)
-            formed = e < getattr(env, "success_tolerance", SUCCESS_TOLERANCE)
+            formed = e < getattr(getattr(env, "config", None), "success_tolerance", SUCCESS_TOLERANCE)
             ax.plot(*P[[a, b]].T, "-", color="tab:green" if formed else "tab:orange", lw=1.5)
         ax.set_xlim(lo[0], hi[0])
         ax.set_ylim(lo[1], hi[1])
         ax.set_aspect("equal")
-        time = env.num_steps * env.control_dt
+        time = env.num_steps * env.dt
         ax.set_title(f"{sc.name}  t = {time:.2f} s  max edge error {err.max():.3f} m", fontsize=9)
         self.fig.tight_layout()
         self.fig.canvas.draw()

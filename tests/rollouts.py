@@ -92,7 +92,7 @@ def reference_and_law(make_env, seed: int, steps: int, action_seed: int = 0):
     rng = np.random.default_rng(action_seed)
     for _ in range(steps):
         obs, *_ = env.step({a: rng.uniform(-0.5, 0.5, env.action_space(a).shape) for a in env.agents})
-    law = env.task.nominal_velocity(env.engine)[0] / env.max_joint_speed
+    law = env.task.nominal_velocity(env.engine)[0] / env.config.max_joint_speed
     pairs = [(law[i, : env.n_actuated[i]], ref.act(agent, obs[agent])) for i, agent in enumerate(env.agents)]
     return env, obs, pairs, ref
 
@@ -112,4 +112,4 @@ def reference_episode(team, patch=None):
     while env.agents:
         obs, _, _, _, infos = env.step(policy(obs))
         errors.append(infos["arm_0"]["formation_error"])
-    return env, obs, infos, env.control_dt * np.arange(1, len(errors) + 1), np.array(errors)
+    return env, obs, infos, env.dt * np.arange(1, len(errors) + 1), np.array(errors)

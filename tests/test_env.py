@@ -50,7 +50,7 @@ def test_gymnasium_check_env_no_warnings(env_id: str, max_steps: int) -> None:
     newer = f"The environment {env_id} is out of date"
     assert [str(w.message) for w in caught if newer not in str(w.message)] == []
     # the env's own clock truncates (one rule: max_steps); no TimeLimit that could disagree with it
-    assert env.spec.max_episode_steps is None and env.unwrapped.max_steps == max_steps
+    assert env.spec.max_episode_steps is None and env.unwrapped.config.max_steps == max_steps
 
 
 def test_episode_length_follows_control_dt_through_gymnasium_make() -> None:
@@ -62,7 +62,7 @@ def test_episode_length_follows_control_dt_through_gymnasium_make() -> None:
         _, _, terminated, truncated, _ = env.step(np.zeros(env.action_space.shape, np.float32))
         steps += 1
         assert not terminated
-    assert steps == 1000 == env.unwrapped.max_steps
+    assert steps == 1000 == env.unwrapped.config.max_steps
 
 
 def test_make_in_fresh_interpreter(tmp_path) -> None:
@@ -211,7 +211,7 @@ def test_constructors_name_their_arguments() -> None:
         gymnasium.make("pan1_env/PaperPA3Square-v0", contol_dt=0.1)
     with pytest.raises(TypeError, match="did you mean 'max_steps'"):
         gymnasium.make(REACH_ENV_ID, max_step=10)
-    assert gymnasium.make("pan1_env/PaperPA3Square-v0", max_steps=5).unwrapped.parallel.max_steps == 5
+    assert gymnasium.make("pan1_env/PaperPA3Square-v0", max_steps=5).unwrapped.parallel.config.max_steps == 5
 
 
 @pytest.mark.parametrize("kwargs, match", [

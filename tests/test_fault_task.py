@@ -112,7 +112,7 @@ def test_the_flag_shows_a_fault_from_its_sub_step() -> None:
         obs, infos = env.reset(seed=seed)
         times, dt = env.unwrapped.scenario.fault_times, env.unwrapped.engine.physics_dt
         for step in range(12):
-            now = step * env.unwrapped.control_dt
+            now = step * env.unwrapped.dt
             for i, agent in enumerate(env.agents):
                 assert infos[agent]["actuator_lost"] == (times[i] < now + dt - 1e-9), (seed, step, i, times[i])
                 applied = infos[agent]["shield_applied"]

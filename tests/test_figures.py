@@ -55,7 +55,7 @@ def test_frames_number_the_arms_from_one_like_the_figures(name: str) -> None:
     P = np.array([end_effector(arm, q0) for arm, q0 in zip(sc.arms, sc.q0, strict=True)])
     # what the renderer reads of an env (the edge colours compare with the env's success tolerance)
     env = SimpleNamespace(scenario=sc, joint_state=lambda: (q, np.zeros_like(q)), end_effectors=lambda: P,
-                          num_steps=0, control_dt=0.05, success_tolerance=0.01)
+                          num_steps=0, dt=0.05, config=SimpleNamespace(success_tolerance=0.01))
     renderer = Renderer()
     try:
         frame = renderer.draw(env)

@@ -271,7 +271,7 @@ def test_reproduce_measures_and_follows_a_moving_formation() -> None:
     assert np.abs(ff).max() > 1e-3
     v_sim, v_env = sim.nominal_velocity(), env.task.nominal_velocity(env.engine)[0]
     np.testing.assert_allclose(env.task.feed_forward[0], ff, rtol=1e-12)
-    peak = np.maximum(np.nanmax(np.abs(v_sim), axis=1) / env.max_joint_speed, 1.0)  # the env scales to its speed
+    peak = np.maximum(np.nanmax(np.abs(v_sim), axis=1) / env.config.max_joint_speed, 1.0)  # the env scales to its speed
     np.testing.assert_allclose(v_env, v_sim / peak[:, None], rtol=1e-10, atol=1e-12)
 
 

@@ -22,7 +22,7 @@ def _nearest_clearance(env, agent: str, obs: np.ndarray) -> float:
     """Clearance of the agent's end-effector to its nearest obstacle, from the documented observation."""
     core = env.unwrapped
     n = core.scenario.arms[core.possible_agents.index(agent)].n_links
-    k = core.n_obstacle_obs
+    k = core.config.n_obstacle_obs
     slot = obs.size - 5 * k  # the first (nearest) obstacle slot: present, dx, dy, r, h
     present, dx, dy, r = obs[slot : slot + 4].astype(float)
     assert slot >= 3 * n + 2 and present == 1.0
@@ -64,7 +64,7 @@ def test_extreme_actions_are_reported_not_raised(name: str) -> None:
                 env.step(_full_actions(env, rng))
         else:
             core = env.unwrapped
-            assert core.num_steps >= core.max_steps or not any(truncs.values()), "truncated without a reason"
+            assert core.num_steps >= core.config.max_steps or not any(truncs.values()), "truncated without a reason"
             for agent in obs:  # the step's minimum covers its last sub-step
                 assert infos[agent]["min_clearance"] <= _nearest_clearance(env, agent, obs[agent]) + 1e-4
         if not env.agents:

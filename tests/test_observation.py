@@ -15,11 +15,11 @@ def _reference(env) -> dict[str, np.ndarray]:
     z = P[sc.formation.edges[:, 1]] - P[sc.formation.edges[:, 0]]
     err = np.linalg.norm(z, axis=-1) - sc.formation.distances
     centers, radii = sc.obstacles.centers, sc.obstacles.radii
-    K, D = env.n_obstacle_obs, env.observation_layout.slots
+    K, D = env.config.n_obstacle_obs, env.observation_layout.slots
     out = {}
     for i, agent in enumerate(env.agents):
         n = sc.arms[i].n_links
-        o = [np.cos(q[i, :n]), np.sin(q[i, :n]), qd[i, :n] / env.max_joint_speed, P[i] - sc.arms[i].base]
+        o = [np.cos(q[i, :n]), np.sin(q[i, :n]), qd[i, :n] / env.config.max_joint_speed, P[i] - sc.arms[i].base]
         nbrs = [int(j) for j in sc.formation.neighbours(i)]
         if env.config.ring:  # the documented shared order: one back, one forward, two back, two forward
             nbrs = [(i + d) % len(sc.arms) for d in (-1, 1, -2, 2)[: len(nbrs)]]
@@ -76,7 +76,7 @@ def test_multi_threaded_observations_equal_the_serial_ones_and_bad_chunks_are_re
     engine, task = venv.engine, venv.task
     q, qd = engine.joint_state()
     args = (q, qd, engine.positions(), engine.bases, task.edges, task.distances, engine.centers, engine.radii,
-            venv.max_joint_speed)
+            venv.config.max_joint_speed)
     layout = venv.observation_layout
     err, serial = layout.build_with_errors(*args)
     err3, chunked = layout.build_with_errors(*args, 3)
@@ -105,7 +105,7 @@ def test_a_layout_needs_what_its_team_observes(env_id, options, keyword, bad, me
     engine, layout, task = env.engine, env.observation_layout, env.task
     q, qd = engine.joint_state()
     args = (q, qd, engine.positions(), engine.bases, np.zeros((1, len(task.edges))), engine.centers, engine.radii,
-            env.max_joint_speed)
+            env.config.max_joint_speed)
     for value in (None, bad):
         with pytest.raises(ValueError, match=message):
             layout.build(*args, **{keyword: value})

@@ -32,7 +32,7 @@ def test_private_attributes_stay_private_behind_wrappers() -> None:
     core = env.unwrapped
     assert env.observation_layout is core.observation_layout
     assert env.scenario is core.scenario and env.possible_agents == core.possible_agents
-    assert env.max_joint_speed == core.max_joint_speed and env.action_mode == core.action_mode == "velocity"
+    assert env.config is core.config and env.config.action_mode == "velocity"  # the wrapper forwards the config
 
 
 def test_observation_layout_is_public_read_only_and_decodes_observations() -> None:
@@ -92,7 +92,7 @@ def test_reference_policy_behind_the_shield_forms_the_square_without_cost() -> N
     """The way a user writes it: the policy built on the shielded env itself (default max_steps)."""
     env = SafetyShield(parallel_env("paper_pa_mixed_square"))
     cost, _, steps, infos = _episode(env, ReferencePolicy(env))
-    assert steps == env.max_steps
+    assert steps == env.config.max_steps
     assert cost == 0.0
     assert infos["arm_0"]["formation_error"] < 0.01
 

@@ -36,8 +36,8 @@ def test_arm_follows_the_same_trajectory_as_in_the_team_env(scenario: str, arm: 
     core = team.unwrapped
     agent = core.possible_agents[arm]
     rng = np.random.default_rng(3)
-    n, K = reach.arm.n_links, reach.n_obstacle_obs
-    assert K == core.n_obstacle_obs
+    n, K = reach.arm.n_links, reach.config.n_obstacle_obs
+    assert K == core.config.n_obstacle_obs
     for _ in range(60):
         actions = {a: rng.uniform(-1.3, 1.3, team.action_space(a).shape) for a in core.possible_agents}
         obs, _, _, _, info = reach.step(actions[agent])
@@ -60,7 +60,7 @@ def _seek(env: PAReachEnv, gain: float = 2.0, damping: float = 0.05) -> np.ndarr
     """A damped least-squares reaching law, v = J̄ᵀ (J̄ J̄ᵀ + λ² I)⁻¹ K (goal − p), in action units."""
     Jbar = reduced_jacobian(env.arm, env.q)
     v = Jbar.T @ np.linalg.solve(Jbar @ Jbar.T + damping**2 * np.eye(2), gain * (env.goal - env.end_effector))
-    return np.clip(v / env.max_joint_speed, -1, 1)
+    return np.clip(v / env.config.max_joint_speed, -1, 1)
 
 
 def test_the_filter_keeps_a_goal_inside_an_obstacle_out_of_reach() -> None:
@@ -92,8 +92,8 @@ def test_drawn_goals_are_reachable_and_clear_of_obstacles() -> None:
     for seed in range(8):
         _, info = env.reset(seed=seed)
         goal = env.goal
-        assert (np.linalg.norm(obstacles.centers - goal, axis=1) - obstacles.radii).min() >= env.goal_clearance
-        for _ in range(env.max_steps):
+        assert (np.linalg.norm(obstacles.centers - goal, axis=1) - obstacles.radii).min() >= env.config.goal_clearance
+        for _ in range(env.config.max_steps):
             _, reward, terminated, truncated, info = env.step(_seek(env))
             assert info["cost"] == 0.0
             assert reward == pytest.approx(-info["distance"])

@@ -25,7 +25,7 @@ def test_each_team_id_is_the_centralised_view_of_its_scenario(env_id: str) -> No
     env = gymnasium.make(env_id)
     core = env.unwrapped
     assert isinstance(core, CentralizedEnv)
-    assert env.spec.max_episode_steps is None and core.max_steps == twin_max_steps(env_id)
+    assert env.spec.max_episode_steps is None and core.config.max_steps == twin_max_steps(env_id)
     scenario, kwargs = env_arguments(env_id)
     twin = parallel_env(scenario, **kwargs)
     agents = twin.possible_agents
@@ -66,7 +66,7 @@ def test_the_gymnasium_step_sums_the_arms_costs_and_averages_their_rewards() -> 
 def twin_max_steps(env_id: str) -> int:
     """The episode length an id's parallel env takes: the scenario's horizon over control_dt."""
     scenario, kwargs = env_arguments(env_id)
-    return parallel_env(scenario, **kwargs).max_steps
+    return parallel_env(scenario, **kwargs).config.max_steps
 
 
 def test_env_arguments_of_a_scenario_and_of_an_id() -> None:
@@ -93,7 +93,7 @@ def test_gymnasium_make_passes_arguments_to_the_env() -> None:
     env = gymnasium.make("pan1_env/RandomFormation-v0", random_options={"n_arms": 3, "links": 2}, max_steps=11)
     env.reset(seed=1)
     parallel = env.unwrapped.parallel
-    assert parallel.max_steps == 11
+    assert parallel.config.max_steps == 11
     assert len(parallel.possible_agents) == 3
     assert [arm.n_links for arm in parallel.scenario.arms] == [2, 2, 2]
     assert env.action_space.shape == (sum(parallel.action_space(a).shape[0] for a in parallel.possible_agents),)

@@ -133,9 +133,8 @@ def test_paper_scenario_frame_has_no_capsules_or_paths(draw) -> None:
     disks = [p.center for p in drawn.ax.patches if p.get_fill()]
     np.testing.assert_array_equal(disks, sc.obstacles.centers)
     # still obstacles: the engine's centres are the scenario's, so the frame is the one drawn from the scenario
-    stand_in = dataclasses.make_dataclass("StandIn", ["scenario", "joint_state", "end_effectors", "num_steps",
-                                                      "control_dt"])
-    plain, _ = draw(stand_in(sc, env.joint_state, env.end_effectors, env.num_steps, env.control_dt), 480)
+    stand_in = dataclasses.make_dataclass("StandIn", ["scenario", "joint_state", "end_effectors", "num_steps", "dt"])
+    plain, _ = draw(stand_in(sc, env.joint_state, env.end_effectors, env.num_steps, env.dt), 480)
     np.testing.assert_array_equal(frame, plain)
     env.close()
 

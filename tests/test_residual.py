@@ -28,7 +28,7 @@ def test_the_nominal_velocity_is_the_reference_policy(scenario) -> None:
     rng = np.random.default_rng(1)
     obs, _ = env.reset(seed=4)
     for _ in range(5):
-        nominal = env.task.nominal_velocity(env.engine)[0] / env.max_joint_speed
+        nominal = env.task.nominal_velocity(env.engine)[0] / env.config.max_joint_speed
         for i, agent in enumerate(env.agents):
             expected = ref.act(agent, obs[agent])  # from float32 observations
             np.testing.assert_allclose(nominal[i, : env.n_actuated[i]], expected, rtol=1e-4, atol=1e-5)
@@ -54,11 +54,12 @@ def test_the_correction_is_added_and_clipped_to_the_speed_limit() -> None:
     nominal = env.task.nominal_velocity(env.engine)[0]
     command, effort = env.commands({a: np.full(env.action_space(a).shape, 0.25, np.float32) for a in env.agents})
     k = env.n_actuated[0]
-    expected = np.clip(nominal[:, :k] + 0.25 * env.max_joint_speed, -env.max_joint_speed, env.max_joint_speed)
+    speed = env.config.max_joint_speed
+    expected = np.clip(nominal[:, :k] + 0.25 * speed, -speed, speed)
     np.testing.assert_allclose(command[0, :, :k], expected, rtol=1e-12)
     np.testing.assert_allclose(effort, 0.25**2)  # the effort term sees the correction only
     command, _ = env.commands({a: np.full(env.action_space(a).shape, 1.0, np.float32) for a in env.agents})
-    assert np.all(command <= env.max_joint_speed) and np.any(command == env.max_joint_speed)
+    assert np.all(command <= env.config.max_joint_speed) and np.any(command == env.config.max_joint_speed)
 
 
 @pytest.mark.parametrize("mode", ["residual", "gain"])
@@ -98,8 +99,8 @@ def test_the_gate_scales_each_arms_correction_by_its_squared_edge_error() -> Non
         scale = min(1.0, (max(errors) / gate) ** 2)
         assert 0 < scale < 1
         k = env.n_actuated[i]
-        expected = np.clip(nominal[i, :k] + scale * float(np.float32(0.1)) * env.max_joint_speed, -env.max_joint_speed,
-                           env.max_joint_speed)
+        speed = env.config.max_joint_speed
+        expected = np.clip(nominal[i, :k] + scale * float(np.float32(0.1)) * speed, -speed, speed)
         np.testing.assert_allclose(command[0, i, :k], expected, rtol=1e-12)
     with pytest.raises(ValueError, match="residual_gate"):
         parallel_env("random", residual_gate=-1.0)
@@ -117,14 +118,14 @@ def test_the_blocked_gate_opens_only_where_the_filter_changed_the_last_command()
     sent = np.zeros_like(rec.v_star[0])
     for i in range(len(env.agents)):  # what was commanded at that step: the nominal alone (gate shut)
         sent[i, : k[i]] = nominal[i, : k[i]]
-    blocked = [np.sum((sent[i, : k[i]] - rec.v_star[0, i, : k[i]]) ** 2) / k[i] / env.max_joint_speed**2
+    blocked = [np.sum((sent[i, : k[i]] - rec.v_star[0, i, : k[i]]) ** 2) / k[i] / env.config.max_joint_speed**2
                for i in range(len(env.agents))]
     nominal = env.task.nominal_velocity(env.engine)[0]
     command, _ = env.commands(full)
     for i in range(len(env.agents)):
         scale = min(1.0, blocked[i] / 0.5)
-        expected = np.clip(nominal[i, : k[i]] + scale * float(np.float32(0.5)) * env.max_joint_speed,
-                           -env.max_joint_speed, env.max_joint_speed)
+        expected = np.clip(nominal[i, : k[i]] + scale * float(np.float32(0.5)) * env.config.max_joint_speed,
+                           -env.config.max_joint_speed, env.config.max_joint_speed)
         np.testing.assert_allclose(command[0, i, : k[i]], expected, rtol=1e-9, atol=1e-12)
     assert any(b > 0 for b in blocked) and any(b == 0 for b in blocked)  # the filter held some arms only
 
@@ -142,7 +143,7 @@ def test_a_gain_multiplies_each_joints_term_of_the_law_before_the_speed_limit(sc
         for i, agent in enumerate(env.agents):
             k = env.n_actuated[i]
             expected = ref.act(agent, obs[agent], 3.0 ** actions[agent].astype(float))  # from observations
-            np.testing.assert_allclose(command[0, i, :k] / env.max_joint_speed, expected, rtol=1e-4, atol=1e-5)
+            np.testing.assert_allclose(command[0, i, :k] / env.config.max_joint_speed, expected, rtol=1e-4, atol=1e-5)
             assert effort[i] == pytest.approx(np.mean(actions[agent].astype(float) ** 2), rel=1e-6)
         obs, *_ = env.step(actions)
     # a gain of g on every joint is the law with K_P·g
@@ -151,7 +152,7 @@ def test_a_gain_multiplies_each_joints_term_of_the_law_before_the_speed_limit(sc
     full = {a: np.ones(env.action_space(a).shape, np.float32) for a in env.agents}
     command, _ = env.commands(full)
     for i, agent in enumerate(env.agents):
-        np.testing.assert_allclose(command[0, i, : env.n_actuated[i]] / env.max_joint_speed,
+        np.testing.assert_allclose(command[0, i, : env.n_actuated[i]] / env.config.max_joint_speed,
                                    fast.act(agent, obs[agent]), rtol=1e-4, atol=1e-5)
 
 

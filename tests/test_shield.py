@@ -184,6 +184,6 @@ def test_nearly_degenerate_row_brakes_instead_of_blowing_up() -> None:
     while env.agents:
         obs, _, _, _, infos = env.step(policy(obs))
         assert all("fault" not in info and info["cost"] == 0.0 for info in infos.values())
-        assert max(np.abs(kind.v).max() for kind in core.engine.kinds) < 3.0 * core.max_joint_speed
+        assert max(np.abs(kind.v).max() for kind in core.engine.kinds) < 3.0 * core.config.max_joint_speed
         fallbacks += sum(info["shield_fallback"] for info in infos.values())
     assert fallbacks > 0

@@ -60,7 +60,7 @@ def test_intervention_term_is_the_filters_change_of_the_command() -> None:
     rec = env.last_step
     for i, agent in enumerate(env.agents):
         k = env.n_actuated[i]
-        change = np.sum((env.max_joint_speed - rec.v_star[0, i, :k]) ** 2) / k / env.max_joint_speed**2
+        change = np.sum((env.config.max_joint_speed - rec.v_star[0, i, :k]) ** 2) / k / env.config.max_joint_speed**2
         assert infos[agent]["reward_intervention"] == pytest.approx(-0.5 * change, rel=1e-12)
     assert any(infos[a]["reward_intervention"] < 0 for a in env.agents)  # the filter acted
     plain = parallel_env("paper_pa_mixed_square", intervention_penalty=0.5)  # no filter: v* is the command

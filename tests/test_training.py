@@ -399,7 +399,7 @@ def test_gymnasium_ids_name_tasks_for_training_and_the_benchmark(tmp_path) -> No
     seen = []
 
     def probe(env, seed):  # what the benchmark built for the id
-        seen.append(env.unwrapped.random_options)
+        seen.append(env.unwrapped.config.random_options)
         return ZeroPolicy(env)
 
     register_policy("probe_whole_arm", probe)
@@ -598,7 +598,7 @@ def test_the_shipped_paper_models_form_the_shape_before_the_paper_law(name) -> N
         policy = make_policy("pretrained", env) if policy_name == "pretrained" else ReferencePolicy(env)
         obs, _ = env.reset(seed=0)
         trace = []
-        for _ in range(int(round((recorded + 0.5) / env.unwrapped.control_dt))):
+        for _ in range(int(round((recorded + 0.5) / env.unwrapped.dt))):
             obs, _, _, _, infos = env.step(policy(obs))
             trace.append(max(i["formation_error"] for i in infos.values()))
             assert all(i["cost"] == 0.0 for i in infos.values())

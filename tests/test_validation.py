@@ -52,7 +52,7 @@ def test_float_array_passes_numbers_through() -> None:
 ])
 def test_env_arguments(kwargs, match) -> None:
     if match is None:
-        assert parallel_env("paper_pa3_square", **kwargs).control_dt == pytest.approx(0.05)
+        assert parallel_env("paper_pa3_square", **kwargs).dt == pytest.approx(0.05)
     else:
         with pytest.raises(ValueError, match=match):
             parallel_env("paper_pa3_square", **kwargs)
