@@ -77,7 +77,7 @@ class ReferencePolicy:
     """
 
     def __init__(self, env, kp: float | None = None) -> None:
-        if getattr(env.config, "action_mode", "velocity") != "velocity":
+        if env.config.action_mode != "velocity":
             raise ValueError("ReferencePolicy outputs velocities: use action_mode='velocity'")
         self.env = env
         self.kp = kp

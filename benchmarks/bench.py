@@ -371,7 +371,7 @@ def bench_kernel(repeats: int) -> list[tuple[str, float, str]]:
     venv.action_space.seed(0)
     for _ in range(20):
         venv.step(venv.action_space.sample())
-    kind, t, f = venv.engine.kinds[0], venv, venv.safety_filter
+    kind, t, f = venv.engine.kinds[0], venv.config, venv.safety_filter
     A, k, n = kind.q.shape[0], kind.k, kind.n
     ke = venv.engine.ke
     command = np.random.default_rng(0).uniform(-1.0, 1.0, (A, k))
