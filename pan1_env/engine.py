@@ -549,13 +549,14 @@ class Engine:
         P = self.joint_positions()
         between = np.full((B, N), np.inf)
         self.refresh_capsules(P)
+        sensing = self.filter_range(torque)
         for sub in range(substeps):
             for kind, (args, _) in zip(kinds, calls, strict=True):
                 # a call after the step's first starts from the link angles' sines and cosines the
                 # previous one ended with (`carried`, as one call's sub-steps do); only the last
                 # computes the joint velocities and end-effectors (`finish`)
                 self._call(kind, args, kind.whole._replace(carried=sub > 0, finish=sub == substeps - 1,
-                                                           sensing=self.filter_range(torque)))
+                                                           sensing=sensing))
             # the kernel placed the obstacles from the clock itself; the clock moves on here
             self._geometry("after_substep", B * N, self.copy_rows, self._team_joints, clear, finite,
                            ok, self._team_start_time, self._team_caps, self.radii.shape[1], self.link_radius,
