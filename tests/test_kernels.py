@@ -4,6 +4,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from kernel_args import kernel_groups
 from numba import njit
 
 from pan1_env import kernels
@@ -11,16 +12,7 @@ from pan1_env.cascade import cascade_rk4_step, cascade_terms, end_effector_drift
 from pan1_env.compiled import kernel_filter, kernel_sizes
 from pan1_env.control import backstepping_torque
 from pan1_env.dynamics import ArmBatch, ArmParams, end_effector
-from pan1_env.kernel_groups import (
-    ArmModel,
-    ArmState,
-    Command,
-    EndEffectorObstacles,
-    StepOutputs,
-    Stepped,
-    Stepping,
-    plain,
-)
+from pan1_env.kernel_groups import plain
 from pan1_env.kernels._numba_ext import _JIT, _LANES, _local, _slp_vectorised
 from pan1_env.kernels.physics import _SERIES_MAX, _SERIES_SHORT, _rotate_lanes, _spd_solve
 from pan1_env.kernels.qp import _first_projection_lanes
@@ -40,17 +32,6 @@ def _rcbf(kappa: float, epsilon: float, margin: float, distance: bool, decay: fl
     return plain(kernel_filter(FilterParams(kappa, epsilon, margin, barrier="distance" if distance else "squared",
                                             decay=decay), tau_max))
 
-
-def _kernel_groups(batch, damping, passive, q, v, momentum, v_prev, has_prev, rows, window, command, torque, filter_on,
-                   centers, radii, mask, rcbf, ke, dt, n_sub, v_max, outputs) -> tuple:
-    """group_advance's plain groups after its size tuples, built by name; ``outputs`` in StepOutputs' order."""
-    return tuple(plain(group) for group in (
-        ArmModel(lam=batch.lam, lengths=batch.lengths, base=batch.base, phi=batch.phi, damping=damping,
-                 passive=passive),
-        ArmState(q=q, v=v, momentum=momentum, v_prev=v_prev, has_prev=has_prev),
-        Stepped(rows=rows, window=window), Command(command=command, torque_mode=torque, filter_on=filter_on),
-        EndEffectorObstacles(centers=centers, radii=radii, mask=mask), rcbf,
-        Stepping(ke=ke, dt=dt, n_sub=n_sub, v_max=v_max), StepOutputs(*outputs)))
 
 def _group(rng: np.random.Generator, n: int, passive: bool, count: int = 5):
     arms = []
@@ -128,7 +109,7 @@ def _advance(batch, q, v, command, *, v_prev=None, torque=False, filter_on=False
                track=np.zeros(A), finite=np.zeros(A, bool))
     sizes = kernel_sizes(q.shape[1], k) if sizes is None else sizes
     momentum = _per_arm(momentum, A)
-    args = (*sizes, *_kernel_groups(batch, _per_arm(damping, A), batch.passive_first_joint, q, v, momentum, prev,
+    args = (*sizes, *kernel_groups(batch, _per_arm(damping, A), batch.passive_first_joint, q, v, momentum, prev,
                                     has_prev, np.arange(A) if rows is None else rows,
                                     _window(A, n_sub) if window is None else window, command, torque, filter_on,
                                     np.broadcast_to(centers, (A, *centers.shape)).copy(),
@@ -496,7 +477,7 @@ def test_per_arm_obstacles_equal_one_arm_at_a_time() -> None:
                 track=np.zeros(A), finite=np.zeros(A, bool))
     q_all, v_all = q.copy(), v.copy()
     kernels.group_advance(*kernel_sizes(q.shape[1], k),
-                          *_kernel_groups(batch, np.zeros(A), True, q_all, v_all, np.zeros(A), np.zeros((A, k)),
+                          *kernel_groups(batch, np.zeros(A), True, q_all, v_all, np.zeros(A), np.zeros((A, k)),
                                           np.zeros(A, bool), np.arange(A), _window(A, 3), command, False, True, centers,
                                           radii, np.ones((A, 2), bool), _rcbf(0.5, 5.0, 0.0, False, 0.0), 100.0, 1e-3,
                                           3, 2.0, args.values()), None)
@@ -648,7 +629,7 @@ def test_vectorised_kernel_equals_the_kernel_compiled_without_slp() -> None:
             out = [np.zeros((A, 2)), np.zeros(A, bool), np.empty((A, 2)), np.empty((A, 2)), np.empty((A, 3)),
                    np.empty((A, 2)), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64), np.zeros(A),
                    np.zeros(A, bool)]
-            groups = _kernel_groups(batch, np.zeros(A), True, qk, vk, np.zeros(A), out[0], out[1], np.arange(A),
+            groups = kernel_groups(batch, np.zeros(A), True, qk, vk, np.zeros(A), out[0], out[1], np.arange(A),
                                     _window(A, 5), command, torque, True, np.broadcast_to(centers, (A, 3, 2)).copy(),
                                     np.broadcast_to(radii, (A, 3)).copy(), mask, _rcbf(0.5, 5.0, 0.01, distance, decay),
                                     100.0, 1e-2, 5, v_max, out[2:])
@@ -696,7 +677,7 @@ def test_generic_kernel_equals_the_per_kind_kernel(n: int, passive: bool) -> Non
             pk = momentum.copy()
             for _ in range(2):  # the second call starts from the first's v_prev / has_prev
                 kernel(*kernel_sizes(n, k),
-                       *_kernel_groups(batch, damping, passive, qk, vk, pk, out[0], out[1], np.arange(A),
+                       *kernel_groups(batch, damping, passive, qk, vk, pk, out[0], out[1], np.arange(A),
                                        _window(A, 5), command, torque, filter_on,
                                        np.broadcast_to(centers, (A, 3, 2)).copy(),
                                        np.broadcast_to(radii, (A, 3)).copy(), mask,
@@ -718,7 +699,7 @@ def test_generic_kernel_checks_its_sizes() -> None:
         rows = np.arange(1) if rows is None else rows
         outputs = (np.empty((1, k)), np.empty((1, k)), np.empty((1, n)), np.empty((1, 2)), np.full(1, np.inf),
                    np.full(1, np.inf), np.zeros((1, 3), np.int64), np.zeros(1), np.zeros(1, bool))
-        groups = _kernel_groups(batch, damping, True, q, v, np.zeros(1), np.zeros((1, k)), np.zeros(1, bool), rows,
+        groups = kernel_groups(batch, damping, True, q, v, np.zeros(1), np.zeros((1, k)), np.zeros(1, bool), rows,
                                 _window(1, 1), np.zeros((1, k)), False, False, np.zeros((1, 0, 2)), np.zeros((1, 0)),
                                 np.zeros((1, 0), bool), _rcbf(0.5, 5.0, 0.0, False, 0.0), 100.0, 1e-3, 1, np.inf,
                                 outputs)

@@ -15,20 +15,13 @@ import time
 
 import numpy as np
 import pytest
+from kernel_args import kernel_groups
 
 from pan1_env import kernels
 from pan1_env.compiled import kernel_filter, kernel_sizes
+from pan1_env.dynamics import ArmBatch
 from pan1_env.environment import parallel_env
-from pan1_env.kernel_groups import (
-    ArmModel,
-    ArmState,
-    Command,
-    EndEffectorObstacles,
-    StepOutputs,
-    Stepped,
-    Stepping,
-    plain,
-)
+from pan1_env.kernel_groups import plain
 from pan1_env.kernels import specialise, substep
 from pan1_env.safety import FilterParams
 
@@ -36,20 +29,18 @@ TEAM = {"n_arms": 2, "links": (3, 2)}  # a PA2 arm and a fully actuated 2-link a
 
 
 def _args(n: int, passive: bool, A: int = 2) -> tuple:
-    """group_advance's arguments for A resting arms of one kind (no obstacles), its groups built by name."""
+    """group_advance's arguments for A resting arms of one kind (no obstacles)."""
     k = n - 1 if passive else n
     z = lambda *shape: np.zeros(shape)  # noqa: E731
-    lam = np.broadcast_to(np.eye(n), (A, n, n)).copy()
-    groups = (ArmModel(lam=lam, lengths=np.full((A, n), 0.3), base=z(A, 2), phi=z(A), damping=z(A), passive=passive),
-              ArmState(q=z(A, n), v=z(A, k), momentum=z(A), v_prev=z(A, k), has_prev=np.zeros(A, bool)),
-              Stepped(rows=np.arange(A), window=np.tile(np.array([0, 1]), (A, 1))),
-              Command(command=z(A, k), torque_mode=False, filter_on=True),
-              EndEffectorObstacles(centers=z(A, 0, 2), radii=z(A, 0), mask=np.zeros((A, 0), bool)),
-              kernel_filter(FilterParams(1.0, 1.0)), Stepping(ke=100.0, dt=0.01, n_sub=1, v_max=np.inf),
-              StepOutputs(v_star=z(A, k), tau=z(A, k), qd=z(A, n), p=z(A, 2), min_clear=np.full(A, np.inf),
-                          min_h=np.full(A, np.inf), qp_counts=np.zeros((A, 3), np.int64), max_track=z(A),
-                          finite=np.ones(A, bool)))
-    return (*kernel_sizes(n, k), *map(plain, groups), None)
+    arms = ArmBatch(lam=np.broadcast_to(np.eye(n), (A, n, n)).copy(), lengths=np.full((A, n), 0.3), base=z(A, 2),
+                    phi=z(A), passive_first_joint=passive)
+    outputs = (z(A, k), z(A, k), z(A, n), z(A, 2), np.full(A, np.inf), np.full(A, np.inf), np.zeros((A, 3), np.int64),
+               z(A), np.ones(A, bool))
+    groups = kernel_groups(arms, z(A), passive, z(A, n), z(A, k), z(A), z(A, k), np.zeros(A, bool), np.arange(A),
+                           np.tile(np.array([0, 1]), (A, 1)), z(A, k), False, True, z(A, 0, 2), z(A, 0),
+                           np.zeros((A, 0), bool), plain(kernel_filter(FilterParams(1.0, 1.0))), 100.0, 0.01, 1,
+                           np.inf, outputs)
+    return (*kernel_sizes(n, k), *groups, None)
 
 
 def test_policy_reads_the_environment(monkeypatch) -> None:
