@@ -42,6 +42,10 @@ EPISODE_METRICS = ("success", "time_to_formation", "cost", "min_clearance", "int
 _PPO = {"gamma": 0.995, "n_steps": 2000, "batch_size": 4000, "n_epochs": 5, "policy_kwargs": {"log_std_init": -1.0}}
 _SHARED = {"param_sharing": True, "n_envs": 16, "env_kwargs": {"success_bonus": 1.0, "action_mode": "gain"},
            "algo_kwargs": _PPO, "checkpoint_every": 512_000, "eval_every": 1_024_000}
+_BENCHMARL = {"trainer": "benchmarl", "algorithm": "mappo", "shield": True, "copies": 16, "rollout_steps": 2000,
+              "minibatch_frames": 1000, "epochs": 5, "lr": 3e-4, "gamma": 0.995, "gae_lambda": 0.95,
+              "max_grad_norm": 0.5, "initial_std": 0.37, "eval_every": 8, "eval_episodes": 10, "checkpoint_every": 4,
+              "env_kwargs": {"success_bonus": 1.0, "action_mode": "gain"}}
 # fewer held-out teams than this run in-process: starting spawned workers (each importing numba's kernels) costs more
 _POOL_MIN_TEAMS = 16
 
@@ -68,6 +72,17 @@ class Entry:
         task and judged on others (``trained_on``, e.g. teams of several sizes) that task."""
         return task if self.trained_on is None else suite_task(self.trained_on)
 
+    @property
+    def trainer(self) -> str | None:
+        """The library that trains the recipe: ``"sb3"`` (:func:`~pan1_env.baselines.training.train`),
+        ``"benchmarl"`` (:func:`~pan1_env.baselines.benchmarl_training.train_benchmarl`), or None for a policy."""
+        return None if self.recipe is None else self.recipe.get("trainer", "sb3")
+
+    @property
+    def model_file(self) -> str:
+        """The file a finished run of the recipe writes, which marks it finished."""
+        return "model.json" if self.trainer == "benchmarl" else "model.zip"
+
 
 # one network for any team size is judged on these; a recipe of one team size trains on none of them
 _SIZE_TASKS = ("pan1_env/RandomFormation-v2", "pan1_env/LargeFormation-v0")
@@ -90,6 +105,11 @@ ENTRIES = (
           tasks=_ONE_SIZE_TASKS),
     Entry("ippo-unshielded", "IPPO without the shield and without a cost",
           recipe={"algo": "ppo", "shield": False, **_SHARED}, tasks=_ONE_SIZE_TASKS),
+    # BenchMARL's own Experiment, on one task: its MAPPO with the SB3 entries' batch, epochs, discount and
+    # initial spread (BenchMARL's MLP, no observation normalisation)
+    Entry("benchmarl-mappo", "BenchMARL's MAPPO through its own Experiment, behind the shield: one actor shared by "
+                             "the arms on their own observations, a critic on the team's, re-weighting the law",
+          recipe=_BENCHMARL, tasks=("pan1_env/RandomFormation-v1",)),
     Entry("ippo-sizes", "IPPO behind the shield on ring teams of 3 to 8 arms in the same rollouts: one network "
                         "for a team of any size, judged at 4 and 16 arms",
           recipe={"algo": "ppo", "shield": True, **_SHARED, "n_envs": 4, "team_sizes": [3, 4, 5, 6, 7, 8]},
@@ -113,7 +133,7 @@ def task_dir(runs: str | Path, entry_: Entry, task: SuiteTask) -> Path:
 def finished_runs(runs: str | Path, entry_: Entry, task: SuiteTask) -> list[Path]:
     """The finished runs (``model.zip`` written) of the training seeds, in seed order."""
     seeds = entry_.training_task(task).train_seeds
-    return [d for s in seeds if (d := task_dir(runs, entry_, task) / f"seed_{s}" / "model.zip").is_file()]
+    return [d for s in seeds if (d := task_dir(runs, entry_, task) / f"seed_{s}" / entry_.model_file).is_file()]
 
 
 def _recipe_of(run: dict[str, Any], task: SuiteTask) -> tuple:
@@ -122,6 +142,9 @@ def _recipe_of(run: dict[str, Any], task: SuiteTask) -> tuple:
     arguments the recipe sets (not those the task's id and arguments set)."""
     from pan1_env.registration import env_arguments
 
+    if run.get("trainer") == "benchmarl":  # its settings are the recipe's own keys, beside what the run adds
+        recipe = {k: v for k, v in run.items() if k not in ("seed", "task", "task_env_kwargs", "timesteps")}
+        return "benchmarl", json.dumps(recipe, sort_keys=True), run.get("timesteps", task.train_steps)
     task_keys = (*env_arguments(task.env_id, task.env_kwargs)[1], "random_options")
     algo = run.get("algo", "ppo")
     env = {k: v for k, v in run.get("env_kwargs", {}).items() if k not in task_keys}
@@ -241,7 +264,12 @@ def _model(path: Path, task: SuiteTask, seeds: list[int], extra: dict[str, Any])
 
     meta = json.loads(path.with_suffix(".json").read_text())
     scenario, task_kwargs = env_arguments(task.env_id, task.env_kwargs)
-    policy, kwargs = model_policy(path, meta.get("env_kwargs", {}) | task_kwargs | extra)
+    if meta.get("trainer") == "benchmarl":
+        from .benchmarl_training import checkpoint_policy
+
+        policy, kwargs = checkpoint_policy(path, meta["env_kwargs"] | task_kwargs | extra)
+    else:
+        policy, kwargs = model_policy(path, meta.get("env_kwargs", {}) | task_kwargs | extra)
     return _records(evaluate(policy, scenario, seeds, shield=meta.get("shield", True), env_kwargs=kwargs))
 
 
@@ -355,6 +383,13 @@ def train_entry(entry_: Entry, task: SuiteTask, *, runs: str | Path = "runs/suit
         out = task_dir(runs, entry_, task) / f"seed_{seed}"
         if (out / "model.zip").is_file():
             say(f"{out}: finished, left as it is")
+            continue
+        if entry_.trainer == "benchmarl":
+            from .benchmarl_training import train_benchmarl
+
+            say(f"{entry_.name} on {task.env_id}, seed {seed}: BenchMARL's Experiment into {out} …")
+            summaries.append(train_benchmarl(task.env_id, seed, task.train_steps, out, recipe=entry_.recipe,
+                                             env_kwargs=task.env_kwargs))
             continue
         resume = latest_checkpoint(out) is not None
         say(f"{entry_.name} on {task.env_id}, seed {seed}: {'resuming' if resume else 'training'} into {out} …")

@@ -80,3 +80,45 @@ def _run_data(path: Path) -> dict:
     (seeds,) = algorithms.values()
     (run,) = seeds.values()
     return run
+
+
+def test_a_benchmarl_entry_trains_resumes_and_is_scored_on_held_out_teams(tmp_path: Path) -> None:
+    """The suite's BenchMARL entry, shrunk: ``train_entry`` runs BenchMARL's Experiment to the task's budget in arm-
+    steps and marks the run finished; a bigger budget continues from the newest checkpoint (BenchMARL's frame count
+    goes on from it); the suite scores the run's actor on held-out teams, deterministically."""
+    import dataclasses
+
+    import numpy as np
+
+    from pan1_env.baselines import leaderboard as board
+    from pan1_env.baselines.benchmarl_training import checkpoint_policy
+    from pan1_env.baselines.suite import SuiteTask
+    from pan1_env.vector import Pan1VectorEnv
+
+    recipe = board.entry("benchmarl-mappo").recipe | {
+        "copies": 2, "rollout_steps": 50, "minibatch_frames": 50, "epochs": 1, "eval_every": 2, "eval_episodes": 2,
+        "checkpoint_every": 1}
+    small = board.Entry("benchmarl-mappo", "shrunk", recipe=recipe)
+    task = SuiteTask("tiny", "pan1_env/RandomFormation-v1", env_kwargs={"max_steps": 60}, train_steps=4 * 200,
+                     train_seeds=(0,), held_out_teams=3)
+    board.train_entry(small, task, runs=tmp_path, seeds=[0], say=lambda text: None)
+    run = board.task_dir(tmp_path, small, task) / "seed_0"
+    first = json.loads((run / "model.json").read_text())
+    assert first["frames"] == 200 and board.finished_runs(tmp_path, small, task) == [run / "model.json"]
+    (run / "model.json").unlink()  # as if killed after its last checkpoint, and given more budget
+    longer = dataclasses.replace(task, train_steps=4 * 400)
+    board.train_entry(small, longer, runs=tmp_path, seeds=[0], say=lambda text: None)
+    assert json.loads((run / "model.json").read_text())["frames"] == 400
+    assert len([path for path in run.iterdir() if path.is_dir()]) == 1  # the same experiment folder, continued
+
+    policy, kwargs = checkpoint_policy(run / "model.json")
+    data = board.run_suite([longer], [small], runs=tmp_path, teams=3, bar=False)
+    (record,) = data["raw"]["pan1_env"][task.env_id]["benchmarl-mappo"].values()
+    metrics = record["absolute_metrics"]
+    assert len(metrics["success"]) == 3 and metrics["cost"] == [0.0] * 3  # behind the shield
+
+    venv = Pan1VectorEnv(first["scenario"], 3, **kwargs)
+    obs, _ = venv.reset(seed=[5, 6, 7])
+    actions = policy(obs)
+    assert actions.shape == (3, venv.action_space.shape[-1]) and np.abs(actions).max() <= 1
+    np.testing.assert_array_equal(actions, policy(obs))  # deterministic
