@@ -430,6 +430,7 @@ SHIPPED_TASKS = {"random_formation": "pan1_env/RandomFormation-v0",
                  "random_formation_v1_ippo": "pan1_env/RandomFormation-v1",
                  "moving_formation_v1_ippo": "pan1_env/MovingFormation-v1",
                  "whole_arm_formation_v2_ippo": "pan1_env/WholeArmFormation-v2",
+                 "fault_formation_v1_ippo": "pan1_env/FaultFormation-v1",
                  "paper_pa3_square_ippo": "pan1_env/PaperPA3Square-v0",
                  "paper_pa_mixed_square_ippo": "pan1_env/PaperMixedPA-v0",
                  # trained on ring teams of 3-8 arms at once: serves the task at any size
