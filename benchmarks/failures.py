@@ -230,10 +230,8 @@ def run_episode(env, policy, seed: int) -> dict:
 
     qs, qds, P = team_state(env, scenario)
     grad = _grad(scenario, P)
-    params = core.safety_filter
-    kappa, epsilon, margin, barrier, decay = (
-        (params.kappa, params.epsilon, params.margin, params.barrier, params.decay) if params is not None
-        else (scenario.kappa, scenario.epsilon, scenario.safety_margin, "squared", 0.0))
+    params = core.safety_filter or scenario.filter
+    kappa, epsilon, margin, barrier, decay = params.kappa, params.epsilon, params.margin, params.barrier, params.decay
     mask = scenario.obstacle_mask()
     obstacles = scenario.obstacles
     sigma, ee_speed, cos_into, robust = [], [], [], []

@@ -187,8 +187,9 @@ def formable(scenario, cell: float, headings: int, max_speed: float, slack: floa
     centers, radii = scenario.obstacles.centers, scenario.obstacles.radii
     sets = []
     for i, arm in enumerate(arms):
-        rest = resting_cells(arm, cells, centers[mask[i]], radii[mask[i]], scenario.kappa, scenario.epsilon,
-                             scenario.safety_margin, max_speed, psi).reshape(nx, ny)
+        f = scenario.filter
+        rest = resting_cells(arm, cells, centers[mask[i]], radii[mask[i]], f.kappa, f.epsilon, f.margin, max_speed,
+                             psi).reshape(nx, ny)
         sets.append(_dilate(rest, int(np.ceil(slack / cell))))
     for pos in placements:
         for rot in np.arange(0.0, 2 * np.pi, ROTATION_STEP):

@@ -52,7 +52,7 @@ ENV_IDS = {
     "pan1_env/PaperPA3Square-v0": {"scenario": "paper_pa3_square"},
     "pan1_env/PaperMixedPA-v0": {"scenario": "paper_pa_mixed_square"},
     "pan1_env/RandomFormation-v0": {"scenario": "random"},
-    # the filter choices travel in the drawn scenario (its safety_barrier and safety_decay), so that they
+    # the filter choices travel in the drawn scenario (its filter's barrier and decay), so that they
     # apply wherever the filter is switched on: safety_filter=True, the vector env's default, the shields
     "pan1_env/RandomFormation-v1": {"scenario": "random", "random_options": dict(_V1_FILTER)},
     "pan1_env/WholeArmStaticFormation-v0": {"scenario": "random", "random_options": _WHOLE_ARM},

@@ -43,7 +43,7 @@ from .cascade import reduced_jacobian
 from .dynamics import ArmParams, end_effector, mass_matrix
 from .formation import SHAPES, Formation, shape_positions
 from .motion import FormationMotion, check_motion, check_times
-from .safety import BARRIERS, FALLBACKS, Obstacles, clearance
+from .safety import BARRIERS, FALLBACKS, FilterParams, Obstacles, clearance
 from .scenario import BODIES, Scenario
 from .validation import positive_int, real, whole_ratio
 
@@ -440,11 +440,13 @@ def drawn_scenario(opt: RandomScenarioOptions, arms: list[ArmParams], q0: list[n
     return Scenario(
         name="random", description="drawn by pan1_env.random_scenario.random_scenario",
         arms=tuple(arms), q0=tuple(q0), formation=formation, obstacles=Obstacles(centers, radii),
-        kp=opt.kp, ke=opt.ke, kappa=opt.kappa, epsilon=opt.epsilon, physics_dt=opt.physics_dt,
+        kp=opt.kp, ke=opt.ke, filter=FilterParams(opt.kappa, opt.epsilon, barrier=opt.barrier, decay=opt.decay,
+                                                  gate=opt.gate, fallback=opt.fallback, lookahead=opt.lookahead,
+                                                  fault_margin=opt.fault_margin),
+        physics_dt=opt.physics_dt,
         control_dt=opt.control_dt, horizon=opt.horizon, source="<random>", bodies=opt.bodies,
         link_radius=opt.link_radius, inter_arm=opt.inter_arm, obstacle_paths=paths, obstacle_speeds=speeds,
-        safety_barrier=opt.barrier, safety_decay=opt.decay, safety_gate=opt.gate, safety_fallback=opt.fallback,
-        safety_lookahead=opt.lookahead, safety_fault_margin=opt.fault_margin, fault_times=fault_times,
+        fault_times=fault_times,
         motion=motion,
     )
 

@@ -71,7 +71,7 @@ class Renderer:
             pts = np.array(pts)
             self._limits = (pts.min(0) - reach, pts.max(0) + reach)
         lo, hi = self._limits
-        margin = sc.safety_margin
+        margin = sc.filter.margin
         if sc.obstacle_paths is not None:  # a moving obstacle goes back and forth along its path
             moving = sc.moving_obstacles
             for path in np.stack([sc.obstacles.centers[moving], sc.obstacle_paths[moving]], axis=1):

@@ -462,18 +462,19 @@ class FilterParams:
         (the API that took it)."""
         if margin is not None and tracking_bound is not None:
             raise ValueError(f"{owner}: give margin or tracking_bound, not both")
+        own = scenario.filter
         kappa, epsilon, margin, sensing_radius, barrier, decay, gate, fallback, lookahead, fault_margin = _checked(
             owner,
-            scenario.kappa if kappa is None else kappa,
-            scenario.epsilon if epsilon is None else epsilon,
-            scenario.safety_margin if margin is None else margin,
-            sensing_radius,
-            scenario.safety_barrier if barrier is None else barrier,
-            scenario.safety_decay if decay is None else decay,
-            scenario.safety_gate if gate is None else gate,
-            scenario.safety_fallback if fallback is None else fallback,
-            scenario.safety_lookahead if lookahead is None else lookahead,
-            scenario.safety_fault_margin if fault_margin is None else fault_margin,
+            own.kappa if kappa is None else kappa,
+            own.epsilon if epsilon is None else epsilon,
+            own.margin if margin is None else margin,
+            own.sensing_radius if sensing_radius is None else sensing_radius,
+            own.barrier if barrier is None else barrier,
+            own.decay if decay is None else decay,
+            own.gate if gate is None else gate,
+            own.fallback if fallback is None else fallback,
+            own.lookahead if lookahead is None else lookahead,
+            own.fault_margin if fault_margin is None else fault_margin,
         )
         if tracking_bound is not None:
             delta = real(f"{owner}: tracking_bound", tracking_bound, non_negative=True)

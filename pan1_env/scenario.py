@@ -48,9 +48,8 @@ from .bodies import (
 from .dynamics import ArmParams
 from .formation import Formation, FormationError
 from .motion import FormationMotion, check_motion, switch_shape
-from .safety import BARRIERS, FALLBACKS, Obstacles, clearance
+from .safety import FilterParams, Obstacles, clearance
 from .toml_values import FILTER_KEYS, ScenarioError, as_angle, filter_settings, known_keys, number, table, vector
-from .validation import real
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -81,12 +80,11 @@ class Scenario:
     obstacles: Obstacles
     kp: float
     ke: float
-    kappa: float
-    epsilon: float
+    #: the safety filter's settings (the ``[safety]`` table's κ, ε, margin and filter choices)
+    filter: FilterParams
     physics_dt: float
     control_dt: float
     horizon: float
-    safety_margin: float = 0.0
     ignore_unreachable_obstacles: bool = True
     source: str = field(default="<dict>", compare=False)
     bodies: str = "end_effector"
@@ -94,14 +92,6 @@ class Scenario:
     inter_arm: bool = False
     obstacle_paths: np.ndarray | None = None
     obstacle_speeds: np.ndarray | None = None
-    #: the filter's barrier, λ of its tunable ε(h̃), activation gate, last resort's measure, look-ahead along
-    #: moving obstacles' paths and fault margin (:class:`pan1_env.safety.FilterParams`)
-    safety_barrier: str = "squared"
-    safety_decay: float = 0.0
-    safety_gate: float = 0.0
-    safety_fallback: str = "command"
-    safety_lookahead: float = 0.0
-    safety_fault_margin: bool = False
     #: ``(N,)`` s: when each arm's first joint loses its actuator (inf: never; docs/MODEL.md §7); None: no arm
     #: of this team or of the teams an engine loads after it can fault
     fault_times: np.ndarray | None = None
@@ -115,17 +105,9 @@ class Scenario:
             raise ValueError(f"Scenario.link_radius must be finite and non-negative, got {self.link_radius!r}")
         if self.inter_arm and self.bodies != "links":
             raise ValueError('Scenario.inter_arm keeps link capsules apart: it needs bodies="links"')
-        if self.safety_barrier not in BARRIERS:
-            raise ValueError(f"Scenario.safety_barrier must be one of {BARRIERS}, got {self.safety_barrier!r}")
-        if not (math.isfinite(self.safety_decay) and self.safety_decay >= 0):
-            raise ValueError(f"Scenario.safety_decay must be finite and non-negative, got {self.safety_decay!r}")
-        if not (math.isfinite(self.safety_gate) and self.safety_gate >= 0):
-            raise ValueError(f"Scenario.safety_gate must be finite and non-negative, got {self.safety_gate!r}")
-        if self.safety_fallback not in FALLBACKS:
-            raise ValueError(f"Scenario.safety_fallback must be one of {FALLBACKS}, got {self.safety_fallback!r}")
-        real("Scenario.safety_lookahead", self.safety_lookahead, non_negative=True, allow_inf=True)
-        if not isinstance(self.safety_fault_margin, (bool, np.bool_)):
-            raise ValueError(f"Scenario.safety_fault_margin must be True or False, got {self.safety_fault_margin!r}")
+        if not isinstance(self.filter, FilterParams):  # it validated its own fields when it was made
+            raise ValueError("Scenario.filter must be a pan1_env.safety.FilterParams, got "
+                             f"{type(self.filter).__name__}")
         n_obs = len(self.obstacles)
         if (self.obstacle_paths is None) != (self.obstacle_speeds is None):
             raise ValueError("Scenario.obstacle_paths and obstacle_speeds go together: give both or neither")
@@ -304,9 +286,9 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
     ke = number(ctrl, "ke", src, "controller")
     saf = table(data, "safety", src, {"kappa", "epsilon", "margin", "ignore_unreachable_obstacles", "bodies",
                                        "link_radius", "inter_arm", *FILTER_KEYS})
-    kappa = number(saf, "kappa", src, "safety")
-    epsilon = number(saf, "epsilon", src, "safety")
-    margin = number(saf, "margin", src, "safety", positive=False, default=0.0)
+    filter_params = FilterParams(number(saf, "kappa", src, "safety"), number(saf, "epsilon", src, "safety"),
+                                 number(saf, "margin", src, "safety", positive=False, default=0.0),
+                                 **filter_settings(saf, src))
     ignore = saf.get("ignore_unreachable_obstacles", True)
     if not isinstance(ignore, bool):
         raise ScenarioError(src, "safety.ignore_unreachable_obstacles", f"expected true or false, got {ignore!r}")
@@ -389,11 +371,11 @@ def from_dict(data: Mapping[str, Any], source: str = "<dict>", default_name: str
 
     return Scenario(
         name=name, description=description, arms=arms, q0=q0, formation=formation,
-        obstacles=obstacles, kp=kp, ke=ke, kappa=kappa, epsilon=epsilon, physics_dt=physics_dt,
-        control_dt=control_dt, horizon=horizon, safety_margin=margin,
+        obstacles=obstacles, kp=kp, ke=ke, filter=filter_params, physics_dt=physics_dt,
+        control_dt=control_dt, horizon=horizon,
         ignore_unreachable_obstacles=ignore, source=source, bodies=bodies, link_radius=link_radius,
         inter_arm=inter_arm, obstacle_paths=obstacle_paths, obstacle_speeds=obstacle_speeds,
-        **filter_settings(saf, src), fault_times=_fault_times(data, arms, horizon, src),
+        fault_times=_fault_times(data, arms, horizon, src),
         motion=_motion(form, formation, arms, horizon, src),
     )
 

@@ -123,8 +123,8 @@ def known_keys(table: Any, key: str, src: str, allowed: set[str]) -> dict[str, A
 
 def filter_settings(saf: Mapping[str, Any], src: str) -> dict[str, Any]:
     """The filter's choices in the ``[safety]`` table ``saf`` (:data:`FILTER_KEYS`), as the keyword arguments
-    ``safety_barrier``, ``safety_decay``, ``safety_gate``, ``safety_fallback``, ``safety_lookahead`` and
-    ``safety_fault_margin`` of :class:`pan1_env.scenario.Scenario` (:class:`pan1_env.safety.FilterParams`)."""
+    ``barrier``, ``decay``, ``gate``, ``fallback``, ``lookahead`` and ``fault_margin`` of
+    :class:`pan1_env.safety.FilterParams` (a scenario's ``filter``)."""
     barrier = saf.get("barrier", "squared")
     if barrier not in BARRIERS:
         raise ScenarioError(src, "safety.barrier", f"unknown barrier {barrier!r}; allowed values are "
@@ -136,9 +136,9 @@ def filter_settings(saf: Mapping[str, Any], src: str) -> dict[str, Any]:
     fault_margin = saf.get("fault_margin", False)
     if not isinstance(fault_margin, bool):
         raise ScenarioError(src, "safety.fault_margin", f"expected true or false, got {fault_margin!r}")
-    return {"safety_barrier": barrier,
-            "safety_decay": number(saf, "decay", src, "safety", positive=False, default=0.0),
-            "safety_gate": number(saf, "gate", src, "safety", positive=False, default=0.0),
-            "safety_fallback": fallback,
-            "safety_lookahead": number(saf, "lookahead", src, "safety", positive=False, default=0.0, infinite=True),
-            "safety_fault_margin": fault_margin}
+    return {"barrier": barrier,
+            "decay": number(saf, "decay", src, "safety", positive=False, default=0.0),
+            "gate": number(saf, "gate", src, "safety", positive=False, default=0.0),
+            "fallback": fallback,
+            "lookahead": number(saf, "lookahead", src, "safety", positive=False, default=0.0, infinite=True),
+            "fault_margin": fault_margin}

@@ -461,7 +461,7 @@ def test_new_keys_with_odd_values_give_a_scenario_or_a_scenario_error(slot: str,
 def test_scenario_constructor_defaults_keep_old_calls_working() -> None:
     sc = scenario.load("paper_pa3_square")
     fields = {k: getattr(sc, k) for k in ("name", "description", "arms", "q0", "formation", "obstacles", "kp", "ke",
-                                          "kappa", "epsilon", "physics_dt", "control_dt", "horizon")}
+                                          "filter", "physics_dt", "control_dt", "horizon")}
     rebuilt = scenario.Scenario(**fields)
     assert (rebuilt.bodies, rebuilt.link_radius, rebuilt.inter_arm, rebuilt.obstacle_paths) == \
         ("end_effector", 0.0, False, None)

@@ -40,8 +40,8 @@ def test_filter_params_validate_the_choices() -> None:
     SafetyShield(parallel_env("paper_pa3_square"), params=FilterParams.of(team, fallback="barrier_rate",
                                                                            sensing_radius=0.1))
     for bad in (-1.0, float("nan"), float("inf")):
-        with pytest.raises(ValueError, match="SafetyShield: decay"):
-            SafetyShield(parallel_env("paper_pa3_square"), decay=bad)
+        with pytest.raises(ValueError, match="FilterParams: decay"):
+            FilterParams.of(team, decay=bad)
     # δ̄ → Γ(δ̄) with the filter's λ (a larger λ gives a smaller margin)
     shaped = FilterParams.of(team, tracking_bound=0.05, decay=50.0)
     assert shaped.margin == pytest.approx(robust_margin(0.05, 0.5, 5.0, 50.0))
@@ -84,7 +84,7 @@ def test_whole_arm_filter_with_the_choices_blocks_the_adversary(env_id: str, gat
     and a random policy leave cost 0 on still obstacles; with moving ones, only in steps whose QP took the
     fallback (which cannot always keep a moving obstacle out)."""
     base = parallel_env(env_id, max_steps=60)
-    env = SafetyShield(base, **CHOICE, gate=gate)
+    env = SafetyShield(base, params=FilterParams.of(base.scenario, **CHOICE, gate=gate))
     assert (base.safety_filter.barrier, base.safety_filter.decay, base.safety_filter.gate) == ("distance", 50.0, gate)
     adversary = AdversarialPolicy(base)
     interventions = 0
@@ -105,7 +105,7 @@ def test_distance_barrier_with_decay_blocks_adversary_and_random(mode: str) -> N
     """barrier="distance", λ = 50 on random 4-arm teams: the adversary (straight at the nearest
     obstacle) and a random policy never enter an obstacle, at any sub-step."""
     base = parallel_env("random", action_mode=mode, max_steps=60)
-    env = SafetyShield(base, **CHOICE)
+    env = SafetyShield(base, params=FilterParams.of(base.scenario, **CHOICE))
     assert (base.safety_filter.barrier, base.safety_filter.decay) == ("distance", 50.0)
     adversary = AdversarialPolicy(base)
     worst, total, interventions = np.inf, 0.0, 0
@@ -130,7 +130,7 @@ def test_far_arms_keep_their_command_where_the_paper_filter_changes_it() -> None
     envs = {}
     for name, kw in (("paper", {}), ("choice", CHOICE)):
         base = parallel_env("random", max_steps=5)
-        envs[name] = (SafetyShield(base, **kw), base)
+        envs[name] = (SafetyShield(base, params=FilterParams.of(base.scenario, **kw)), base)
     freed = {"zero": 0, "reference": 0}
     for seed in range(40):
         for command in freed:
@@ -170,7 +170,7 @@ def test_scenario_choices_reach_the_filter(tmp_path) -> None:
         with pytest.raises(ScenarioError, match=key.replace(".", r"\.")) as err:
             load(str(bad))
         assert "bad.toml" in str(err.value)
-    assert dataclasses.replace(load("paper_pa3_square")).safety_barrier == "squared"
+    assert dataclasses.replace(load("paper_pa3_square")).filter.barrier == "squared"
 
 
 @pytest.mark.parametrize("task", ["RandomFormation", "WholeArmStaticFormation", "WholeArmFormation"])
@@ -216,12 +216,12 @@ def test_the_smooth_gate_is_refused_where_it_cannot_act() -> None:
     for bad in (-0.01, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="FilterParams: gate must be"):
             FilterParams(0.5, 5.0, gate=bad)
-        with pytest.raises(ValueError, match="SafetyShield: gate must be"):
-            SafetyShield(parallel_env("pan1_env/WholeArmStaticFormation-v0"), gate=bad)
+        with pytest.raises(ValueError, match="FilterParams: gate must be"):
+            FilterParams.of(team, gate=bad)
         with pytest.raises(ValueError, match="RandomScenarioOptions.gate must be"):
             RandomScenarioOptions(gate=bad)
     with pytest.raises(ValueError, match="needs whole-arm bodies or a sensing_radius"):
-        SafetyShield(parallel_env("paper_pa3_square"), gate=0.05)
+        SafetyShield(parallel_env("paper_pa3_square"), params=FilterParams.of(team, gate=0.05))
     with pytest.raises(ValueError, match="needs a finite max_speed"):
         Engine(team, safety_filter=FilterParams(0.5, 5.0, sensing_radius=0.1, gate=0.05))
     with pytest.raises(ValueError, match=r"at least one sub-step's travel, 0\.01\d* m .*got 0\.001"):

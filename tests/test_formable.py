@@ -95,13 +95,14 @@ def test_resting_cells_hold_the_configurations_the_filter_keeps_still() -> None:
     cell, speed = 0.05, 2.0
     xs = np.arange(-2.0, 2.0 + cell, cell)
     cells = arm.base + np.stack(np.meshgrid(xs, xs, indexing="ij"), -1).reshape(-1, 2)
-    marked = formable.resting_cells(arm, cells, centers, radii, scenario.kappa, scenario.epsilon, 0.0, speed,
+    f = scenario.filter
+    marked = formable.resting_cells(arm, cells, centers, radii, f.kappa, f.epsilon, 0.0, speed,
                                     np.linspace(-np.pi, np.pi, 180, endpoint=False))
     assert 0 < marked.sum() < (np.linalg.norm(cells - arm.base, axis=-1) <= arm.lengths.sum()).sum()
 
     q = np.random.default_rng(1).uniform(-np.pi, np.pi, (200_000, 3))
     p = end_effector(arm, q)
-    A, b, _ = rcbf_constraints(p, reduced_jacobian(arm, q), centers, radii, scenario.kappa, scenario.epsilon)
+    A, b, _ = rcbf_constraints(p, reduced_jacobian(arm, q), centers, radii, f.kappa, f.epsilon)
     k = A.shape[-1]
     box = np.broadcast_to(np.concatenate([np.eye(k), -np.eye(k)]), (len(q), 2 * k, k))
     status = compiled_projection(np.zeros((len(q), k)), np.concatenate([A, box], 1),

@@ -54,7 +54,7 @@ def test_paper_pa3_square_matches_paper_scenarios_md() -> None:
     assert lengths[(0, 1)] == pytest.approx(0.7) and lengths[(0, 2)] == pytest.approx(0.7 * 2**0.5)
     np.testing.assert_allclose(sc.obstacles.centers, [[1.20, 0.70], [0.90, 1.40], [1.04, 1.25]])
     np.testing.assert_allclose(sc.obstacles.radii, [0.08, 0.08, 0.08])
-    assert (sc.kp, sc.ke, sc.kappa, sc.epsilon) == (2.0, 100.0, 0.5, 5.0)
+    assert (sc.kp, sc.ke, sc.filter.kappa, sc.filter.epsilon) == (2.0, 100.0, 0.5, 5.0)
     assert sc.physics_dt == 1e-3 and sc.control_dt == 1e-3 and sc.substeps == 1
     assert sc.horizon == 100.0
     # No end-effector starts inside an obstacle.
@@ -81,7 +81,7 @@ def test_paper_pa_mixed_square_matches_paper_scenarios_md() -> None:
     assert min(sc.formation.distances) == pytest.approx(0.8)
     np.testing.assert_allclose(sc.obstacles.centers, [[1.0, 3.3]])
     np.testing.assert_allclose(sc.obstacles.radii, [0.1])
-    assert (sc.kp, sc.ke, sc.kappa, sc.epsilon) == (1.0, 100.0, 0.2, 20.0)
+    assert (sc.kp, sc.ke, sc.filter.kappa, sc.filter.epsilon) == (1.0, 100.0, 0.2, 20.0)
     # Only the PA arm (paper arm 4) can reach the obstacle: ‖o − p0‖ ≤ Σ L + r for it alone.
     reach = [np.linalg.norm(np.array([1.0, 3.3]) - a.base) <= a.lengths.sum() + 0.1 for a in sc.arms]
     assert reach == [False, False, False, True]
@@ -168,8 +168,8 @@ def test_valid_file_loads_by_path(tmp_path: Path) -> None:
         assert sc.name == "tiny" and sc.description == "three 2-link arms"
         assert sc.n_arms == 3
         assert sc.physics_dt == 0.001 and sc.control_dt == 0.005 and sc.substeps == 5
-        assert (sc.kp, sc.ke, sc.kappa, sc.epsilon, sc.horizon) == (1.5, 50.0, 0.5, 5.0, 2.0)
-        assert sc.safety_margin == 0.0 and sc.ignore_unreachable_obstacles is True
+        assert (sc.kp, sc.ke, sc.filter.kappa, sc.filter.epsilon, sc.horizon) == (1.5, 50.0, 0.5, 5.0, 2.0)
+        assert sc.filter.margin == 0.0 and sc.ignore_unreachable_obstacles is True
         assert [a.passive_first_joint for a in sc.arms] == [True, False, True]  # default: passive
         assert [a.passive_damping for a in sc.arms] == [0.0, 0.0, 0.0]  # default: the paper's frictionless joint
         np.testing.assert_allclose(sc.q0[0], [PI / 4, -PI / 6], rtol=1e-15)

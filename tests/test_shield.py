@@ -87,18 +87,20 @@ def test_shield_infos_report_the_intervention() -> None:
 
 
 def test_tightened_set_uses_gamma_margin() -> None:
+    from pan1_env.safety import FilterParams
+
     base = parallel_env("paper_pa3_square")
-    SafetyShield(base, tracking_bound=0.05)
+    SafetyShield(base, params=FilterParams.of(base.scenario, tracking_bound=0.05))
     assert base.safety_filter.margin == pytest.approx(robust_margin(0.05, 0.5, 5.0))
     with pytest.raises(ValueError, match="kappa"):
-        SafetyShield(parallel_env("paper_pa3_square"), kappa=-1.0)
+        FilterParams.of(base.scenario, kappa=-1.0)
     with pytest.raises(ValueError, match="not both"):
-        SafetyShield(parallel_env("paper_pa3_square"), margin=0.01, tracking_bound=0.1)
+        FilterParams.of(base.scenario, margin=0.01, tracking_bound=0.1)
 
 
-def test_a_shield_takes_a_whole_filter_params_or_the_settings_not_both() -> None:
-    """``params=FilterParams`` switches on exactly that filter, in both shields; mixing it with a loose setting or
-    passing something else is refused, naming the shield."""
+def test_a_shield_takes_one_filter_params_and_refuses_loose_settings() -> None:
+    """``params=FilterParams`` switches on exactly that filter, in both shields, and no params the scenario's own; a
+    setting given on its own, or something else than a FilterParams, is refused naming the shield and the way in."""
     from pan1_env.safety import FilterParams
 
     env = parallel_env("paper_pa3_square")
@@ -106,8 +108,12 @@ def test_a_shield_takes_a_whole_filter_params_or_the_settings_not_both() -> None
     assert SafetyShield(env, params=params).unwrapped.safety_filter == params
     gym_env = gymnasium.make("pan1_env/PaperPA3Square-v0")
     assert GymSafetyShield(gym_env, params=params).unwrapped.parallel.safety_filter == params
-    with pytest.raises(ValueError, match="SafetyShield: give params or the settings one by one"):
-        SafetyShield(parallel_env("paper_pa3_square"), kappa=0.5, params=params)
+    assert SafetyShield(parallel_env("paper_pa3_square")).unwrapped.safety_filter == env.scenario.filter
+    with pytest.raises(TypeError, match=r"SafetyShield\(env, params=FilterParams.of\(env.unwrapped.scenario, "
+                                        r"kappa=0.5\)\)"):
+        SafetyShield(parallel_env("paper_pa3_square"), kappa=0.5)
+    with pytest.raises(TypeError, match="GymSafetyShield takes the filter's settings as one FilterParams"):
+        GymSafetyShield(gymnasium.make("pan1_env/PaperPA3Square-v0"), barrier="distance", params=params)
     with pytest.raises(TypeError, match="GymSafetyShield: params must be a pan1_env.safety.FilterParams, got dict"):
         GymSafetyShield(gymnasium.make("pan1_env/PaperPA3Square-v0"), params={"kappa": 0.5})
 

@@ -58,8 +58,8 @@ def _assert_same_team(ours, ref) -> None:
     assert (ours.fault_times is None) == (ref.fault_times is None)
     if ref.fault_times is not None:
         np.testing.assert_allclose(ours.fault_times, ref.fault_times, rtol=1e-12)
-    assert (ours.bodies, ours.link_radius, ours.inter_arm, ours.safety_barrier, ours.safety_decay) == \
-        (ref.bodies, ref.link_radius, ref.inter_arm, ref.safety_barrier, ref.safety_decay)
+    assert (ours.bodies, ours.link_radius, ours.inter_arm, ours.filter) == \
+        (ref.bodies, ref.link_radius, ref.inter_arm, ref.filter)
 
 
 @pytest.mark.parametrize("case", list(OPTIONS))

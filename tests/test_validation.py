@@ -59,8 +59,11 @@ def test_env_arguments(kwargs, match) -> None:
 
 
 def test_shield_arguments_and_double_wrapping() -> None:
+    from pan1_env.safety import FilterParams
+
+    base = parallel_env("paper_pa3_square")
     with pytest.raises(ValueError, match="tracking_bound must be a number"):
-        SafetyShield(parallel_env("paper_pa3_square"), tracking_bound="0.1")
+        FilterParams.of(base.scenario, tracking_bound="0.1")
     env = SafetyShield(parallel_env("paper_pa3_square"))
     with pytest.raises(ValueError, match="already shielded"):
         SafetyShield(env)

@@ -433,11 +433,12 @@ def _whole_arm_episode(seed: int, kind: str, *, shield: bool, speed=(0.0, 0.0), 
     capsule inside something it was not inside at the step's start; once inside, the shield's rows push
     it out over the next steps."""
     from pan1_env.environment import parallel_env
+    from pan1_env.safety import FilterParams
     from pan1_env.wrappers import SafetyShield
 
     core = parallel_env("random", random_options={**WHOLE, "obstacle_speed": speed, **(options or {})},
                         action_mode=mode, control_dt=0.01, physics_dt=0.01, max_steps=steps)
-    env = SafetyShield(core, **(shield_kwargs or {})) if shield else core
+    env = SafetyShield(core, params=FilterParams.of(core.scenario, **(shield_kwargs or {}))) if shield else core
     env.reset(seed=seed)
     assert _penetration(core) <= 0.0, "starts are drawn clear"
     act = _policy(kind, env, np.random.default_rng(seed))
@@ -733,11 +734,13 @@ def test_a_sensing_radius_frees_the_reference_and_keeps_it_safe() -> None:
 def test_shield_with_a_sensing_radius_stops_the_adversary() -> None:
     from pan1_env.baselines import AdversarialPolicy
     from pan1_env.environment import parallel_env
+    from pan1_env.safety import FilterParams
     from pan1_env.wrappers import SafetyShield
 
     for name in ("paper_pa3_square", "random"):
         base = parallel_env(name, max_steps=200)
-        env, adversary = SafetyShield(base, sensing_radius=0.1), AdversarialPolicy(base)
+        env = SafetyShield(base, params=FilterParams.of(base.scenario, sensing_radius=0.1))
+        adversary = AdversarialPolicy(base)
         obs, _ = env.reset(seed=1)
         assert base.engine.whole_arm
         cost = clearance = 0.0
@@ -751,12 +754,12 @@ def test_shield_with_a_sensing_radius_stops_the_adversary() -> None:
 
 
 def test_bad_sensing_radius() -> None:
-    from pan1_env.environment import parallel_env
-    from pan1_env.wrappers import SafetyShield
+    from pan1_env.safety import FilterParams
+    from pan1_env.scenario import load
 
     for bad in (-0.1, 0.0, np.inf, "far"):
-        with pytest.raises(ValueError, match="SafetyShield: sensing_radius must be"):
-            SafetyShield(parallel_env("paper_pa3_square"), sensing_radius=bad)
+        with pytest.raises(ValueError, match="FilterParams: sensing_radius must be"):
+            FilterParams.of(load("paper_pa3_square"), sensing_radius=bad)
 
 
 def _piqp_against_kernel(team, steps: int, command_scale: float, filter_params=True,
@@ -803,11 +806,12 @@ def test_piqp_solves_the_whole_arm_rows_as_the_kernel_does(inter_arm: bool, max_
 def test_piqp_with_a_sensing_radius_matches_the_kernel(gate: float) -> None:
     """The paper's scenario behind a filter with a sensing radius (end-effector rows through the
     whole-arm path), its edge hard or a smooth gate: PIQP and the kernel agree."""
-    from pan1_env.engine import FilterParams
+    from dataclasses import replace
+
     from pan1_env.scenario import load
 
     team = load("paper_pa3_square")
-    counts = _piqp_against_kernel(team, 20, 1.0, FilterParams(team.kappa, team.epsilon, sensing_radius=0.1, gate=gate))
+    counts = _piqp_against_kernel(team, 20, 1.0, replace(team.filter, sensing_radius=0.1, gate=gate))
     assert counts[1] > 0, counts
 
 

@@ -2,6 +2,6 @@
 arms to one set of spaces."""
 
 from .padding import PadToLargestArm
-from .shield import GymSafetyShield, SafetyShield, shield_parameters
+from .shield import GymSafetyShield, SafetyShield
 
-__all__ = ["SafetyShield", "GymSafetyShield", "shield_parameters", "PadToLargestArm"]
+__all__ = ["SafetyShield", "GymSafetyShield", "PadToLargestArm"]

@@ -32,12 +32,13 @@ at the last sub-step, in the action's normalised units; in residual mode the who
 v*/``max_joint_speed``, reference included) and ``qp_counts`` (sub-steps per status). The Gymnasium
 view gathers them over the arms (:meth:`~pan1_env.core.FormationCore.team_infos`).
 
-With ``sensing_radius=s`` (m) an end-effector scenario is filtered through the whole-arm rows with the
-end-effector as the body: an obstacle gets a row only within s (plus what the gap can close in a
-sub-step), so the robust term of far obstacles cannot hold an arm still (the paper's filter, the
-default, keeps a row for every obstacle in reach; docs/LEARNING_STUDIES.md measures the difference).
+With ``params=FilterParams.of(scenario, sensing_radius=s)`` (m) an end-effector scenario is filtered
+through the whole-arm rows with the end-effector as the body: an obstacle gets a row only within s (plus
+what the gap can close in a sub-step), so the robust term of far obstacles cannot hold an arm still (the
+paper's filter, the default, keeps a row for every obstacle in reach; docs/LEARNING_STUDIES.md measures
+the difference).
 
-With ``tracking_bound=δ̄`` the filter uses the tightened barrier h − Γ(δ̄), Γ(δ̄) = ε δ̄² / (4 κ)
+With ``FilterParams.of(scenario, tracking_bound=δ̄)`` the filter uses the tightened barrier h − Γ(δ̄), Γ(δ̄) = ε δ̄² / (4 κ)
 (docs/MODEL.md §5): as long as the tracking error stays below δ̄ the arm stays in the *original* set
 h ≥ 0, not only in the inflated one h ≥ −Γ(δ̄).
 """
@@ -49,35 +50,22 @@ from pettingzoo.utils.wrappers import BaseParallelWrapper
 
 from pan1_env.safety import FilterParams
 
-__all__ = ["SafetyShield", "GymSafetyShield", "shield_parameters"]
+__all__ = ["SafetyShield", "GymSafetyShield"]
 
 
-def shield_parameters(scenario, kappa: float | None, epsilon: float | None, margin: float | None,
-                      tracking_bound: float | None, sensing_radius: float | None = None, *,
-                      barrier: str | None = None, decay: float | None = None,
-                      gate: float | None = None) -> FilterParams:
-    """Validated filter parameters: κ, ε (default: the scenario's), the barrier margin (explicit,
-    or Γ(δ̄) from ``tracking_bound``; default: the scenario's), the sensing radius (default: none), the
-    barrier, λ of the tunable ε(h̃) and the activation gate (default: the scenario's). :meth:`FilterParams.of` owns the
-    rules; errors name the argument after ``SafetyShield:``."""
-    return FilterParams.of(scenario, kappa, epsilon, margin, tracking_bound, sensing_radius, owner="SafetyShield",
-                           barrier=barrier, decay=decay, gate=gate)
-
-
-def _switch_on(core, owner: str, params: FilterParams | None, kappa, epsilon, margin, tracking_bound, sensing_radius,
-               barrier, decay, gate) -> None:
-    """Switch the filter on through the env's public :meth:`set_safety_filter`: ``params`` as they are, or the
-    scenario's settings with the loose ones replaced (not both)."""
+def _switch_on(core, owner: str, params: FilterParams | None, loose: dict) -> None:
+    """Switch the filter on through the env's public :meth:`set_safety_filter`: ``params``, or the scenario's own
+    filter (``scenario.filter``) if None. Settings given one by one (``kappa=…``) are refused with the one way in."""
+    if loose:
+        given = ", ".join(f"{key}={value!r}" for key, value in loose.items())
+        raise TypeError(f"{owner} takes the filter's settings as one FilterParams: {owner}(env, "
+                        f"params=FilterParams.of(env.unwrapped.scenario, {given})), not one by one")
     if core.safety_filter is not None:
         raise ValueError("this env is already shielded; wrap it once")
     if params is None:
-        params = shield_parameters(core.scenario, kappa, epsilon, margin, tracking_bound, sensing_radius,
-                                   barrier=barrier, decay=decay, gate=gate)
+        params = core.scenario.filter
     elif not isinstance(params, FilterParams):
         raise TypeError(f"{owner}: params must be a pan1_env.safety.FilterParams, got {type(params).__name__}")
-    elif any(v is not None for v in (kappa, epsilon, margin, tracking_bound, sensing_radius, barrier, decay, gate)):
-        raise ValueError(f"{owner}: give params or the settings one by one (kappa=…, barrier=…), not both: "
-                         "FilterParams.of(env.unwrapped.scenario, …) builds params from the scenario's")
     core.set_safety_filter(params)
 
 
@@ -89,29 +77,18 @@ class SafetyShield(BaseParallelWrapper):
 
     Args:
         env: the parallel env.
-        kappa, epsilon: RCBF parameters κ and ε (default: the scenario's).
-        margin: subtract this from every barrier (m² for the squared barrier, m for the distance one;
-            default: the scenario's, 0 for the paper's).
-        tracking_bound: δ̄; sets ``margin = Γ(δ̄)`` (the tightened set that keeps h ≥ 0).
-        sensing_radius: the whole-arm filter's range (m; default: none).
-        barrier: ``"squared"`` (the paper's) or ``"distance"``; decay: λ ≥ 0 of ε(h̃) = ε e^{λ h̃}
-            (docs/MODEL.md §5a; default: the scenario's, the paper's "squared" and 0).
-        gate: width (m) of the smooth activation past the sensing range (0: a hard range; default: the
-            scenario's); needs whole-arm bodies or ``sensing_radius``, and the env's speed bound.
-        params: a whole :class:`~pan1_env.safety.FilterParams` instead of the settings above (one object to
-            sweep a filter's design with, e.g. ``FilterParams.of(scenario, barrier="distance", decay=50)``).
+        params: the filter (:class:`~pan1_env.safety.FilterParams`); None: the scenario's own
+            (``env.unwrapped.scenario.filter``). ``FilterParams.of(scenario, …)`` changes some of the scenario's
+            settings (κ, ε, the margin or ``tracking_bound``, the barrier, …), e.g.
+            ``SafetyShield(env, params=FilterParams.of(env.unwrapped.scenario, barrier="distance", decay=50))``.
     """
 
-    def __init__(self, env, kappa: float | None = None, epsilon: float | None = None,
-                 margin: float | None = None, tracking_bound: float | None = None,
-                 sensing_radius: float | None = None, *, barrier: str | None = None,
-                 decay: float | None = None, gate: float | None = None, params: FilterParams | None = None) -> None:
+    def __init__(self, env, params: FilterParams | None = None, **settings) -> None:
         super().__init__(env)
         core = env.unwrapped
         if not hasattr(core, "set_safety_filter"):
             raise TypeError(f"SafetyShield wraps a pan1_env parallel env, got {type(core).__name__}")
-        _switch_on(core, "SafetyShield", params, kappa, epsilon, margin, tracking_bound, sensing_radius, barrier,
-                   decay, gate)
+        _switch_on(core, "SafetyShield", params, settings)
 
 
 class GymSafetyShield(gymnasium.Wrapper):
@@ -120,14 +97,10 @@ class GymSafetyShield(gymnasium.Wrapper):
     The infos' ``shield_*`` keys report the filter over the team. Arguments as :class:`SafetyShield`.
     """
 
-    def __init__(self, env: gymnasium.Env, kappa: float | None = None, epsilon: float | None = None,
-                 margin: float | None = None, tracking_bound: float | None = None,
-                 sensing_radius: float | None = None, *, barrier: str | None = None,
-                 decay: float | None = None, gate: float | None = None, params: FilterParams | None = None) -> None:
+    def __init__(self, env: gymnasium.Env, params: FilterParams | None = None, **settings) -> None:
         super().__init__(env)
         inner = env.unwrapped
         if not hasattr(inner, "parallel"):
             hint = " (PAReachEnv has the filter built in: safety_filter=True)" if hasattr(inner, "arm_index") else ""
             raise TypeError(f"GymSafetyShield wraps a pan1_env team Gymnasium env, got {type(inner).__name__}{hint}")
-        _switch_on(inner.parallel, "GymSafetyShield", params, kappa, epsilon, margin, tracking_bound, sensing_radius,
-                   barrier, decay, gate)
+        _switch_on(inner.parallel, "GymSafetyShield", params, settings)
