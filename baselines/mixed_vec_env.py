@@ -12,16 +12,12 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
+from pan1_env.random_scenario import obstacles_at_size
 from pan1_env.validation import positive_int
 
 from .arm_vec_env import SB3ArmVecEnv
 
-__all__ = ["SB3MixedArmVecEnv", "sized_options", "obstacles_at_size"]
-
-
-def obstacles_at_size(n_obstacles: int, n_arms: int, size: int) -> int:
-    """The obstacles of a team of ``size`` arms at the density of ``n_obstacles`` per ``n_arms``, rounded half up."""
-    return (2 * n_obstacles * size + n_arms) // (2 * n_arms)
+__all__ = ["SB3MixedArmVecEnv", "sized_options"]
 
 
 def sized_options(scenario: Any, options: dict[str, Any], n_arms: int) -> dict[str, int]:

@@ -67,8 +67,8 @@ def _any_size(task: tuple, density: tuple[int, int] | None = None) -> tuple:
     """A random-team task as one of any size: :data:`ANY_SIZE` for its team size, the set of its arms' link counts
     for their list, and ``("obstacles_per_arms", (n_obstacles, n_arms))`` for its obstacles, at its own density or,
     if given, at ``density`` when its number of obstacles is what
-    :func:`~pan1_env.baselines.mixed_vec_env.obstacles_at_size` gives (else its number stays: another task)."""
-    from .mixed_vec_env import obstacles_at_size
+    :func:`~pan1_env.random_scenario.obstacles_at_size` gives (else its number stays: another task)."""
+    from pan1_env.random_scenario import obstacles_at_size
 
     if not isinstance(task[0], tuple):
         return task

@@ -48,7 +48,7 @@ from .scenario import BODIES, Scenario
 from .validation import positive_int, real, whole_ratio
 
 __all__ = ["RandomScenarioOptions", "random_scenario", "drawn_scenario", "draw_motion", "zero_momentum_start",
-           "BASE_MARGIN", "DrawError"]
+           "obstacles_at_size", "BASE_MARGIN", "DrawError"]
 
 BASE_MARGIN = 0.05  # m: how far every obstacle (and, moving, its whole path) stays outside each base, plus ρ
 
@@ -305,6 +305,12 @@ def _draw_arm(rng: np.random.Generator, n: int, passive: bool) -> ArmParams:
     com = lengths * rng.uniform(0.35, 0.65, n)
     inertias = masses * lengths**2 / 12.0 * rng.uniform(0.8, 1.2, n)
     return ArmParams(masses, lengths, com, inertias, passive_first_joint=passive)
+
+
+def obstacles_at_size(n_obstacles: int, n_arms: int, size: int) -> int:
+    """The obstacles of a team of ``size`` arms at the density of ``n_obstacles`` per ``n_arms``, rounded half up (a
+    task's teams of another size keep its density)."""
+    return (2 * n_obstacles * size + n_arms) // (2 * n_arms)
 
 
 def random_scenario(rng: np.random.Generator, options: RandomScenarioOptions | None = None,

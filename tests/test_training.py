@@ -575,7 +575,7 @@ def test_a_model_trained_on_several_team_sizes_serves_any_size_of_its_task_only(
         assert shipped._serves(shipped._model_task(one_size), shipped._env_task(env)) is by_one, (n_arms, n_obstacles)
     assert shipped.describe(mixed) == "pan1_env/RandomFormation-v2"
     # a density whose half-way ties the training's rounding breaks upwards: the model serves what it trained on
-    from pan1_env.baselines.mixed_vec_env import obstacles_at_size
+    from pan1_env.random_scenario import obstacles_at_size
 
     tie = {**mixed, "env_kwargs": {**mixed["env_kwargs"], "random_options": kwargs["random_options"] | {
         "n_arms": 6, "n_obstacles": 5}}}
