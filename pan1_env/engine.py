@@ -2,16 +2,17 @@
 
 :class:`Engine` is the one owner of stepping. It holds the state of every arm of B copies of a
 team in arrays batched over ``B × (arms of one kind)`` (an arm kind is a number of links and an
-actuation; copies are stacked copy-major), the safety filter's parameters, and the only call into
-the sub-step kernel (:func:`pan1_env.kernels.group_advance`, or its multi-threaded twin for large
-batches). A step holds one command per arm for a number of physics sub-steps; at every sub-step the
-kernel filters the command through the RCBF-QP (when the filter is on), tracks it with the
-backstepping law in velocity mode, and takes one RK4 step (docs/MODEL.md). It returns a
-:class:`StepRecord`. What a step *means* (observations, rewards, cost, success) is a task's
-(:mod:`pan1_env.tasks`); the environments are adapters over an engine and a task, and B = 1 is a
-batch of one.
+actuation; copies are stacked copy-major) and the safety filter's parameters; its step runs them
+through the sub-step kernel (:func:`pan1_env.kernels.group_advance`, or its multi-threaded twin for
+large batches), whose calls :mod:`pan1_env.kernel_step` makes. A step holds one command per arm for
+a number of physics sub-steps; at every sub-step the kernel filters the command through the RCBF-QP
+(when the filter is on), tracks it with the backstepping law in velocity mode, and takes one RK4 step
+(docs/MODEL.md). It returns a :class:`StepRecord`. What a step *means* (observations, rewards, cost,
+success) is a task's (:mod:`pan1_env.tasks`); the environments are adapters over an engine and a
+task, and B = 1 is a batch of one.
 
-The filter's QP runs in the kernel (``qp_solver="active_set"``, exact: :class:`KernelQP`); with
+The filter's QP runs in the kernel (``qp_solver="active_set"``, exact:
+:class:`~pan1_env.kernel_step.KernelQP`, whose calls of the kernel live in :mod:`pan1_env.kernel_step`); with
 ``"piqp"`` the engine is given a :class:`~pan1_env.piqp_filter.PiqpFilter`, which solves the same rows
 (the paper's end-effector rows, or the whole-arm rows) with qpsolvers + PIQP instead, one sub-step at
 a time (velocity mode, one copy; slow, for cross-checks). A step goes through the one it was given.
@@ -24,16 +25,9 @@ from collections import namedtuple
 import numpy as np
 
 from .bodies import arm_pair_floors, capsule_clearance, obstacle_floors, obstacle_velocities
-from .compiled import kernel_filter, kernels
-from .kernel_groups import (
-    FILTER_OFF,
-    Command,
-    EndEffectorObstacles,
-    StepOutputs,
-    Stepping,
-    WholeArm,
-    plain,
-)
+from .compiled import kernels
+from .kernel_groups import EndEffectorObstacles, WholeArm, plain
+from .kernel_step import KernelQP
 from .kinds import Kind
 from .piqp_filter import PiqpFilter
 from .safety import QP_SOLVERS, FilterParams, check_choices, clearance, filter_parameters
@@ -42,7 +36,7 @@ from .step_record import StepRecord
 from .team_draw import TeamDraws, Teams
 from .validation import real
 
-__all__ = ["Engine", "KernelQP", "FilterParams", "KindTerms", "StepRecord", "filter_parameters", "PARALLEL_THRESHOLD",
+__all__ = ["Engine", "FilterParams", "KindTerms", "StepRecord", "filter_parameters", "PARALLEL_THRESHOLD",
            "SENSING_RADIUS", "BRAKING_SENSING_RADIUS", "SKIN"]
 
 PARALLEL_THRESHOLD = 256  # arms of one kind from which the kernel runs on numba's thread pool
@@ -60,27 +54,6 @@ SKIN = 0.002
 
 #: :meth:`Engine.kind_terms`: a kind's end-effectors, reduced Jacobians, passive momenta and end-effector drifts
 KindTerms = namedtuple("KindTerms", "p Jbar momentum drift")
-#: the record's field each of the kernel's outputs that the record holds goes to (the kind's own ``qd`` and ``p``
-#: complete :class:`~pan1_env.kernel_groups.StepOutputs`)
-_RECORD_FIELDS = {"v_star": "v_star", "tau": "tau", "min_clear": "min_clearance", "min_h": "min_barrier",
-                  "qp_counts": "qp_counts", "max_track": "max_tracking_error", "finite": "finite"}
-
-
-class KernelQP:
-    """The filter's QP solved in the sub-step kernel (exact active set, any number of copies, both
-    modes): a step is the engine's compiled step (:meth:`Engine.advance_compiled`)."""
-
-    name = "active_set"
-
-    @staticmethod
-    def check(copies: int, torque: bool = False, faults: bool = False) -> None:
-        """Everything is allowed."""
-
-    @staticmethod
-    def advance(engine: Engine, command: np.ndarray, substeps: int, torque: bool, rec: StepRecord) -> None:
-        engine.advance_compiled(command, substeps, torque, rec)
-
-
 class Engine:
     """B copies of a team's arms, the safety filter, and the single call into the sub-step kernel.
 
@@ -94,9 +67,9 @@ class Engine:
         max_torque: with the filter on in torque mode, its QP also bounds by this (N·m) every actuated joint's
             torque where it changes the command (docs/MODEL.md §5d); a command's own torque is the caller's to bound
             (the envs' actions are at most ±``max_torque``).
-        qp_solver: ``"active_set"`` (exact, in the kernel: :class:`KernelQP`) or ``"piqp"`` (the same rows,
-            whole-arm ones included, solved by qpsolvers + PIQP: :class:`~pan1_env.piqp_filter.PiqpFilter`;
-            one copy, velocity mode only).
+        qp_solver: ``"active_set"`` (exact, in the kernel: :class:`~pan1_env.kernel_step.KernelQP`) or ``"piqp"``
+            (the same rows, whole-arm ones included, solved by qpsolvers + PIQP:
+            :class:`~pan1_env.piqp_filter.PiqpFilter`; one copy, velocity mode only).
         threads: ``"auto"`` (numba's thread pool from :data:`PARALLEL_THRESHOLD` arms of a kind),
             ``True`` or ``False``; the two kernels give the same results bit for bit.
     """
@@ -162,10 +135,10 @@ class Engine:
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
-        if getattr(self, "_team_caps", None) is not None:  # a copy: the kinds' views of the team arrays again
+        if getattr(self, "team_caps", None) is not None:  # a copy: the kinds' views of the team arrays again
             for kind in self.kinds:
-                kind.caps, kind.start_time = self._team_caps[kind.block], self._team_start_time[kind.block]
-                kind.joints = self._team_joints[kind.block]
+                kind.caps, kind.start_time = self.team_caps[kind.block], self.team_start_time[kind.block]
+                kind.joints = self.team_joints[kind.block]
                 kind.whole = self.whole_arm_args(kind)
 
     # ------------------------------------------------------------------ set-up
@@ -261,7 +234,7 @@ class Engine:
             kind.world = plain(EndEffectorObstacles(np.empty((rows, 0, 2)), np.empty((rows, 0)),
                                                     np.empty((rows, 0), dtype=bool)))
             first += rows
-        self._team_joints, self._team_caps, self._team_start_time = joints, caps, start_time
+        self.team_joints, self.team_caps, self.team_start_time = joints, caps, start_time
 
     def whole_arm_args(self, kind: Kind) -> WholeArm:
         """The kernel's ``whole`` argument for a kind (:func:`pan1_env.kernels.substep.group_advance`)."""
@@ -324,15 +297,15 @@ class Engine:
             kind.has_prev[rows] = False
             kernels().group_end_effectors(kind.lengths, kind.base, kind.phi, kind.q, kind.p)
         if self.faults:  # a fault within the first sub-step: lost from the start (the first observation shows it)
-            self._lose_actuators(np.isin(np.arange(self.copies), copies)[:, None] & (self._fault_substeps() == 0), None)
+            self.lose_actuators(np.isin(np.arange(self.copies), copies)[:, None] & (self.fault_substeps() == 0), None)
 
-    def _fault_substeps(self) -> np.ndarray:
+    def fault_substeps(self) -> np.ndarray:
         """``(B, N)``: in how many sub-steps from now each arm's coming fault begins (0: the sub-step that starts
         now contains its time, docs/MODEL.md §7; inf: none). 1e-6 sub-steps absorb the clock's rounding."""
         wait = np.where(self.faulted, np.inf, (self.fault_times - self.elapsed[:, None]) / self.physics_dt)
         return np.where(wait < 1.0 - 1e-6, 0.0, np.floor(wait + 1e-6))
 
-    def _lose_actuators(self, due: np.ndarray, rec: StepRecord | None) -> None:
+    def lose_actuators(self, due: np.ndarray, rec: StepRecord | None) -> None:
         """The arms ``due (B, N)`` go over to their kind's faulted twin (:meth:`pan1_env.kinds.Kind.take_over`):
         their first joint's torque is 0 from now on and their action there is ignored (v* NaN); ``rec``: the
         step's record, where the faults come within the step."""
@@ -429,7 +402,7 @@ class Engine:
         repeats its end-effector (its padding links have length 0)."""
         P = np.empty((self.copies, self.n_arms, self.n_max + 1, 2))
         for kind in self.kinds:
-            self._geometry("kind_joints", len(kind.stepped), kind.q, kind.lengths, kind.base, kind.phi, kind.ids,
+            self.geometry("kind_joints", len(kind.stepped), kind.q, kind.lengths, kind.base, kind.phi, kind.ids,
                            kind.stepped, P)
         return P
 
@@ -491,89 +464,7 @@ class Engine:
             np.minimum(rec.min_clearance, self.clearance(), out=rec.min_clearance)
         return rec
 
-    def advance_compiled(self, command: np.ndarray, substeps: int, torque: bool, rec: StepRecord) -> None:
-        """Every arm of every copy ``substeps`` sub-steps through the sub-step kernel, its QP included,
-        into ``rec``: one kernel call per kind, or with ``inter_arm`` one per kind and sub-step. An arm that
-        loses its actuator within the step (:meth:`_fault_substeps`) is held by its full kind's call from the
-        start of the sub-step that contains its fault time and goes on from there in its faulted twin's (the
-        kernel's ``window``); with ``inter_arm`` the calls split there instead. An arm whose fault falls
-        within the next step's first sub-step loses it before the step returns (its observation shows it)."""
-        if self.inter_arm:
-            done = 0
-            while done < substeps:
-                at = self._fault_substeps() if self.faults else np.full(1, np.inf)
-                self._lose_actuators(at == 0, rec)
-                todo = int(min(substeps - done, at[at > 0].min(initial=np.inf)))
-                self._advance_inter_arm(command, todo, torque, rec)
-                done += todo
-        else:
-            at = self._fault_substeps() if self.faults else None
-            within = None if at is None else (at > 0) & (at < substeps)
-            if at is not None:
-                self._lose_actuators(at == 0, rec)
-            if self.whole_arm:
-                self.refresh_capsules()
-            split = within is not None and within.any()
-            for twins in (False, True):  # a full kind's call hands its arms that fault within the step over
-                if twins and split:
-                    self._lose_actuators(within, rec)
-                    if self.whole_arm:
-                        self.refresh_capsules()  # the twins' new rows' clock
-                for kind in self.kinds:
-                    if kind.faulted == twins and len(kind.stepped):
-                        self._advance(kind, command, substeps, torque, self.filter, rec,
-                                      (at, within) if split else None)
-            self._tick(substeps)
-        if self.faults:
-            self._lose_actuators(self._fault_substeps() == 0, None)
-
-    def _advance_inter_arm(self, command: np.ndarray, substeps: int, torque: bool, rec: StepRecord) -> None:
-        """:meth:`advance_compiled` with other arms in each arm's filter, which sees their capsules as they
-        are at each sub-step: one kernel call per sub-step (each kind's outputs gathered once: the kernel
-        accumulates minima, maxima and counts over calls), then one compiled pass (after_substep) that
-        refreshes the capsules from the joints the kernel left and measures the clearance between arms,
-        seeded with the obstacle clearance so far (pairs that cannot lower it are skipped). The kinds'
-        running clearances and finite flags live in team-level arrays (views of the record with one kind
-        in team order)."""
-        B, N = self.copies, self.n_arms
-        R = len(self._team_start_time)
-        clear, finite = (None, None) if self.team_order else (np.empty(R), np.empty(R, dtype=bool))
-        kinds = [kind for kind in self.kinds if len(kind.stepped)]
-        calls = [self._kernel_args(kind, command, 1, torque, self.filter, rec,
-                                   None if clear is None else clear[kind.block],
-                                   None if finite is None else finite[kind.block]) for kind in kinds]
-        if clear is None:
-            _, first = calls[0]
-            clear, finite = first.min_clear, first.finite
-        ok = finite.copy()  # the kernel marks an arm finite afresh each call
-        P = self.joint_positions()
-        between = np.full((B, N), np.inf)
-        self.refresh_capsules(P)
-        sensing = self.filter_range(torque)
-        for sub in range(substeps):
-            for kind, (args, _) in zip(kinds, calls, strict=True):
-                # a call after the step's first starts from the link angles' sines and cosines the
-                # previous one ended with (`carried`, as one call's sub-steps do); only the last
-                # computes the joint velocities and end-effectors (`finish`)
-                self._call(kind, args, kind.whole._replace(carried=sub > 0, finish=sub == substeps - 1,
-                                                           sensing=sensing))
-            # the kernel placed the obstacles from the clock itself; the clock moves on here
-            self._geometry("after_substep", B * N, self.copy_rows, self._team_joints, clear, finite,
-                           ok, self._team_start_time, self._team_caps, self.radii.shape[1], self.link_radius,
-                           self.physics_dt, sub < substeps - 1, self.elapsed, P, between)
-        finite[:] = ok
-        for kind, (_, out) in zip(kinds, calls, strict=True):
-            self._finish(kind, out, torque, rec)
-        np.minimum(rec.min_clearance, between, out=rec.min_clearance)
-        self.place_obstacles()
-
-    def advance_kind(self, kind: Kind, command: np.ndarray, substeps: int, rec: StepRecord, *,
-                     filtered: bool) -> None:
-        """One kernel call in velocity mode: every arm of ``kind`` ``substeps`` sub-steps at ``command``,
-        through the filter or not (for a solver that filters by itself: :mod:`pan1_env.piqp_filter`)."""
-        self._advance(kind, command, substeps, False, self.filter if filtered else None, rec)
-
-    def _tick(self, substeps: int) -> None:
+    def tick(self, substeps: int) -> None:
         """Advance every copy's clock by ``substeps`` sub-steps, and the obstacles with it."""
         self.elapsed += substeps * self.physics_dt
         self.place_obstacles()
@@ -582,7 +473,7 @@ class Engine:
         """``centers`` and ``velocities`` (which observations and :meth:`clearance` read) where every copy's
         clock puts the obstacles, as the filter places them (whole-arm safety: from the capsules)."""
         if self.speeds.any():
-            kernels().team_geometry.obstacles_now(self.copy_rows, self._team_caps, self.elapsed, self.centers,
+            kernels().team_geometry.obstacles_now(self.copy_rows, self.team_caps, self.elapsed, self.centers,
                                              self.velocities)
 
     def refresh_capsules(self, P: np.ndarray | None = None) -> None:
@@ -590,98 +481,12 @@ class Engine:
         from their joints ``P`` (:meth:`joint_positions`, as they are now), which each arm's filter holds
         for the call (one sub-step)."""
         if self.inter_arm:
-            self._geometry("refresh_capsules", self.copies * self.n_arms, self.copy_rows, self._team_start_time,
-                           self._team_caps, self.radii.shape[1], self.elapsed, P)
+            self.geometry("refresh_capsules", self.copies * self.n_arms, self.copy_rows, self.team_start_time,
+                           self.team_caps, self.radii.shape[1], self.elapsed, P)
             return
-        self._team_start_time[self.copy_rows] = self.elapsed[:, None]
+        self.team_start_time[self.copy_rows] = self.elapsed[:, None]
 
-    def _advance(self, kind: Kind, command: np.ndarray, substeps: int, torque: bool, params: FilterParams | None,
-                 rec: StepRecord, faults: tuple[np.ndarray, np.ndarray] | None = None) -> None:
-        """The kernel call: every arm of a kind in every copy, ``substeps`` sub-steps; with ``faults`` (the step's
-        :meth:`_fault_substeps` and the arms that fault within it) a full kind's arms stop where their fault
-        begins and its twin's start there (the kernel's ``window``)."""
-        args, out = self._kernel_args(kind, command, substeps, torque, params, rec)
-        rows, end = np.empty(0, dtype=np.int64), 0 if kind.faulted else 1  # a twin's rows start, a full kind's stop
-        if faults is not None and (kind.twin is not None or kind.faulted):
-            rows = np.flatnonzero(faults[1][:, kind.ids])
-            kind.window[rows, end] = faults[0][:, kind.ids].ravel()[rows]
-        whole = kind.whole  # holds the velocity-mode range (whole_arm_args); torque mode's may differ
-        if whole is not None and torque:
-            whole = whole._replace(sensing=self.filter_range(True))
-        try:
-            self._call(kind, args, whole)
-        finally:
-            kind.window[rows, end] = kind.window_default[end]
-        self._finish(kind, out, torque, rec)
-
-    def _kernel_args(self, kind: Kind, command: np.ndarray, substeps: int, torque: bool,
-                     params: FilterParams | None, rec: StepRecord, clear: np.ndarray | None = None,
-                     finite: np.ndarray | None = None) -> tuple[tuple, StepOutputs]:
-        """The kernel's groups for a kind but ``whole`` (:meth:`_call`), plain, and its outputs: views of the
-        record when one kind is the team in order, else gathered copies of the record's rows (the kernel
-        accumulates into them), or for the running clearance and finite flags the caller's ``clear`` and
-        ``finite`` (filled with them)."""
-        B, A, n, k = self.copies, kind.A, kind.n, kind.k
-        rows = B * A
-        if self.team_order:
-            out = StepOutputs(v_star=rec.v_star.reshape(rows, k), tau=rec.tau.reshape(rows, n), qd=kind.qd, p=kind.p,
-                              min_clear=rec.min_clearance.reshape(rows), min_h=rec.min_barrier.reshape(rows),
-                              qp_counts=rec.qp_counts.reshape(rows, 3), max_track=rec.max_tracking_error.reshape(rows),
-                              finite=rec.finite.reshape(rows))
-            cmd = np.ascontiguousarray(command.reshape(rows, k))
-        else:
-            out = StepOutputs(v_star=np.empty((rows, k)), tau=kind.from_team(rec.tau, n, first=0), qd=kind.qd,
-                              p=kind.p, min_clear=kind.from_team(rec.min_clearance),
-                              min_h=kind.from_team(rec.min_barrier), qp_counts=np.zeros((rows, 3), dtype=np.int64),
-                              max_track=kind.from_team(rec.max_tracking_error), finite=np.ones(rows, dtype=bool))
-            cmd = kind.from_team(command, k)
-        if clear is not None:
-            clear[:], finite[:] = out.min_clear, out.finite
-            out = out._replace(min_clear=clear, finite=finite)
-        rcbf = plain(FILTER_OFF if params is None else kernel_filter(params, self.max_torque))
-        held = plain(Command(command=cmd, torque_mode=torque, filter_on=params is not None))
-        stepping = plain(Stepping(ke=self.ke, dt=self.physics_dt, n_sub=substeps, v_max=self.max_speed))
-        return (kind.model, kind.state, kind.selection, held, kind.world, rcbf, stepping, plain(out)), out
-
-    def _call(self, kind: Kind, groups: tuple, whole: WholeArm | None) -> None:
-        """One call of the sub-step kernel on every arm of a kind: the multi-threaded one for large batches,
-        else the kind's own or the generic one (:meth:`_specialised`); ``whole`` goes as a plain tuple."""
-        whole = plain(whole)
-        chunks = self.chunks(len(kind.q))
-        if chunks:
-            kernels().group_advance_parallel(*kind.sizes, *groups, whole, chunks)
-        elif kind.specialised or self._specialised(kind, (*kind.sizes, *groups, whole)):
-            kernels().group_advance(*kind.sizes, *groups, whole)
-        else:
-            kernels().group_advance_generic(*kind.sizes, *groups, whole)
-
-    def _finish(self, kind: Kind, out: StepOutputs, torque: bool, rec: StepRecord) -> None:
-        """After a kind's kernel call(s): scatter gathered outputs back into the record (counts add up, and an
-        arm is finite if it was in every call)."""
-        if torque:
-            kind.has_prev[:] = False
-        if not self.team_order:
-            for name, field in _RECORD_FIELDS.items():
-                kind.to_team(getattr(rec, field), getattr(out, name), add=name == "qp_counts", both=name == "finite",
-                             first=0 if name in ("tau", "qp_counts") else None)
-
-    @staticmethod
-    def _specialised(kind: Kind, args: tuple) -> bool:
-        """Whether the kind steps with its own compiled kernel (``group_advance``) rather than the generic
-        one, which gives the same results bit for bit: asked at its first serial step and again whenever
-        a background compilation has ended (:mod:`pan1_env.kernels.specialise`), until the answer is yes.
-        A kind that is not ready is queued for a background compilation, which the next :meth:`step`
-        starts (so that the child's start does not compete with the step that compiles the generic
-        kernel, nor with the first observations after it)."""
-        if kind.specialised:
-            return True
-        generation = kernels().specialise.background_generation()
-        if kind.specialised is None or generation != kind.generation:
-            kind.generation = generation
-            kind.specialised = kernels().specialise.specialised_ready(args)
-        return kind.specialised
-
-    def _geometry(self, name: str, rows: int, *args) -> None:
+    def geometry(self, name: str, rows: int, *args) -> None:
         """The whole-arm geometry pass ``name`` of :mod:`pan1_env.kernels.team_geometry` over ``rows`` arms, or its
         ``_parallel`` twin on numba's threads when :meth:`chunks` says so."""
         chunks = self.chunks(rows)

@@ -16,6 +16,7 @@ import numpy as np
 
 from .compiled import kernels
 from .dynamics import link_angles, mass_matrix
+from .kernel_step import advance_compiled, advance_kind
 from .safety import QPStatus, project_velocity, rcbf_constraints
 
 if TYPE_CHECKING:
@@ -51,7 +52,7 @@ class PiqpFilter:
         """``substeps`` sub-steps of ``engine`` at ``command (1, N, k_max)``, into ``rec``: filtered here
         while the engine's filter is on, else the engine's compiled step."""
         if engine.filter is None:
-            engine.advance_compiled(command, substeps, torque, rec)
+            advance_compiled(engine, command, substeps, torque, rec)
             return
         self.check(engine.copies, torque, fault_margin=engine.filter.fault_margin)
         if engine.whole_arm:
@@ -64,14 +65,14 @@ class PiqpFilter:
                 for _ in range(substeps):
                     self._end_effector_substep(engine, kind, command, rec)
             else:  # nothing to filter: the kernel's own step
-                engine.advance_kind(kind, command, substeps, rec, filtered=True)
+                advance_kind(engine, kind, command, substeps, rec, filtered=True)
 
     @staticmethod
     def _unfiltered(engine: Engine, kind, v_star: np.ndarray, rec: StepRecord) -> None:
         """One unfiltered sub-step of a kind at ``v_star``; the kernel counts it nominal (the caller
         recounts) and marks its arms finite afresh (kept from before)."""
         finite = rec.finite.copy()
-        engine.advance_kind(kind, v_star, 1, rec, filtered=False)
+        advance_kind(engine, kind, v_star, 1, rec, filtered=False)
         rec.finite &= finite
 
     def _end_effector_substep(self, engine: Engine, kind, command: np.ndarray, rec: StepRecord) -> None:

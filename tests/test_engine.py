@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from pan1_env import scenario
-from pan1_env.engine import Engine, KernelQP
+from pan1_env.engine import Engine
+from pan1_env.kernel_step import KernelQP
 from pan1_env.piqp_filter import PiqpFilter
 
 
