@@ -86,6 +86,11 @@ class SB3MixedArmVecEnv(VecEnv):
             part.venv = venv
 
     @property
+    def dt(self) -> float:
+        """Seconds per step, the same for every team size."""
+        return self.parts[0].dt
+
+    @property
     def team_envs(self) -> list[range]:
         """The sub-envs of each copy (its arms), over every size."""
         return [range(first + t.start, first + t.stop) for first, p in zip(self._bounds, self.parts, strict=False)

@@ -41,6 +41,16 @@ class SB3VecEnv(VecEnv):
         self._actions: np.ndarray | None = None
         self._batch_seed: int | None = None
 
+    @property
+    def config(self):
+        """The env's settings (:class:`~pan1_env.config.FormationConfig`), as every view gives them."""
+        return self.venv.config
+
+    @property
+    def dt(self) -> float:
+        """Seconds per step (``config.control_dt``)."""
+        return self.venv.dt
+
     def seed(self, seed: int | None = None) -> list[int | None]:
         """Seed the next reset: every copy gets an independent stream spawned from ``seed``
         (:func:`pan1_env.core.copy_generator`); returns that seed once per sub-env."""

@@ -59,6 +59,17 @@ def default_physics_dt(control_dt: float, ke: float, action_mode: str = "velocit
                      f"control_dt={control_dt} with K_e·dt ≤ {MAX_KE_DT} (K_e = {ke}); pass physics_dt")
 
 
+def _refuse_team_time_steps(options: RandomScenarioOptions) -> None:
+    """An env steps at its own ``control_dt`` and ``physics_dt``: the drawn team's own time steps (the options' fields,
+    for :func:`pan1_env.random_scenario.random_scenario` outside an env) would be ignored, so other values are
+    refused."""
+    defaults = RandomScenarioOptions()
+    for name in ("control_dt", "physics_dt"):
+        if getattr(options, name) != getattr(defaults, name):
+            raise ValueError(f"random_options {name}={getattr(options, name)!r}: an env steps at its own {name}; pass "
+                             f"{name}= to the env (random_options' time steps are a Scenario's drawn outside an env)")
+
+
 def _time_steps(config, put: Callable[[str, Any], None], ke: float, action_mode: str) -> None:
     """A config's ``physics_dt`` (default: :func:`default_physics_dt`), checked against the tracker gain, and
     ``substeps`` (``control_dt`` must be a whole multiple of it)."""
@@ -190,6 +201,7 @@ class FormationConfig:
             elif random_options is not None and not isinstance(random_options, RandomScenarioOptions):
                 raise ValueError(f"random_options must be a dict or RandomScenarioOptions, got {random_options!r}")
             random_options = random_options or RandomScenarioOptions()
+            _refuse_team_time_steps(random_options)
             # the compiled draw: the reference's team from the same generator, in milliseconds at 256 arms
             team = draw_teams([np.random.default_rng(0)], random_options).scenario(0)
         else:

@@ -53,8 +53,9 @@ def test_the_view_reshapes_the_team_vector_env_and_converts_its_rows_both_ways()
     """The same copies as Pan1VectorEnv (seeded alike): its flat observations are the arm rows, and
     the arm actions, turned into team actions, step it to the same observations and rewards."""
     kwargs = {"random_options": {"links": (2, 3, 4, 3)}, "action_mode": "gain"}
-    arms = SB3ArmVecEnv("random", 3, **kwargs)
-    team = Pan1VectorEnv("random", 3, **kwargs)
+    arms = SB3ArmVecEnv("random", 3, **kwargs, control_dt=0.1)
+    team = Pan1VectorEnv("random", 3, **kwargs, control_dt=0.1)
+    assert arms.dt == arms.config.control_dt == team.dt == 0.1  # every view says its step
     N, rng = 4, np.random.default_rng(1)
     arms.seed(11)
     obs = arms.reset()

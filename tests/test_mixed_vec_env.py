@@ -30,6 +30,7 @@ def test_each_size_is_its_own_arm_view_and_every_copy_draws_its_own_stream() -> 
     assert [sized_options(RING, {}, n) for n in sizes] == [{"n_arms": 3, "n_obstacles": 2},
                                                            {"n_arms": 5, "n_obstacles": 4}]
     mixed = SB3MixedArmVecEnv(RING, sizes, B, max_steps=4, action_mode="gain")
+    assert mixed.dt == 0.05  # every view says its step
     alone = [SB3ArmVecEnv(RING, B, random_options=sized_options(RING, {}, n), max_steps=4, action_mode="gain")
              for n in sizes]
     assert mixed.num_envs == B * sum(sizes) and [list(t) for t in mixed.team_envs[:3]] == [[0, 1, 2], [3, 4, 5],

@@ -367,8 +367,6 @@ def test_the_pretrained_model_is_picked_by_the_envs_task(tmp_path, monkeypatch) 
     assert shipped.model_for(parallel_env("random")) == "plain"
     assert shipped.model_for(parallel_env("random", **whole_arm)) == "whole_arm"  # 10 ms is the default step
     assert shipped.model_for(gymnasium.make("pan1_env:pan1_env/WholeArmStaticFormation-v0")) == "whole_arm"
-    options = whole_arm["random_options"] | {"physics_dt": 0.01, "control_dt": 0.01}  # steps the env replaces
-    assert shipped.model_for(parallel_env("random", random_options=options)) == "whole_arm"
     assert shipped.describe(shipped.available()["whole_arm"]) == "pan1_env/WholeArmStaticFormation-v0"
     for other, why in (({"random_options": {"n_obstacles": 2}}, "random teams with these options in velocity"),
                        (whole_arm | {"physics_dt": 0.005}, "physics_dt=0.005"),

@@ -58,6 +58,20 @@ def test_env_arguments(kwargs, match) -> None:
             parallel_env("paper_pa3_square", **kwargs)
 
 
+def test_a_time_step_in_random_options_is_refused_with_the_envs_own() -> None:
+    """An env steps at its own control_dt and physics_dt: the drawn team's (random_options', which an env would
+    ignore) are refused, naming the argument to use; the default values, or a RandomScenarioOptions left at them,
+    pass."""
+    from pan1_env.random_scenario import RandomScenarioOptions
+
+    for options in ({"control_dt": 0.01}, RandomScenarioOptions(physics_dt=0.0005)):
+        with pytest.raises(ValueError, match=r"random_options (control|physics)_dt=0\.0\d+: an env steps at its own "
+                                             r"(control|physics)_dt; pass (control|physics)_dt= to the env"):
+            parallel_env("random", random_options=options)
+    assert parallel_env("random", random_options=RandomScenarioOptions(), control_dt=0.1).dt == 0.1
+    assert parallel_env("pan1_env/RandomFormation-v1", random_options={"n_arms": 3}).dt == 0.05
+
+
 def test_shield_arguments_and_double_wrapping() -> None:
     from pan1_env.safety import FilterParams
 
