@@ -96,12 +96,14 @@ def train_benchmarl(task_id: str, seed: int, arm_steps: int, out: str | Path, re
     out.mkdir(parents=True, exist_ok=True)
     kwargs = recipe["env_kwargs"] | (env_kwargs or {})
     scenario, resolved = env_arguments(task_id, kwargs)
-    arms = len(Pan1VectorEnv(scenario, 1, **resolved).core.agents)
+    layout = Pan1VectorEnv(scenario, 1, **resolved)
+    arms = len(layout.core.agents)
+    layout.close()
     frames = arm_steps // arms
     run = {**recipe, "seed": seed, "task": task_id, "task_env_kwargs": env_kwargs or {}, "timesteps": arm_steps}
     checkpoint = latest_checkpoint(out)
     if checkpoint is not None:  # the checkpoint holds the recipe's settings: only the budget may change
-        before = json.loads((out / "run.json").read_text())
+        before = json.loads((out / "run.json").read_text()) if (out / "run.json").is_file() else {}
         if {**before, "timesteps": arm_steps} != run:
             raise ValueError(f"{out}: its checkpoints were trained with another recipe or task ({out / 'run.json'}); "
                              "train into a new folder")

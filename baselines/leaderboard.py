@@ -131,7 +131,7 @@ def task_dir(runs: str | Path, entry_: Entry, task: SuiteTask) -> Path:
 
 
 def finished_runs(runs: str | Path, entry_: Entry, task: SuiteTask) -> list[Path]:
-    """The finished runs (``model.zip`` written) of the training seeds, in seed order."""
+    """The finished runs (:attr:`Entry.model_file` written) of the training seeds, in seed order."""
     seeds = entry_.training_task(task).train_seeds
     return [d for s in seeds if (d := task_dir(runs, entry_, task) / f"seed_{s}" / entry_.model_file).is_file()]
 
@@ -381,7 +381,7 @@ def train_entry(entry_: Entry, task: SuiteTask, *, runs: str | Path = "runs/suit
     summaries = []
     for seed in seeds:
         out = task_dir(runs, entry_, task) / f"seed_{seed}"
-        if (out / "model.zip").is_file():
+        if (out / entry_.model_file).is_file():
             say(f"{out}: finished, left as it is")
             continue
         if entry_.trainer == "benchmarl":

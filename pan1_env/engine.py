@@ -54,8 +54,11 @@ SKIN = 0.002
 
 #: :meth:`Engine.kind_terms`: a kind's end-effectors, reduced Jacobians, passive momenta and end-effector drifts
 KindTerms = namedtuple("KindTerms", "p Jbar momentum drift")
+
+
 class Engine:
-    """B copies of a team's arms, the safety filter, and the single call into the sub-step kernel.
+    """B copies of a team's arms and the safety filter, stepped through the sub-step kernel (by
+    :mod:`pan1_env.kernel_step`).
 
     Args:
         scenario: the team (every copy starts as this one; :meth:`load_team` puts another team of the
@@ -454,7 +457,7 @@ class Engine:
         if isinstance(substeps, bool) or not isinstance(substeps, (int, np.integer)) or substeps < 1:
             raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
         if any(kind.specialised is False for kind in self.kinds):
-            kernels().specialise.start_background()  # from the second step on: see Engine._specialised
+            kernels().specialise.start_background()  # from the second step on: see kernel_step._specialised
         blank = self._blank  # fresh arrays every step: records handed out are never overwritten
         rec = StepRecord(blank.v_star.copy(), blank.tau.copy(), blank.min_clearance.copy(), blank.min_barrier.copy(),
                          blank.qp_counts.copy(), blank.max_tracking_error.copy(), blank.finite.copy())

@@ -78,7 +78,7 @@ def advance_compiled(engine: Engine, command: np.ndarray, substeps: int, torque:
             for kind in engine.kinds:
                 if kind.faulted == twins and len(kind.stepped):
                     _advance(engine, kind, command, substeps, torque, engine.filter, rec,
-                                  (at, within) if split else None)
+                             (at, within) if split else None)
         engine.tick(substeps)
     if engine.faults:
         engine.lose_actuators(engine.fault_substeps() == 0, None)
@@ -97,8 +97,8 @@ def _advance_inter_arm(engine: Engine, command: np.ndarray, substeps: int, torqu
     clear, finite = (None, None) if engine.team_order else (np.empty(R), np.empty(R, dtype=bool))
     kinds = [kind for kind in engine.kinds if len(kind.stepped)]
     calls = [_kernel_args(engine, kind, command, 1, torque, engine.filter, rec,
-                               None if clear is None else clear[kind.block],
-                               None if finite is None else finite[kind.block]) for kind in kinds]
+                          None if clear is None else clear[kind.block],
+                          None if finite is None else finite[kind.block]) for kind in kinds]
     if clear is None:
         _, first = calls[0]
         clear, finite = first.min_clear, first.finite
@@ -113,11 +113,11 @@ def _advance_inter_arm(engine: Engine, command: np.ndarray, substeps: int, torqu
             # previous one ended with (`carried`, as one call's sub-steps do); only the last
             # computes the joint velocities and end-effectors (`finish`)
             _call(engine, kind, args, kind.whole._replace(carried=sub > 0, finish=sub == substeps - 1,
-                                                       sensing=sensing))
+                                                          sensing=sensing))
         # the kernel placed the obstacles from the clock itself; the clock moves on here
         engine.geometry("after_substep", B * N, engine.copy_rows, engine.team_joints, clear, finite,
-                       ok, engine.team_start_time, engine.team_caps, engine.radii.shape[1], engine.link_radius,
-                       engine.physics_dt, sub < substeps - 1, engine.elapsed, P, between)
+                        ok, engine.team_start_time, engine.team_caps, engine.radii.shape[1], engine.link_radius,
+                        engine.physics_dt, sub < substeps - 1, engine.elapsed, P, between)
     finite[:] = ok
     for kind, (_, out) in zip(kinds, calls, strict=True):
         _finish(engine, kind, out, torque, rec)

@@ -69,12 +69,12 @@ class Kind:
         self.v_prev, self.has_prev = np.zeros((rows, self.k)), np.zeros(rows, dtype=bool)
         self.active = np.full(rows, not faulted)
         #: the sub-steps [start, stop) of a call in which each row is stepped (the sub-step kernel's ``window``):
-        #: all, but in a step where the row's arm loses its actuator (Engine._advance)
+        #: all, but in a step where the row's arm loses its actuator (kernel_step._advance)
         self.window_default = np.array([0, np.iinfo(np.int64).max], dtype=np.int64)
         self.window = np.tile(self.window_default, (rows, 1))
         self.twin: Kind | None = None  # a fully actuated kind's faulted twin (Engine: arms that may fault)
         self.set_stepped()
-        # the serial kernel: None until the first step decides (Engine._specialised), False while the
+        # the serial kernel: None until the first step decides (kernel_step._specialised), False while the
         # generic kernel stands in for the kind's own, True from then on
         self.specialised: bool | None = None
         self.generation = -1

@@ -91,7 +91,7 @@ def test_a_benchmarl_entry_trains_resumes_and_is_scored_on_held_out_teams(tmp_pa
     import numpy as np
 
     from pan1_env.baselines import leaderboard as board
-    from pan1_env.baselines.benchmarl_training import checkpoint_policy
+    from pan1_env.baselines.benchmarl_training import checkpoint_policy, train_benchmarl
     from pan1_env.baselines.suite import SuiteTask
     from pan1_env.vector import Pan1VectorEnv
 
@@ -108,8 +108,14 @@ def test_a_benchmarl_entry_trains_resumes_and_is_scored_on_held_out_teams(tmp_pa
     (run / "model.json").unlink()  # as if killed after its last checkpoint, and given more budget
     longer = dataclasses.replace(task, train_steps=4 * 400)
     board.train_entry(small, longer, runs=tmp_path, seeds=[0], say=lambda text: None)
-    assert json.loads((run / "model.json").read_text())["frames"] == 400
+    final = json.loads((run / "model.json").read_text())
+    assert final["frames"] == 400 and final["checkpoint"].endswith("checkpoint_400.pt")
     assert len([path for path in run.iterdir() if path.is_dir()]) == 1  # the same experiment folder, continued
+    said = []
+    board.train_entry(small, dataclasses.replace(task, train_steps=4 * 600), runs=tmp_path, seeds=[0], say=said.append)
+    assert said == [f"{run}: finished, left as it is"]  # a finished run is not trained again, whatever the budget
+    with pytest.raises(ValueError, match="trained with another recipe or task"):
+        train_benchmarl("pan1_env/RandomFormation-v1", 0, 4 * 800, run, recipe | {"lr": 1e-3}, task.env_kwargs)
 
     policy, kwargs = checkpoint_policy(run / "model.json")
     data = board.run_suite([longer], [small], runs=tmp_path, teams=3, bar=False)
