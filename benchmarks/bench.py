@@ -210,7 +210,7 @@ def _filter_rows(venv, sample: int = 256) -> tuple[float, int, int]:
             counts += [int(kind.mask[r].sum()) for r in rows]
             possible = max(possible, kind.mask.shape[1])
             continue
-        box = 2 * kind.k if np.isfinite(engine.max_speed) else 0
+        box = 2 * kind.k if np.isfinite(engine.max_joint_speed) else 0
         possible = max(possible, (kind.n if engine.link_bodies else 1) * kind.caps.shape[1])
         counts += [len(whole_arm_rows(engine, kind, r, np.zeros(kind.k), engine.filter.epsilon)[1]) - box
                    for r in rows]

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from .control import MAX_JOINT_SPEED
+from .engine import Physics
 from .env_ids import DEFAULT_REACH_STEPS, env_arguments
 from .formation import most_neighbours
 from .random_scenario import RandomScenarioOptions
@@ -68,6 +69,13 @@ def _refuse_team_time_steps(options: RandomScenarioOptions) -> None:
         if getattr(options, name) != getattr(defaults, name):
             raise ValueError(f"random_options {name}={getattr(options, name)!r}: an env steps at its own {name}; pass "
                              f"{name}= to the env (random_options' time steps are a Scenario's drawn outside an env)")
+
+
+def physics_of(config: FormationConfig | ReachConfig) -> Physics:
+    """A config's :class:`~pan1_env.engine.Physics`: its ``physics_dt``, ``max_joint_speed`` and ``qp_solver``, and
+    ``max_torque`` as the bound on the filter's own torques where ``torque_bound`` asks for it (else none)."""
+    return Physics(config.physics_dt, config.max_joint_speed, config.max_torque if config.torque_bound else np.inf,
+                   config.qp_solver)
 
 
 def _time_steps(config, put: Callable[[str, Any], None], ke: float, action_mode: str) -> None:
@@ -219,6 +227,11 @@ class FormationConfig:
         return cls(scenario, **kwargs)
 
     @property
+    def physics(self) -> Physics:
+        """The part of the config the engine steps with: :func:`physics_of`."""
+        return physics_of(self)
+
+    @property
     def action_scale(self) -> float:
         """Physical units of an action of 1: ``max_joint_speed`` (rad/s), ``max_torque`` (N·m), or 1 for a
         gain action (the exponent of the gain)."""
@@ -321,6 +334,11 @@ class ReachConfig:
         # the engine holds a one-arm team: this arm and the scenario's obstacles (the formation is unused)
         put("team", dataclasses.replace(source, arms=(source.arms[self.arm],), q0=(source.q0[self.arm],)))
         put("safety_filter", filter_parameters(self.safety_filter, self.team))
+
+    @property
+    def physics(self) -> Physics:
+        """The part of the config the engine steps with: :func:`physics_of`."""
+        return physics_of(self)
 
     @property
     def action_scale(self) -> float:

@@ -86,9 +86,7 @@ class FormationCore:
         self.config = c = config
         self.copies = B = positive_int("num_envs", copies)
         team = c.team
-        filter_torque = c.max_torque if c.torque_bound else np.inf  # the filter's own torques: bounded or not
-        self.engine = Engine(team, B, physics_dt=c.physics_dt, max_speed=c.max_joint_speed, max_torque=filter_torque,
-                             qp_solver=c.qp_solver, threads=threads)
+        self.engine = Engine(team, B, c.physics, threads=threads)
         self.set_safety_filter(c.safety_filter or False)  # refused here, as later, where the solver cannot do it
         self.task = TASKS[type(c)](c, B)
         self.layout: ObservationLayout | None = getattr(self.task, "layout", None)

@@ -21,6 +21,7 @@ a time (velocity mode, one copy; slow, for cross-checks). A step goes through th
 from __future__ import annotations
 
 from collections import namedtuple
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -36,7 +37,7 @@ from .step_record import StepRecord
 from .team_draw import TeamDraws, Teams
 from .validation import real
 
-__all__ = ["Engine", "FilterParams", "KindTerms", "StepRecord", "filter_parameters", "PARALLEL_THRESHOLD",
+__all__ = ["Engine", "Physics", "FilterParams", "KindTerms", "StepRecord", "filter_parameters", "PARALLEL_THRESHOLD",
            "SENSING_RADIUS", "BRAKING_SENSING_RADIUS", "SKIN"]
 
 PARALLEL_THRESHOLD = 256  # arms of one kind from which the kernel runs on numba's thread pool
@@ -56,6 +57,37 @@ SKIN = 0.002
 KindTerms = namedtuple("KindTerms", "p Jbar momentum drift")
 
 
+@dataclass(frozen=True)
+class Physics:
+    """How an engine steps its arms, beside the team: an env config's ``physics_dt``, ``max_joint_speed``, the
+    bound on the filter's own torques and ``qp_solver`` (:attr:`pan1_env.config.FormationConfig.physics` is this
+    part of a config).
+
+    Attributes:
+        physics_dt: the RK4 sub-step, seconds (None: the scenario's).
+        max_joint_speed: with the filter on, its QP also bounds every filtered speed by this (rad/s).
+        max_torque: with the filter on in torque mode, its QP also bounds by this (N·m) every actuated joint's torque
+            where it changes the command (docs/MODEL.md §5d); a command's own torque is the caller's to bound (the
+            envs' actions are at most ±``max_torque``). inf: no bound.
+        qp_solver: ``"active_set"`` (exact, in the kernel: :class:`~pan1_env.kernel_step.KernelQP`) or ``"piqp"``
+            (the same rows, whole-arm ones included, solved by qpsolvers + PIQP:
+            :class:`~pan1_env.piqp_filter.PiqpFilter`; one copy, velocity mode only).
+    """
+
+    physics_dt: float | None = None
+    max_joint_speed: float = np.inf
+    max_torque: float = np.inf
+    qp_solver: str = "active_set"
+
+    def __post_init__(self) -> None:
+        if self.physics_dt is not None:
+            object.__setattr__(self, "physics_dt", real("physics_dt", self.physics_dt, positive=True))
+        for name in ("max_joint_speed", "max_torque"):
+            object.__setattr__(self, name, real(name, getattr(self, name), positive=True, allow_inf=True))
+        if self.qp_solver not in QP_SOLVERS:
+            raise ValueError(f"unknown qp_solver {self.qp_solver!r}; choose one of {QP_SOLVERS}")
+
+
 class Engine:
     """B copies of a team's arms and the safety filter, stepped through the sub-step kernel (by
     :mod:`pan1_env.kernel_step`).
@@ -64,33 +96,32 @@ class Engine:
         scenario: the team (every copy starts as this one; :meth:`load_team` puts another team of the
             same structure into a copy, e.g. a new random team at a reset).
         copies: B.
-        physics_dt: the RK4 sub-step, seconds (default: the scenario's).
+        physics: the sub-step, the filter's speed and torque bounds and its QP solver (:class:`Physics`; default:
+            the scenario's sub-step, no bounds, the kernel's active set). ``engine.physics`` may be replaced between
+            steps (a new bound, say); the filter's choices are checked against it when the filter is set.
         safety_filter: ``False``, ``True`` (the scenario's κ, ε, margin) or a :class:`FilterParams`.
-        max_speed: with the filter on, its QP also bounds every filtered speed by this (rad/s).
-        max_torque: with the filter on in torque mode, its QP also bounds by this (N·m) every actuated joint's
-            torque where it changes the command (docs/MODEL.md §5d); a command's own torque is the caller's to bound
-            (the envs' actions are at most ±``max_torque``).
-        qp_solver: ``"active_set"`` (exact, in the kernel: :class:`~pan1_env.kernel_step.KernelQP`) or ``"piqp"``
-            (the same rows, whole-arm ones included, solved by qpsolvers + PIQP:
-            :class:`~pan1_env.piqp_filter.PiqpFilter`; one copy, velocity mode only).
         threads: ``"auto"`` (numba's thread pool from :data:`PARALLEL_THRESHOLD` arms of a kind),
             ``True`` or ``False``; the two kernels give the same results bit for bit.
     """
 
-    def __init__(self, scenario: Scenario, copies: int = 1, *, physics_dt: float | None = None,
-                 safety_filter: bool | FilterParams = False, max_speed: float = np.inf, max_torque: float = np.inf,
-                 qp_solver: str = "active_set", threads: bool | str = "auto") -> None:
-        if qp_solver not in QP_SOLVERS:
-            raise ValueError(f"unknown qp_solver {qp_solver!r}; choose one of {QP_SOLVERS}")
+    def __init__(self, scenario: Scenario, copies: int = 1, physics: Physics | None = None, *,
+                 safety_filter: bool | FilterParams = False, threads: bool | str = "auto", **loose) -> None:
+        if loose:
+            given = ", ".join(f"{key}={value!r}" for key, value in loose.items())
+            raise TypeError(f"Engine takes how it steps as one Physics: Engine(scenario, copies, "
+                            f"physics=Physics({given})), not one by one")
+        physics = Physics() if physics is None else physics
+        if not isinstance(physics, Physics):
+            raise TypeError(f"Engine: physics must be a pan1_env.engine.Physics, got {type(physics).__name__}")
         if threads not in ("auto", True, False):
             raise ValueError(f"threads must be 'auto', True or False, got {threads!r}")
+        #: how the arms are stepped, the sub-step resolved (the scenario's if the physics names none)
+        self.physics = physics if physics.physics_dt is not None else replace(physics,
+                                                                               physics_dt=scenario.physics_dt)
         #: the solver of the filter's QPs, which a step goes through
-        self.qp: KernelQP | PiqpFilter = PiqpFilter() if qp_solver == "piqp" else KernelQP()
+        self.qp: KernelQP | PiqpFilter = PiqpFilter() if physics.qp_solver == "piqp" else KernelQP()
         self.qp.check(int(copies), faults=scenario.fault_times is not None)
-        self.physics_dt = real("physics_dt", scenario.physics_dt if physics_dt is None else physics_dt, positive=True)
-        self.copies, self.qp_solver, self.threads = int(copies), qp_solver, threads
-        self.max_speed = float(max_speed)
-        self.max_torque = real("max_torque", max_torque, positive=True, allow_inf=True)
+        self.copies, self.threads = int(copies), threads
         self.ke = scenario.ke
         self.n_arms = scenario.n_arms
         self.n_links = [a.n_links for a in scenario.arms]
@@ -136,7 +167,25 @@ class Engine:
         self._blank.tau[:, [i for i, a in enumerate(scenario.arms) if a.passive_first_joint], 0] = 0.0
         self.reset()
 
+    @property
+    def physics_dt(self) -> float:
+        """The RK4 sub-step, seconds (``physics.physics_dt``)."""
+        return self.physics.physics_dt
+
+    @property
+    def max_joint_speed(self) -> float:
+        """The filter's bound on every filtered speed, rad/s (``physics.max_joint_speed``)."""
+        return self.physics.max_joint_speed
+
+    @property
+    def max_torque(self) -> float:
+        """The filter's bound on its own torques in torque mode, N·m (``physics.max_torque``)."""
+        return self.physics.max_torque
+
     def __setstate__(self, state: dict) -> None:
+        if "physics" not in state:  # its arrays' names differ: linked wrongly, it would step silently wrong
+            raise ValueError("this engine was pickled by an older pan1-env (a checkpoint's env, say): resume it with "
+                             "the release that wrote it")
         self.__dict__.update(state)
         if getattr(self, "team_caps", None) is not None:  # a copy: the kinds' views of the team arrays again
             for kind in self.kinds:
@@ -151,7 +200,7 @@ class Engine:
         params = filter_parameters(safety_filter, self.teams[0])
         if params is not None:
             reach = max(float(kind.lengths.sum(axis=-1).max()) for kind in self.kinds)
-            check_choices(params, self.whole_arm, self.max_speed, reach, self.physics_dt)
+            check_choices(params, self.whole_arm, self.max_joint_speed, reach, self.physics_dt)
         self.filter = params
         # a sensing range and the fault margin live in the whole-arm rows: the end-effector as their body
         rows = self.filter is not None and (self.filter.sensing_radius is not None or self.filter.fault_margin)

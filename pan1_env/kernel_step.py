@@ -178,7 +178,7 @@ def _kernel_args(engine: Engine, kind: Kind, command: np.ndarray, substeps: int,
         out = out._replace(min_clear=clear, finite=finite)
     rcbf = plain(FILTER_OFF if params is None else kernel_filter(params, engine.max_torque))
     held = plain(Command(command=cmd, torque_mode=torque, filter_on=params is not None))
-    stepping = plain(Stepping(ke=engine.ke, dt=engine.physics_dt, n_sub=substeps, v_max=engine.max_speed))
+    stepping = plain(Stepping(ke=engine.ke, dt=engine.physics_dt, n_sub=substeps, v_max=engine.max_joint_speed))
     return (kind.model, kind.state, kind.selection, held, kind.world, rcbf, stepping, plain(out)), out
 
 

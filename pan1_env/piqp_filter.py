@@ -82,10 +82,10 @@ class PiqpFilter:
         rows, b, h = rcbf_constraints(terms.p, terms.Jbar, kind.centers[0], kind.radii[0], f.kappa, f.epsilon,
                                       active=kind.mask, margin=f.margin, barrier=f.barrier, decay=f.decay,
                                       drift=terms.drift)
-        if np.isfinite(engine.max_speed):
+        if np.isfinite(engine.max_joint_speed):
             box = np.concatenate([np.eye(k), -np.eye(k)])
             rows = np.concatenate([rows, np.broadcast_to(box, (A, 2 * k, k))], axis=1)
-            b = np.concatenate([b, np.full((A, 2 * k), engine.max_speed)], axis=1)
+            b = np.concatenate([b, np.full((A, 2 * k), engine.max_joint_speed)], axis=1)
         result = project_velocity(command[0, kind.ids, :k], rows, b, solver="piqp")
         v_star = np.zeros_like(command)
         v_star[0, kind.ids, :k] = result.v
@@ -119,7 +119,8 @@ class PiqpFilter:
                     retry = project_velocity(v0[None], A[None], b[None], solver="piqp")
                     v_star[0, i, :kind.k] = retry.v[0]
                     if retry.status[0] == QPStatus.FALLBACK:
-                        v_star[0, i, :kind.k] = least_violation(v0, A, b, np.isfinite(engine.max_speed), f.by_rate)
+                        bounded = np.isfinite(engine.max_joint_speed)
+                        v_star[0, i, :kind.k] = least_violation(v0, A, b, bounded, f.by_rate)
         for kind in engine.kinds:
             self._unfiltered(engine, kind, v_star, rec)
         rec.qp_counts[0] += _STATUS[status] - _STATUS[0]
@@ -151,7 +152,8 @@ def whole_arm_rows(engine: Engine, kind, r: int, v0: np.ndarray, epsilon: float)
                             lane(mass_matrix(arm, q)), float(kind.momentum[r]),
                             (0.0, 1.0, 0.0), caps, whole.n_world,  # no fault margin: PIQP refuses it
                             whole.start_time[r], f.kappa, epsilon, f.margin,
-                            f.barrier == "distance", f.decay, f.lookahead, engine.max_speed, v0.copy(), A, b, active,
+                            f.barrier == "distance", f.decay, f.lookahead, engine.max_joint_speed, v0.copy(), A, b,
+                            active,
                             np.empty((n + 1, 2)), np.empty((caps.shape[1], K.NEAR_COLUMNS)))
     return A[:m], b[:m], h
 

@@ -523,8 +523,8 @@ def check_choices(params: FilterParams, whole_arm: bool, max_speed: float, reach
     - ``fault_margin`` is written for the distance barrier, bounds the momentum the speed box allows, and has no
       gate (its range is the margin's own)."""
     if params.fault_margin and (params.barrier != "distance" or not np.isfinite(max_speed) or params.gate > 0.0):
-        raise ValueError("FilterParams.fault_margin needs barrier='distance', a finite max_speed and gate=0, got "
-                         f"barrier={params.barrier!r}, max_speed={max_speed:g}, gate={params.gate:g}")
+        raise ValueError("FilterParams.fault_margin needs barrier='distance', a finite max_joint_speed and gate=0, got "
+                         f"barrier={params.barrier!r}, max_joint_speed={max_speed:g}, gate={params.gate:g}")
     rows = whole_arm or params.sensing_radius is not None or params.fault_margin
     if params.fallback != "command" and not rows:
         raise ValueError(f"FilterParams.fallback={params.fallback!r} measures the whole-arm filter's last resort: "
@@ -537,7 +537,7 @@ def check_choices(params: FilterParams, whole_arm: bool, max_speed: float, reach
     if not rows:
         raise ValueError("FilterParams.gate widens a sensing range: it needs whole-arm bodies or a sensing_radius")
     if not np.isfinite(max_speed):
-        raise ValueError("FilterParams.gate relaxes rows towards the speed box: it needs a finite max_speed")
+        raise ValueError("FilterParams.gate relaxes rows towards the speed box: it needs a finite max_joint_speed")
     travel = max_speed * reach * physics_dt
     if params.gate < travel:
         raise ValueError(f"FilterParams.gate must be 0 (a hard range) or at least one sub-step's travel, "

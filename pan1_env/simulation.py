@@ -12,10 +12,12 @@ have a leading copy axis.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from .control import MAX_JOINT_SPEED
-from .engine import Engine
+from .engine import Engine, Physics
 from .formation import edge_errors, edge_vectors, formation_gradient
 from .motion import MotionTable
 from .scenario import Scenario
@@ -40,7 +42,7 @@ class Simulation:
     def __init__(self, scenario: Scenario, *, safety_filter=True, qp_solver: str = "active_set",
                  physics_dt: float | None = None) -> None:
         self.scenario = scenario
-        self.engine = Engine(scenario, 1, physics_dt=physics_dt, safety_filter=safety_filter, qp_solver=qp_solver)
+        self.engine = Engine(scenario, 1, Physics(physics_dt, qp_solver=qp_solver), safety_filter=safety_filter)
         self.motion = None
         if scenario.motion is not None:
             self.motion = MotionTable(1, scenario.n_arms, scenario.motion.keyframes)
@@ -123,7 +125,7 @@ class Simulation:
         if command.shape != (self.n_arms, self.k_max):
             raise ValueError(f"command must have shape {(self.n_arms, self.k_max)}, got {command.shape}")
         if max_speed is not None:
-            self.engine.max_speed = float(max_speed)
+            self.engine.physics = replace(self.engine.physics, max_joint_speed=max_speed)
         rec = self.engine.step(command[None], substeps, torque=torque)
         self.time += int(substeps) * self.physics_dt
         out = StepRecord(rec.v_star[0], rec.tau[0], rec.min_clearance[0], rec.min_barrier[0], rec.qp_counts[0],

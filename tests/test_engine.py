@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from pan1_env import scenario
-from pan1_env.engine import Engine
+from pan1_env.engine import Engine, Physics
 from pan1_env.kernel_step import KernelQP
 from pan1_env.piqp_filter import PiqpFilter
 
@@ -21,7 +21,7 @@ def _commands(engine: Engine, steps: int, scale: float = 1.0, seed: int = 0) -> 
 
 def test_reset_of_some_copies_leaves_the_others() -> None:
     team = scenario.load("paper_pa3_square")
-    engine = Engine(team, 3, safety_filter=True, max_speed=2.0)
+    engine = Engine(team, 3, physics=Physics(max_joint_speed=2.0), safety_filter=True)
     for command in _commands(engine, 4):
         engine.step(command, 5)
     q_before, qd_before = (x.copy() for x in engine.joint_state())
@@ -37,7 +37,7 @@ def test_reset_of_some_copies_leaves_the_others() -> None:
         np.testing.assert_allclose(engine.positions()[b], p_before[b], rtol=0, atol=1e-12)
     assert not np.array_equal(q_before[1], q[1]), "the steps should have moved copy 1"
     # the reset copy steps as a fresh engine's copy does
-    fresh = Engine(team, 1, safety_filter=True, max_speed=2.0)
+    fresh = Engine(team, 1, physics=Physics(max_joint_speed=2.0), safety_filter=True)
     command = _commands(engine, 1, seed=1)[0]
     rec, fresh_rec = engine.step(command, 5), fresh.step(command[1:2], 5)
     np.testing.assert_array_equal(engine.joint_state()[0][1], fresh.joint_state()[0][0])
@@ -72,7 +72,7 @@ def test_load_team_refuses_another_structure() -> None:
 def test_step_record_shapes_and_padding() -> None:
     team = scenario.load("paper_pa_mixed_square")
     B, N = 2, team.n_arms
-    engine = Engine(team, B, safety_filter=True, max_speed=2.0)
+    engine = Engine(team, B, physics=Physics(max_joint_speed=2.0), safety_filter=True)
     rec = engine.step(_commands(engine, 1)[0], 5)
     assert rec.v_star.shape == (B, N, engine.k_max) and rec.tau.shape == (B, N, engine.n_max)
     for name in ("min_clearance", "min_barrier", "max_tracking_error", "finite", "intervened", "fallback"):
@@ -98,7 +98,8 @@ def test_step_record_shapes_and_padding() -> None:
 @pytest.mark.parametrize("name", ["paper_pa3_square", "paper_pa_mixed_square"])
 def test_threaded_kernel_steps_as_the_serial_one_bit_for_bit(name: str) -> None:
     team = scenario.load(name)
-    engines = [Engine(team, 6, safety_filter=True, max_speed=2.0, threads=t) for t in (False, True)]
+    engines = [Engine(team, 6, physics=Physics(max_joint_speed=2.0), safety_filter=True, threads=t)
+               for t in (False, True)]
     assert engines[1].chunks(6) > 0 and engines[0].chunks(6) == 0
     for command in _commands(engines[0], 10, scale=2.0):
         serial, threaded = (e.step(command, 5) for e in engines)
@@ -111,14 +112,14 @@ def test_threaded_kernel_steps_as_the_serial_one_bit_for_bit(name: str) -> None:
 def test_the_engine_is_given_its_qp_solver() -> None:
     team = scenario.load("paper_pa3_square")
     assert isinstance(Engine(team).qp, KernelQP)
-    piqp = Engine(team, qp_solver="piqp", safety_filter=True)
+    piqp = Engine(team, physics=Physics(qp_solver="piqp"), safety_filter=True)
     assert isinstance(piqp.qp, PiqpFilter)
     with pytest.raises(ValueError, match="one copy"):
-        Engine(team, 2, qp_solver="piqp")
+        Engine(team, 2, physics=Physics(qp_solver="piqp"))
     with pytest.raises(ValueError, match="torque-mode filter"):
         piqp.step(np.zeros((1, 4, 3)), 1, torque=True)
     with pytest.raises(ValueError, match="unknown qp_solver"):
-        Engine(team, qp_solver="osqp")
+        Engine(team, physics=Physics(qp_solver="osqp"))
     piqp.set_safety_filter(False)  # the filter off: the compiled step, torque mode included
     piqp.step(np.zeros((1, 4, 3)), 1, torque=True)
 
@@ -127,7 +128,7 @@ def test_piqp_filter_agrees_with_the_compiled_qp() -> None:
     """The same rows solved by PIQP (an interior-point method, to its tolerance) and by the exact active
     set: the same QP statuses, and velocities and states within PIQP's accuracy."""
     team = scenario.load("paper_pa3_square")
-    engines = {s: Engine(team, safety_filter=True, max_speed=2.0, physics_dt=0.01, qp_solver=s)
+    engines = {s: Engine(team, physics=Physics(max_joint_speed=2.0, physics_dt=0.01, qp_solver=s), safety_filter=True)
                for s in ("active_set", "piqp")}
     counts = 0
     for command in _commands(engines["piqp"], 15, scale=2.0, seed=4):
@@ -145,7 +146,7 @@ def test_a_loaded_team_brings_its_damping() -> None:
     damped copy's passive momentum changes, the undamped copy's stays what it was."""
     team = scenario.load("paper_pa3_square")
     damped = dataclasses.replace(team, arms=tuple(dataclasses.replace(a, passive_damping=2.0) for a in team.arms))
-    engine = Engine(team, 2, physics_dt=1e-3)
+    engine = Engine(team, 2, physics=Physics(physics_dt=1e-3))
     engine.load_team(1, damped)
     engine.reset()
     q = [np.array(q0) for q0 in team.q0]

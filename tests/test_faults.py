@@ -13,7 +13,7 @@ from geometry import inter_arm_clearances, joints, obstacle_clearances
 
 from pan1_env import scenario
 from pan1_env.dynamics import mass_matrix
-from pan1_env.engine import Engine
+from pan1_env.engine import Engine, Physics
 from pan1_env.random_scenario import RandomScenarioOptions, random_scenario
 
 
@@ -55,7 +55,7 @@ def test_a_fault_mid_step_equals_a_passive_arm_from_the_faults_state(bodies: str
     times = [23.4 * dt, np.inf, 51 * dt, np.inf]
     team = _whole_arm_team(2, times, bodies == "links_and_arms") if whole_arm else _mixed(times)
     n = team.arms[0].n_links
-    kw = dict(safety_filter=whole_arm, max_speed=3.0 if whole_arm else np.inf)
+    kw = dict(safety_filter=whole_arm, physics=Physics(max_joint_speed=3.0 if whole_arm else np.inf))
     faulty = Engine(team, 1, **kw)
     plain = Engine(dataclasses.replace(team, fault_times=None), 1, **kw)
     tau = _torques(rng, 9, (1, 4, n))
@@ -110,7 +110,7 @@ def test_frictionless_fault_conserves_the_momentum_and_a_reset_restores_the_actu
     from the engine's float64 joint state, stays what it was at the fault to 1e-9 relative over 100 s
     (10 ms sub-steps). A reset gives the arm its actuator back, and the fault comes again at its time."""
     team = _mixed([0.5, np.inf, np.inf, np.inf])
-    engine = Engine(team, 1, physics_dt=0.01, safety_filter=True, max_speed=2.0)
+    engine = Engine(team, 1, physics=Physics(physics_dt=0.01, max_joint_speed=2.0), safety_filter=True)
     arm = team.arms[0]
     command = np.zeros((1, 4, 2))
     command[0, :3] = [1.5, -1.0]
@@ -143,7 +143,7 @@ def test_copies_fault_on_their_own(threads: bool) -> None:
     fault, another copy's fault and a reset of one copy."""
     times = ([0.05, np.inf, 0.13, np.inf], [np.inf] * 4, [0.0, 0.09, np.inf, 0.031])
     teams = [_whole_arm_team(7, times[0]), _whole_arm_team(8, times[1]), _whole_arm_team(7, times[2])]
-    kw = dict(safety_filter=True, max_speed=3.0, threads=threads)
+    kw = dict(safety_filter=True, physics=Physics(max_joint_speed=3.0), threads=threads)
     batch = Engine(teams[0], 3, **kw)
     for b, team in enumerate(teams):
         batch.load_team(b, team)
@@ -175,7 +175,7 @@ def test_the_geometry_follows_a_faulted_arm() -> None:
     the engine reports, before arm 0's fault, after it (arm 0's smallest is to another arm) and after a
     reset."""
     team = _whole_arm_team(15, [0.02, np.inf, np.inf, np.inf])
-    engine = Engine(team, 1, safety_filter=True, max_speed=3.0)
+    engine = Engine(team, 1, physics=Physics(max_joint_speed=3.0), safety_filter=True)
     rng = np.random.default_rng(2)
     rho, binding = team.link_radius, 0
     for s in range(40):
@@ -196,7 +196,7 @@ def test_a_reset_after_a_fault_is_a_fresh_engine() -> None:
     """Whole-arm safety with other arms, velocity mode, filter on: after faults and a reset, the engine steps
     as a fresh one, bit for bit, through the faults that come again."""
     team = _whole_arm_team(15, [0.02, 0.05, np.inf, 0.0])
-    kw = dict(safety_filter=True, max_speed=3.0)
+    kw = dict(safety_filter=True, physics=Physics(max_joint_speed=3.0))
     used, fresh = Engine(team, 2, **kw), Engine(team, 2, **kw)
     rng = np.random.default_rng(4)
     for _ in range(6):
@@ -226,4 +226,4 @@ def test_fault_times_are_checked() -> None:
     with pytest.raises(ValueError, match="fault_times only if the engine's first team had them"):
         engine.load_team(1, _mixed([1.0, np.inf, np.inf, np.inf]))
     with pytest.raises(ValueError, match="qp_solver='piqp' does not step arms that lose an actuator"):
-        Engine(_mixed([1.0, np.inf, np.inf, np.inf]), 1, qp_solver="piqp", safety_filter=True)
+        Engine(_mixed([1.0, np.inf, np.inf, np.inf]), 1, physics=Physics(qp_solver="piqp"), safety_filter=True)

@@ -209,7 +209,7 @@ def test_the_smooth_gate_is_refused_where_it_cannot_act() -> None:
     """A negative or non-finite gate is refused by name wherever it is given; a positive one needs the
     whole-arm rows (whole-arm bodies or a sensing radius), a finite speed bound, and at least one
     sub-step's travel, which the engine computes from the team."""
-    from pan1_env.engine import Engine
+    from pan1_env.engine import Engine, Physics
     from pan1_env.random_scenario import RandomScenarioOptions
 
     team = load("paper_pa3_square")
@@ -222,12 +222,13 @@ def test_the_smooth_gate_is_refused_where_it_cannot_act() -> None:
             RandomScenarioOptions(gate=bad)
     with pytest.raises(ValueError, match="needs whole-arm bodies or a sensing_radius"):
         SafetyShield(parallel_env("paper_pa3_square"), params=FilterParams.of(team, gate=0.05))
-    with pytest.raises(ValueError, match="needs a finite max_speed"):
+    with pytest.raises(ValueError, match="needs a finite max_joint_speed"):
         Engine(team, safety_filter=FilterParams(0.5, 5.0, sensing_radius=0.1, gate=0.05))
     with pytest.raises(ValueError, match=r"at least one sub-step's travel, 0\.01\d* m .*got 0\.001"):
-        Engine(team, safety_filter=FilterParams(0.5, 5.0, sensing_radius=0.1, gate=0.001), max_speed=5.0,
-               physics_dt=0.002)
-    engine = Engine(team, safety_filter=FilterParams(0.5, 5.0, sensing_radius=0.1, gate=0.05), max_speed=2.0)
+        Engine(team, physics=Physics(max_joint_speed=5.0, physics_dt=0.002),
+               safety_filter=FilterParams(0.5, 5.0, sensing_radius=0.1, gate=0.001))
+    engine = Engine(team, physics=Physics(max_joint_speed=2.0),
+                    safety_filter=FilterParams(0.5, 5.0, sensing_radius=0.1, gate=0.05))
     assert engine.whole_arm_args(engine.kinds[0]).gate == 0.05
 
 
@@ -281,7 +282,7 @@ def test_the_fault_margin_is_checked_and_travels_with_the_scenario(tmp_path) -> 
 
     import gymnasium
 
-    from pan1_env.engine import Engine
+    from pan1_env.engine import Engine, Physics
     from pan1_env.scenario import ScenarioError
     from pan1_env.vector import Pan1VectorEnv
     from pan1_env.wrappers import GymSafetyShield
@@ -294,10 +295,11 @@ def test_the_fault_margin_is_checked_and_travels_with_the_scenario(tmp_path) -> 
     for params, what in ((FilterParams(0.5, 5.0, fault_margin=True), "barrier='squared'"),
                          (FilterParams(0.5, 5.0, barrier="distance", gate=0.05, fault_margin=True), "gate=0.05")):
         with pytest.raises(ValueError, match=f"fault_margin needs barrier='distance'.*{what}"):
-            Engine(team, safety_filter=params, max_speed=2.0)
-    with pytest.raises(ValueError, match="fault_margin needs .*max_speed=inf"):
+            Engine(team, physics=Physics(max_joint_speed=2.0), safety_filter=params)
+    with pytest.raises(ValueError, match="fault_margin needs .*max_joint_speed=inf"):
         Engine(team, safety_filter=FilterParams(0.5, 5.0, barrier="distance", fault_margin=True))
-    engine = Engine(team, safety_filter=FilterParams(0.5, 5.0, barrier="distance", fault_margin=True), max_speed=2.0)
+    engine = Engine(team, physics=Physics(max_joint_speed=2.0),
+                    safety_filter=FilterParams(0.5, 5.0, barrier="distance", fault_margin=True))
     assert engine.whole_arm and not engine.link_bodies
     text = resources.files("pan1_env.scenarios").joinpath("paper_pa3_square.toml").read_text()
     good = tmp_path / "margin.toml"

@@ -84,12 +84,12 @@ def test_a_step_of_sub_steps_reports_the_smallest_clearance_of_its_sub_steps(spe
     """A step of 5 sub-steps reports the smallest clearance of its sub-steps: the same as 5 steps of one sub-step
     each (whose clearance the test above checks against the geometry), though within a call the skips start from
     the clearance of the call's earlier sub-steps."""
-    from pan1_env.engine import Engine
+    from pan1_env.engine import Engine, Physics
     from pan1_env.random_scenario import RandomScenarioOptions, random_scenario
 
     team = random_scenario(np.random.default_rng(7), RandomScenarioOptions(
         **MANY, n_arms=12, n_obstacles=9, obstacle_speed=speed, physics_dt=0.01, control_dt=0.05))
-    engines = [Engine(team, safety_filter=True, max_speed=2.0) for _ in range(2)]
+    engines = [Engine(team, physics=Physics(max_joint_speed=2.0), safety_filter=True) for _ in range(2)]
     rng = np.random.default_rng(0)
     for _ in range(10):
         command = rng.uniform(-2, 2, (1, team.n_arms, 3))

@@ -13,7 +13,7 @@ from geometry import joints, obstacle_clearances
 
 from pan1_env import cascade, scenario
 from pan1_env.dynamics import end_effector, jacobian, mass_matrix
-from pan1_env.engine import Engine
+from pan1_env.engine import Engine, Physics
 from pan1_env.safety import Obstacles
 
 DAMPINGS = (0.0, 0.2, 1.0, 3.0)  # N·m·s/rad, one per arm of the paper's team
@@ -37,7 +37,7 @@ def test_damped_passive_joints_follow_the_reference() -> None:
     RK4 agree with cascade.momentum_cascade_rk4_step's, for dampings from 0 to 3 N·m·s/rad, with p₁ ≠ 0 from
     the start; a reset puts p₁ back to 0."""
     team = _team()
-    engine = Engine(team, 1, physics_dt=1e-3)
+    engine = Engine(team, 1, physics=Physics(physics_dt=1e-3))
     rng = np.random.default_rng(3)
     q, qd = _moving_state(team, rng)
     engine.set_state(0, q, qd)
@@ -66,7 +66,7 @@ def test_momentum_without_damping_is_conserved_for_100_s() -> None:
     """b = 0 after the passive joint was set turning: p₁ read back from q and q̇ (Engine.joint_state, float64) stays
     p₁(0) to 1e-9 relative over 100 s of the shielded velocity mode, while the arms move."""
     team = _team(dampings=(0.0,) * 4)
-    engine = Engine(team, 1, physics_dt=0.01, safety_filter=True, max_speed=2.0)
+    engine = Engine(team, 1, physics=Physics(physics_dt=0.01, max_joint_speed=2.0), safety_filter=True)
     q, qd = _moving_state(team, np.random.default_rng(5))
     engine.set_state(0, q, qd)
     p0 = np.array([mass_matrix(arm, qi)[0] @ qdi for arm, qi, qdi in zip(team.arms, q, qd, strict=True)])
@@ -125,7 +125,7 @@ def test_the_filter_takes_the_drift_into_account(bodies: str) -> None:
     fallback, and that fallback does not brake (v* = 0 would leave the drift acting) but pulls against it."""
     team, q, qd = _drifting_team(bodies)
     for max_speed in (np.inf, 5.0):
-        engine = Engine(team, 1, safety_filter=True, max_speed=max_speed)
+        engine = Engine(team, 1, physics=Physics(max_joint_speed=max_speed), safety_filter=True)
         engine.set_state(0, q, qd)
         solved, entered, fallbacks = np.zeros(4, dtype=int), np.zeros(4, dtype=bool), 0
         for _ in range(300):  # 0.3 s of 1 ms sub-steps

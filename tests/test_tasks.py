@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pan1_env.config import FormationConfig
-from pan1_env.engine import Engine, StepRecord
+from pan1_env.engine import Engine, Physics, StepRecord
 from pan1_env.environment import parallel_env
 from pan1_env.tasks import FormationTask
 
@@ -42,7 +42,7 @@ def test_formation_outcome_matches_the_documented_reward(B: int, N: int, E: int)
 def test_engine_step_record_covers_every_arm_of_every_copy() -> None:
     """A mixed team (three arm kinds, not in team order) in three copies: every arm gets its results."""
     env = parallel_env("paper_pa_mixed_square")
-    engine = Engine(env.scenario, 3, physics_dt=0.01, safety_filter=True, max_speed=2.0)
+    engine = Engine(env.scenario, 3, physics=Physics(physics_dt=0.01, max_joint_speed=2.0), safety_filter=True)
     rec = engine.step(np.full((3, engine.n_arms, engine.k_max), 0.5), 5)
     assert len(engine.kinds) > 1 and not engine.team_order
     assert np.isfinite(rec.min_clearance).all() and rec.all_finite

@@ -1,6 +1,8 @@
 """Torque mode's input bound (docs/MODEL.md §5d) as the env's option ``torque_bound``: wired to the engine's filter
 (the end-effector filter and the whole-arm one), off by default, refused when it is not a bool."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -42,8 +44,6 @@ def test_a_torque_bound_that_is_not_a_bool_or_outside_torque_mode_is_refused() -
 def _same_range_unbounded(engine) -> None:
     """Give the bounded engine's filter its braking range explicitly, so that an unbounded twin of it (max_torque
     = inf) filters with the same rows and only the bound differs."""
-    import dataclasses
-
     from pan1_env.engine import BRAKING_SENSING_RADIUS
 
     engine.set_safety_filter(dataclasses.replace(engine.filter, sensing_radius=BRAKING_SENSING_RADIUS))
@@ -52,16 +52,14 @@ def _same_range_unbounded(engine) -> None:
 def test_the_whole_arm_range_widens_behind_the_bound_in_torque_mode_only() -> None:
     """The whole-arm filter's range (docs/MODEL.md §5d): 1 m in torque mode behind the bound, the default 0.1 m in
     velocity mode and without the bound, and a filter's own sensing_radius in every case."""
-    import dataclasses
-
     from pan1_env.engine import BRAKING_SENSING_RADIUS, SENSING_RADIUS
 
     engine = Pan1VectorEnv("pan1_env/WholeArmStaticFormation-v1", 1, action_mode="torque", torque_bound=True).engine
     assert engine.filter_range(True) == BRAKING_SENSING_RADIUS == 1.0
     assert engine.filter_range(False) == SENSING_RADIUS == 0.1
-    engine.max_torque = np.inf
+    engine.physics = dataclasses.replace(engine.physics, max_torque=np.inf)
     assert engine.filter_range(True) == SENSING_RADIUS
-    engine.max_torque = 5.0
+    engine.physics = dataclasses.replace(engine.physics, max_torque=5.0)
     engine.set_safety_filter(dataclasses.replace(engine.filter, sensing_radius=0.3))
     assert engine.filter_range(True) == engine.filter_range(False) == 0.3
 
@@ -109,7 +107,7 @@ def test_a_whole_arm_fallback_stays_one_and_moves_towards_the_filters_answer_wit
     _same_range_unbounded(engine)
     assert engine.clearance()[0, arm] < -0.05
     free_engine = pickle.loads(pickle.dumps(engine))
-    free_engine.max_torque = np.inf
+    free_engine.physics = dataclasses.replace(free_engine.physics, max_torque=np.inf)
     command = np.zeros((1, engine.n_arms, engine.k_max))
     free = free_engine.step(command.copy(), 1, torque=True)
     bounded = engine.step(command.copy(), 1, torque=True)
@@ -141,7 +139,7 @@ def test_behind_the_bound_every_fallback_of_the_filter_is_still_reported_one() -
     unbounded_fallbacks = 0
     for _ in range(950):
         free_engine = pickle.loads(pickle.dumps(engine))
-        free_engine.max_torque = np.inf
+        free_engine.physics = dataclasses.replace(free_engine.physics, max_torque=np.inf)
         command = rng.uniform(-1.0, 1.0, shape) * tau_max
         free = free_engine.step(command.copy(), 1, torque=True)
         bounded = engine.step(command.copy(), 1, torque=True)

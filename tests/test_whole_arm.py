@@ -196,13 +196,13 @@ def test_the_momentum_rows_hold_the_momentum_at_the_sub_steps_end(tracked: bool)
     of the command agrees to RK4's error, and neither the one without dt H₀ nor the other case's does (tracked: the
     command's momentum; afresh, where a = 1 here: the tracked formula's)."""
     from pan1_env.dynamics import coriolis_vector
-    from pan1_env.engine import Engine
+    from pan1_env.engine import Engine, Physics
     from pan1_env.scenario import load
 
     team = load("paper_pa_mixed_square")
     full = [i for i, arm in enumerate(team.arms) if not arm.passive_first_joint]
     assert full
-    engine = Engine(team, 1, max_speed=2.0, physics_dt=0.01)
+    engine = Engine(team, 1, physics=Physics(max_joint_speed=2.0, physics_dt=0.01))
     a, dt = team.ke * engine.physics_dt, engine.physics_dt
     first = np.full((1, engine.n_arms, engine.k_max), 1.5)
     engine.step(first, 3)
@@ -607,12 +607,12 @@ def test_mixed_link_counts_keep_every_capsule_clear() -> None:
 def test_sub_steps_in_one_call_match_one_call_each() -> None:
     """Moving obstacles: a step of 5 sub-steps gives the state of 5 steps of one sub-step (the rows see
     the obstacles at each sub-step's own time)."""
-    from pan1_env.engine import Engine
+    from pan1_env.engine import Engine, Physics
     from pan1_env.random_scenario import RandomScenarioOptions, random_scenario
 
     team = random_scenario(np.random.default_rng(4), RandomScenarioOptions(
         bodies="links", link_radius=0.03, obstacle_speed=(0.2, 0.3), physics_dt=0.01, control_dt=0.05))
-    engines = [Engine(team, safety_filter=True, max_speed=2.0) for _ in range(2)]
+    engines = [Engine(team, physics=Physics(max_joint_speed=2.0), safety_filter=True) for _ in range(2)]
     command = np.random.default_rng(0).uniform(-2, 2, (1, team.n_arms, 3))
     counts = []
     for _ in range(8):
@@ -630,15 +630,14 @@ def test_inter_arm_steps_carry_the_states_link_angles_and_restart_from_the_state
     start from the sines and cosines of the link angles the previous one ended with. Those are the
     state's (to rounding), and a step is still a function of the state: after a reset mid-run, an
     engine gives the same results, bit for bit, as a fresh one reset to the same copies."""
-    from pan1_env.engine import Engine
+    from pan1_env.engine import Engine, Physics
     from pan1_env.random_scenario import RandomScenarioOptions, random_scenario
 
     teams = [random_scenario(np.random.default_rng(s), RandomScenarioOptions(
         bodies="links", link_radius=0.03, inter_arm=True, obstacle_speed=(0.1, 0.3), physics_dt=0.01,
         control_dt=0.05)) for s in (5, 6)]
     command = np.random.default_rng(1).uniform(-2, 2, (2, teams[0].n_arms, 3))
-    used, fresh = Engine(teams[0], 2, safety_filter=True, max_speed=2.0), Engine(teams[0], 2, safety_filter=True,
-                                                                                  max_speed=2.0)
+    used, fresh = (Engine(teams[0], 2, physics=Physics(max_joint_speed=2.0), safety_filter=True) for _ in range(2))
     for engine in (used, fresh):
         engine.load_team(1, teams[1])
         engine.reset()
@@ -766,9 +765,9 @@ def _piqp_against_kernel(team, steps: int, command_scale: float, filter_params=T
                          max_speed: float = 2.0) -> np.ndarray:
     """Step the same team with the kernel's QP and with qp_solver='piqp' under the same commands; every
     step's records agree (QP statuses per arm exactly): returns the kernel's status counts."""
-    from pan1_env.engine import Engine
+    from pan1_env.engine import Engine, Physics
 
-    engines = {s: Engine(team, safety_filter=filter_params, max_speed=max_speed, qp_solver=s)
+    engines = {s: Engine(team, physics=Physics(max_joint_speed=max_speed, qp_solver=s), safety_filter=filter_params)
                for s in ("active_set", "piqp")}
     rng = np.random.default_rng(0)
     counts = 0
