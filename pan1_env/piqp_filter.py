@@ -66,6 +66,7 @@ class PiqpFilter:
                     self._end_effector_substep(engine, kind, command, rec)
             else:  # nothing to filter: the kernel's own step
                 advance_kind(engine, kind, command, substeps, rec, filtered=True)
+        engine.tick(substeps)  # advance_kind steps the arms only; the clock (a moving formation's) moves here
 
     @staticmethod
     def _unfiltered(engine: Engine, kind, v_star: np.ndarray, rec: StepRecord) -> None:

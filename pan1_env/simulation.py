@@ -67,12 +67,16 @@ class Simulation:
     def physics_dt(self) -> float:
         return self.engine.physics_dt
 
+    @property
+    def time(self) -> float:
+        """Seconds since the last reset: the engine's clock."""
+        return float(self.engine.elapsed[0])
+
     def reset(self, q0: list[np.ndarray] | None = None) -> None:
         """Put every arm at rest at ``q0`` (default: the scenario's), time 0."""
         if q0 is not None and len(q0) != self.n_arms:
             raise ValueError(f"q0 needs one configuration per arm ({self.n_arms}), got {len(q0)}")
         self.engine.reset(None if q0 is None else [0], q0)
-        self.time = 0.0
         self.min_clearance = self.clearance()  # (N,) running minimum since reset
 
     def positions(self) -> np.ndarray:
@@ -127,7 +131,6 @@ class Simulation:
         if max_speed is not None:
             self.engine.physics = replace(self.engine.physics, max_joint_speed=max_speed)
         rec = self.engine.step(command[None], substeps, torque=torque)
-        self.time += int(substeps) * self.physics_dt
         out = StepRecord(rec.v_star[0], rec.tau[0], rec.min_clearance[0], rec.min_barrier[0], rec.qp_counts[0],
                          rec.max_tracking_error[0], rec.finite[0], rec.all_finite)
         np.minimum(self.min_clearance, out.min_clearance, out=self.min_clearance)

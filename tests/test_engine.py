@@ -126,10 +126,10 @@ def test_the_engine_is_given_its_qp_solver() -> None:
 
 def test_piqp_filter_agrees_with_the_compiled_qp() -> None:
     """The same rows solved by PIQP (an interior-point method, to its tolerance) and by the exact active
-    set: the same QP statuses, and velocities and states within PIQP's accuracy."""
+    set: the same QP statuses, velocities and states within PIQP's accuracy, and the same clock."""
     team = scenario.load("paper_pa3_square")
-    engines = {s: Engine(team, physics=Physics(max_joint_speed=2.0, physics_dt=0.01, qp_solver=s), safety_filter=True)
-               for s in ("active_set", "piqp")}
+    engines = {s: Engine(team, physics=Physics(max_joint_speed=2.0, physics_dt=0.01, qp_solver=s),
+                         safety_filter=True) for s in ("active_set", "piqp")}
     counts = 0
     for command in _commands(engines["piqp"], 15, scale=2.0, seed=4):
         kernel, piqp = (e.step(command, 3) for e in engines.values())
@@ -139,6 +139,8 @@ def test_piqp_filter_agrees_with_the_compiled_qp() -> None:
         counts = counts + kernel.qp_counts.sum(axis=(0, 1))
     assert counts[1] > 0, "the filter should change some commands"
     np.testing.assert_allclose(engines["piqp"].joint_state()[0], engines["active_set"].joint_state()[0], atol=1e-6)
+    np.testing.assert_allclose(engines["piqp"].elapsed, engines["active_set"].elapsed, rtol=1e-12)
+    assert engines["active_set"].elapsed[0] == pytest.approx(15 * 3 * 0.01)
 
 
 def test_a_loaded_team_brings_its_damping() -> None:

@@ -266,7 +266,7 @@ def test_reproduce_measures_and_follows_a_moving_formation() -> None:
     assert traj["time"][-1] == pytest.approx(8.0) and not np.allclose(lengths[-1], team.formation.distances)
     sim, env = Simulation(team, safety_filter=False), parallel_env(team)
     env.reset(seed=0)
-    sim.time, env.engine.elapsed[:] = 4.5, 4.5  # within the switch: the shape morphs
+    sim.engine.elapsed[:], env.engine.elapsed[:] = 4.5, 4.5  # within the switch: the shape morphs (one clock each)
     ff = sim.targets()[1]
     assert np.abs(ff).max() > 1e-3
     v_sim, v_env = sim.nominal_velocity(), env.task.nominal_velocity(env.engine)[0]
