@@ -46,7 +46,7 @@ def _task(scenario: str, options: Any, action_mode: str, control_dt: float | Non
     if scenario == "random":
         options = options if isinstance(options, RandomScenarioOptions) else RandomScenarioOptions(**(options or {}))
         ke = options.ke
-        # the options' own time steps are the drawn scenario's, which the envs replace by their arguments
+        # the options' own time steps are a drawn scenario's outside an env (an env refuses others than the defaults)
         scenario = ("random", tuple(sorted((key, value) for key, value in asdict(options).items()
                                            if key not in ("physics_dt", "control_dt"))))
     elif ke is None:

@@ -88,6 +88,27 @@ class Physics:
             raise ValueError(f"unknown qp_solver {self.qp_solver!r}; choose one of {QP_SOLVERS}")
 
 
+#: the keywords an engine took one by one before they were one Physics, and their names there (_refuse_loose)
+_LOOSE = {"physics_dt": "physics_dt", "max_speed": "max_joint_speed", "max_torque": "max_torque",
+          "qp_solver": "qp_solver"}
+
+
+def _refuse_loose(loose: dict) -> None:
+    """TypeError for keywords an engine does not take: its old loose settings with the Physics call instead."""
+    unknown = sorted(set(loose) - set(_LOOSE))
+    if unknown:
+        raise TypeError(f"Engine() got an unexpected keyword argument {unknown[0]!r}")
+    given = ", ".join(f"{_LOOSE[key]}={value!r}" for key, value in loose.items())
+    raise TypeError(f"Engine takes how it steps as one Physics: Engine(scenario, copies, physics=Physics({given})), "
+                    "not one by one")
+
+
+def _physics(physics: Physics) -> Physics:
+    if not isinstance(physics, Physics):
+        raise TypeError(f"Engine: physics must be a pan1_env.engine.Physics, got {type(physics).__name__}")
+    return physics
+
+
 class Engine:
     """B copies of a team's arms and the safety filter, stepped through the sub-step kernel (by
     :mod:`pan1_env.kernel_step`).
@@ -107,17 +128,12 @@ class Engine:
     def __init__(self, scenario: Scenario, copies: int = 1, physics: Physics | None = None, *,
                  safety_filter: bool | FilterParams = False, threads: bool | str = "auto", **loose) -> None:
         if loose:
-            given = ", ".join(f"{key}={value!r}" for key, value in loose.items())
-            raise TypeError(f"Engine takes how it steps as one Physics: Engine(scenario, copies, "
-                            f"physics=Physics({given})), not one by one")
-        physics = Physics() if physics is None else physics
-        if not isinstance(physics, Physics):
-            raise TypeError(f"Engine: physics must be a pan1_env.engine.Physics, got {type(physics).__name__}")
+            _refuse_loose(loose)
+        physics = _physics(Physics() if physics is None else physics)
         if threads not in ("auto", True, False):
             raise ValueError(f"threads must be 'auto', True or False, got {threads!r}")
-        #: how the arms are stepped, the sub-step resolved (the scenario's if the physics names none)
-        self.physics = physics if physics.physics_dt is not None else replace(physics,
-                                                                               physics_dt=scenario.physics_dt)
+        self._physics = physics if physics.physics_dt is not None else replace(physics,
+                                                                                physics_dt=scenario.physics_dt)
         #: the solver of the filter's QPs, which a step goes through
         self.qp: KernelQP | PiqpFilter = PiqpFilter() if physics.qp_solver == "piqp" else KernelQP()
         self.qp.check(int(copies), faults=scenario.fault_times is not None)
@@ -168,6 +184,30 @@ class Engine:
         self.reset()
 
     @property
+    def physics(self) -> Physics:
+        """How the arms are stepped (:class:`Physics`, its sub-step resolved: the scenario's if it names none). It may
+        be replaced between steps, by bounds or a sub-step the filter's choices allow (checked as the filter is when
+        it is set); the QP solver stays the one the engine was built with."""
+        return self._physics
+
+    @physics.setter
+    def physics(self, physics: Physics) -> None:
+        physics = _physics(physics)
+        if physics.physics_dt is None:
+            physics = replace(physics, physics_dt=self._physics.physics_dt)
+        if physics.qp_solver != self._physics.qp_solver:
+            raise ValueError(f"an engine keeps the QP solver it was built with ({self._physics.qp_solver!r}); "
+                             f"build another engine for qp_solver={physics.qp_solver!r}")
+        if self.filter is not None:
+            self._check_filter(self.filter, physics)
+        self._physics = physics
+
+    def _check_filter(self, params: FilterParams, physics: Physics) -> None:
+        """The filter's choices against these arms and how they are stepped (:func:`~pan1_env.safety.check_choices`)."""
+        reach = max(float(kind.lengths.sum(axis=-1).max()) for kind in self.kinds)
+        check_choices(params, self.whole_arm, physics.max_joint_speed, reach, physics.physics_dt)
+
+    @property
     def physics_dt(self) -> float:
         """The RK4 sub-step, seconds (``physics.physics_dt``)."""
         return self.physics.physics_dt
@@ -183,7 +223,7 @@ class Engine:
         return self.physics.max_torque
 
     def __setstate__(self, state: dict) -> None:
-        if "physics" not in state:  # its arrays' names differ: linked wrongly, it would step silently wrong
+        if "_physics" not in state:  # its arrays' names differ: linked wrongly, it would step silently wrong
             raise ValueError("this engine was pickled by an older pan1-env (a checkpoint's env, say): resume it with "
                              "the release that wrote it")
         self.__dict__.update(state)
@@ -199,8 +239,7 @@ class Engine:
         :class:`FilterParams`); it acts from the next sub-step."""
         params = filter_parameters(safety_filter, self.teams[0])
         if params is not None:
-            reach = max(float(kind.lengths.sum(axis=-1).max()) for kind in self.kinds)
-            check_choices(params, self.whole_arm, self.max_joint_speed, reach, self.physics_dt)
+            self._check_filter(params, self._physics)
         self.filter = params
         # a sensing range and the fault margin live in the whole-arm rows: the end-effector as their body
         rows = self.filter is not None and (self.filter.sensing_radius is not None or self.filter.fault_margin)

@@ -160,3 +160,29 @@ def test_a_loaded_team_brings_its_damping() -> None:
         engine.step(np.zeros((2, 4, 3)), 1, torque=True)
     np.testing.assert_array_equal(engine.passive_momentum()[0], start[0])
     assert np.all(np.abs(engine.passive_momentum()[1] - start[1]) > 0.01)
+
+
+def test_the_physics_is_one_part_checked_where_it_is_given_or_replaced() -> None:
+    """Engine takes its step's settings as one Physics: the old loose keywords are refused with the Physics call
+    (another unknown keyword plainly); a replaced physics keeps the sub-step if it names none, keeps the QP solver,
+    and meets the filter's checks as the filter does."""
+    from pan1_env.safety import FilterParams
+
+    team = scenario.load("paper_pa3_square")
+    with pytest.raises(TypeError, match=r"Engine\(scenario, copies, physics=Physics\(max_joint_speed=2\.0\)\)"):
+        Engine(team, max_speed=2.0)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'thread'"):
+        Engine(team, thread=True)
+    with pytest.raises(TypeError, match="physics must be a pan1_env.engine.Physics, got dict"):
+        Engine(team, physics={"max_joint_speed": 2.0})
+    engine = Engine(team, physics=Physics(max_joint_speed=2.0),
+                    safety_filter=FilterParams(0.5, 5.0, sensing_radius=0.1, gate=0.05))
+    assert engine.physics_dt == team.physics_dt
+    engine.physics = Physics(max_joint_speed=3.0)
+    assert (engine.physics_dt, engine.max_joint_speed) == (team.physics_dt, 3.0)
+    engine.step(np.zeros((1, 4, 3)), 2)
+    with pytest.raises(ValueError, match="keeps the QP solver it was built with"):
+        engine.physics = Physics(max_joint_speed=3.0, qp_solver="piqp")
+    with pytest.raises(ValueError, match="gate relaxes rows towards the speed box"):
+        engine.physics = Physics()  # no speed bound: the gate cannot act
+    assert engine.max_joint_speed == 3.0  # a refused physics leaves the engine's as it was

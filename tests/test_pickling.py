@@ -79,7 +79,7 @@ def test_an_engine_pickled_before_its_physics_was_one_part_is_refused() -> None:
 
     engine = Engine(load("paper_pa3_square"))
     state = dict(engine.__dict__)
-    state.pop("physics")
+    state.pop("_physics")
     state |= {"physics_dt": 0.01, "max_speed": 2.0, "max_torque": float("inf"), "qp_solver": "active_set"}
     old = Engine.__new__(Engine)
     with pytest.raises(ValueError, match="pickled by an older pan1-env"):
