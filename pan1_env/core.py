@@ -113,6 +113,7 @@ class FormationCore:
         order = sorted((i, g, r) for g, ids in enumerate(groups) for r, i in enumerate(ids.tolist()))
         self._observation_rows = [(g, r) for _, g, r in order]
         self._observation_sizes = [len(self.task.bounds(i)[0]) for i in range(team.n_arms)]  # agent order
+        self._padded_is_the_group = len(groups) == 1 and groups[0].tolist() == list(range(team.n_arms))
 
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
@@ -145,10 +146,12 @@ class FormationCore:
         feed-forward ṗ_ff."""
         engine, B = self.engine, self.copies
         q, qd = engine.joint_state(pad=0.0)
-        arms = np.concatenate([np.nan_to_num(q, nan=0.0), np.nan_to_num(qd, nan=0.0), engine.positions()], axis=-1)
+        arms = np.concatenate([q, qd, engine.positions()], axis=-1)
+        joints = arms[..., : 2 * q.shape[-1]]
+        joints[np.isnan(joints)] = 0.0  # a non-finite arm's state reads 0 (its end-effector stays as it is)
         obstacles = np.concatenate([engine.centers, engine.radii[..., None]], axis=-1)
         out = np.concatenate([arms.reshape(B, -1), obstacles.reshape(B, -1), self.task.target_state(engine)], axis=1)
-        return np.clip(out, -OBS_BOUND, OBS_BOUND).astype(np.float32)
+        return np.clip(out, -OBS_BOUND, OBS_BOUND, out=out).astype(np.float32)
 
     def per_agent(self, mats: list[np.ndarray]) -> list[np.ndarray]:
         """The observations of :meth:`observe` (one array per layout group) as one ``(B, size_i)`` array per
@@ -167,6 +170,8 @@ class FormationCore:
     def padded_observations(self, mats: list[np.ndarray]) -> np.ndarray:
         """Every arm's observation zero-padded at its end to the largest arm's size, ``(B, N, size)`` float32:
         the shared-network views' layout (one row per arm, in agent order)."""
+        if self._padded_is_the_group:  # one layout group, in agent order: its array is the padded layout
+            return mats[0]
         size = max(mat.shape[-1] for mat in mats)
         out = np.zeros((self.copies, len(self.agents), size), np.float32)
         for (_, ids), mat in zip(self.layout.groups, mats, strict=True):
