@@ -26,7 +26,7 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -329,7 +329,7 @@ def run_suite(tasks: Sequence[SuiteTask] = SUITE, entries: Sequence[Entry] = ENT
     data: dict[str, Any] = {
         "tasks": [{"name": t.name, "env_id": t.env_id, "env_kwargs": t.env_kwargs, "train_steps": t.train_steps,
                    "train_seeds": list(t.train_seeds), "held_out": [t.held_out.start, len(t.held_out)],
-                   "teams": len(t.held_out[:teams]), "target": t.target,
+                   "teams": len(t.held_out[:teams]), "target": t.target, "goal": asdict(t.goal),
                    "law_success_recorded": t.law_success} for t in tasks],
         "entries": [{"name": e.name, "description": e.description, "policy": e.policy, "recipe": e.recipe,
                      "tasks": e.tasks, "trained_on": e.trained_on} for e in entries],

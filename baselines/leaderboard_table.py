@@ -102,6 +102,40 @@ def markdown(rows: Sequence[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def meets(row: dict[str, Any], goal: dict[str, Any], law_success: float | None) -> bool:
+    """Whether a leaderboard row (:func:`leaderboard_rows`) reaches a task's goal (the suite's ``Target`` as a dict):
+    its IQM success, time ratio and cost against the goal's bounds, its success against the law's on the task."""
+    success = row["success"][0]
+    if goal.get("success") is not None and success < goal["success"]:
+        return False
+    if goal.get("vs_law") is not None:
+        if law_success is None or success < law_success or (goal["vs_law"] == "above" and success == law_success):
+            return False
+    if goal.get("time_ratio") is not None and (row["time_ratio"] is None or row["time_ratio"][0] > goal["time_ratio"]):
+        return False
+    return goal.get("cost") is None or row["cost"][0] <= goal["cost"]
+
+
+def targets_table(data: dict[str, Any], rows: Sequence[dict[str, Any]]) -> str:
+    """Per task, its target, the learners (entries with a recipe) that reach it, and the learner that forms the most
+    of its teams at no more than the target's cost."""
+    learners = {e["name"] for e in data["entries"] if e.get("recipe")}
+    lines = ["| task | target | reached by | the learner forming the most teams within the cost: success [%], time ÷ "
+             "the law's |", "|---|---|---|---|"]
+    for task in data["tasks"]:
+        goal = task.get("goal") or {}
+        mine = [r for r in rows if r["env_id"] == task["env_id"]]
+        law = next((r["success"][0] for r in mine if r["entry"] == "law"), None)
+        ours = [r for r in mine if r["entry"] in learners]
+        reached = [r["entry"] for r in ours if meets(r, goal, law)]
+        within = [r for r in ours if goal.get("cost") is None or r["cost"][0] <= goal["cost"]]
+        best = max(within, key=lambda r: r["success"][0], default=None)
+        nearest = "–" if best is None else (f"{best['entry']}: {_cell(best['success'], 100)}, "
+                                            f"{_cell(best['time_ratio'], fmt='{:.2f}')}")
+        lines.append(f"| {task['name']} | {task['target']} | {', '.join(reached) or 'none yet'} | {nearest} |")
+    return "\n".join(lines)
+
+
 def benchmark_page(data: dict[str, Any], figures: Sequence[str] = (), reps: int = 2000) -> str:
     """docs/BENCHMARK.md from the leaderboard's JSON: the tasks, the entries and their commands, the table, what is
     missing, and the figures (paths relative to the page)."""
@@ -133,6 +167,12 @@ def benchmark_page(data: dict[str, Any], figures: Sequence[str] = (), reps: int 
             "law's is over the teams both formed, the targets' measure. The cost counts arm-steps inside an obstacle; "
             "the last column is the fraction of steps in which the shield changed some arm's command.", "",
             markdown(rows), ""]
+    if all("goal" in t for t in data["tasks"]):
+        out += ["## Targets", "",
+                "Each task's target for a learner, checked on the table above: its IQM success against the target's "
+                "floor and the law's success on the same teams, its time ratio and its cost (`pan1_env.baselines.suite."
+                "Target`). Where none reaches it yet, the last column says how near the best learner within the "
+                "target's cost comes.", "", targets_table(data, rows), ""]
     shipped = sorted({(r["entry"], r["task"], s) for r in rows for s in r["sources"] if s.startswith("shipped:")})
     if shipped:
         out += ["Rows scored by a shipped model (one training seed) until the entry's runs are trained: "

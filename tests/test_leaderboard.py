@@ -258,3 +258,28 @@ def test_the_quick_suite_writes_its_table_json_figures_and_page(tmp_path) -> Non
         assert (tmp_path / "docs" / "figures" / name).stat().st_size > 0
     text = page.read_text()
     assert "quick run" in text and all(task["name"] in text for task in data["tasks"])
+
+
+def test_a_row_reaches_a_target_only_when_every_bound_holds() -> None:
+    """meets: the IQM success against the floor and the law's (at least, or above), the time ratio and the cost; a
+    bound the target does not set is not checked, and a row without a time ratio misses a time target."""
+    from pan1_env.baselines.leaderboard_table import meets
+
+    row = {"success": (0.80, 0.78, 0.82), "time_ratio": (0.90, 0.88, 0.93), "cost": (0.0, 0.0, 0.0)}
+    assert meets(row, {"success": 0.65, "vs_law": "above", "time_ratio": None, "cost": 0.0}, law_success=0.745)
+    assert not meets(row, {"success": 0.90, "vs_law": None, "time_ratio": None, "cost": 0.0}, law_success=0.745)
+    assert not meets(row, {"success": None, "vs_law": "above", "time_ratio": None, "cost": 0.0}, law_success=0.80)
+    assert meets(row, {"success": None, "vs_law": "at least", "time_ratio": None, "cost": 0.0}, law_success=0.80)
+    assert not meets(row, {"success": None, "vs_law": "at least", "time_ratio": None, "cost": 0.0}, law_success=None)
+    assert not meets(row, {"success": None, "vs_law": None, "time_ratio": 0.75, "cost": 0.0}, law_success=0.8)
+    assert not meets(row | {"time_ratio": None}, {"time_ratio": 1.0, "cost": None}, law_success=None)
+    assert not meets(row | {"cost": (3.0, 1.0, 5.0)}, {"success": 0.5, "cost": 0.0}, law_success=None)
+    assert meets(row | {"cost": (3.0, 1.0, 5.0)}, {"success": 0.5, "cost": None}, law_success=None)
+
+
+def test_every_suite_task_has_a_goal_the_page_checks() -> None:
+    """The suite's tasks carry their targets as numbers, and the shipped leaderboard's page has the targets' table."""
+    from pan1_env.baselines.suite import SUITE, Target
+
+    assert all(isinstance(task.goal, Target) and task.goal != Target(cost=None) for task in SUITE)
+    assert "## Targets" in (DOCS / "BENCHMARK.md").read_text()
