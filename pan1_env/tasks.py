@@ -120,6 +120,7 @@ class FormationTask:
         self.kp = np.full(copies, float(scenario.kp))
         self.below_since = np.zeros(copies)  # the clock when the error last was at or above the tolerance
         self.motion = None
+        self._tracked: tuple | None = None  # the inputs track() last computed the targets from
         if layout.motion:
             self.motion = MotionTable(copies, scenario.n_arms, scenario.motion.keyframes)
             for b in range(copies):
@@ -154,6 +155,7 @@ class FormationTask:
         self.kp[b] = scenario.kp
         if self.motion is not None:
             self.motion.load(b, scenario.formation.target, scenario.motion)
+            self._tracked = None
 
     def load_teams(self, copies: np.ndarray, draws: TeamDraws) -> None:
         """:meth:`load_team` for the drawn teams of ``copies`` at once."""
@@ -162,13 +164,20 @@ class FormationTask:
         if self.motion is not None:
             for c, b in enumerate(np.asarray(copies).tolist()):
                 self.motion.load(b, draws.realisation(c), draws.motions[c])
+            self._tracked = None
 
     def track(self, engine: Engine) -> None:
-        """With a moving formation, the desired lengths and the feed-forward at every copy's clock and state."""
+        """With a moving formation, the desired lengths and the feed-forward at every copy's clock and state,
+        computed once for a clock and end-effectors (a step's observation, the next step's law and a critic's state
+        all ask at the same ones; the motions loaded since count too)."""
         if self.motion is None:
             return
-        self.distances[:], self.feed_forward, self.misplacement = self.motion.targets(engine.elapsed, self.edges,
-                                                                                      engine.positions())
+        P = engine.positions()
+        inputs = (engine.elapsed.tobytes(), P.tobytes())
+        if inputs == self._tracked:
+            return
+        self.distances[:], self.feed_forward, self.misplacement = self.motion.targets(engine.elapsed, self.edges, P)
+        self._tracked = inputs
 
     @property
     def target_size(self) -> int:

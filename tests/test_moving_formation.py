@@ -517,3 +517,28 @@ def test_the_benchmarks_time_to_formation_is_the_errors_not_the_holds() -> None:
         still = {a: np.zeros(env.action_space(a).shape, np.float32) for a in env.possible_agents}
         result = run_episode(env, lambda obs, still=still: still, 0, False)
         assert result["success"] and result["time_to_formation"] == 0.0
+
+
+def test_the_targets_are_computed_once_for_a_clock_and_state(monkeypatch) -> None:
+    """A gain-mode step asks for a moving formation's targets twice at the same clock and end-effectors (the law
+    at its start, the observation at its end: the next step's law asks at the same) and a critic's state a third
+    time: they are computed once per clock and state, and again after new teams are loaded, where they equal a
+    fresh computation."""
+    from pan1_env.motion import MotionTable
+    from pan1_env.vector import Pan1VectorEnv
+
+    calls = []
+    targets = MotionTable.targets
+    monkeypatch.setattr(MotionTable, "targets", lambda self, *args: calls.append(1) or targets(self, *args))
+    env = Pan1VectorEnv("pan1_env/MovingFormation-v1", 3, action_mode="gain", max_steps=50)
+    env.reset(seed=1)
+    calls.clear()
+    for _ in range(10):
+        env.step(np.zeros(env.action_space.shape, np.float32))
+        env.core.state()
+    assert len(calls) == 10  # one per step (the observation's), shared by the next law and the state
+    task, engine = env.core.task, env.core.engine
+    env.reset(seed=2)  # new teams and motions, the clocks back at 0
+    fresh = targets(task.motion, engine.elapsed, task.edges, engine.positions())
+    np.testing.assert_array_equal(task.distances, fresh[0])
+    np.testing.assert_array_equal(task.feed_forward, fresh[1])
