@@ -108,6 +108,8 @@ class FormationTask:
       re-weight a drift's cancellation (§7) and a moving formation's feed-forward (§8).
     """
 
+    _tracked: tuple | None = None  # the inputs track() last computed the targets from (None: none yet)
+
     def __init__(self, config: FormationConfig, copies: int) -> None:
         self.config = config  # the task's settings, read from it where they are used (weights, gates, tolerances)
         scenario = config.team
@@ -120,7 +122,6 @@ class FormationTask:
         self.kp = np.full(copies, float(scenario.kp))
         self.below_since = np.zeros(copies)  # the clock when the error last was at or above the tolerance
         self.motion = None
-        self._tracked: tuple | None = None  # the inputs track() last computed the targets from
         if layout.motion:
             self.motion = MotionTable(copies, scenario.n_arms, scenario.motion.keyframes)
             for b in range(copies):

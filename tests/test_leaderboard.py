@@ -275,6 +275,10 @@ def test_a_row_reaches_a_target_only_when_every_bound_holds() -> None:
     assert not meets(row | {"time_ratio": None}, {"time_ratio": 1.0, "cost": None}, law_success=None)
     assert not meets(row | {"cost": (3.0, 1.0, 5.0)}, {"success": 0.5, "cost": 0.0}, law_success=None)
     assert meets(row | {"cost": (3.0, 1.0, 5.0)}, {"success": 0.5, "cost": None}, law_success=None)
+    nothing = row | {"success": (0.0, 0.0, 0.0)}
+    assert not meets(nothing, {"vs_law": "at least", "cost": 0.0}, law_success=0.0)  # forming none reaches nothing
+    assert not meets(row | {"cost_max": 12.0}, {"success": 0.5, "cost": 0.0}, law_success=None)  # one run's cost
+    assert not meets(row, {}, law_success=0.5)  # a task without a goal is reached by nobody
 
 
 def test_every_suite_task_has_a_goal_the_page_checks() -> None:

@@ -251,6 +251,7 @@ def test_a_formed_shape_away_from_its_points_is_not_a_success() -> None:
         d, ff, misplacement = targets(t, edges, P)
         return d, np.zeros_like(ff), misplacement
     env.task.motion.targets = no_pull
+    env.task._tracked = None  # computed again, by the patched targets
     while env.agents:
         _, rewards, _, _, infos = env.step({a: np.zeros(env.action_space(a).shape) for a in env.agents})
     P = env.engine.positions()[0]
