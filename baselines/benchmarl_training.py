@@ -89,16 +89,14 @@ def train_benchmarl(task_id: str, seed: int, arm_steps: int, out: str | Path, re
     newest checkpoint there if any; then write ``out/model.json``. Returns that file's content."""
     from benchmarl.experiment import Experiment
 
+    from pan1_env.config import FormationConfig
     from pan1_env.registration import env_arguments
-    from pan1_env.vector import Pan1VectorEnv
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     kwargs = recipe["env_kwargs"] | (env_kwargs or {})
     scenario, resolved = env_arguments(task_id, kwargs)
-    layout = Pan1VectorEnv(scenario, 1, **resolved)
-    arms = len(layout.core.agents)
-    layout.close()
+    arms = FormationConfig.of(scenario, **resolved).team.n_arms
     frames = arm_steps // arms
     run = {**recipe, "seed": seed, "task": task_id, "task_env_kwargs": env_kwargs or {}, "timesteps": arm_steps}
     checkpoint = latest_checkpoint(out)

@@ -78,10 +78,10 @@ class FormationCore:
         threads: the engine's ``threads`` (``"auto"``, ``True`` or ``False``).
     """
 
-    #: where these copies start in a larger batch seeded with one int (several cores trained as one, as the mixed
-    #: team sizes of pan1_env.baselines.mixed_vec_env are), so that every copy's stream is its own
     #: the padded observation is the one layout group's array (set per core; False: the general path)
     _padded_is_the_group = False
+    #: where these copies start in a larger batch seeded with one int (several cores trained as one, as the mixed
+    #: team sizes of pan1_env.baselines.mixed_vec_env are), so that every copy's stream is its own
     first_copy: int = 0
 
     def __init__(self, config: FormationConfig | ReachConfig, copies: int = 1, *, threads: bool | str = "auto") -> None:

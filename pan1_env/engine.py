@@ -210,17 +210,17 @@ class Engine:
     @property
     def physics_dt(self) -> float:
         """The RK4 sub-step, seconds (``physics.physics_dt``)."""
-        return self.physics.physics_dt
+        return self._physics.physics_dt
 
     @property
     def max_joint_speed(self) -> float:
         """The filter's bound on every filtered speed, rad/s (``physics.max_joint_speed``)."""
-        return self.physics.max_joint_speed
+        return self._physics.max_joint_speed
 
     @property
     def max_torque(self) -> float:
         """The filter's bound on its own torques in torque mode, N·m (``physics.max_torque``)."""
-        return self.physics.max_torque
+        return self._physics.max_torque
 
     def __setstate__(self, state: dict) -> None:
         if "_physics" not in state:  # its arrays' names differ: linked wrongly, it would step silently wrong
@@ -494,7 +494,7 @@ class Engine:
         P = np.empty((self.copies, self.n_arms, self.n_max + 1, 2))
         for kind in self.kinds:
             self.geometry("kind_joints", len(kind.stepped), kind.q, kind.lengths, kind.base, kind.phi, kind.ids,
-                           kind.stepped, P)
+                          kind.stepped, P)
         return P
 
     def clearance(self) -> np.ndarray:
@@ -573,7 +573,7 @@ class Engine:
         for the call (one sub-step)."""
         if self.inter_arm:
             self.geometry("refresh_capsules", self.copies * self.n_arms, self.copy_rows, self.team_start_time,
-                           self.team_caps, self.radii.shape[1], self.elapsed, P)
+                          self.team_caps, self.radii.shape[1], self.elapsed, P)
             return
         self.team_start_time[self.copy_rows] = self.elapsed[:, None]
 

@@ -551,7 +551,7 @@ def filter_parameters(safety_filter: bool | FilterParams | None, scenario: Scena
     if safety_filter is None or safety_filter is False:
         return None
     if safety_filter is True:
-        return FilterParams.of(scenario)
+        return scenario.filter
     if isinstance(safety_filter, FilterParams):
         return safety_filter
     raise ValueError(f"safety_filter must be False, True or a FilterParams, got {safety_filter!r}")

@@ -62,11 +62,9 @@ def _switch_on(core, owner: str, params: FilterParams | None, loose: dict) -> No
                         f"params=FilterParams.of(env.unwrapped.scenario, {given})), not one by one")
     if core.safety_filter is not None:
         raise ValueError("this env is already shielded; wrap it once")
-    if params is None:
-        params = core.scenario.filter
-    elif not isinstance(params, FilterParams):
+    if params is not None and not isinstance(params, FilterParams):
         raise TypeError(f"{owner}: params must be a pan1_env.safety.FilterParams, got {type(params).__name__}")
-    core.set_safety_filter(params)
+    core.set_safety_filter(True if params is None else params)  # True: the scenario's own
 
 
 class SafetyShield(BaseParallelWrapper):
