@@ -120,6 +120,11 @@ def meets(row: dict[str, Any], goal: dict[str, Any], law_success: float | None) 
             return False
     if goal.get("time_ratio") is not None and (row["time_ratio"] is None or row["time_ratio"][0] > goal["time_ratio"]):
         return False
+    return _within_cost(row, goal)
+
+
+def _within_cost(row: dict[str, Any], goal: dict[str, Any]) -> bool:
+    """Every run's cost within the goal's (a row without its runs' largest cost: its IQM's)."""
     return goal.get("cost") is None or row.get("cost_max", row["cost"][0]) <= goal["cost"]
 
 
@@ -135,7 +140,7 @@ def targets_table(data: dict[str, Any], rows: Sequence[dict[str, Any]]) -> str:
         law = next((r["success"][0] for r in mine if r["entry"] == "law"), None)
         ours = [r for r in mine if r["entry"] in learners]
         reached = [r["entry"] for r in ours if meets(r, goal, law)]
-        within = [r for r in ours if goal.get("cost") is None or r.get("cost_max", r["cost"][0]) <= goal["cost"]]
+        within = [r for r in ours if _within_cost(r, goal)]
         best = max(within, key=lambda r: r["success"][0], default=None)
         nearest = "–" if best is None else (f"{best['entry']}: {_cell(best['success'], 100)}, "
                                             f"{_cell(best['time_ratio'], fmt='{:.2f}')}")
