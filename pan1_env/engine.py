@@ -125,6 +125,9 @@ class Engine:
             ``True`` or ``False``; the two kernels give the same results bit for bit.
     """
 
+    #: whether some copy's obstacles move (set as teams load; an engine pickled before it was kept places them anyway)
+    moving = True
+
     def __init__(self, scenario: Scenario, copies: int = 1, physics: Physics | None = None, *,
                  safety_filter: bool | FilterParams = False, threads: bool | str = "auto", **loose) -> None:
         if loose:
@@ -175,12 +178,9 @@ class Engine:
             self.load_team(b, scenario)
         self.set_safety_filter(safety_filter)
         N = self.n_arms
-        self._blank = StepRecord(  # a record's initial values (passive torques 0, NaN padding)
-            v_star=np.full((B, N, self.k_max), np.nan), tau=np.full((B, N, self.n_max), np.nan),
-            min_clearance=np.full((B, N), np.inf), min_barrier=np.full((B, N), np.inf),
-            qp_counts=np.zeros((B, N, 3), dtype=np.int64), max_tracking_error=np.zeros((B, N)),
-            finite=np.ones((B, N), dtype=bool))
-        self._blank.tau[:, [i for i, a in enumerate(scenario.arms) if a.passive_first_joint], 0] = 0.0
+        self._blank = StepRecord.initial(B, N, self.k_max, self.n_max)  # a record's initial values
+        self._blank.tau[:, [i for i, a in enumerate(scenario.arms) if a.passive_first_joint], 0] = 0.0  # passive: 0
+        self._work = StepRecord.initial(B, N, self.k_max, self.n_max)  # what a step writes into (step)
         self.reset()
 
     @property
@@ -227,6 +227,9 @@ class Engine:
             raise ValueError("this engine was pickled by an older pan1-env (a checkpoint's env, say): resume it with "
                              "the release that wrote it")
         self.__dict__.update(state)
+        # a pickle keeps the records' values but not their layout in blocks (StepRecord.restart copies blocks)
+        self._blank = self._blank.laid_out()
+        self._work = self._blank.laid_out() if "_work" not in state else self._work.laid_out()
         if getattr(self, "team_caps", None) is not None:  # a copy: the kinds' views of the team arrays again
             for kind in self.kinds:
                 kind.caps, kind.start_time = self.team_caps[kind.block], self.team_start_time[kind.block]
@@ -276,6 +279,7 @@ class Engine:
         self.centers[b], self.radii[b] = scenario.obstacles.centers, scenario.obstacles.radii
         self.start_centers[b] = scenario.obstacles.centers
         self.path_ends[b], self.speeds[b] = scenario.obstacle_motion()
+        self.moving = bool(self.speeds.any())
         self.velocities[b] = scenario.obstacle_velocities(0.0)
         if self.whole_arm:
             self._load_team_capsules(b, scenario, mask)
@@ -295,6 +299,7 @@ class Engine:
         self.centers[copies], self.radii[copies] = draws.centers, draws.radii
         self.start_centers[copies] = draws.centers
         self.path_ends[copies], self.speeds[copies] = draws.path_ends, draws.speeds
+        self.moving = bool(self.speeds.any())
         self.velocities[copies] = obstacle_velocities(draws.centers, draws.path_ends, draws.speeds, 0.0)
         if self.whole_arm:
             self._load_capsules(copies, mask, draws.bases, draws.reach)
@@ -546,14 +551,15 @@ class Engine:
             raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
         if any(kind.specialised is False for kind in self.kinds):
             kernels().specialise.start_background()  # from the second step on: see kernel_step._specialised
-        blank = self._blank  # fresh arrays every step: records handed out are never overwritten
-        rec = StepRecord(blank.v_star.copy(), blank.tau.copy(), blank.min_clearance.copy(), blank.min_barrier.copy(),
-                         blank.qp_counts.copy(), blank.max_tracking_error.copy(), blank.finite.copy())
-        self.qp.advance(self, command, int(substeps), torque, rec)
-        rec.all_finite = bool(rec.finite.all())
-        if not rec.all_finite:  # a faulty arm stopped early: include the (finite) state it was left in
-            np.minimum(rec.min_clearance, self.clearance(), out=rec.min_clearance)
-        return rec
+        # the kernel writes into one working record (its calls' outputs are views of it, built once: kernel_step);
+        # the step hands out a copy, so that records handed out are never overwritten
+        work = self._work
+        work.restart(self._blank)
+        self.qp.advance(self, command, int(substeps), torque, work)
+        work.all_finite = bool(work.finite.all())
+        if not work.all_finite:  # a faulty arm stopped early: include the (finite) state it was left in
+            np.minimum(work.min_clearance, self.clearance(), out=work.min_clearance)
+        return work.copy()
 
     def tick(self, substeps: int) -> None:
         """Advance every copy's clock by ``substeps`` sub-steps, and the obstacles with it."""
@@ -563,7 +569,7 @@ class Engine:
     def place_obstacles(self) -> None:
         """``centers`` and ``velocities`` (which observations and :meth:`clearance` read) where every copy's
         clock puts the obstacles, as the filter places them (whole-arm safety: from the capsules)."""
-        if self.speeds.any():
+        if self.moving:
             kernels().team_geometry.obstacles_now(self.copy_rows, self.team_caps, self.elapsed, self.centers,
                                              self.velocities)
 

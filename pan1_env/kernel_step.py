@@ -138,17 +138,18 @@ def _advance(engine: Engine, kind: Kind, command: np.ndarray, substeps: int, tor
     :meth:`Engine.fault_substeps` and the arms that fault within it) a full kind's arms stop where their fault
     begins and its twin's start there (the kernel's ``window``)."""
     args, out = _kernel_args(engine, kind, command, substeps, torque, params, rec)
-    rows, end = np.empty(0, dtype=np.int64), 0 if kind.faulted else 1  # a twin's rows start, a full kind's stop
-    if faults is not None and (kind.twin is not None or kind.faulted):
-        rows = np.flatnonzero(faults[1][:, kind.ids])
-        kind.window[rows, end] = faults[0][:, kind.ids].ravel()[rows]
     whole = kind.whole  # holds the velocity-mode range (whole_arm_args); torque mode's may differ
     if whole is not None and torque:
         whole = whole._replace(sensing=engine.filter_range(True))
-    try:
+    if faults is None or (kind.twin is None and not kind.faulted):
         _call(engine, kind, args, whole)
-    finally:
-        kind.window[rows, end] = kind.window_default[end]
+    else:
+        rows, end = np.flatnonzero(faults[1][:, kind.ids]), 0 if kind.faulted else 1  # a twin's start, a full's stop
+        kind.window[rows, end] = faults[0][:, kind.ids].ravel()[rows]
+        try:
+            _call(engine, kind, args, whole)
+        finally:
+            kind.window[rows, end] = kind.window_default[end]
     _finish(engine, kind, out, torque, rec)
 
 
@@ -158,28 +159,65 @@ def _kernel_args(engine: Engine, kind: Kind, command: np.ndarray, substeps: int,
     """The kernel's groups for a kind but ``whole`` (:func:`_call`), plain, and its outputs: views of the
     record when one kind is the team in order, else gathered copies of the record's rows (the kernel
     accumulates into them), or for the running clearance and finite flags the caller's ``clear`` and
-    ``finite`` (filled with them)."""
-    B, A, n, k = engine.copies, kind.A, kind.n, kind.k
-    rows = B * A
+    ``finite`` (filled with them). The kind's rows of ``command`` are copied into the array it holds."""
+    _hold(engine, kind, command)
+    if clear is None:
+        return _groups(engine, kind, substeps, torque, params, rec)
+    args, out = _build(engine, kind, substeps, torque, params, rec)
+    clear[:], finite[:] = out.min_clear, out.finite
+    out = out._replace(min_clear=clear, finite=finite)
+    return (*args[:-1], plain(out)), out
+
+
+def _hold(engine: Engine, kind: Kind, command: np.ndarray) -> None:
+    """The kind's rows of the step's ``command (B, N, k_max)`` into ``kind.held``, the array its calls hold."""
     if engine.team_order:
-        out = StepOutputs(v_star=rec.v_star.reshape(rows, k), tau=rec.tau.reshape(rows, n), qd=kind.qd, p=kind.p,
-                          min_clear=rec.min_clearance.reshape(rows), min_h=rec.min_barrier.reshape(rows),
-                          qp_counts=rec.qp_counts.reshape(rows, 3), max_track=rec.max_tracking_error.reshape(rows),
-                          finite=rec.finite.reshape(rows))
-        cmd = np.ascontiguousarray(command.reshape(rows, k))
+        np.copyto(kind.held, command.reshape(kind.held.shape))
     else:
-        out = StepOutputs(v_star=np.empty((rows, k)), tau=kind.from_team(rec.tau, n, first=0), qd=kind.qd,
-                          p=kind.p, min_clear=kind.from_team(rec.min_clearance),
-                          min_h=kind.from_team(rec.min_barrier), qp_counts=np.zeros((rows, 3), dtype=np.int64),
-                          max_track=kind.from_team(rec.max_tracking_error), finite=np.ones(rows, dtype=bool))
-        cmd = kind.from_team(command, k)
-    if clear is not None:
-        clear[:], finite[:] = out.min_clear, out.finite
-        out = out._replace(min_clear=clear, finite=finite)
+        kind.held.reshape(engine.copies, kind.A, kind.k)[:] = command[:, kind.cols, kind.shift: kind.shift + kind.k]
+
+
+def _groups(engine: Engine, kind: Kind, substeps: int, torque: bool, params: FilterParams | None,
+            rec: StepRecord) -> tuple[tuple, StepOutputs]:
+    """:func:`_build`'s groups, built once and kept on the kind (``kind.plan``) while everything they are made of is
+    the same object: the kind's own groups, the filter, the physics, the sub-steps, the mode and the record (its
+    outputs are views of the engine's working record when one kind is the team in order; otherwise they are
+    gathered afresh each step)."""
+    key = (kind.model, kind.state, kind.selection, kind.world, params, engine.physics, substeps, torque, rec)
+    identity = tuple(map(id, key))  # unique while the plan keeps the key's objects alive
+    plan = kind.plan
+    if plan is not None and plan[0] == identity:
+        if engine.team_order:
+            return plan[2], plan[3]
+        out = _outputs(engine, kind, rec)
+        return (*plan[2][:-1], plain(out)), out
+    args, out = _build(engine, kind, substeps, torque, params, rec)
+    kind.plan = (identity, key, args, out)
+    return args, out
+
+
+def _build(engine: Engine, kind: Kind, substeps: int, torque: bool, params: FilterParams | None,
+           rec: StepRecord) -> tuple[tuple, StepOutputs]:
+    out = _outputs(engine, kind, rec)
     rcbf = plain(FILTER_OFF if params is None else kernel_filter(params, engine.max_torque))
-    held = plain(Command(command=cmd, torque_mode=torque, filter_on=params is not None))
+    held = plain(Command(command=kind.held, torque_mode=torque, filter_on=params is not None))
     stepping = plain(Stepping(ke=engine.ke, dt=engine.physics_dt, n_sub=substeps, v_max=engine.max_joint_speed))
     return (kind.model, kind.state, kind.selection, held, kind.world, rcbf, stepping, plain(out)), out
+
+
+def _outputs(engine: Engine, kind: Kind, rec: StepRecord) -> StepOutputs:
+    """A call's outputs: views of the record when one kind is the team in order, else gathered copies of the record's
+    rows (the kernel accumulates into them; :func:`_finish` scatters them back)."""
+    rows, n, k = engine.copies * kind.A, kind.n, kind.k
+    if engine.team_order:
+        return StepOutputs(v_star=rec.v_star.reshape(rows, k), tau=rec.tau.reshape(rows, n), qd=kind.qd, p=kind.p,
+                           min_clear=rec.min_clearance.reshape(rows), min_h=rec.min_barrier.reshape(rows),
+                           qp_counts=rec.qp_counts.reshape(rows, 3), max_track=rec.max_tracking_error.reshape(rows),
+                           finite=rec.finite.reshape(rows))
+    return StepOutputs(v_star=np.empty((rows, k)), tau=kind.from_team(rec.tau, n, first=0), qd=kind.qd, p=kind.p,
+                       min_clear=kind.from_team(rec.min_clearance), min_h=kind.from_team(rec.min_barrier),
+                       qp_counts=np.zeros((rows, 3), dtype=np.int64), max_track=kind.from_team(rec.max_tracking_error),
+                       finite=np.ones(rows, dtype=bool))
 
 
 def _call(engine: Engine, kind: Kind, groups: tuple, whole: WholeArm | None) -> None:

@@ -79,6 +79,10 @@ class Kind:
         self.specialised: bool | None = None
         self.generation = -1
         self.whole = None  # the kernel's whole-arm argument (Engine._whole_arm_setup)
+        #: the command the kernel holds, the kind's rows of the step's command (kernel_step), and the kernel's
+        #: groups built from it and the kind's state (kernel_step._groups; each step reuses them while they hold)
+        self.held = np.zeros((rows, self.k))
+        self.plan: tuple | None = None
 
     def set_stepped(self) -> None:
         """After ``active`` changed: the rows the kernel steps, and the kind's kernel groups (arrays updated in
@@ -92,11 +96,17 @@ class Kind:
         self.selection = plain(Stepped(rows=self.stepped, window=self.window))
 
     def __getstate__(self) -> dict:
-        state = {**self.__dict__, "specialised": None}  # another process decides for itself
+        # another process decides for itself; the plan's views of the engine's working record do not survive a copy
+        state = {**self.__dict__, "specialised": None, "plan": None}
         if "block" in state:  # views of the engine's team arrays, which Engine.__setstate__ takes again
             for name in ("caps", "start_time", "joints", "whole"):
                 del state[name]
         return state
+
+    def __setstate__(self, state: dict) -> None:
+        state.setdefault("held", np.zeros_like(state["v"]))  # pickled before the held command was the kind's
+        state.setdefault("plan", None)
+        self.__dict__.update(state)
 
     def rows(self, copies: np.ndarray) -> np.ndarray:
         return (np.asarray(copies)[:, None] * self.A + np.arange(self.A)[None]).ravel()
