@@ -108,6 +108,7 @@ class FormationCore:
         slot = np.minimum(np.arange(k_max), k - 1)
         self._actuated_joints = (np.asarray(self.n_links)[:, None] - k + slot)[None]
         self._padding = np.arange(k_max) >= k
+        self._slots = np.tile(np.arange(k_max), (team.n_arms, 1))  # each arm's command slots in the record's v*
         self._uniform_actions = len(set(self.n_actuated)) == 1
         self._team_plans: dict[tuple[str, ...], list] = {}  # team_info's reading of each key, per key set
         # (layout group, row in the group) of each agent's observation, in agent order
@@ -121,6 +122,11 @@ class FormationCore:
         state = dict(self.__dict__)
         state["_team_plans"] = {}  # functions made on the fly do not pickle; they are made again on use
         return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        if "_slots" not in state:  # pickled by a build before the filter's report was compiled
+            self._slots = np.tile(np.arange(self.k_max), (len(self.agents), 1))
 
     def set_safety_filter(self, safety_filter) -> None:
         """Switch the engine's filter (``False``, ``True`` or a :class:`~pan1_env.safety.FilterParams`), after
@@ -310,20 +316,25 @@ class FormationCore:
         """Copy b's infos per agent, in agent order: per-arm values at the agent's index (``shield_applied``
         the agent's own k_i entries), team values as they are (Python scalars; arrays for ``qp_counts`` and
         ``shield_applied``)."""
-        n = len(self.agents)
-        columns = []  # each key's values in agent order
-        for key, value in infos.items():
-            if key == "shield_applied":
-                columns.append([row[:k] for row, k in zip(value[b], self.n_actuated, strict=True)])
-            elif key == "qp_counts":
-                columns.append(list(value[b]))
-            elif _team_rule(key) is None:  # a team value
-                columns.append((value[b].item(),) * n)
-            else:  # per arm, or one value every arm shares
-                row = value[b].tolist()
-                columns.append(row if len(row) == n else row * n)
-        keys = list(infos)
+        keys = tuple(infos)
+        plan = self._team_plans.get(("agents", keys))
+        if plan is None:
+            plan = self._team_plans[("agents", keys)] = [self._agent_rule(key) for key in keys]
+        columns = [gather(infos[key], b) for key, gather in zip(keys, plan, strict=True)]  # each in agent order
         return [dict(zip(keys, values, strict=True)) for values in zip(*columns, strict=True)]
+
+    def _agent_rule(self, key: str):
+        """How :meth:`agent_infos` reads ``key`` of copy b as one value per agent (a function of the info's array and
+        b), chosen once per key."""
+        n = len(self.agents)
+        if key == "shield_applied":
+            return lambda v, b: [row[:k] for row, k in zip(v[b], self.n_actuated, strict=True)]
+        if key == "qp_counts":
+            return lambda v, b: list(v[b])
+        if _team_rule(key) is None:  # a team value
+            return lambda v, b: (v.item(b),) * n
+        # per arm, or one value every arm shares
+        return lambda v, b: v[b].tolist() if v.shape[1] == n else v[b].tolist() * n
 
     def team_infos(self, infos: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """The infos per copy ``(B,)``, as the team views give them: ``cost`` the number of arms that entered
@@ -368,24 +379,23 @@ class FormationCore:
     def _shield_infos(self, rec: StepRecord | None, shape: tuple[int, int]) -> dict[str, np.ndarray]:
         """The filter's report of the step (the module docstring lists it)."""
         if rec is None:
-            counts = np.zeros((*shape, 3), dtype=np.int64)
-            applied, min_barrier = np.zeros((*shape, self.k_max), dtype=np.float32), np.full(shape, np.inf)
-        else:
-            counts, min_barrier = rec.qp_counts, rec.min_barrier
-            c = self.config
-            if c.action_mode == "torque":
-                applied, unit = np.take_along_axis(rec.tau, self._actuated_joints, axis=2), c.max_torque
-            else:  # velocity, residual and gain modes: the filtered velocity in units of the largest speed
-                applied, unit = rec.v_star, c.max_joint_speed
-            if not self._uniform_actions:  # the padding (NaN in the record) reads 0
-                applied = np.where(self._padding, 0.0, applied)
-            if self.engine.faults:  # and so does a lost joint's entry
-                applied = np.where(self.engine.faulted[..., None] & (np.arange(self.k_max) == 0), 0.0, applied)
-            applied = np.multiply(applied, 1.0 / unit, dtype=np.float32)
-        solved, fallback = counts[..., 1] > 0, counts[..., 2] > 0
-        return {"shield_intervened": solved | fallback, "shield_fallback": fallback,
-                "shield_status": np.where(fallback, 2, solved), "shield_min_barrier": min_barrier,
-                "shield_applied": applied, "qp_counts": counts}
+            zero = np.zeros(shape, dtype=bool)
+            return {"shield_intervened": zero, "shield_fallback": zero.copy(),
+                    "shield_status": np.zeros(shape, dtype=np.int64), "shield_min_barrier": np.full(shape, np.inf),
+                    "shield_applied": np.zeros((*shape, self.k_max), dtype=np.float32),
+                    "qp_counts": np.zeros((*shape, 3), dtype=np.int64)}
+        c = self.config
+        if c.action_mode == "torque":  # the arm's actuated joints' torques in units of the bound
+            source, columns, unit = rec.tau, self._actuated_joints[0], c.max_torque
+        else:  # velocity, residual and gain modes: the filtered velocity in units of the largest speed
+            source, columns, unit = rec.v_star, self._slots, c.max_joint_speed
+        intervened, fallback = np.empty(shape, dtype=bool), np.empty(shape, dtype=bool)
+        status, applied = np.empty(shape, dtype=np.int64), np.empty((*shape, self.k_max), dtype=np.float32)
+        # the padding (NaN in the record) and a lost joint's entry read 0
+        kernels().shield_report(rec.qp_counts, source, columns, self._padding, self.engine.faulted, 1.0 / unit,
+                                intervened, fallback, status, applied)
+        return {"shield_intervened": intervened, "shield_fallback": fallback, "shield_status": status,
+                "shield_min_barrier": rec.min_barrier, "shield_applied": applied, "qp_counts": rec.qp_counts}
 
     def _infos(self, out, rec: StepRecord | None) -> dict[str, np.ndarray]:
         shape = out.cost.shape

@@ -549,8 +549,10 @@ class Engine:
             raise ValueError(f"command must have shape {(B, N, self.k_max)}, got {command.shape}")
         if isinstance(substeps, bool) or not isinstance(substeps, (int, np.integer)) or substeps < 1:
             raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
-        if any(kind.specialised is False for kind in self.kinds):
-            kernels().specialise.start_background()  # from the second step on: see kernel_step._specialised
+        for kind in self.kinds:
+            if kind.specialised is False:
+                kernels().specialise.start_background()  # from the second step on: see kernel_step._specialised
+                break
         # the kernel writes into one working record (its calls' outputs are views of it, built once: kernel_step);
         # the step hands out a copy, so that records handed out are never overwritten
         work = self._work

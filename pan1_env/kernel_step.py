@@ -62,14 +62,22 @@ def advance_compiled(engine: Engine, command: np.ndarray, substeps: int, torque:
             todo = int(min(substeps - done, at[at > 0].min(initial=np.inf)))
             _advance_inter_arm(engine, command, todo, torque, rec)
             done += todo
-    else:
-        at = engine.fault_substeps() if engine.faults else None
-        within = None if at is None else (at > 0) & (at < substeps)
-        if at is not None:
-            engine.lose_actuators(at == 0, rec)
+    elif not engine.faults:  # every kind steps the whole step in one call
         if engine.whole_arm:
             engine.refresh_capsules()
-        split = within is not None and within.any()
+        params = engine.filter
+        for kind in engine.kinds:
+            if len(kind.stepped):
+                _advance(engine, kind, command, substeps, torque, params, rec)
+        engine.tick(substeps)
+        return
+    else:
+        at = engine.fault_substeps()
+        within = (at > 0) & (at < substeps)
+        engine.lose_actuators(at == 0, rec)
+        if engine.whole_arm:
+            engine.refresh_capsules()
+        split = within.any()
         for twins in (False, True):  # a full kind's call hands its arms that fault within the step over
             if twins and split:
                 engine.lose_actuators(within, rec)
@@ -223,8 +231,8 @@ def _outputs(engine: Engine, kind: Kind, rec: StepRecord) -> StepOutputs:
 def _call(engine: Engine, kind: Kind, groups: tuple, whole: WholeArm | None) -> None:
     """One call of the sub-step kernel on every arm of a kind: the multi-threaded one for large batches,
     else the kind's own or the generic one (:func:`_specialised`); ``whole`` goes as a plain tuple."""
-    whole = plain(whole)
-    chunks = engine.chunks(len(kind.q))
+    whole = None if whole is None else tuple(whole)
+    chunks = engine.chunks(len(kind.q)) if engine.threads is not False else 0
     if chunks:
         kernels().group_advance_parallel(*kind.sizes, *groups, whole, chunks)
     elif kind.specialised or _specialised(kind, (*kind.sizes, *groups, whole)):

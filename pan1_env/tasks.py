@@ -333,6 +333,19 @@ class ReachTask:
         self.arm, self.q0 = c.team.arms[0], np.asarray(c.team.q0[0], dtype=float)
         self.goal = np.zeros((copies, 2))
         self.size = 3 * self.arm.n_links + 4 + OBSTACLE_FEATURES * c.n_obstacle_obs
+        self._reward_parts()
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._reward_parts()  # (a task pickled by an earlier build has none)
+
+    def _reward_parts(self) -> None:
+        """The weights :func:`~pan1_env.kernels.reach_outcome` takes, and the reward's terms as (name, column of its
+        ``terms``): the distance always, the others where their weight is not zero."""
+        c = self.config
+        self._weights = np.array([c.effort_weight, c.collision_penalty])
+        self._terms = [(name, t) for t, (name, weight) in enumerate(
+            [("distance", 1.0), ("effort", c.effort_weight), ("collision", c.collision_penalty)]) if weight]
 
     @staticmethod
     def reset_options(options: dict | None) -> dict:
@@ -408,15 +421,15 @@ class ReachTask:
 
     def evaluate(self, record: StepRecord | None, engine: Engine, state: None, effort: np.ndarray,
                  command: np.ndarray | None = None) -> Outcome:
-        """The step's outcome (``record`` None at a reset) for effort ``‖a‖²/k (B, 1)``."""
-        c = self.config
-        d = self.goal - engine.positions()[:, 0]
-        distance = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
+        """The step's outcome (``record`` None at a reset) for effort ``‖a‖²/k (B, 1)``, computed in one compiled pass
+        (:func:`pan1_env.kernels.reach_outcome`; tests/test_tasks.py holds its numpy twin)."""
+        B = len(self.goal)
         min_clear = engine.clearance() if record is None else record.min_clearance
-        cost = (min_clear < 0).astype(float)
-        reward = -distance[:, None]
-        terms = _terms(reward, {"distance": reward.copy()}, effort=(c.effort_weight, effort),
-                       collision=(c.collision_penalty, cost))
-        success = distance < c.goal_tolerance
-        terminated = _terminated(success, cost, c)
-        return Outcome(reward, terms, cost, success, terminated, {"distance": distance, "min_clearance": min_clear})
+        distance, terms, reward = np.empty(B), np.empty((B, 3)), np.empty((B, 1))
+        cost, success, terminated = np.empty((B, 1)), np.empty(B, dtype=bool), np.empty(B, dtype=bool)
+        kernels().reach_outcome(self.goal, engine.kinds[0].p, min_clear[:, 0], effort[:, 0], self._weights,
+                                self.config.goal_tolerance, self.config.terminate_on_success,
+                                self.config.terminate_on_collision, distance, terms, reward[:, 0], cost[:, 0], success,
+                                terminated)
+        named = {name: terms[:, t: t + 1] for name, t in self._terms}
+        return Outcome(reward, named, cost, success, terminated, {"distance": distance, "min_clearance": min_clear})

@@ -92,3 +92,78 @@ def test_reward_terms_in_infos_sum_to_the_reward() -> None:
     terms = {key: value for key, value in info.items() if key.startswith("reward_")}
     assert set(terms) == {"reward_distance", "reward_effort", "reward_collision"}
     assert sum(terms.values()) == pytest.approx(r, abs=1e-12)
+
+
+def _reach_twin(goal, p, clear, effort, effort_weight, collision_penalty, tolerance, on_success, on_collision):
+    """The reach task's documented outcome in plain numpy: reward −‖goal − p‖ − w_e·effort − w_c·cost."""
+    distance = np.linalg.norm(goal - p, axis=1)
+    cost = (clear < 0).astype(float)
+    terms = {"distance": -distance}
+    if effort_weight:
+        terms["effort"] = -effort_weight * effort
+    if collision_penalty:
+        terms["collision"] = -collision_penalty * cost
+    success = distance < tolerance
+    terminated = (success & on_success) | ((cost > 0) & on_collision)
+    return distance, cost, terms, sum(terms.values()), success, terminated
+
+
+@pytest.mark.parametrize("weights", [(0.0, 0.0), (0.3, 0.0), (0.0, 2.0), (0.4, 1.5)])
+@pytest.mark.parametrize("ends", [(False, False), (True, True)])
+def test_reach_outcome_matches_its_numpy_twin(weights: tuple[float, float], ends: tuple[bool, bool]) -> None:
+    from pan1_env.reach import PAReachEnv
+
+    rng = np.random.default_rng(int(10 * sum(weights)) + ends[0])
+    env = PAReachEnv(effort_weight=weights[0], collision_penalty=weights[1], terminate_on_success=ends[0],
+                     terminate_on_collision=ends[1])
+    B = 9
+    task, engine = type(env.task)(env.config, B), Engine(env.config.team, B, env.config.physics)
+    task.goal[:] = rng.uniform(-1, 1, (B, 2))
+    engine.kinds[0].p[:] = task.goal + rng.uniform(-0.05, 0.05, (B, 2))
+    engine.kinds[0].p[3:5] = task.goal[3:5] + 0.01  # within the 2 cm tolerance
+    engine.kinds[0].p[0] = np.nan  # a copy gone non-finite: its distance is NaN, no success
+    clear = rng.uniform(-0.05, 0.3, (B, 1))
+    clear[[2, 5], 0] = -0.01, 0.0  # a collision, and a touch that is none
+    effort = rng.uniform(0, 1, (B, 1))
+    blank = np.zeros((B, 1))
+    record = StepRecord(np.zeros((B, 1, 3)), np.zeros((B, 1, 4)), clear, blank, np.zeros((B, 1, 3), int), blank,
+                        np.ones((B, 1), bool))
+    out = task.evaluate(record, engine, None, effort)
+    distance, cost, terms, reward, success, terminated = _reach_twin(
+        task.goal, engine.kinds[0].p, clear[:, 0], effort[:, 0], *weights, env.config.goal_tolerance, *ends)
+    np.testing.assert_allclose(out.measures["distance"], distance, rtol=1e-14)
+    np.testing.assert_array_equal(out.cost[:, 0], cost)
+    assert set(out.terms) == set(terms)
+    for name, value in terms.items():
+        np.testing.assert_allclose(out.terms[name][:, 0], value, rtol=1e-14)
+    np.testing.assert_allclose(out.reward[:, 0], reward, rtol=1e-14)
+    np.testing.assert_array_equal(out.success, success)
+    np.testing.assert_array_equal(out.terminated, terminated)
+    assert success[1:].any() and not success.all() and cost.any()  # the draw covers both sides
+
+
+@pytest.mark.parametrize("mode", ["velocity", "torque"])
+def test_filter_report_matches_its_numpy_twin(mode: str) -> None:
+    """The core's shield infos of a mixed team (padding) with faults (a lost first joint reads 0) against numpy."""
+    env = parallel_env("paper_pa_mixed_square", safety_filter=True, action_mode=mode,
+                       **({"max_torque": 3.0} if mode == "torque" else {}))
+    core, rng = env.core, np.random.default_rng(3)
+    B, N, k_max, n_max = 1, core.engine.n_arms, core.k_max, core.engine.n_max
+    counts = rng.integers(0, 3, (B, N, 3))
+    record = StepRecord(rng.normal(size=(B, N, k_max)), rng.normal(size=(B, N, n_max)), np.zeros((B, N)),
+                        rng.normal(size=(B, N)), counts, np.zeros((B, N)), np.ones((B, N), bool))
+    core.engine.faulted[0, 1] = True
+    infos = core._shield_infos(record, (B, N))
+    solved, fallback = counts[..., 1] > 0, counts[..., 2] > 0
+    np.testing.assert_array_equal(infos["shield_intervened"], solved | fallback)
+    np.testing.assert_array_equal(infos["shield_fallback"], fallback)
+    np.testing.assert_array_equal(infos["shield_status"], np.where(fallback, 2, solved.astype(int)))
+    unit = 3.0 if mode == "torque" else env.config.max_joint_speed
+    for i, (n, k) in enumerate(zip(core.n_links, core.n_actuated, strict=True)):
+        values = record.tau[0, i, n - k: n] if mode == "torque" else record.v_star[0, i, :k]
+        expected = np.zeros(k_max, np.float32)
+        expected[:k] = np.multiply(values, 1.0 / unit, dtype=np.float32)
+        if i == 1:
+            expected[0] = 0.0
+        np.testing.assert_array_equal(infos["shield_applied"][0, i], expected)
+    assert (np.asarray(core.n_actuated) < k_max).any()  # some padding

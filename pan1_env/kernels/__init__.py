@@ -10,7 +10,7 @@ costs a handful of calls whatever the team size.
 
 The package is split by job: :mod:`.physics` (the building blocks of dynamics and kinematics),
 :mod:`.qp` (the filter's QP), :mod:`.substep` (the sub-step kernel), :mod:`.observe` (observations and
-small helpers) and :mod:`._numba_ext` (numba plumbing).
+small helpers), :mod:`.outcome` (the tasks' per-step numbers) and :mod:`._numba_ext` (numba plumbing).
 
 The sub-step kernel advances the arms W at a time, one arm per lane of arrays whose last axis is
 the lanes, so that LLVM's SLP vectoriser (switched on for these kernels only:
@@ -30,12 +30,12 @@ from . import capsules, last_resort, specialise, team_geometry
 from .observe import (
     edge_length_errors,
     formation_observations,
-    formation_outcome,
     group_observations,
     group_observations_parallel,
     reach_observations,
     scale_command,
 )
+from .outcome import formation_outcome, reach_outcome, shield_report
 from .physics import group_end_effectors, group_terms
 from .qp import STATUS_FALLBACK, STATUS_NOMINAL, STATUS_SOLVED, compiled_projection, qp_project
 from .substep import GENERIC_MAX_LINKS, group_advance, group_advance_generic, group_advance_parallel
@@ -60,6 +60,8 @@ __all__ = [
     "formation_observations",
     "formation_outcome",
     "reach_observations",
+    "reach_outcome",
+    "shield_report",
 ]
 
 compile_notice.install()  # a first use of an arm kind compiles for tens of seconds: say so

@@ -188,26 +188,3 @@ def formation_observations(P, edges, distances, err, q, qd, base, centers, radii
     lo = q.shape[0] * 0  # an int64, as group_observations passes it
     _observation_rows(lo, q.shape[0], q, qd, P, base, err, centers, radii, velocities, ids, neighbour, neighbour_edge,
                       present, K, inv_vmax, bound, out)
-
-
-
-@njit(**_JIT)
-def formation_outcome(err, min_clear, formation_weight, tolerance, formation, formation_error, success, cost):
-    """The formation task's per-step numbers of B teams, in one pass (the formulas of
-    :meth:`pan1_env.tasks.FormationTask.evaluate`): from the edge errors ``err (B, E)`` and the arms'
-    smallest clearances ``min_clear (B, N)``, ``formation[b] = −w·mean_e |err|``,
-    ``formation_error[b] = max_e |err|``, ``success[b] = formation_error < tolerance`` and
-    ``cost[b, i] = 1.0`` where arm i's clearance is negative."""
-    B, E = err.shape
-    for b in range(B):
-        total = 0.0
-        worst = 0.0
-        for e in range(E):
-            x = abs(err[b, e])
-            total += x
-            worst = max(worst, x)
-        formation[b] = -formation_weight * (total / E)
-        formation_error[b] = worst
-        success[b] = worst < tolerance
-        for i in range(min_clear.shape[1]):
-            cost[b, i] = 1.0 if min_clear[b, i] < 0.0 else 0.0

@@ -105,7 +105,7 @@ except ImportError:  # Windows: no claims, no locks (module docstring)
     fcntl = None
 
 from .. import compile_notice
-from . import capsules, observe, physics, qp, substep, team_geometry
+from . import capsules, observe, outcome, physics, qp, substep, team_geometry
 from .substep import GENERIC_MAX_LINKS, group_advance
 
 __all__ = ["POLICIES", "LIMIT", "policy", "specialised_ready", "start_background", "background_generation",
@@ -250,7 +250,7 @@ def _cached_dispatchers() -> list:
     (numbering restarts at 1), read an older data file in the moment between the index save and the
     data save. So all of them save and load under their own lock."""
     found = {}
-    for module in (physics, qp, substep, capsules, team_geometry, observe):
+    for module in (physics, qp, substep, capsules, team_geometry, observe, outcome):
         for value in vars(module).values():
             if hasattr(value, "targetctx") and hasattr(value, "_cache") and id(value) not in found:
                 found[id(value)] = value
