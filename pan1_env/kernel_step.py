@@ -68,7 +68,16 @@ def advance_compiled(engine: Engine, command: np.ndarray, substeps: int, torque:
         params = engine.filter
         for kind in engine.kinds:
             if len(kind.stepped):
-                _advance(engine, kind, command, substeps, torque, params, rec)
+                args, out = _kernel_args(engine, kind, command, substeps, torque, params, rec)
+                ready = kind.ready  # the kernel and its whole argument tuple, once the kind's own kernel steps it
+                if ready is not None and ready[0] is args and ready[1] is kind.whole and not torque:
+                    ready[2](*ready[3])
+                else:
+                    _call(engine, kind, args, _whole(engine, kind, torque))
+                    if kind.specialised and engine.team_order and not torque and not engine.chunks(len(kind.q)):
+                        whole = None if kind.whole is None else tuple(kind.whole)
+                        kind.ready = (args, kind.whole, kernels().group_advance, (*kind.sizes, *args, whole))
+                _finish(engine, kind, out, torque, rec)
         engine.tick(substeps)
         return
     else:
@@ -146,9 +155,7 @@ def _advance(engine: Engine, kind: Kind, command: np.ndarray, substeps: int, tor
     :meth:`Engine.fault_substeps` and the arms that fault within it) a full kind's arms stop where their fault
     begins and its twin's start there (the kernel's ``window``)."""
     args, out = _kernel_args(engine, kind, command, substeps, torque, params, rec)
-    whole = kind.whole  # holds the velocity-mode range (whole_arm_args); torque mode's may differ
-    if whole is not None and torque:
-        whole = whole._replace(sensing=engine.filter_range(True))
+    whole = _whole(engine, kind, torque)
     if faults is None or (kind.twin is None and not kind.faulted):
         _call(engine, kind, args, whole)
     else:
@@ -159,6 +166,15 @@ def _advance(engine: Engine, kind: Kind, command: np.ndarray, substeps: int, tor
         finally:
             kind.window[rows, end] = kind.window_default[end]
     _finish(engine, kind, out, torque, rec)
+
+
+def _whole(engine: Engine, kind: Kind, torque: bool) -> WholeArm | None:
+    """The kernel's ``whole`` argument: the kind's, which holds the velocity-mode range (whole_arm_args); torque
+    mode's may differ."""
+    whole = kind.whole
+    if whole is not None and torque:
+        whole = whole._replace(sensing=engine.filter_range(True))
+    return whole
 
 
 def _kernel_args(engine: Engine, kind: Kind, command: np.ndarray, substeps: int, torque: bool,
@@ -180,7 +196,7 @@ def _kernel_args(engine: Engine, kind: Kind, command: np.ndarray, substeps: int,
 def _hold(engine: Engine, kind: Kind, command: np.ndarray) -> None:
     """The kind's rows of the step's ``command (B, N, k_max)`` into ``kind.held``, the array its calls hold."""
     if engine.team_order:
-        np.copyto(kind.held, command.reshape(kind.held.shape))
+        np.copyto(kind.held_team, command)
     else:
         kind.held.reshape(engine.copies, kind.A, kind.k)[:] = command[:, kind.cols, kind.shift: kind.shift + kind.k]
 

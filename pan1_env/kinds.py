@@ -82,7 +82,9 @@ class Kind:
         #: the command the kernel holds, the kind's rows of the step's command (kernel_step), and the kernel's
         #: groups built from it and the kind's state (kernel_step._groups; each step reuses them while they hold)
         self.held = np.zeros((rows, self.k))
+        self.held_team = self.held.reshape(copies, self.A, self.k)  # (the team's command when the kind is the team)
         self.plan: tuple | None = None
+        self.ready: tuple | None = None
 
     def set_stepped(self) -> None:
         """After ``active`` changed: the rows the kernel steps, and the kind's kernel groups (arrays updated in
@@ -97,7 +99,7 @@ class Kind:
 
     def __getstate__(self) -> dict:
         # another process decides for itself; the plan's views of the engine's working record do not survive a copy
-        state = {**self.__dict__, "specialised": None, "plan": None}
+        state = {**self.__dict__, "specialised": None, "plan": None, "ready": None}
         if "block" in state:  # views of the engine's team arrays, which Engine.__setstate__ takes again
             for name in ("caps", "start_time", "joints", "whole"):
                 del state[name]
@@ -106,7 +108,9 @@ class Kind:
     def __setstate__(self, state: dict) -> None:
         state.setdefault("held", np.zeros_like(state["v"]))  # pickled before the held command was the kind's
         state.setdefault("plan", None)
+        state.setdefault("ready", None)
         self.__dict__.update(state)
+        self.held_team = self.held.reshape(self.copies, self.A, self.k)  # a view again (a pickle copies it)
 
     def rows(self, copies: np.ndarray) -> np.ndarray:
         return (np.asarray(copies)[:, None] * self.A + np.arange(self.A)[None]).ravel()
