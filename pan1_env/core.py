@@ -309,8 +309,19 @@ class FormationCore:
                 result.final_state = self.state()
             self.reset(result.ended)
             self.record = rec
-            result.observations = self.observe()
+            result.observations = self._observe_after_reset(mats, result.ended)
         return result
+
+    def _observe_after_reset(self, mats: list[np.ndarray], ended: np.ndarray) -> list[np.ndarray]:
+        """The observations after the copies ``ended`` were reset: theirs anew, the others' those of the step
+        (``mats``, kept unchanged as the ended copies' last observations)."""
+        if len(ended) == self.copies:
+            return self.observe()
+        fresh = self.task.observe(self.engine, ended)[1]
+        out = [mat.copy() for mat in mats]
+        for mat, rows in zip(out, fresh, strict=True):
+            mat[ended] = rows
+        return out
 
     def agent_infos(self, infos: dict[str, np.ndarray], b: int = 0) -> list[dict[str, Any]]:
         """Copy b's infos per agent, in agent order: per-arm values at the agent's index (``shield_applied``

@@ -244,16 +244,21 @@ class FormationTask:
         command += self.nominal_velocity(engine)
         np.clip(command, -c.max_joint_speed, c.max_joint_speed, out=command)
 
-    def observe(self, engine: Engine) -> tuple[np.ndarray, list[np.ndarray]]:
+    def observe(self, engine: Engine, copies: np.ndarray | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
         """The edges' length errors ``(B, E)`` and every agent's observation, one float32 array
-        ``(B, A, size)`` per group of :attr:`ObservationLayout.groups`."""
+        ``(B, A, size)`` per group of :attr:`ObservationLayout.groups`; with ``copies`` (indices) those copies'
+        only, in their order (each copy's observation depends on its own state alone)."""
         self.track(engine)
         q, qd = engine.joint_state()
         velocities = engine.obstacle_velocities() if self.layout.obstacle_velocity else None
-        return self.layout.build_with_errors(q, qd, engine.positions(), engine.bases, self.edges, self.distances,
-                                             engine.centers, engine.radii, self.config.max_joint_speed,
-                                             engine.chunks(engine.copies * engine.n_arms), velocities=velocities,
-                                             faulted=engine.faulted, formation_velocity=self.feed_forward)
+        parts = (q, qd, engine.positions(), engine.bases, self.distances, engine.centers, engine.radii, velocities,
+                 engine.faulted, self.feed_forward)
+        if copies is not None:
+            parts = tuple(None if part is None else part[copies] for part in parts)
+        q, qd, P, bases, distances, centers, radii, velocities, faulted, feed_forward = parts
+        return self.layout.build_with_errors(q, qd, P, bases, self.edges, distances, centers, radii,
+                                             self.config.max_joint_speed, engine.chunks(len(q) * engine.n_arms),
+                                             velocities=velocities, faulted=faulted, formation_velocity=feed_forward)
 
     def flat(self, mats: list[np.ndarray]) -> np.ndarray:
         """The agents' observations concatenated in agent order, ``(B, Σ size)``."""
@@ -408,12 +413,16 @@ class ReachTask:
         low[flags], high[flags] = 0.0, 1.0
         return low, high
 
-    def observe(self, engine: Engine) -> tuple[None, list[np.ndarray]]:
-        """Every copy's observation, ``[(B, 1, size)]`` (the engine's team is the one arm)."""
+    def observe(self, engine: Engine, copies: np.ndarray | None = None) -> tuple[None, list[np.ndarray]]:
+        """Every copy's observation, ``[(B, 1, size)]`` (the engine's team is the one arm); with ``copies`` (indices)
+        those copies' only, in their order."""
         kind = engine.kinds[0]
-        out = np.empty((engine.copies, self.size), dtype=np.float32)
-        kernels().reach_observations(kind.q, kind.qd, kind.p, kind.base, self.goal, engine.centers, engine.radii,
-                                     self.config.n_obstacle_obs, 1.0 / self.config.max_joint_speed, OBS_BOUND, out)
+        parts = (kind.q, kind.qd, kind.p, kind.base, self.goal, engine.centers, engine.radii)
+        if copies is not None:
+            parts = tuple(part[copies] for part in parts)
+        out = np.empty((len(parts[0]), self.size), dtype=np.float32)
+        kernels().reach_observations(*parts, self.config.n_obstacle_obs, 1.0 / self.config.max_joint_speed,
+                                     OBS_BOUND, out)
         return None, [out[:, None]]
 
     def flat(self, mats: list[np.ndarray]) -> np.ndarray:

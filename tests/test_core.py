@@ -312,3 +312,24 @@ def test_obstacle_centers_now_follow_the_moving_obstacles_and_are_a_copy() -> No
     assert not np.allclose(now[0], sc.obstacles.centers)
     now[:] = 0.0
     np.testing.assert_allclose(env.obstacle_centers_now[0], expected, atol=1e-9)
+
+
+@pytest.mark.parametrize("env_id", ["pan1_env/RandomFormation-v1", "pan1_env/FaultFormation-v1",
+                                    "pan1_env/MovingFormation-v1", "pan1_env/WholeArmFormation-v2"])
+def test_after_some_copies_reset_the_others_keep_their_observations_and_the_reset_ones_are_fresh(env_id: str) -> None:
+    """An autoreset observes only the copies that ended: what it returns equals observing every copy anew, and the
+    ended copies' last observations are the step's."""
+    venv = Pan1VectorEnv(env_id, 4, max_steps=6)
+    core = venv.core
+    venv.reset(seed=3)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        venv.step(rng.uniform(-1, 1, venv.action_space.shape).astype(np.float32))
+    core.steps[[0, 2]] = core.config.max_steps - 1  # copies 0 and 2 end in the next step, 1 and 3 go on
+    actions = core.padded_actions(rng.uniform(-1, 1, venv.action_space.shape))
+    result = core.step(actions, autoreset=True)
+    assert result.ended.tolist() == [0, 2]
+    for after, anew, last in zip(result.observations, core.observe(), result.final_observations, strict=True):
+        np.testing.assert_array_equal(after, anew)
+        np.testing.assert_array_equal(after[[1, 3]], last[[1, 3]])
+        assert not np.array_equal(after[[0, 2]], last[[0, 2]])
