@@ -184,8 +184,8 @@ class Pan1TorchRLEnv(EnvBase):
 def _tensor(value: np.ndarray) -> torch.Tensor:
     """A tensor of its own (the core's arrays and broadcast views are not the env's to hand out), float32 where
     the core's is a float, as every other float of the env."""
-    out = np.array(value)
-    return torch.from_numpy(out.astype(np.float32) if out.dtype.kind == "f" else out)
+    value = np.asarray(value)
+    return torch.from_numpy(np.array(value, dtype=np.float32 if value.dtype.kind == "f" else value.dtype))
 
 
 def _dtype(value: np.ndarray) -> torch.dtype:
