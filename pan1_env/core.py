@@ -126,7 +126,7 @@ class FormationCore:
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
         if "_slots" not in state:  # pickled by a build before the filter's report was compiled
-            self._slots = np.tile(np.arange(self.k_max), (len(self.agents), 1))
+            self._slots = np.tile(np.arange(self.engine.k_max), (self.engine.n_arms, 1))
 
     def set_safety_filter(self, safety_filter) -> None:
         """Switch the engine's filter (``False``, ``True`` or a :class:`~pan1_env.safety.FilterParams`), after

@@ -125,9 +125,6 @@ class Engine:
             ``True`` or ``False``; the two kernels give the same results bit for bit.
     """
 
-    #: whether some copy's obstacles move (set as teams load; an engine pickled before it was kept places them anyway)
-    moving = True
-
     def __init__(self, scenario: Scenario, copies: int = 1, physics: Physics | None = None, *,
                  safety_filter: bool | FilterParams = False, threads: bool | str = "auto", **loose) -> None:
         if loose:
@@ -170,6 +167,7 @@ class Engine:
         self.whole_arm = self.link_bodies or self.inter_arm or scenario.obstacle_paths is not None
         self.start_centers, self.path_ends, self.speeds = np.empty((B, O, 2)), np.empty((B, O, 2)), np.zeros((B, O))
         self.velocities = np.zeros((B, O, 2))
+        self.moving = False  # whether some copy's obstacles may move (set as teams load)
         self.elapsed = np.zeros(B)  # s since each copy's reset: where moving obstacles are
         self.filter: FilterParams | None = None  # set_safety_filter's, below
         if self.whole_arm:
@@ -227,6 +225,8 @@ class Engine:
             raise ValueError("this engine was pickled by an older pan1-env (a checkpoint's env, say): resume it with "
                              "the release that wrote it")
         self.__dict__.update(state)
+        if "moving" not in state:  # pickled before the engine kept whether some copy's obstacles move
+            self.moving = bool(self.speeds.any())
         # a pickle keeps the records' values but not their layout in blocks (StepRecord.restart copies blocks)
         self._blank = self._blank.laid_out()
         self._work = self._blank.laid_out() if "_work" not in state else self._work.laid_out()
@@ -279,7 +279,7 @@ class Engine:
         self.centers[b], self.radii[b] = scenario.obstacles.centers, scenario.obstacles.radii
         self.start_centers[b] = scenario.obstacles.centers
         self.path_ends[b], self.speeds[b] = scenario.obstacle_motion()
-        self.moving = bool(self.speeds.any())
+        self.moving = self.moving or bool(self.speeds[b].any())  # (stays set: placing still obstacles is harmless)
         self.velocities[b] = scenario.obstacle_velocities(0.0)
         if self.whole_arm:
             self._load_team_capsules(b, scenario, mask)

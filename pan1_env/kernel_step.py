@@ -248,7 +248,7 @@ def _call(engine: Engine, kind: Kind, groups: tuple, whole: WholeArm | None) -> 
     """One call of the sub-step kernel on every arm of a kind: the multi-threaded one for large batches,
     else the kind's own or the generic one (:func:`_specialised`); ``whole`` goes as a plain tuple."""
     whole = None if whole is None else tuple(whole)
-    chunks = engine.chunks(len(kind.q)) if engine.threads is not False else 0
+    chunks = engine.chunks(len(kind.q))
     if chunks:
         kernels().group_advance_parallel(*kind.sizes, *groups, whole, chunks)
     elif kind.specialised or _specialised(kind, (*kind.sizes, *groups, whole)):

@@ -100,6 +100,7 @@ class Kind:
     def __getstate__(self) -> dict:
         # another process decides for itself; the plan's views of the engine's working record do not survive a copy
         state = {**self.__dict__, "specialised": None, "plan": None, "ready": None}
+        del state["held_team"]  # a view of held, made again on loading
         if "block" in state:  # views of the engine's team arrays, which Engine.__setstate__ takes again
             for name in ("caps", "start_time", "joints", "whole"):
                 del state[name]
