@@ -16,7 +16,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from .core import CoreView, FormationCore, view_repr
+from .core import CoreView, FormationCore, team_mean, view_repr
 from .registration import RENDER_FPS, RENDER_MODES
 from .validation import float_array, forwards_keywords
 
@@ -59,7 +59,7 @@ class OneCopyGymEnv(gymnasium.Env):
         action = float_array("action", action, self.action_space.shape)
         out = self.core.step(self.core.padded_actions(action[None]))
         self._needs_reset = bool(len(out.ended))
-        reward = float(np.add.reduce(out.reward[0])) / out.reward.shape[1]  # the arms' mean, as mean() sums
+        reward = team_mean(out.reward[0].tolist())  # the arms' mean, as numpy's mean() sums
         return (self.core.flat_observations(out.observations)[0], reward,
                 bool(out.terminated[0]), bool(out.truncated[0]), self.core.team_info(out.infos))
 

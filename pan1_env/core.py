@@ -44,7 +44,7 @@ from .team_draw import draw_teams
 from .validation import positive_int
 
 __all__ = ["FormationCore", "CoreStep", "copy_generator", "CoreView", "per_arm", "FAULT",
-           "view_repr"]
+           "view_repr", "team_mean"]
 
 FAULT = "non-finite state in the physics step; episode truncated"
 TASKS = {FormationConfig: FormationTask, ReachConfig: ReachTask}
@@ -160,6 +160,10 @@ class FormationCore:
         obstacles = np.concatenate([engine.centers, engine.radii[..., None]], axis=-1)
         out = np.concatenate([arms.reshape(B, -1), obstacles.reshape(B, -1), self.task.target_state(engine)], axis=1)
         return np.clip(out, -OBS_BOUND, OBS_BOUND, out=out).astype(np.float32)
+
+    def copy_observations(self, mats: list[np.ndarray], b: int = 0) -> list[np.ndarray]:
+        """Copy b's observation of every agent, in agent order (views of ``mats``): what a one-copy view returns."""
+        return [mats[group][b, row] for group, row in self._observation_rows]
 
     def per_agent(self, mats: list[np.ndarray]) -> list[np.ndarray]:
         """The observations of :meth:`observe` (one array per layout group) as one ``(B, size_i)`` array per
@@ -457,6 +461,11 @@ def per_arm(key: str) -> bool:
     """Whether an info of the core is per arm (``(B, N, …)``, or ``(B, 1)`` for a reward term every arm
     shares) rather than per copy (``(B,)``)."""
     return _team_rule(key) is not None
+
+
+def team_mean(row: list[float]) -> float:
+    """The mean of a few arms' values, equal to numpy's (:func:`_gather`'s ``mean``)."""
+    return _gather("mean", row)
 
 
 def _gather(rule: str, row: list) -> Any:

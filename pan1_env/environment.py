@@ -179,7 +179,7 @@ class Pan1ParallelEnv(CoreView, ParallelEnv):
         return dict(zip(self.possible_agents, self.core.agent_infos(infos), strict=True))
 
     def _observations(self, mats: list[np.ndarray]) -> dict[str, np.ndarray]:
-        return {agent: obs[0] for agent, obs in zip(self.possible_agents, self.core.per_agent(mats), strict=True)}
+        return dict(zip(self.possible_agents, self.core.copy_observations(mats), strict=True))
 
 
 def parallel_env(scenario: str | Path | Scenario = "paper_pa3_square", **kwargs: Any) -> Pan1ParallelEnv:
