@@ -263,18 +263,10 @@ class FormationCore:
         """Every agent's observation, one float32 array ``(B, A, size)`` per layout group."""
         return self.task.observe(self.engine)[1]
 
-    def start(self, copies: np.ndarray | None = None) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
+    def start(self) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
         """The observations (as :meth:`observe`) and infos of the state just reset (no step yet): the same
-        infos keys a step gives. With ``copies`` (indices: the copies just reset) only their observations are
-        computed, and the other copies' rows are zeros: for a caller that keeps those copies' own (TorchRL merges a
-        partial reset by its mask)."""
-        if copies is None or len(copies) == self.copies:
-            state, mats = self.task.observe(self.engine)
-        else:
-            state, fresh = self.task.observe_outcome_state(self.engine), self.task.observe(self.engine, copies)[1]
-            mats = [np.zeros((self.copies, *rows.shape[1:]), rows.dtype) for rows in fresh]
-            for mat, rows in zip(mats, fresh, strict=True):
-                mat[copies] = rows
+        infos keys a step gives."""
+        state, mats = self.task.observe(self.engine)
         out = self.task.evaluate(None, self.engine, state, np.zeros((self.copies, len(self.agents))))
         return mats, self._infos(out, None)
 

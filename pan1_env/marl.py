@@ -150,9 +150,8 @@ class Pan1TorchRLEnv(EnvBase):
             if tensordict is not None and key in tensordict.keys(include_nested=True):
                 marked = tensordict.get(key).reshape(self.core.copies, -1).any(-1).cpu().numpy()
                 which = marked if which is None else which | marked
-        copies = None if which is None else which.nonzero()[0]
-        self.core.reset(copies)
-        mats, infos = self.core.start(copies)  # the other copies' rows are zeros: TorchRL keeps their own by the mask
+        self.core.reset(None if which is None else which.nonzero()[0])
+        mats, infos = self.core.start()
         return self._observations(mats, infos).to(self.device)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:

@@ -260,14 +260,6 @@ class FormationTask:
                                              self.config.max_joint_speed, engine.chunks(len(q) * engine.n_arms),
                                              velocities=velocities, faulted=faulted, formation_velocity=feed_forward)
 
-    def observe_outcome_state(self, engine: Engine) -> np.ndarray:
-        """What :meth:`evaluate` takes from an observation, without the observation: the edges' length errors
-        ``(B, E)``."""
-        self.track(engine)
-        err = np.empty(self.distances.shape)
-        kernels().edge_length_errors(engine.positions(), self.edges, self.distances, err)
-        return err
-
     def flat(self, mats: list[np.ndarray]) -> np.ndarray:
         """The agents' observations concatenated in agent order, ``(B, Σ size)``."""
         if self._one_group_in_order:
@@ -432,11 +424,6 @@ class ReachTask:
         kernels().reach_observations(*parts, self.config.n_obstacle_obs, 1.0 / self.config.max_joint_speed,
                                      OBS_BOUND, out)
         return None, [out[:, None]]
-
-    @staticmethod
-    def observe_outcome_state(engine: Engine) -> None:
-        """What :meth:`evaluate` takes from an observation: nothing."""
-        return None
 
     def flat(self, mats: list[np.ndarray]) -> np.ndarray:
         return mats[0].reshape(len(mats[0]), -1)

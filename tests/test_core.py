@@ -333,19 +333,3 @@ def test_after_some_copies_reset_the_others_keep_their_observations_and_the_rese
         np.testing.assert_array_equal(after, anew)
         np.testing.assert_array_equal(after[[1, 3]], last[[1, 3]])
         assert not np.array_equal(after[[0, 2]], last[[0, 2]])
-
-
-@pytest.mark.parametrize("env_id", ["pan1_env/RandomFormation-v1", "pan1_env/MovingFormation-v1"])
-def test_a_partial_start_observes_the_reset_copies_as_a_full_one(env_id: str) -> None:
-    venv = Pan1VectorEnv(env_id, 4)
-    venv.reset(seed=1)
-    venv.step(np.random.default_rng(0).uniform(-1, 1, venv.action_space.shape).astype(np.float32))
-    core = venv.core
-    core.reset(np.array([1, 2]))
-    (part, part_infos), (full, full_infos) = core.start(np.array([1, 2])), core.start()
-    for p, f in zip(part, full, strict=True):
-        np.testing.assert_array_equal(p[[1, 2]], f[[1, 2]])
-        assert not p[[0, 3]].any()  # the others' rows are left to the caller
-    assert part_infos.keys() == full_infos.keys()
-    for key in full_infos:
-        np.testing.assert_array_equal(part_infos[key], full_infos[key])
