@@ -460,13 +460,23 @@ def team_mean(row: list[float]) -> float:
     return _gather("mean", row)
 
 
+def _numpy_sum(row: list) -> Any:
+    """numpy's sum of a row: one value after another from 0 below 8 values (Python's ``sum`` compensates the
+    rounding of floats from 3.12 on, so it is not used), pairwise from 8."""
+    if len(row) >= 8:
+        return float(np.add.reduce(row))
+    total = 0
+    for value in row:
+        total += value
+    return total
+
+
 def _gather(rule: str, row: list) -> Any:
-    """``rule`` over a few arms' Python values, equal to numpy's reduction of them: below 8 values numpy sums
-    one after another, as ``sum`` does (its pairwise summation starts at 8 values)."""
+    """``rule`` over a few arms' Python values, equal to numpy's reduction of them (:func:`_numpy_sum`)."""
     if rule == "mean":
-        return (sum(row) if len(row) < 8 else float(np.add.reduce(row))) / len(row)
+        return _numpy_sum(row) / len(row)
     if rule == "sum":
-        return sum(row) if len(row) < 8 else float(np.add.reduce(row))
+        return _numpy_sum(row)
     if rule == "min":  # NaN wins, as in numpy (a copy whose state went non-finite)
         return float("nan") if any(x != x for x in row) else min(row)
     return max(row) if rule == "max" else any(row)

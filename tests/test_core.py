@@ -333,3 +333,15 @@ def test_after_some_copies_reset_the_others_keep_their_observations_and_the_rese
         np.testing.assert_array_equal(after, anew)
         np.testing.assert_array_equal(after[[1, 3]], last[[1, 3]])
         assert not np.array_equal(after[[0, 2]], last[[0, 2]])
+
+
+def test_the_team_mean_of_a_few_arms_is_numpys_bit_for_bit() -> None:
+    """One value after another as numpy adds them (Python's own sum compensates the rounding from 3.12 on)."""
+    from pan1_env.core import team_mean
+
+    rng = np.random.default_rng(0)
+    rows = [[0.1, 0.2, 0.3], [1e16, 1.0, -1e16], [-0.0], [-0.0, -0.0],
+            *[rng.normal(size=n).tolist() for n in range(1, 12)]]
+    for row in rows:
+        expected = float(np.add.reduce(np.asarray(row))) / len(row)
+        assert np.float64(team_mean(row)).tobytes() == np.float64(expected).tobytes(), row

@@ -155,8 +155,14 @@ def test_a_reset_mask_resets_only_its_copies(key) -> None:
     mask = torch.tensor([True, False, False])
     td = TensorDict({key: mask.reshape(3, 1) if key == "_reset" else mask.reshape(3, 1).expand(3, 4).clone()},
                     batch_size=[3])
-    env.reset(td)
+    out = env.reset(td)
     assert env.core.steps.tolist() == [0, 3, 3]
+    observed = env.core.padded_observations(env.core.observe())
+    if key == "_reset":  # TorchRL merges by the root's mask: the others keep what the given tensordict held (none)
+        np.testing.assert_array_equal(out["arms", "observation"].numpy()[0], observed[0])
+    else:  # with the group's mask only it takes the env's whole output: every copy's own observation
+        np.testing.assert_array_equal(out["arms", "observation"].numpy(), observed)
+        assert np.abs(observed[1:]).sum(axis=-1).all()
 
 
 def test_fault_task_specs_hold() -> None:
