@@ -65,19 +65,9 @@ def advance_compiled(engine: Engine, command: np.ndarray, substeps: int, torque:
     elif not engine.faults:  # every kind steps the whole step in one call
         if engine.whole_arm:
             engine.refresh_capsules()
-        params = engine.filter
         for kind in engine.kinds:
             if len(kind.stepped):
-                args, out = _kernel_args(engine, kind, command, substeps, torque, params, rec)
-                ready = kind.ready  # the kernel and its whole argument tuple, once the kind's own kernel steps it
-                if ready is not None and ready[0] is args and ready[1] is kind.whole and not torque:
-                    ready[2](*ready[3])
-                else:
-                    _call(engine, kind, args, _whole(engine, kind, torque))
-                    if kind.specialised and engine.team_order and not torque and not engine.chunks(len(kind.q)):
-                        whole = None if kind.whole is None else tuple(kind.whole)
-                        kind.ready = (args, kind.whole, kernels().group_advance, (*kind.sizes, *args, whole))
-                _finish(engine, kind, out, torque, rec)
+                _advance_whole_step(engine, kind, command, substeps, torque, rec)
         engine.tick(substeps)
         return
     else:
@@ -165,6 +155,23 @@ def _advance(engine: Engine, kind: Kind, command: np.ndarray, substeps: int, tor
             _call(engine, kind, args, whole)
         finally:
             kind.window[rows, end] = kind.window_default[end]
+    _finish(engine, kind, out, torque, rec)
+
+
+def _advance_whole_step(engine: Engine, kind: Kind, command: np.ndarray, substeps: int, torque: bool,
+                        rec: StepRecord) -> None:
+    """:func:`_advance` of a step no fault splits. Once the kind steps with its own serial kernel (velocity mode, one
+    kind in team order), the kernel and its whole argument tuple are kept beside the plan (``kind.ready``) and called
+    as they are while the plan's groups and the kind's ``whole`` stay the same objects."""
+    args, out = _kernel_args(engine, kind, command, substeps, torque, engine.filter, rec)
+    ready = kind.ready
+    if ready is not None and ready[0] is args and ready[1] is kind.whole and not torque:
+        ready[2](*ready[3])
+    else:
+        _call(engine, kind, args, _whole(engine, kind, torque))
+        if kind.specialised and engine.team_order and not torque and not engine.chunks(len(kind.q)):
+            whole = None if kind.whole is None else tuple(kind.whole)
+            kind.ready = (args, kind.whole, kernels().group_advance, (*kind.sizes, *args, whole))
     _finish(engine, kind, out, torque, rec)
 
 
