@@ -108,7 +108,7 @@ class FormationCore:
         slot = np.minimum(np.arange(k_max), k - 1)
         self._actuated_joints = (np.asarray(self.n_links)[:, None] - k + slot)[None]
         self._padding = np.arange(k_max) >= k
-        self._slots = np.tile(np.arange(k_max), (team.n_arms, 1))  # each arm's command slots in the record's v*
+        self._slots = _command_slots(team.n_arms, k_max)
         self._uniform_actions = len(set(self.n_actuated)) == 1
         self._team_plans: dict[tuple[str, ...], list] = {}  # team_info's reading of each key, per key set
         # (layout group, row in the group) of each agent's observation, in agent order
@@ -126,7 +126,7 @@ class FormationCore:
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
         if "_slots" not in state:  # pickled by a build before the filter's report was compiled
-            self._slots = np.tile(np.arange(self.engine.k_max), (self.engine.n_arms, 1))
+            self._slots = _command_slots(self.engine.n_arms, self.engine.k_max)
 
     def set_safety_filter(self, safety_filter) -> None:
         """Switch the engine's filter (``False``, ``True`` or a :class:`~pan1_env.safety.FilterParams`), after
@@ -453,6 +453,11 @@ def per_arm(key: str) -> bool:
     """Whether an info of the core is per arm (``(B, N, …)``, or ``(B, 1)`` for a reward term every arm
     shares) rather than per copy (``(B,)``)."""
     return _team_rule(key) is not None
+
+
+def _command_slots(arms: int, k_max: int) -> np.ndarray:
+    """Each arm's command slots ``(N, k_max)``: where the filter's report reads an arm's v* in the record."""
+    return np.tile(np.arange(k_max), (arms, 1))
 
 
 def team_mean(row: list[float]) -> float:

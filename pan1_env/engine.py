@@ -279,7 +279,7 @@ class Engine:
         self.centers[b], self.radii[b] = scenario.obstacles.centers, scenario.obstacles.radii
         self.start_centers[b] = scenario.obstacles.centers
         self.path_ends[b], self.speeds[b] = scenario.obstacle_motion()
-        self.moving = self.moving or bool(self.speeds[b].any())  # (stays set: placing still obstacles is harmless)
+        self._note_motion(self.speeds[b])
         self.velocities[b] = scenario.obstacle_velocities(0.0)
         if self.whole_arm:
             self._load_team_capsules(b, scenario, mask)
@@ -299,10 +299,15 @@ class Engine:
         self.centers[copies], self.radii[copies] = draws.centers, draws.radii
         self.start_centers[copies] = draws.centers
         self.path_ends[copies], self.speeds[copies] = draws.path_ends, draws.speeds
-        self.moving = bool(self.speeds.any())
+        self._note_motion(draws.speeds)
         self.velocities[copies] = obstacle_velocities(draws.centers, draws.path_ends, draws.speeds, 0.0)
         if self.whole_arm:
             self._load_capsules(copies, mask, draws.bases, draws.reach)
+
+    def _note_motion(self, speeds: np.ndarray) -> None:
+        """``moving`` is set once a loaded team's obstacles move, and stays set (placing still obstacles by their
+        motion leaves them where they are): the loads need not look at every copy."""
+        self.moving = self.moving or bool(speeds.any())
 
     def _whole_arm_setup(self) -> None:
         """Capsule arrays per kind (:mod:`pan1_env.kernels.capsules`): the world obstacles, then, with

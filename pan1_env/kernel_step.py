@@ -165,13 +165,12 @@ def _advance_whole_step(engine: Engine, kind: Kind, command: np.ndarray, substep
     as they are while the plan's groups and the kind's ``whole`` stay the same objects."""
     args, out = _kernel_args(engine, kind, command, substeps, torque, engine.filter, rec)
     ready = kind.ready
-    if ready is not None and ready[0] is args and ready[1] is kind.whole and not torque:
+    if ready is not None and ready[0] is args and ready[1] is kind.whole:  # (a new mode is a new plan: new args)
         ready[2](*ready[3])
     else:
         _call(engine, kind, args, _whole(engine, kind, torque))
         if kind.specialised and engine.team_order and not torque and not engine.chunks(len(kind.q)):
-            whole = None if kind.whole is None else tuple(kind.whole)
-            kind.ready = (args, kind.whole, kernels().group_advance, (*kind.sizes, *args, whole))
+            kind.ready = (args, kind.whole, kernels().group_advance, (*kind.sizes, *args, plain(kind.whole)))
     _finish(engine, kind, out, torque, rec)
 
 
@@ -254,7 +253,7 @@ def _outputs(engine: Engine, kind: Kind, rec: StepRecord) -> StepOutputs:
 def _call(engine: Engine, kind: Kind, groups: tuple, whole: WholeArm | None) -> None:
     """One call of the sub-step kernel on every arm of a kind: the multi-threaded one for large batches,
     else the kind's own or the generic one (:func:`_specialised`); ``whole`` goes as a plain tuple."""
-    whole = None if whole is None else tuple(whole)
+    whole = plain(whole)
     chunks = engine.chunks(len(kind.q))
     if chunks:
         kernels().group_advance_parallel(*kind.sizes, *groups, whole, chunks)
