@@ -304,14 +304,8 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
     path it covers in the next T s (:func:`_capsule_ahead`; inf: its whole path), and gives each link two rows
     per stretch, at the closest pair and at the link's other end (docs/MODEL.md §5b).
 
-    ``faults`` = (b, g, p₀): the first joint's damping b (passive or once passive; 0: no margin) and, for a fully
-    actuated arm, its momentum at the sub-step's end p₁ = g M₀ v + p₀ (the tracker's; g = 1, p₀ = 0: v itself).
-    b > 0 turns on the fault margin against the
-    world's obstacles (distance barrier; docs/MODEL.md §5c), with c = reach / b: a PAn−1 arm's pair keeps two rows
-    in place of one, for h − c p₁ ≥ 0 and h + c p₁ ≥ 0 (h ≥ c |p₁|), each gaining ±reach M₀a / M₀₀ and its b the
-    rate ±reach p₁ / M₀₀, with κ at least b / M₀₀; a fully actuated arm keeps c |g M₀ v + p₀|, its momentum at the
-    sub-step's end, within its smallest clearance (:func:`_momentum_rows`), so that if its first joint's actuator is
-    lost it starts with h ≥ c |p₁|.
+    ``faults`` = (b, g, p₀): the first joint's damping b, which turns on the fault margin (:func:`_pair_rows`), and
+    for a fully actuated arm its momentum at the sub-step's end p₁ = g M₀ v + p₀.
 
     Only pairs that are close get a row: clearance d − r − ρ at most ``sensing`` plus twice what the
     gap can close in the sub-step ``dt`` (no point of the arm moves faster than its reach times
@@ -334,28 +328,14 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
     without the skin let capsules graze obstacles by fractions of a millimetre.
 
     ``near (C, NEAR_COLUMNS)`` is scratch: the capsules whose box comes within range of the bodies' box."""
-    m = 0
-    h_min, h_fault = np.inf, np.inf
     cull = v_max < np.inf
-    # a bound on the joint speeds Σ|q̇_a| during the sub-step: now, and what the filtered command can
-    # reach within it (in torque mode the arm is driven to v* in one sub-step): |v_t| ≤ v_max, the
-    # passive joint q̇_0 = −Σ_t M_0,t+1/M_00 v_t; without a speed bound, the command's own speeds
-    joint_speed, arm_reach, coupling, drift_speed, commanded = 0.0, 0.0, 1.0, 0.0, 0.0
-    for a in range(n):
-        joint_speed += abs(qd[a, w])
-        arm_reach += lengths[a, w]
-    if passive:
-        for t in range(k):
-            coupling += abs(M[0, t + 1, w] / M[0, 0, w])
-        drift_speed = p1 / M[0, 0, w]
-    for t in range(k):
-        commanded += min(abs(v0[t]), v_max)
-    reach_speed = arm_reach * max(joint_speed, coupling * commanded + abs(drift_speed))
+    reach_speed, arm_reach, drift_speed = _reach_speed(n, k, w, passive, lengths, qd, M, p1, v0, v_max)
     damping, gain, offset = faults
     c_fault, fault_reach = _fault_reach(passive, distance, arm_reach, damping, gain, offset, p1, v_max, k, w, M)
     _joints(lengths, bx, by, c, s, n, w, P)
     n_near = _near_capsules(i, links, rho, sensing, gate, skin, dt, reach_speed, fault_reach, caps, n_world, time,
                             lookahead, P, n, near)
+    m, h_min, h_fault = 0, np.inf, np.inf
     for body in range(n if links else 1):
         a1x, a1y, d1x, d1y, ell = _body(P, n, links, body)
         half_body = 0.5 * np.sqrt(d1x * d1x + d1y * d1y)
@@ -382,59 +362,111 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
                     h_fault = min(h_fault, gap - reach)
                 if gap > within:
                     continue
-                # a damped passive arm's world pairs (the fault margin) keep both h − c p₁ ≥ 0 and h + c p₁ ≥ 0,
-                # i.e. h ≥ c |p₁|, each a smooth barrier, with κ at least b / M₀₀ so that braking meets both
-                sides = 2 if passive and c_fault > 0.0 and world else 1
-                kap = max(kappa, damping / M[0, 0, w]) if sides == 2 else kappa
-                for side in range(sides):
-                    h = rx * rx + ry * ry - reach * reach
-                    # the closest point's velocity: r·d2 > 0 only where the pair meets at the stretch's far end (≤ 0
-                    # at its start); inside, the gap is normal to the path and either end's velocity adds nothing
-                    vx, vy = (near[x, 10], near[x, 11]) if rx * d2x + ry * d2y > 0.0 else (near[x, 4], near[x, 5])
-                    lg2 = 0.0
-                    grad0 = _pair_row(m, ell, sp if links else 1.0, rx, ry, passive, n, k, w, lengths, c, s, M, A)
-                    fault_rate = 0.0
-                    if distance:
-                        # h = d − R (pan1_env.safety.shaped_barrier): the row and ∂h/∂t of the squared barrier
-                        # over 2d, d from the squared h as the reference takes it; a zero row at d = 0
-                        d = np.sqrt(max(h + reach * reach, 0.0))
-                        scale = 0.5 / d if d > 0.0 else 0.0
-                        h = d - reach
-                        for t in range(k):
-                            A[m, t] = A[m, t] * scale
-                    else:
-                        scale = 1.0
-                    h_min = min(h_min, h)
-                    if sides == 2:  # h ∓ c p₁: d/dt(∓ c p₁) = ±reach q̇₁, ṗ₁ = −b q̇₁, q̇₁ = (p₁ − M₀a v) / M₀₀
-                        pm = 1.0 - 2.0 * side
-                        h -= pm * c_fault * p1
-                        fault_rate = pm * arm_reach * p1 / M[0, 0, w]
-                        for t in range(k):
-                            A[m, t] += pm * arm_reach * M[0, t + 1, w] / M[0, 0, w]
-                    bound = 0.0
-                    for t in range(k):
-                        lg2 += A[m, t] * A[m, t]
-                        bound += abs(A[m, t])
-                    if not distance and decay == 0.0:  # the paper's row, its operations as before the choices existed
-                        bm = near[x, 9] * kap * (h - margin) - 2.0 * (rx * vx + ry * vy) - lg2 / epsilon \
-                            + grad0 * drift_speed
-                    else:  # ε(h̃) = ε e^{min(λ h̃, 700)} (pan1_env.safety.robust_epsilon); ε = inf: the fallback's rows
-                        ht = h - margin
-                        bm = near[x, 9] * kap * ht + (grad0 * drift_speed - 2.0 * (rx * vx + ry * vy)) * \
-                            scale + fault_rate - lg2 / (epsilon * np.exp(min(decay * ht, 700.0)))
-                    m = _keep_row(m, k, A, b, active, bm, bound, gate, gap, within, v_max, cull)
+                m, h_min = _pair_rows(m, h_min, near, x, ell, sp if links else 1.0, rx, ry, gap, within,
+                                      passive and c_fault > 0.0 and world, n, k, w, passive, lengths, c, s, M,
+                                      (kappa, epsilon, margin, distance, decay),
+                                      (damping, c_fault, p1, arm_reach, drift_speed), gate, v_max, cull, (A, b, active))
     if c_fault > 0.0 and not passive:
         m = _momentum_rows(m, k, w, c_fault, gain, offset, h_fault, reach_speed * dt, margin, cull, v_max, M, A, b,
                            active)
     if cull:
-        for t0 in range(k):
-            for sign in (1.0, -1.0):
-                for t in range(k):
-                    A[m, t] = sign if t == t0 else 0.0
-                b[m] = v_max
-                active[m] = True
-                m += 1
+        m = _speed_box_rows(m, k, v_max, A, b, active)
     return m, h_min
+
+
+@njit(**_JIT, forceinline=True)
+def _reach_speed(n, k, w, passive, lengths, qd, M, p1, v0, v_max):
+    """A bound on how fast any point of arm w moves during the sub-step, its reach times a bound on Σ|q̇_a|: now,
+    and what the filtered command can reach within it (in torque mode the arm is driven to v* in one sub-step):
+    |v_t| ≤ v_max, the passive joint q̇_0 = −Σ_t M_0,t+1/M_00 v_t plus the drift p₁ / M_00; without a speed
+    bound, the command's own speeds. Returns (that bound, the reach, the drift speed p₁ / M_00)."""
+    joint_speed, arm_reach, coupling, drift_speed, commanded = 0.0, 0.0, 1.0, 0.0, 0.0
+    for a in range(n):
+        joint_speed += abs(qd[a, w])
+        arm_reach += lengths[a, w]
+    if passive:
+        for t in range(k):
+            coupling += abs(M[0, t + 1, w] / M[0, 0, w])
+        drift_speed = p1 / M[0, 0, w]
+    for t in range(k):
+        commanded += min(abs(v0[t]), v_max)
+    return arm_reach * max(joint_speed, coupling * commanded + abs(drift_speed)), arm_reach, drift_speed
+
+
+@njit(**_JIT, forceinline=True)
+def _pair_rows(m, h_min, near, x, ell, tau, rx, ry, gap, within, two_sided, n, k, w, passive, lengths, c, s, M,
+               barrier, fault, gate, v_max, cull, rows):
+    """The RCBF rows of one close pair of a body and a capsule (row x of :func:`_near_capsules`' table
+    ``near``), gap vector (rx, ry) at the body's point τ, from row m of ``rows`` = (A, b, active): returns (rows
+    written, smallest barrier h). ``barrier`` = (κ, ε, margin, distance, decay) and the speed box are
+    :func:`whole_arm_rows`'; ``fault`` = (b, c, p₁, reach, p₁ / M₀₀).
+
+    The fault margin against the world's obstacles (distance barrier; docs/MODEL.md §5c) uses the first joint's
+    damping b (``faults`` of :func:`whole_arm_rows`, passive or once passive; 0: no margin) as c = reach / b
+    (``c_fault``). A PAn−1 arm's world pair (``two_sided``) keeps two rows in place of one, for h − c p₁ ≥ 0 and
+    h + c p₁ ≥ 0 (h ≥ c |p₁|), each gaining ±reach M₀a / M₀₀ and its b the rate ±reach p₁ / M₀₀, with κ at least
+    b / M₀₀. A fully actuated arm keeps instead c |g M₀ v + p₀|, its first joint's momentum at the sub-step's end
+    (the tracker's; g = 1, p₀ = 0: v itself), within its smallest clearance (:func:`_momentum_rows`), so that if
+    that joint's actuator is lost it starts with h ≥ c |p₁|."""
+    kappa, epsilon, margin, distance, decay = barrier
+    damping, c_fault, p1, arm_reach, drift_speed = fault
+    A, b, active = rows
+    d2x, d2y = near[x, 2], near[x, 3]
+    # a damped passive arm's world pairs (the fault margin) keep both h − c p₁ ≥ 0 and h + c p₁ ≥ 0,
+    # i.e. h ≥ c |p₁|, each a smooth barrier, with κ at least b / M₀₀ so that braking meets both
+    sides = 2 if two_sided else 1
+    kap = max(kappa, damping / M[0, 0, w]) if sides == 2 else kappa
+    reach = near[x, 7]
+    for side in range(sides):
+        h = rx * rx + ry * ry - reach * reach
+        # the closest point's velocity: r·d2 > 0 only where the pair meets at the stretch's far end (≤ 0
+        # at its start); inside, the gap is normal to the path and either end's velocity adds nothing
+        vx, vy = (near[x, 10], near[x, 11]) if rx * d2x + ry * d2y > 0.0 else (near[x, 4], near[x, 5])
+        lg2 = 0.0
+        grad0 = _pair_row(m, ell, tau, rx, ry, passive, n, k, w, lengths, c, s, M, A)
+        fault_rate = 0.0
+        if distance:
+            # h = d − R (pan1_env.safety.shaped_barrier): the row and ∂h/∂t of the squared barrier
+            # over 2d, d from the squared h as the reference takes it; a zero row at d = 0
+            d = np.sqrt(max(h + reach * reach, 0.0))
+            scale = 0.5 / d if d > 0.0 else 0.0
+            h = d - reach
+            for t in range(k):
+                A[m, t] = A[m, t] * scale
+        else:
+            scale = 1.0
+        h_min = min(h_min, h)
+        if sides == 2:  # h ∓ c p₁: d/dt(∓ c p₁) = ±reach q̇₁, ṗ₁ = −b q̇₁, q̇₁ = (p₁ − M₀a v) / M₀₀
+            pm = 1.0 - 2.0 * side
+            h -= pm * c_fault * p1
+            fault_rate = pm * arm_reach * p1 / M[0, 0, w]
+            for t in range(k):
+                A[m, t] += pm * arm_reach * M[0, t + 1, w] / M[0, 0, w]
+        bound = 0.0
+        for t in range(k):
+            lg2 += A[m, t] * A[m, t]
+            bound += abs(A[m, t])
+        if not distance and decay == 0.0:  # the paper's row, its operations as before the choices existed
+            bm = near[x, 9] * kap * (h - margin) - 2.0 * (rx * vx + ry * vy) - lg2 / epsilon + grad0 * drift_speed
+        else:  # ε(h̃) = ε e^{min(λ h̃, 700)} (pan1_env.safety.robust_epsilon); ε = inf: the fallback's rows
+            ht = h - margin
+            bm = near[x, 9] * kap * ht + (grad0 * drift_speed - 2.0 * (rx * vx + ry * vy)) * scale + fault_rate \
+                - lg2 / (epsilon * np.exp(min(decay * ht, 700.0)))
+        m = _keep_row(m, k, A, b, active, bm, bound, gate, gap, within, v_max, cull)
+    return m, h_min
+
+
+@njit(**_JIT, forceinline=True)
+def _speed_box_rows(m, k, v_max, A, b, active):
+    """The speed box ±v_t ≤ ``v_max`` as 2k rows from row m: returns the rows written."""
+    for t0 in range(k):
+        for sign in (1.0, -1.0):
+            for t in range(k):
+                A[m, t] = sign if t == t0 else 0.0
+            b[m] = v_max
+            active[m] = True
+            m += 1
+    return m
 
 
 @njit(**_JIT, forceinline=True)

@@ -28,19 +28,53 @@ def _project_one(v0, A, b, active, m, k, v_out, rows, idx, G, r, lam, cand, L, y
     The remaining arguments are scratch space: ``rows``, ``viol``, ``rnorm`` (m), ``idx``, ``r``,
     ``lam``, ``cand``, ``y`` (k) and ``G``, ``L`` (k × k).
     """
-    feasible = True
+    if _satisfies_rows(v0, A, b, active, m, k):
+        for t in range(k):
+            v_out[t] = v0[t]
+        return STATUS_NOMINAL
+    na = _rows_by_violation(v0, A, b, active, m, k, rows, viol, rnorm)
+    if na >= 0:
+        for size in range(1, min(na, k) + 1):
+            # iterate over combinations of `size` rows out of `na` (lexicographic)
+            for t in range(size):
+                idx[t] = t
+            while True:
+                if _kkt_point(v0, A, b, k, na, size, rows, idx, G, r, lam, cand, L, y, rnorm):
+                    for t in range(k):
+                        v_out[t] = cand[t]
+                    return STATUS_SOLVED
+                # next combination
+                x = size - 1
+                while x >= 0 and idx[x] == na - size + x:
+                    x -= 1
+                if x < 0:
+                    break
+                idx[x] += 1
+                for z in range(x + 1, size):
+                    idx[z] = idx[z - 1] + 1
+    for t in range(k):
+        v_out[t] = 0.0
+    return STATUS_FALLBACK
+
+
+@njit(**_JIT, forceinline=True)
+def _satisfies_rows(v0, A, b, active, m, k):
+    """Whether v0 meets every active row j < m within the row tolerance (the nominal command stands)."""
     for j in range(m):
         if active[j]:
             acc = 0.0
             for t in range(k):
                 acc += A[j, t] * v0[t]
             if acc > b[j] + ROW_TOLERANCE * (1.0 + abs(b[j])):
-                feasible = False
-                break
-    if feasible:
-        for t in range(k):
-            v_out[t] = v0[t]
-        return STATUS_NOMINAL
+                return False
+    return True
+
+
+@njit(**_JIT, forceinline=True)
+def _rows_by_violation(v0, A, b, active, m, k, rows, viol, rnorm):
+    """The active non-zero rows into ``rows`` by decreasing violation (A_j v0 − b_j) / ‖A_j‖, the most violated
+    first (tried first), with ``viol`` and their norms ``rnorm``: returns their number, or −1 if a zero row
+    0·v ≤ b < 0 makes the QP infeasible."""
     na = 0
     for j in range(m):
         if active[j]:
@@ -50,84 +84,65 @@ def _project_one(v0, A, b, active, m, k, v_out, rows, idx, G, r, lam, cand, L, y
                 nrm += A[j, t] * A[j, t]
                 acc += A[j, t] * v0[t]
             if nrm > 0.0:
-                # insertion by decreasing violation A_j v0 − b_j (most violated rows are tried first)
                 root = np.sqrt(nrm)
                 w = (acc - b[j]) / root
                 x = na
-                while x > 0 and viol[x - 1] < w:
+                while x > 0 and viol[x - 1] < w:  # insertion
                     rows[x] = rows[x - 1]
                     viol[x] = viol[x - 1]
                     rnorm[x] = rnorm[x - 1]
                     x -= 1
                 rows[x] = j
                 viol[x] = w
-                rnorm[x] = root  # ‖A_j‖, for the feasibility tolerance below
+                rnorm[x] = root  # ‖A_j‖, for the candidate's feasibility tolerance
                 na += 1
             elif b[j] < -ROW_TOLERANCE:
-                # 0·v ≤ b < 0 can never hold: the QP is infeasible
-                for t in range(k):
-                    v_out[t] = 0.0
-                return STATUS_FALLBACK
-    smax = min(na, k)
-    for size in range(1, smax + 1):
-        # iterate over combinations of `size` rows out of `na` (lexicographic)
-        for t in range(size):
-            idx[t] = t
-        while True:
-            for x in range(size):
-                jx = rows[idx[x]]
-                acc = 0.0
-                for t in range(k):
-                    acc += A[jx, t] * v0[t]
-                r[x] = acc - b[jx]
-                for z in range(size):
-                    jz = rows[idx[z]]
-                    acc = 0.0
-                    for t in range(k):
-                        acc += A[jx, t] * A[jz, t]
-                    G[x, z] = acc
-            if _spd_solve(G, r, lam, size, L, y):
-                lmax = 0.0
-                for x in range(size):
-                    lmax = max(lmax, abs(lam[x]))
-                ok = True
-                for x in range(size):
-                    if lam[x] < -ROW_TOLERANCE * (1.0 + lmax):
-                        ok = False
-                if ok:
-                    for t in range(k):
-                        acc = v0[t]
-                        for x in range(size):
-                            acc -= A[rows[idx[x]], t] * lam[x]
-                        cand[t] = acc
-                    cn = 0.0
-                    for t in range(k):
-                        cn += cand[t] * cand[t]
-                    cn = np.sqrt(cn)
-                    for jj in range(na):
-                        j = rows[jj]
-                        acc = 0.0
-                        for t in range(k):
-                            acc += A[j, t] * cand[t]
-                        if acc > b[j] + CANDIDATE_TOLERANCE * (1.0 + abs(b[j]) + rnorm[jj] * (1.0 + cn)):
-                            ok = False
-                            break
-                    if ok:  # a KKT point: the optimum
-                        for t in range(k):
-                            v_out[t] = cand[t]
-                        return STATUS_SOLVED
-            # next combination
-            x = size - 1
-            while x >= 0 and idx[x] == na - size + x:
-                x -= 1
-            if x < 0:
-                break
-            idx[x] += 1
-            for z in range(x + 1, size):
-                idx[z] = idx[z - 1] + 1
+                return -1
+    return na
+
+
+@njit(**_JIT, forceinline=True)
+def _kkt_point(v0, A, b, k, na, size, rows, idx, G, r, lam, cand, L, y, rnorm):
+    """Project v0 onto the rows ``rows[idx[:size]]`` held with equality (into ``cand``): whether the projection
+    is a KKT point, its multipliers non-negative and every one of the ``na`` rows met within the candidate's
+    tolerance (then it is the optimum)."""
+    for x in range(size):
+        jx = rows[idx[x]]
+        acc = 0.0
+        for t in range(k):
+            acc += A[jx, t] * v0[t]
+        r[x] = acc - b[jx]
+        for z in range(size):
+            jz = rows[idx[z]]
+            acc = 0.0
+            for t in range(k):
+                acc += A[jx, t] * A[jz, t]
+            G[x, z] = acc
+    if not _spd_solve(G, r, lam, size, L, y):
+        return False
+    lmax = 0.0
+    for x in range(size):
+        lmax = max(lmax, abs(lam[x]))
+    for x in range(size):
+        if lam[x] < -ROW_TOLERANCE * (1.0 + lmax):
+            return False
     for t in range(k):
-        v_out[t] = 0.0
-    return STATUS_FALLBACK
+        acc = v0[t]
+        for x in range(size):
+            acc -= A[rows[idx[x]], t] * lam[x]
+        cand[t] = acc
+    cn = 0.0
+    for t in range(k):
+        cn += cand[t] * cand[t]
+    cn = np.sqrt(cn)
+    for jj in range(na):
+        j = rows[jj]
+        acc = 0.0
+        for t in range(k):
+            acc += A[j, t] * cand[t]
+        if acc > b[j] + CANDIDATE_TOLERANCE * (1.0 + abs(b[j]) + rnorm[jj] * (1.0 + cn)):
+            return False
+    return True
 
 
 @njit(**_JIT)

@@ -4,13 +4,11 @@ the store back to the arms. Each is inlined into the kernel by numba."""
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 from numba import njit
 
 from ._numba_ext import _JIT
-from .capsules import CAP_ACTIVE, _joints, whole_arm_rows
+from .capsules import CAP_ACTIVE, _joints, whole_arm_clearance_lanes, whole_arm_rows
 from .last_resort import least_violation
 from .physics import (
     _acceleration_lanes,
@@ -36,118 +34,9 @@ from .qp import (
 # so LLVM sees one function and keeps the stack arrays in registers; as separate compiled functions a
 # new kind's first compilation took a quarter to a half longer, measured). Each takes the arrays it
 # reads and writes by name, the lanes their last axis; scratch that travels together comes as one of the
-# named groups below (numba inlines no call of more than 30 arguments: CPython passes those as *args), its
+# named groups of .scratch (numba inlines no call of more than 30 arguments: CPython passes those as *args), its
 # heap arrays unreferenced by the kernel (_borrowed). A step tests ``whole is not None`` only on the kernel's
 # own argument: numba prunes the untaken branch of an inlined step on an argument's None type, not on a local.
-
-
-class Dynamics(NamedTuple):
-    """The terms at a state, per lane (:func:`pan1_env.kernels.physics._mass_lanes`)."""
-    M: np.ndarray
-    R: np.ndarray
-    Sn: np.ndarray
-    Mc: np.ndarray
-    Hc: np.ndarray
-    qd: np.ndarray
-    thd: np.ndarray
-    H: np.ndarray
-
-
-class PassiveJoint(NamedTuple):
-    """Per lane: a PAn−1 arm's passive momentum p₁ (state) and the first joint's damping b (docs/MODEL.md §7)."""
-    p1: np.ndarray
-    damping: np.ndarray
-
-
-class AccelerationSolve(NamedTuple):
-    """The solve for the accelerations (:func:`pan1_env.kernels.physics._acceleration_lanes`)."""
-    rhs: np.ndarray
-    Lc: np.ndarray
-    yc: np.ndarray
-    ok: np.ndarray
-
-
-class Rk4Stages(NamedTuple):
-    """RK4's trial state, stage derivative and weighted sums (:func:`_rk4`)."""
-    qt: np.ndarray
-    vt: np.ndarray
-    dv: np.ndarray
-    sq: np.ndarray
-    sv: np.ndarray
-    pt: np.ndarray
-    sp: np.ndarray
-
-
-class Tracker(NamedTuple):
-    """The tracker's terms the filters look ahead with: torque mode, K_e, dt, the lanes' actuated velocities v,
-    their last v* and whether it is set."""
-    torque_mode: bool
-    ke: float
-    dt: float
-    v: np.ndarray
-    v_prev: np.ndarray
-    has_prev: np.ndarray
-
-
-class QpSearch(NamedTuple):
-    """One lane's full QP search (:func:`pan1_env.kernels.qp._project_one`): its rows, the target and answer."""
-    Arows: np.ndarray
-    brows: np.ndarray
-    active: np.ndarray
-    qrows: np.ndarray
-    qviol: np.ndarray
-    qnorm: np.ndarray
-    qidx: np.ndarray
-    qv0: np.ndarray
-    qvs: np.ndarray
-    qG: np.ndarray
-    qL: np.ndarray
-    qr: np.ndarray
-    qlam: np.ndarray
-    qcand: np.ndarray
-    qy: np.ndarray
-    qtarget: np.ndarray
-
-
-class EndEffectorScratch(NamedTuple):
-    """The end-effector filter's Jacobians, rows and lane-batched first candidate (:func:`_filter_end_effector`)."""
-    J: np.ndarray
-    Jbar: np.ndarray
-    drift: np.ndarray
-    filtered: np.ndarray
-    row_A: np.ndarray
-    row_b: np.ndarray
-    row_h: np.ndarray
-    row_norm: np.ndarray
-    row_act: np.ndarray
-    obst_rows: np.ndarray
-    needs_qp: np.ndarray
-    q_best: np.ndarray
-    q_best_viol: np.ndarray
-    q_Ab: np.ndarray
-    q_bb: np.ndarray
-    q_cand: np.ndarray
-    q_found: np.ndarray
-
-
-class WholeArmScratch(NamedTuple):
-    """One lane's whole-arm rows (bodies × capsules, speed bounds), its joints, and the lanes' joints and nearest
-    obstacle (:func:`_filter_whole_arm`)."""
-    wA: np.ndarray
-    wb: np.ndarray
-    wact: np.ndarray
-    wP: np.ndarray
-    wnear: np.ndarray
-    wrows: np.ndarray
-    wviol: np.ndarray
-    wnorm: np.ndarray
-    wb0: np.ndarray
-    wn0: np.ndarray
-    joints_x: np.ndarray
-    joints_y: np.ndarray
-    ox: np.ndarray
-    oy: np.ndarray
-    orad: np.ndarray
 
 
 @njit(**_JIT, inline="always")
@@ -635,3 +524,20 @@ def _store_state(n, k, W, passive, whole, scratch, q, momentum, qd_out, p_out, a
                 for a in range(joints_out.shape[1]):
                     joints_out[i, a, 0] = wP[min(a, n), 0]
                     joints_out[i, a, 1] = wP[min(a, n), 1]
+
+
+@njit(**_JIT, inline="always")
+def _clearance_after(time, n, W, O, whole, scratch, arm, live, ln, bx, by, c, s, px, py, obstacles, arm_clear):
+    """Running minimum into ``arm_clear`` of each live lane's clearance at the state its sub-step reached, ``time``
+    into the step (a stopped lane keeps its value): the end effector's to the filter's obstacles, and with
+    ``whole`` the bodies' to the world's obstacles."""
+    _position_lanes(ln, bx, by, c, s, n, W, px, py)
+    for j in range(O):
+        for w in range(W):
+            dx, dy = px[w] - obstacles[0, j, w], py[w] - obstacles[1, j, w]
+            cl = np.sqrt(dx * dx + dy * dy) - obstacles[2, j, w]
+            arm_clear[w] = cl if live[w] and cl < arm_clear[w] else arm_clear[w]
+    if whole is not None:
+        whole_arm_clearance_lanes(arm, live, n, W, whole.link_bodies, whole.link_radius, ln, bx, by, c, s, whole.caps,
+                                  whole.n_world, whole.start_time, time, scratch.joints_x, scratch.joints_y,
+                                  scratch.ox, scratch.oy, scratch.orad, arm_clear)

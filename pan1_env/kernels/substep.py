@@ -14,9 +14,10 @@ operations on each value and their order are the same, so are the results, bit f
 fast-math flag lets LLVM round differently: ``_JIT``).
 
 The arms go W at a time (the last group padded with copies of the last arm, never written
-back). Each group's parameters and state are copied into stack arrays (:func:`_local`) with the
-lanes as their last axis, advanced through the sub-steps there and written back: the hot loop
-makes no array view and, but for the obstacles and the filter's rows, touches no heap scratch.
+back). Each group's parameters and state are copied into stack arrays (:func:`_local`, made by
+:mod:`.scratch`'s inlined functions) with the lanes as their last axis, advanced through the
+sub-steps there and written back: the hot loop makes no array view and, but for the obstacles and
+the filter's rows, touches no heap scratch.
 Dynamics, tracker, RK4 and the safety filter's rows run on all lanes at once, and so does the QP
 as far as one active row settles it (:func:`_first_projection_lanes`, many filtered sub-steps);
 the lanes it does not settle get the full active-set search one by one (:func:`_project_one`).
@@ -56,17 +57,17 @@ from ..kernel_groups import (
     plain,
 )
 from ._numba_ext import _JIT, _LANES, _borrowed, _check_chunks, _keep_alive, _local, _quick_when, _slp_vectorised
-from .capsules import NEAR_COLUMNS, most_rows, whole_arm_clearance_lanes
-from .physics import _position_lanes
-from .steps import (
-    AccelerationSolve,
-    Dynamics,
-    EndEffectorScratch,
-    PassiveJoint,
-    QpSearch,
-    Rk4Stages,
+from .scratch import (
     Tracker,
-    WholeArmScratch,
+    dynamics_scratch,
+    end_effector_scratch,
+    lane_arms_scratch,
+    qp_search_scratch,
+    rk4_scratch,
+    whole_arm_scratch,
+)
+from .steps import (
+    _clearance_after,
     _desired_velocity,
     _filter_end_effector,
     _filter_whole_arm,
@@ -106,25 +107,15 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, model_, state_
     passive = k < n  # a compile-time constant in the per-kind kernel (the argument, checked by callers, agrees)
     kk = max(k, 1)
     O = radii.shape[1]
-    m = O + 2 * k
     inv_dt = 1.0 / dt  # divisions by dt as products (_JIT leaves arcp off, so LLVM keeps divisions)
-    # Scratch space in this function's stack frame (shapes from the size tuples, so fixed at compile
-    # time), the lanes last. Only what depends on the number of obstacles lives on the heap.
+    # Scratch space in this function's stack frame (.scratch), the lanes last: the lanes' arms, parameters, state
+    arm, real, lm, ln, qi, vi, vp, bx, by, ph, pj = lane_arms_scratch(links, actuated, lanes)
     f8, b1 = np.float64, np.bool_
     lw, nw, kw = (lanes,), (links, lanes), (actuated, lanes)
-    nnw, kkw, kx, kkx = (links, links, lanes), (actuated, actuated, lanes), (actuated,), (actuated, actuated)
-    # the lanes' arms, parameters and state
-    arm, real = _local(lw, np.int64), _local(lw, b1)
-    lm, ln, qi, vi, vp = _local(nnw, f8), _local(nw, f8), _local(nw, f8), _local(kw, f8), _local(kw, f8)
-    bx, by, ph = _local(lw, f8), _local(lw, f8), _local(lw, f8)
-    pj = PassiveJoint(_local(lw, f8), _local(lw, f8))  # a PAn−1 arm's passive momentum p₁ and damping b
-    # kinematics and dynamics at a state
-    c, s, qd, thd, H = _local(nw, f8), _local(nw, f8), _local(nw, f8), _local(nw, f8), _local(nw, f8)
-    c0, s0, px, py = _local(nw, f8), _local(nw, f8), _local(lw, f8), _local(lw, f8)
-    M, R, Sn, J = _local(nnw, f8), _local(nnw, f8), _local(nnw, f8), _local(((0, 0), links, lanes), f8)
-    Mc, Hc, Jbar = _local(kkw, f8), _local(kw, f8), _local(((0, 0), actuated, lanes), f8)
-    drift = _local(((0, 0), lanes), f8)  # the end-effector's drift J₁ p₁ / M_11
-    Lc, yc, rhs, ok = _local(kkw, f8), _local(kw, f8), _local(kw, f8), _local(lw, b1)
+    # kinematics at a state (the link angles' cosines and sines, at the sub-step's start too), and the dynamics
+    c, s, c0, s0, px, py = _local(nw, f8), _local(nw, f8), _local(nw, f8), _local(nw, f8), _local(lw, f8), \
+        _local(lw, f8)
+    dyn, chol = dynamics_scratch(links, actuated, lanes)
     # command, filter and tracker, per lane; the outputs of each lane's last sub-step (kept when it stops)
     vdes, vs, tau, acc = _local(kw, f8), _local(kw, f8), _local(kw, f8), _local(kw, f8)
     use_filter, prev_ok, live, status = _local(lw, b1), _local(lw, b1), _local(lw, b1), _local(lw, np.int64)
@@ -132,55 +123,21 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, model_, state_
     w_lo, w_hi, alive = _local(lw, np.int64), _local(lw, np.int64), _local(lw, b1)
     arm_clear, arm_h, arm_track = _local(lw, f8), _local(lw, f8), _local(lw, f8)
     vs_last, tau_last, counts = _local(kw, f8), _local(kw, f8), _local(((0, 0, 0), lanes), np.int64)
-    # the filter of every lane: its obstacles (centre x, y, radius), active rows, RCBF rows (A_j, b_j,
-    # ‖A_j‖), one row at a time, and the first candidate (_first_projection_lanes)
+    # every lane's obstacles (centre x, y, radius) and active rows; the filters' scratch (the full search with room
+    # for torque mode's input bound, 2k rows more); the groups' heap arrays unreferenced (_borrowed), kept alive to
+    # the end (_keep_alive below)
     obstacles, lane_active = np.empty((3, O, W)), np.empty((O, W), dtype=np.bool_)
-    obst_rows = np.empty((O, k + 2, W))
-    row_A, row_b, row_h, row_norm = _local(kw, f8), _local(lw, f8), _local(lw, f8), _local(lw, f8)
-    row_act, filtered, needs_qp = _local(lw, b1), _local(lw, b1), _local(lw, b1)
-    q_best, q_best_viol, q_found = _local(lw, np.int64), _local(lw, f8), _local(lw, b1)
-    q_Ab, q_bb, q_cand = _local(kw, f8), _local(lw, f8), _local(kw, f8)
-    # one lane's full QP search (_project_one), with room for torque mode's input bound (2k rows more)
-    mt = m + 2 * k
-    Arows, brows, active = np.zeros((mt, kk)), np.zeros(mt), np.zeros(mt, dtype=np.bool_)
-    qrows, qviol, qnorm, qidx = np.empty(mt, dtype=np.int64), np.empty(mt), np.empty(mt), _local(kx, np.int64)
-    qv0, qvs, qtarget = _local(kx, f8), _local(kx, f8), _local(kx, f8)
-    qG, qL, qr, qlam, qcand, qy = _local(kkx, f8), _local(kkx, f8), _local(kx, f8), _local(kx, f8), _local(kx, f8), \
-        _local(kx, f8)
-    # RK4: trial state, stage derivative, weighted sums
-    qt, vt, dv, sq, sv = _local(nw, f8), _local(kw, f8), _local(kw, f8), _local(nw, f8), _local(kw, f8)
-    pt, sp = _local(lw, f8), _local(lw, f8)
-    dyn, chol = Dynamics(M, R, Sn, Mc, Hc, qd, thd, H), AccelerationSolve(rhs, Lc, yc, ok)
-    stages = Rk4Stages(qt, vt, dv, sq, sv, pt, sp)
-    # the groups' heap arrays unreferenced (_borrowed), kept alive to the end (_keep_alive below)
-    ee = _borrowed(EndEffectorScratch(J, Jbar, drift, filtered, row_A, row_b, row_h, row_norm, row_act, obst_rows,
-                                      needs_qp, q_best, q_best_viol, q_Ab, q_bb, q_cand, q_found))
-    search = _borrowed(QpSearch(Arows, brows, active, qrows, qviol, qnorm, qidx, qv0, qvs, qG, qL, qr, qlam, qcand, qy,
-                                qtarget))
+    ee_owned = end_effector_scratch(links, actuated, lanes, O, k)
+    search_owned = qp_search_scratch(actuated, O + 4 * k, kk, O, k, v_max)
+    ee, search = _borrowed(ee_owned), _borrowed(search_owned)
+    stages = rk4_scratch(links, actuated, lanes)
     tracker = Tracker(torque_mode, ke, dt, vi, vp, prev_ok)  # the tracker's terms the filters look ahead with
-    if whole is not None:  # whole-arm scratch: one lane's rows (bodies × capsules, speed bounds) and joints
-        caps, start_time, n_world = whole.caps, whole.start_time, whole.n_world
-        rho, link_bodies = whole.link_radius, whole.link_bodies
-        jw = (links + (0,), lanes)  # joints: n + 1 per lane
-        joints_x, joints_y = _local(jw, f8), _local(jw, f8)
-        ox, oy, orad = _local(lw, f8), _local(lw, f8), _local(lw, f8)
-        m_whole = most_rows(n if link_bodies else 1, caps.shape[1], n_world, k)
-        wA, wb, wact = np.zeros((m_whole, kk)), np.zeros(m_whole), np.zeros(m_whole, dtype=np.bool_)
-        wrows, wviol, wnorm, wP = np.empty(m_whole, dtype=np.int64), np.empty(m_whole), np.empty(m_whole), \
-            np.empty((n + 1, 2))
-        wb0, wn0, wnear = np.empty(m_whole), np.empty(m_whole), np.empty((caps.shape[1], NEAR_COLUMNS))
-        owned = WholeArmScratch(wA, wb, wact, wP, wnear, wrows, wviol, wnorm, wb0, wn0, joints_x, joints_y, ox, oy,
-                                orad)
+    if whole is not None:
+        owned = whole_arm_scratch(whole, links, lanes, n, k, kk)
         scratch = _borrowed(owned)
     else:  # no whole-arm scratch: the steps read it only where the kernel's own `whole` is not None
         owned = None
         scratch = None
-    if v_max < np.inf:
-        for t in range(k):  # the full search's speed bounds ±v_t ≤ v_max, the same in every lane
-            for row, sign in ((O + 2 * t, 1.0), (O + 2 * t + 1, -1.0)):
-                Arows[row, t] = sign
-                brows[row] = v_max
-                active[row] = True
     for first in range(lo, hi, W):
         _load_arms(first, hi, rows, n, k, W, lam, lengths, base, phi, q, v, v_prev, whole, arm, real, counts, lm, ln,
                    qi, vi, vp, bx, by, ph, vs_last, tau_last, c, s)
@@ -205,7 +162,7 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, model_, state_
                 _filter_end_effector(n, k, W, passive, sizes, lane_qp, rcbf, v_max, real, ln, bx, by, c, s, dyn, pj,
                                      px, py, obstacles, lane_active, use_filter, live, vdes, vs, status, arm_h, ee,
                                      search, tracker)
-            _track(k, W, torque_mode, ke, inv_dt, vi, vp, Mc, Hc, use_filter, live, prev_ok, status, counts,
+            _track(k, W, torque_mode, ke, inv_dt, vi, vp, dyn.Mc, dyn.Hc, use_filter, live, prev_ok, status, counts,
                    arm_track, vs, acc, tau, vs_last, tau_last)
             _rk4(n, k, W, passive, dt, finite_out, arm, real, live, lm, qi, vi, pj, tau, c, s, c0, s0, dyn, chol,
                  stages)
@@ -213,23 +170,15 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, model_, state_
             for w in range(W):
                 alive[w] = live[w] if w_lo[w] <= sub < w_hi[w] else alive[w]
                 later = later or (alive[w] and sub + 1 < w_hi[w])
-            # clearance after the sub-step (a stopped lane keeps its value)
-            _position_lanes(ln, bx, by, c, s, n, W, px, py)
-            for j in range(O):
-                for w in range(W):
-                    dx, dy = px[w] - obstacles[0, j, w], py[w] - obstacles[1, j, w]
-                    cl = np.sqrt(dx * dx + dy * dy) - obstacles[2, j, w]
-                    arm_clear[w] = cl if live[w] and cl < arm_clear[w] else arm_clear[w]
-            if whole is not None:  # the bodies' clearance to the world's obstacles
-                whole_arm_clearance_lanes(arm, live, n, W, link_bodies, rho, ln, bx, by, c, s, caps, n_world,
-                                          start_time, (sub + 1) * dt, joints_x, joints_y, ox, oy, orad, arm_clear)
+            _clearance_after((sub + 1) * dt, n, W, O, whole, scratch, arm, live, ln, bx, by, c, s, px, py, obstacles,
+                             arm_clear)
             if not later:
                 break
         _store_outputs(k, W, arm, real, has_prev, prev_ok, qp_counts, counts, min_clear, arm_clear, min_h, arm_h,
                        max_track, arm_track, v_star_out, vs_last, tau_out, tau_last, v, vi, v_prev, vp)
         _store_state(n, k, W, passive, whole, scratch, q, momentum, qd_out, p_out, arm, real, live, ph, lm, ln, bx, by,
                      qi, vi, pj, c, s, dyn, px, py)
-    _keep_alive((obstacles, lane_active, obst_rows, Arows, brows, active, qrows, qviol, qnorm, owned))
+    _keep_alive((obstacles, lane_active, ee_owned, search_owned, owned))
 
 
 _ADVANCE_DOC = """Advance every arm of a group by ``n_sub`` physics steps with a held command (in place).
