@@ -9,8 +9,11 @@ group (arms with the same number of links n and actuation, k actuated joints) so
 costs a handful of calls whatever the team size.
 
 The package is split by job: :mod:`.physics` (the building blocks of dynamics and kinematics),
-:mod:`.qp` (the filter's QP), :mod:`.substep` (the sub-step kernel), :mod:`.observe` (observations and
-small helpers), :mod:`.outcome` (the tasks' per-step numbers) and :mod:`._numba_ext` (numba plumbing).
+:mod:`.qp` (the filter's QP) and :mod:`.last_resort` (its answer when the QP has none), :mod:`.capsules`
+(whole-arm geometry and rows) and :mod:`.team_geometry` (its passes over a team between kernel calls),
+:mod:`.substep` (the sub-step kernel), :mod:`.steps` and :mod:`.scratch` (its steps and scratch space, inlined
+into it), :mod:`.specialise` (which kernel an arm kind steps with), :mod:`.observe` (observations and small
+helpers), :mod:`.outcome` (the tasks' per-step numbers) and :mod:`._numba_ext` (numba plumbing).
 
 The sub-step kernel advances the arms W at a time, one arm per lane of arrays whose last axis is
 the lanes, so that LLVM's SLP vectoriser (switched on for these kernels only:

@@ -45,7 +45,10 @@ def _local(typingctx, shape, dtype):
     fixed at compile time; with the loops over it unrolled, LLVM promotes the array's entries to
     registers, which heap scratch arrays (that may alias any other array) do not allow. The array is
     valid until the calling function returns and must not be returned or stored: use it only for
-    scratch space inside one kernel. (Numba has no public stack array: numba issues #2108, #5084.)"""
+    scratch space inside one kernel. The one exception is a function numba inlines into the kernel
+    (``inline="always"``, an inlining of numba's own IR before typing: :mod:`.scratch`), whose
+    ``alloca`` is then the kernel's and whose arrays it may return to the kernel. (Numba has no
+    public stack array: numba issues #2108, #5084.)"""
     if not (isinstance(shape, types.BaseTuple) and all(isinstance(t, types.BaseTuple) for t in shape.types)
             and isinstance(dtype, (types.NumberClass, types.DType))):
         return None

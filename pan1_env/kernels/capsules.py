@@ -304,8 +304,12 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
     path it covers in the next T s (:func:`_capsule_ahead`; inf: its whole path), and gives each link two rows
     per stretch, at the closest pair and at the link's other end (docs/MODEL.md §5b).
 
-    ``faults`` = (b, g, p₀): the first joint's damping b, which turns on the fault margin (:func:`_pair_rows`), and
-    for a fully actuated arm its momentum at the sub-step's end p₁ = g M₀ v + p₀.
+    ``faults`` = (b, g, p₀): the first joint's damping b (passive or once passive; 0: no margin) and, for a fully
+    actuated arm, its momentum at the sub-step's end p₁ = g M₀ v + p₀ (the tracker's; g = 1, p₀ = 0: v itself).
+    b > 0 turns on the fault margin against the world's obstacles (distance barrier; docs/MODEL.md §5c), with
+    c = reach / b: a PAn−1 arm's pairs keep h ≥ c |p₁| (:func:`_pair_rows`); a fully actuated arm keeps c |p₁|
+    within its smallest clearance (:func:`_momentum_rows`), so that if its first joint's actuator is lost it starts
+    with h ≥ c |p₁|.
 
     Only pairs that are close get a row: clearance d − r − ρ at most ``sensing`` plus twice what the
     gap can close in the sub-step ``dt`` (no point of the arm moves faster than its reach times
@@ -365,7 +369,7 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
                 m, h_min = _pair_rows(m, h_min, near, x, ell, sp if links else 1.0, rx, ry, gap, within,
                                       passive and c_fault > 0.0 and world, n, k, w, passive, lengths, c, s, M,
                                       (kappa, epsilon, margin, distance, decay),
-                                      (damping, c_fault, p1, arm_reach, drift_speed), gate, v_max, cull, (A, b, active))
+                                      (damping, c_fault, p1, arm_reach, drift_speed), gate, v_max, cull, A, b, active)
     if c_fault > 0.0 and not passive:
         m = _momentum_rows(m, k, w, c_fault, gain, offset, h_fault, reach_speed * dt, margin, cull, v_max, M, A, b,
                            active)
@@ -395,22 +399,17 @@ def _reach_speed(n, k, w, passive, lengths, qd, M, p1, v0, v_max):
 
 @njit(**_JIT, forceinline=True)
 def _pair_rows(m, h_min, near, x, ell, tau, rx, ry, gap, within, two_sided, n, k, w, passive, lengths, c, s, M,
-               barrier, fault, gate, v_max, cull, rows):
+               barrier, fault, gate, v_max, cull, A, b, active):
     """The RCBF rows of one close pair of a body and a capsule (row x of :func:`_near_capsules`' table
-    ``near``), gap vector (rx, ry) at the body's point τ, from row m of ``rows`` = (A, b, active): returns (rows
+    ``near``), gap vector (rx, ry) at the body's point τ, into ``A``, ``b``, ``active`` from row m: returns (rows
     written, smallest barrier h). ``barrier`` = (κ, ε, margin, distance, decay) and the speed box are
     :func:`whole_arm_rows`'; ``fault`` = (b, c, p₁, reach, p₁ / M₀₀).
 
-    The fault margin against the world's obstacles (distance barrier; docs/MODEL.md §5c) uses the first joint's
-    damping b (``faults`` of :func:`whole_arm_rows`, passive or once passive; 0: no margin) as c = reach / b
-    (``c_fault``). A PAn−1 arm's world pair (``two_sided``) keeps two rows in place of one, for h − c p₁ ≥ 0 and
-    h + c p₁ ≥ 0 (h ≥ c |p₁|), each gaining ±reach M₀a / M₀₀ and its b the rate ±reach p₁ / M₀₀, with κ at least
-    b / M₀₀. A fully actuated arm keeps instead c |g M₀ v + p₀|, its first joint's momentum at the sub-step's end
-    (the tracker's; g = 1, p₀ = 0: v itself), within its smallest clearance (:func:`_momentum_rows`), so that if
-    that joint's actuator is lost it starts with h ≥ c |p₁|."""
+    The fault margin (c = reach / b = ``c_fault`` > 0, b the first joint's damping): a PAn−1 arm's world pair
+    (``two_sided``) keeps two rows in place of one, for h − c p₁ ≥ 0 and h + c p₁ ≥ 0 (h ≥ c |p₁|), each gaining
+    ±reach M₀a / M₀₀ and its b the rate ±reach p₁ / M₀₀, with κ at least b / M₀₀."""
     kappa, epsilon, margin, distance, decay = barrier
     damping, c_fault, p1, arm_reach, drift_speed = fault
-    A, b, active = rows
     d2x, d2y = near[x, 2], near[x, 3]
     # a damped passive arm's world pairs (the fault margin) keep both h − c p₁ ≥ 0 and h + c p₁ ≥ 0,
     # i.e. h ≥ c |p₁|, each a smooth barrier, with κ at least b / M₀₀ so that braking meets both

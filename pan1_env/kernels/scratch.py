@@ -1,10 +1,12 @@
 """The sub-step kernel's scratch space (:func:`pan1_env.kernels.substep._advance_arms`): the named groups its steps
 (:mod:`.steps`) take, and their allocation.
 
-Each ``*_scratch`` function is inlined into the kernel by numba (``inline="always"``), so the arrays it makes with
+Each ``_*_scratch`` function is inlined into the kernel by numba (``inline="always"``), so the arrays it makes with
 :func:`._numba_ext._local` are stack arrays of the kernel's own frame (shapes from the size tuples ``links``,
-``actuated``, ``lanes``, so fixed at compile time, the lanes last); only what depends on the number of obstacles
-or capsules is on the heap. The kernel passes the groups holding heap arrays to its steps unreferenced
+``actuated``, ``lanes``, so fixed at compile time, the lanes last): call them only from a function they are inlined
+into, never from Python or a function compiled on its own, where those arrays would not outlive the call. The arrays
+whose size is not fixed at compile time (by the number of obstacles, capsules, filter rows or links) are on the
+heap. The kernel passes the groups holding heap arrays to its steps unreferenced
 (:func:`._numba_ext._borrowed`) and keeps the originals alive to its end."""
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from numba import njit
 from ._numba_ext import _JIT, _local
 from .capsules import NEAR_COLUMNS, most_rows
 
-f8, b1, i8 = np.float64, np.bool_, np.int64
+f8, b1, i8 = np.float64, np.bool_, np.int64  # the scratch arrays' dtypes
 
 
 class Dynamics(NamedTuple):
@@ -47,7 +49,7 @@ class AccelerationSolve(NamedTuple):
 
 
 class Rk4Stages(NamedTuple):
-    """RK4's trial state, stage derivative and weighted sums (:func:`_rk4`)."""
+    """RK4's trial state, stage derivative and weighted sums (:func:`.steps._rk4`)."""
     qt: np.ndarray
     vt: np.ndarray
     dv: np.ndarray
@@ -89,7 +91,8 @@ class QpSearch(NamedTuple):
 
 
 class EndEffectorScratch(NamedTuple):
-    """The end-effector filter's Jacobians, rows and lane-batched first candidate (:func:`_filter_end_effector`)."""
+    """The end-effector filter's Jacobians, rows and lane-batched first candidate
+    (:func:`.steps._filter_end_effector`)."""
     J: np.ndarray
     Jbar: np.ndarray
     drift: np.ndarray
@@ -111,7 +114,7 @@ class EndEffectorScratch(NamedTuple):
 
 class WholeArmScratch(NamedTuple):
     """One lane's whole-arm rows (bodies × capsules, speed bounds), its joints, and the lanes' joints and nearest
-    obstacle (:func:`_filter_whole_arm`)."""
+    obstacle (:func:`.steps._filter_whole_arm`)."""
     wA: np.ndarray
     wb: np.ndarray
     wact: np.ndarray
@@ -130,7 +133,7 @@ class WholeArmScratch(NamedTuple):
 
 
 @njit(**_JIT, inline="always")
-def lane_arms_scratch(links, actuated, lanes):
+def _lane_arms_scratch(links, actuated, lanes):
     """The lanes' arms, parameters and state, in this order: the arm's index, whether the lane is real (not
     padding), its λ (n × n), link lengths, q, v, last v*, base x, y and angle φ, and its passive joint."""
     lw, nw, kw = (lanes,), (links, lanes), (actuated, lanes)
@@ -140,7 +143,7 @@ def lane_arms_scratch(links, actuated, lanes):
 
 
 @njit(**_JIT, inline="always")
-def dynamics_scratch(links, actuated, lanes):
+def _dynamics_scratch(links, actuated, lanes):
     """The terms at a state and the solve for the accelerations, per lane."""
     nw, kw, nnw, kkw = (links, lanes), (actuated, lanes), (links, links, lanes), (actuated, actuated, lanes)
     dyn = Dynamics(_local(nnw, f8), _local(nnw, f8), _local(nnw, f8), _local(kkw, f8), _local(kw, f8), _local(nw, f8),
@@ -149,7 +152,7 @@ def dynamics_scratch(links, actuated, lanes):
 
 
 @njit(**_JIT, inline="always")
-def rk4_scratch(links, actuated, lanes):
+def _rk4_scratch(links, actuated, lanes):
     """RK4's trial state, stage derivative and weighted sums, per lane."""
     lw, nw, kw = (lanes,), (links, lanes), (actuated, lanes)
     return Rk4Stages(_local(nw, f8), _local(kw, f8), _local(kw, f8), _local(nw, f8), _local(kw, f8), _local(lw, f8),
@@ -157,7 +160,7 @@ def rk4_scratch(links, actuated, lanes):
 
 
 @njit(**_JIT, inline="always")
-def end_effector_scratch(links, actuated, lanes, obstacles, k):
+def _end_effector_scratch(links, actuated, lanes, obstacles, k):
     """The end-effector filter's Jacobians, rows (one obstacle's row per lane at a time; every obstacle's on the
     heap) and lane-batched first candidate."""
     lw, kw = (lanes,), (actuated, lanes)
@@ -169,7 +172,7 @@ def end_effector_scratch(links, actuated, lanes, obstacles, k):
 
 
 @njit(**_JIT, inline="always")
-def qp_search_scratch(actuated, rows, kk, obstacles, k, v_max):
+def _qp_search_scratch(actuated, rows, kk, obstacles, k, v_max):
     """One lane's full QP search over ``rows`` rows of ``kk`` columns (on the heap). With a finite ``v_max`` the
     rows after the ``obstacles`` rows are the speed bounds ±v_t ≤ v_max, set here once: the same in every lane."""
     kx, kkx = (actuated,), (actuated, actuated)
@@ -186,7 +189,7 @@ def qp_search_scratch(actuated, rows, kk, obstacles, k, v_max):
 
 
 @njit(**_JIT, inline="always")
-def whole_arm_scratch(whole, links, lanes, n, k, kk):
+def _whole_arm_scratch(whole, links, lanes, n, k, kk):
     """One lane's whole-arm rows (bodies × capsules, speed bounds; on the heap), and the lanes' joints (n + 1 per
     lane) and nearest obstacle."""
     lw, jw = (lanes,), (links + (0,), lanes)

@@ -1,6 +1,6 @@
 """The steps of the sub-step kernel (:func:`pan1_env.kernels.substep._advance_arms`) on W lanes:
-load the lanes' arms and filter inputs, the velocity to filter, the two filters, the tracker, RK4, and
-the store back to the arms. Each is inlined into the kernel by numba."""
+load the lanes' arms and filter inputs, the velocity to filter, the two filters, the tracker, RK4, the
+clearance at the state reached, and the store back to the arms. Each is inlined into the kernel by numba."""
 
 from __future__ import annotations
 
@@ -468,6 +468,23 @@ def _rk4(n, k, W, passive, dt, finite_out, arm, real, live, lm, qi, vi, pj, tau,
 
 
 @njit(**_JIT, inline="always")
+def _clearance_after(time, n, W, O, whole, scratch, arm, live, ln, bx, by, c, s, px, py, obstacles, arm_clear):
+    """Running minimum into ``arm_clear`` of each live lane's clearance at the state its sub-step reached, ``time``
+    after the call's start (a stopped lane keeps its value): the end effector's to the filter's obstacles, and with
+    ``whole`` the bodies' to the world's obstacles at each arm's clock ``whole.start_time`` + ``time``."""
+    _position_lanes(ln, bx, by, c, s, n, W, px, py)
+    for j in range(O):
+        for w in range(W):
+            dx, dy = px[w] - obstacles[0, j, w], py[w] - obstacles[1, j, w]
+            cl = np.sqrt(dx * dx + dy * dy) - obstacles[2, j, w]
+            arm_clear[w] = cl if live[w] and cl < arm_clear[w] else arm_clear[w]
+    if whole is not None:
+        whole_arm_clearance_lanes(arm, live, n, W, whole.link_bodies, whole.link_radius, ln, bx, by, c, s, whole.caps,
+                                  whole.n_world, whole.start_time, time, scratch.joints_x, scratch.joints_y,
+                                  scratch.ox, scratch.oy, scratch.orad, arm_clear)
+
+
+@njit(**_JIT, inline="always")
 def _store_outputs(k, W, arm, real, has_prev, prev_ok, qp_counts, counts, min_clear, arm_clear, min_h, arm_h,
                    max_track, arm_track, v_star_out, vs_last, tau_out, tau_last, v, vi, v_prev, vp):
     """The real lanes' running outputs, velocities and last commands back to their arms."""
@@ -524,20 +541,3 @@ def _store_state(n, k, W, passive, whole, scratch, q, momentum, qd_out, p_out, a
                 for a in range(joints_out.shape[1]):
                     joints_out[i, a, 0] = wP[min(a, n), 0]
                     joints_out[i, a, 1] = wP[min(a, n), 1]
-
-
-@njit(**_JIT, inline="always")
-def _clearance_after(time, n, W, O, whole, scratch, arm, live, ln, bx, by, c, s, px, py, obstacles, arm_clear):
-    """Running minimum into ``arm_clear`` of each live lane's clearance at the state its sub-step reached, ``time``
-    into the step (a stopped lane keeps its value): the end effector's to the filter's obstacles, and with
-    ``whole`` the bodies' to the world's obstacles."""
-    _position_lanes(ln, bx, by, c, s, n, W, px, py)
-    for j in range(O):
-        for w in range(W):
-            dx, dy = px[w] - obstacles[0, j, w], py[w] - obstacles[1, j, w]
-            cl = np.sqrt(dx * dx + dy * dy) - obstacles[2, j, w]
-            arm_clear[w] = cl if live[w] and cl < arm_clear[w] else arm_clear[w]
-    if whole is not None:
-        whole_arm_clearance_lanes(arm, live, n, W, whole.link_bodies, whole.link_radius, ln, bx, by, c, s, whole.caps,
-                                  whole.n_world, whole.start_time, time, scratch.joints_x, scratch.joints_y,
-                                  scratch.ox, scratch.oy, scratch.orad, arm_clear)

@@ -59,12 +59,14 @@ from ..kernel_groups import (
 from ._numba_ext import _JIT, _LANES, _borrowed, _check_chunks, _keep_alive, _local, _quick_when, _slp_vectorised
 from .scratch import (
     Tracker,
-    dynamics_scratch,
-    end_effector_scratch,
-    lane_arms_scratch,
-    qp_search_scratch,
-    rk4_scratch,
-    whole_arm_scratch,
+    _dynamics_scratch,
+    _end_effector_scratch,
+    _lane_arms_scratch,
+    _qp_search_scratch,
+    _rk4_scratch,
+    _whole_arm_scratch,
+    b1,
+    f8,
 )
 from .steps import (
     _clearance_after,
@@ -109,13 +111,12 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, model_, state_
     O = radii.shape[1]
     inv_dt = 1.0 / dt  # divisions by dt as products (_JIT leaves arcp off, so LLVM keeps divisions)
     # Scratch space in this function's stack frame (.scratch), the lanes last: the lanes' arms, parameters, state
-    arm, real, lm, ln, qi, vi, vp, bx, by, ph, pj = lane_arms_scratch(links, actuated, lanes)
-    f8, b1 = np.float64, np.bool_
+    arm, real, lm, ln, qi, vi, vp, bx, by, ph, pj = _lane_arms_scratch(links, actuated, lanes)
     lw, nw, kw = (lanes,), (links, lanes), (actuated, lanes)
     # kinematics at a state (the link angles' cosines and sines, at the sub-step's start too), and the dynamics
     c, s, c0, s0, px, py = _local(nw, f8), _local(nw, f8), _local(nw, f8), _local(nw, f8), _local(lw, f8), \
         _local(lw, f8)
-    dyn, chol = dynamics_scratch(links, actuated, lanes)
+    dyn, chol = _dynamics_scratch(links, actuated, lanes)
     # command, filter and tracker, per lane; the outputs of each lane's last sub-step (kept when it stops)
     vdes, vs, tau, acc = _local(kw, f8), _local(kw, f8), _local(kw, f8), _local(kw, f8)
     use_filter, prev_ok, live, status = _local(lw, b1), _local(lw, b1), _local(lw, b1), _local(lw, np.int64)
@@ -123,17 +124,18 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, model_, state_
     w_lo, w_hi, alive = _local(lw, np.int64), _local(lw, np.int64), _local(lw, b1)
     arm_clear, arm_h, arm_track = _local(lw, f8), _local(lw, f8), _local(lw, f8)
     vs_last, tau_last, counts = _local(kw, f8), _local(kw, f8), _local(((0, 0, 0), lanes), np.int64)
-    # every lane's obstacles (centre x, y, radius) and active rows; the filters' scratch (the full search with room
-    # for torque mode's input bound, 2k rows more); the groups' heap arrays unreferenced (_borrowed), kept alive to
-    # the end (_keep_alive below)
+    # every lane's obstacles (centre x, y, radius) and active rows; the filters' scratch (the end effector's
+    # Jacobians, its drift J₁ p₁ / M_11 and rows; the full search's rows: O obstacles, 2k speed bounds and 2k for
+    # torque mode's input bound); the groups' heap arrays unreferenced (_borrowed), kept alive to the end
+    # (_keep_alive below)
     obstacles, lane_active = np.empty((3, O, W)), np.empty((O, W), dtype=np.bool_)
-    ee_owned = end_effector_scratch(links, actuated, lanes, O, k)
-    search_owned = qp_search_scratch(actuated, O + 4 * k, kk, O, k, v_max)
+    ee_owned = _end_effector_scratch(links, actuated, lanes, O, k)
+    search_owned = _qp_search_scratch(actuated, O + 4 * k, kk, O, k, v_max)
     ee, search = _borrowed(ee_owned), _borrowed(search_owned)
-    stages = rk4_scratch(links, actuated, lanes)
+    stages = _rk4_scratch(links, actuated, lanes)
     tracker = Tracker(torque_mode, ke, dt, vi, vp, prev_ok)  # the tracker's terms the filters look ahead with
     if whole is not None:
-        owned = whole_arm_scratch(whole, links, lanes, n, k, kk)
+        owned = _whole_arm_scratch(whole, links, lanes, n, k, kk)
         scratch = _borrowed(owned)
     else:  # no whole-arm scratch: the steps read it only where the kernel's own `whole` is not None
         owned = None
