@@ -428,6 +428,7 @@ SHIPPED_TASKS = {"random_formation": "pan1_env/RandomFormation-v0",
                  "random_formation_v1_ippo": "pan1_env/RandomFormation-v1",
                  "moving_formation_v1_ippo": "pan1_env/MovingFormation-v1",
                  "whole_arm_formation_v2_ippo": "pan1_env/WholeArmFormation-v2",
+                 "whole_arm_static_formation_v1_mappo": "pan1_env/WholeArmStaticFormation-v1",
                  "fault_formation_v1_ippo": "pan1_env/FaultFormation-v1",
                  "paper_pa3_square_ippo": "pan1_env/PaperPA3Square-v0",
                  "paper_pa_mixed_square_ippo": "pan1_env/PaperMixedPA-v0",
@@ -454,7 +455,7 @@ def test_each_shipped_model_is_picked_for_its_task_and_runs_there(name) -> None:
     scenario, kwargs = env_arguments(SHIPPED_TASKS[name], {"max_steps": 4})
     env = SafetyShield(parallel_env(scenario, **kwargs))  # velocity mode: the residual models' adapter
     decentralised = bool(shipped.available()[name]["param_sharing"])
-    assert decentralised == ("_ippo" in name)
+    assert decentralised == name.endswith(("_ippo", "_mappo", "_ippo_sizes"))  # the name says how it was trained
     assert shipped.model_for(env, decentralised) == name
     assert shipped.describe(shipped.available()[name]) == SHIPPED_TASKS[name]
     policy = make_policy("marl" if decentralised else "pretrained", env)
@@ -467,8 +468,10 @@ def test_each_shipped_model_is_picked_for_its_task_and_runs_there(name) -> None:
     provenance = shipped.available()[name]["provenance"]
     args = _parser().parse_args(shlex.split(provenance["command"])[1:])  # the command that made it parses back
     run = provenance["run"]
-    assert (args.scenario, args.seed, args.timesteps, args.env_kwargs, args.algo_kwargs, args.team_sizes) == \
-        (run["scenario"], run["seed"], run["timesteps"], run["env_kwargs"], run["algo_kwargs"], run.get("team_sizes"))
+    parsed = (args.scenario, args.seed, args.timesteps, args.env_kwargs, args.algo_kwargs, args.team_sizes,
+              args.centralised_critic)
+    assert parsed == (run["scenario"], run["seed"], run["timesteps"], run["env_kwargs"], run["algo_kwargs"],
+                      run.get("team_sizes"), run.get("centralised_critic", False))
 
 
 @pytest.mark.parametrize("n_arms", [16, 32])
