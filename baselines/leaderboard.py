@@ -84,6 +84,11 @@ class Entry:
         return "model.json" if self.trainer == "benchmarl" else "model.zip"
 
 
+# the paper's squares have one start each: rollouts of the whole 2,000-step episode on 8 copies, explored with gSDE
+# (state-dependent noise held for the episode), the recipe that learned there (docs/LEARNING_STUDIES.md)
+_GSDE = {**_PPO, "use_sde": True, "sde_sample_freq": -1, "policy_kwargs": {"log_std_init": -2.0}}
+_PAPER_TASKS = ("pan1_env/PaperPA3Square-v0", "pan1_env/PaperMixedPA-v0")
+
 # one network for any team size is judged on these; a recipe of one team size trains on none of them
 _SIZE_TASKS = ("pan1_env/RandomFormation-v2", "pan1_env/LargeFormation-v0")
 _ONE_SIZE_TASKS = tuple(t.env_id for t in SUITE if t.env_id not in _SIZE_TASKS)
@@ -105,6 +110,9 @@ ENTRIES = (
           tasks=_ONE_SIZE_TASKS),
     Entry("ippo-unshielded", "IPPO without the shield and without a cost",
           recipe={"algo": "ppo", "shield": False, **_SHARED}, tasks=_ONE_SIZE_TASKS),
+    Entry("ippo-gsde", "IPPO behind the shield on the paper's squares, each one start: whole-episode rollouts on 8 "
+                       "copies explored with gSDE", recipe={"algo": "ppo", "shield": True, **_SHARED, "n_envs": 8,
+                                                             "algo_kwargs": _GSDE}, tasks=_PAPER_TASKS),
     # BenchMARL's own Experiment, on one task: its MAPPO with the SB3 entries' batch, epochs, discount and
     # initial spread (BenchMARL's MLP, no observation normalisation)
     Entry("benchmarl-mappo", "BenchMARL's MAPPO through its own Experiment, behind the shield: one actor shared by "
