@@ -130,7 +130,8 @@ def _within_cost(row: dict[str, Any], goal: dict[str, Any]) -> bool:
 
 def targets_table(data: dict[str, Any], rows: Sequence[dict[str, Any]]) -> str:
     """Per task, its target, the learners (entries with a recipe) that reach it, and the learner that forms the most
-    of its teams at no more than the target's cost."""
+    of its teams at no more than the target's cost (of those that form as many: one that reaches the target, then the
+    lowest time ratio)."""
     learners = {e["name"] for e in data["entries"] if e.get("recipe")}
     lines = ["| task | target | reached by | the learner forming the most teams within the cost: success [%], time ÷ "
              "the law's |", "|---|---|---|---|"]
@@ -141,7 +142,9 @@ def targets_table(data: dict[str, Any], rows: Sequence[dict[str, Any]]) -> str:
         ours = [r for r in mine if r["entry"] in learners]
         reached = [r["entry"] for r in ours if meets(r, goal, law)]
         within = [r for r in ours if _within_cost(r, goal)]
-        best = max(within, key=lambda r: r["success"][0], default=None)
+        # the most teams; among equals the one that reaches the target, then the faster
+        best = max(within, key=lambda r: (r["success"][0], r["entry"] in reached,
+                                          -(r["time_ratio"] or [np.inf])[0]), default=None)
         nearest = "–" if best is None else (f"{best['entry']}: {_cell(best['success'], 100)}, "
                                             f"{_cell(best['time_ratio'], fmt='{:.2f}')}")
         lines.append(f"| {task['name']} | {task['target']} | {', '.join(reached) or 'none yet'} | {nearest} |")

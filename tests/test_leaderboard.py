@@ -287,3 +287,20 @@ def test_every_suite_task_has_a_goal_the_page_checks() -> None:
 
     assert all(isinstance(task.goal, Target) and task.goal != Target(cost=None) for task in SUITE)
     assert "## Targets" in (DOCS / "BENCHMARK.md").read_text()
+
+
+def test_the_targets_nearest_learner_among_equals_is_the_one_that_reaches_the_target() -> None:
+    """Two learners form every team; the one within the time target is named, whichever is listed first."""
+    from pan1_env.baselines.leaderboard_table import targets_table
+
+    task = {"name": "square", "env_id": RANDOM, "target": "time ≤ 0.25×",
+            "goal": {"success": None, "vs_law": None, "time_ratio": 0.25, "cost": 0.0}}
+    rows = [{"env_id": RANDOM, "entry": "law", "success": (1.0, 1.0, 1.0), "time_ratio": None, "cost": (0, 0, 0)},
+            {"env_id": RANDOM, "entry": "slow", "success": (1.0, 1.0, 1.0), "time_ratio": (0.9, 0.7, 1.1),
+             "cost": (0, 0, 0)},
+            {"env_id": RANDOM, "entry": "fast", "success": (1.0, 1.0, 1.0), "time_ratio": (0.2, 0.1, 0.3),
+             "cost": (0, 0, 0)}]
+    learner = {"algo": "ppo"}
+    entries = [{"name": "law"}, {"name": "slow", "recipe": learner}, {"name": "fast", "recipe": learner}]
+    line = targets_table({"tasks": [task], "entries": entries}, rows).splitlines()[-1]
+    assert line.split("|")[3].strip() == "fast" and line.split("|")[4].strip().startswith("fast:")
