@@ -152,14 +152,16 @@ class FormationCore:
         (zeros beyond its links) and end-effector, then every obstacle's centre (where it is now) and radius, then
         for a moving formation (the target moves: a critic needs it) the desired lengths now and every arm's
         feed-forward ṗ_ff."""
-        engine, B = self.engine, self.copies
-        q, qd = engine.joint_state(pad=0.0)
-        arms = np.concatenate([q, qd, engine.positions()], axis=-1)
-        joints = arms[..., : 2 * q.shape[-1]]
-        joints[np.isnan(joints)] = 0.0  # a non-finite arm's state reads 0 (its end-effector stays as it is)
-        obstacles = np.concatenate([engine.centers, engine.radii[..., None]], axis=-1)
-        out = np.concatenate([arms.reshape(B, -1), obstacles.reshape(B, -1), self.task.target_state(engine)], axis=1)
-        return np.clip(out, -OBS_BOUND, OBS_BOUND, out=out).astype(np.float32)
+        engine, B, N = self.engine, self.copies, len(self.agents)
+        out = np.empty((B, self.state_size), dtype=np.float32)
+        arms = N * (2 * engine.n_max + 2)
+        out[:, :arms] = 0.0  # the padding beyond an arm's links
+        for kind in engine.kinds:  # each arm's q, q̇ (NaN read 0: a non-finite arm's), p, clipped
+            kernels().kind_state(kind.q, kind.qd, kind.p, kind.stepped, kind.ids, kind.A, engine.n_max, OBS_BOUND, out)
+        kernels().obstacle_state(engine.centers, engine.radii, arms, OBS_BOUND, out)
+        if self.task.target_size:
+            out[:, arms + 3 * engine.radii.shape[1]:] = np.clip(self.task.target_state(engine), -OBS_BOUND, OBS_BOUND)
+        return out
 
     def copy_observations(self, mats: list[np.ndarray], b: int = 0) -> list[np.ndarray]:
         """Copy b's observation of every agent, in agent order (views of ``mats``): what a one-copy view returns."""

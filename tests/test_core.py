@@ -345,3 +345,39 @@ def test_the_team_mean_of_a_few_arms_is_numpys_bit_for_bit() -> None:
     for row in rows:
         expected = float(np.add.reduce(np.asarray(row))) / len(row)
         assert np.float64(team_mean(row)).tobytes() == np.float64(expected).tobytes(), row
+
+
+def _numpy_state(core: FormationCore) -> np.ndarray:
+    """The centralised state written with numpy alone: the twin of the compiled :meth:`FormationCore.state`."""
+    from pan1_env.observation import OBS_BOUND
+
+    engine, B = core.engine, core.copies
+    q, qd = engine.joint_state(pad=0.0)
+    arms = np.concatenate([q, qd, engine.positions()], axis=-1)
+    joints = arms[..., : 2 * q.shape[-1]]
+    joints[np.isnan(joints)] = 0.0
+    obstacles = np.concatenate([engine.centers, engine.radii[..., None]], axis=-1)
+    out = np.concatenate([arms.reshape(B, -1), obstacles.reshape(B, -1), core.task.target_state(engine)], axis=1)
+    return np.clip(out, -OBS_BOUND, OBS_BOUND, out=out).astype(np.float32)
+
+
+@pytest.mark.parametrize("env_id", ["pan1_env/RandomFormation-v1", "pan1_env/FaultFormation-v1",
+                                    "pan1_env/MovingFormation-v1", "pan1_env/WholeArmFormation-v2"])
+def test_the_compiled_state_is_its_numpy_twins_bit_for_bit(env_id: str) -> None:
+    """Mixed kinds out of team order, arms handed to their faulted twins, a moving target, moving obstacles, and a
+    non-finite arm (its angles and speeds read 0, its end-effector NaN)."""
+    core = FormationCore(FormationConfig(env_id, safety_filter=True), 4)
+    core.seed(3)
+    core.reset()
+    rng = np.random.default_rng(0)
+    for step in range(40):
+        out = core.step(rng.uniform(-1, 1, (4, len(core.agents), core.k_max)), autoreset=True)
+        if step % 10 == 9:
+            np.testing.assert_array_equal(core.state(), _numpy_state(core))
+    if "Fault" in env_id:
+        assert core.engine.faulted.any() or out.infos["actuator_lost"].any()
+    kind = core.engine.kinds[-1]
+    row = int(kind.stepped[0])
+    kind.q[row, 0], kind.qd[row, -1], kind.p[row, 0] = np.nan, np.nan, np.nan
+    kind.q[row, -1], kind.p[row, 1] = 3e6, -4e6  # clipped
+    np.testing.assert_array_equal(core.state(), _numpy_state(core))

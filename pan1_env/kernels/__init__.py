@@ -35,6 +35,8 @@ from .observe import (
     formation_observations,
     group_observations,
     group_observations_parallel,
+    kind_state,
+    obstacle_state,
     reach_observations,
     scale_command,
 )
@@ -56,6 +58,8 @@ __all__ = [
     "group_end_effectors",
     "group_observations",
     "group_observations_parallel",
+    "kind_state",
+    "obstacle_state",
     "qp_project",
     "compiled_projection",
     "scale_command",

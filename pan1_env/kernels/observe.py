@@ -154,6 +154,45 @@ def edge_length_errors(P, edges, distances, out):
             out[b, e] = np.sqrt(dx * dx + dy * dy) - distances[b, e]
 
 
+@njit(**_JIT, inline="always")
+def _clipped(x, bound):
+    """``x`` clipped to ±``bound`` as numpy's clip does it (NaN passes through)."""
+    if x < -bound:
+        return -bound
+    if x > bound:
+        return bound
+    return x
+
+
+@njit(**_JIT)
+def kind_state(q, qd, p, rows, ids, A, n_max, bound, out):
+    """A kind's part of the team's centralised state (:meth:`pan1_env.core.FormationCore.state`), written to
+    ``out (B, S)`` (float32): for each of its ``rows`` (copy ``row // A``, arm ``ids[row % A]``) the arm's block
+    ``[q, q̇, p]`` at column arm · (2 n_max + 2), its n angles and speeds from columns 0 and n_max of the block (NaN
+    reads 0; the padding up to n_max is the caller's) and its end-effector at 2 n_max, each clipped
+    to ±``bound``."""
+    n = q.shape[1]
+    for r in rows:
+        b = r // A
+        c = ids[r % A] * (2 * n_max + 2)
+        for j in range(n):
+            out[b, c + j] = 0.0 if np.isnan(q[r, j]) else _clipped(q[r, j], bound)
+            out[b, c + n_max + j] = 0.0 if np.isnan(qd[r, j]) else _clipped(qd[r, j], bound)
+        out[b, c + 2 * n_max] = _clipped(p[r, 0], bound)
+        out[b, c + 2 * n_max + 1] = _clipped(p[r, 1], bound)
+
+
+@njit(**_JIT)
+def obstacle_state(centers, radii, col, bound, out):
+    """The obstacles' part of the team's centralised state: each obstacle's centre ``centers (B, O, 2)`` and radius
+    ``radii (B, O)`` at ``out[b, col + 3j:]`` (float32), clipped to ±``bound``."""
+    for b in range(radii.shape[0]):
+        for j in range(radii.shape[1]):
+            out[b, col + 3 * j] = _clipped(centers[b, j, 0], bound)
+            out[b, col + 3 * j + 1] = _clipped(centers[b, j, 1], bound)
+            out[b, col + 3 * j + 2] = _clipped(radii[b, j], bound)
+
+
 @njit(**_JIT)
 def reach_observations(q, qd, p, base, goal, centers, radii, K, inv_vmax, bound, out):
     """Observations of A one-arm reaching tasks, written to ``out (A, 3n + 4 + 5K)`` (float32):
