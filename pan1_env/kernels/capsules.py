@@ -374,7 +374,7 @@ def whole_arm_rows(i, w, n, k, passive, links, rho, sensing, gate, skin, dt, len
         m = _momentum_rows(m, k, w, c_fault, gain, offset, h_fault, reach_speed * dt, margin, cull, v_max, M, A, b,
                            active)
     if cull:
-        m = _speed_box_rows(m, k, v_max, A, b, active)
+        m = speed_box_rows(m, k, v_max, A, b, active)
     return m, h_min
 
 
@@ -456,7 +456,7 @@ def _pair_rows(m, h_min, near, x, ell, tau, rx, ry, gap, within, two_sided, n, k
 
 
 @njit(**_JIT, forceinline=True)
-def _speed_box_rows(m, k, v_max, A, b, active):
+def speed_box_rows(m, k, v_max, A, b, active):
     """The speed box ±v_t ≤ ``v_max`` as 2k rows from row m: returns the rows written."""
     for t0 in range(k):
         for sign in (1.0, -1.0):

@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 
 from ._numba_ext import _JIT, _local
-from .capsules import NEAR_COLUMNS, most_rows
+from .capsules import NEAR_COLUMNS, most_rows, speed_box_rows
 
 f8, b1, i8 = np.float64, np.bool_, np.int64  # the scratch arrays' dtypes
 
@@ -172,29 +172,27 @@ def _end_effector_scratch(links, actuated, lanes, obstacles, k):
 
 
 @njit(**_JIT, inline="always")
-def _qp_search_scratch(actuated, rows, kk, obstacles, k, v_max):
-    """One lane's full QP search over ``rows`` rows of ``kk`` columns (on the heap). With a finite ``v_max`` the
-    rows after the ``obstacles`` rows are the speed bounds ±v_t ≤ v_max, set here once: the same in every lane."""
+def _qp_search_scratch(actuated, obstacles, k, v_max):
+    """One lane's full QP search (on the heap): rows for the ``obstacles``, then 2k speed bounds and 2k for torque
+    mode's input bound, of max(k, 1) columns. With a finite ``v_max`` the speed bounds ±v_t ≤ v_max are set here
+    once: the same in every lane."""
     kx, kkx = (actuated,), (actuated, actuated)
-    search = QpSearch(np.zeros((rows, kk)), np.zeros(rows), np.zeros(rows, dtype=b1), np.empty(rows, dtype=i8),
+    rows = obstacles + 4 * k
+    search = QpSearch(np.zeros((rows, max(k, 1))), np.zeros(rows), np.zeros(rows, dtype=b1), np.empty(rows, dtype=i8),
                       np.empty(rows), np.empty(rows), _local(kx, i8), _local(kx, f8), _local(kx, f8), _local(kkx, f8),
                       _local(kkx, f8), _local(kx, f8), _local(kx, f8), _local(kx, f8), _local(kx, f8), _local(kx, f8))
     if v_max < np.inf:
-        for t in range(k):
-            for row, sign in ((obstacles + 2 * t, 1.0), (obstacles + 2 * t + 1, -1.0)):
-                search.Arows[row, t] = sign
-                search.brows[row] = v_max
-                search.active[row] = True
+        speed_box_rows(obstacles, k, v_max, search.Arows, search.brows, search.active)
     return search
 
 
 @njit(**_JIT, inline="always")
-def _whole_arm_scratch(whole, links, lanes, n, k, kk):
+def _whole_arm_scratch(whole, links, lanes, n, k):
     """One lane's whole-arm rows (bodies × capsules, speed bounds; on the heap), and the lanes' joints (n + 1 per
     lane) and nearest obstacle."""
     lw, jw = (lanes,), (links + (0,), lanes)
     rows = most_rows(n if whole.link_bodies else 1, whole.caps.shape[1], whole.n_world, k)
-    return WholeArmScratch(np.zeros((rows, kk)), np.zeros(rows), np.zeros(rows, dtype=b1), np.empty((n + 1, 2)),
+    return WholeArmScratch(np.zeros((rows, max(k, 1))), np.zeros(rows), np.zeros(rows, dtype=b1), np.empty((n + 1, 2)),
                            np.empty((whole.caps.shape[1], NEAR_COLUMNS)), np.empty(rows, dtype=i8), np.empty(rows),
                            np.empty(rows), np.empty(rows), np.empty(rows), _local(jw, f8), _local(jw, f8),
                            _local(lw, f8), _local(lw, f8), _local(lw, f8))

@@ -107,7 +107,6 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, model_, state_
         n, k = sizes
     W = len(lanes)
     passive = k < n  # a compile-time constant in the per-kind kernel (the argument, checked by callers, agrees)
-    kk = max(k, 1)
     O = radii.shape[1]
     inv_dt = 1.0 / dt  # divisions by dt as products (_JIT leaves arcp off, so LLVM keeps divisions)
     # Scratch space in this function's stack frame (.scratch), the lanes last: the lanes' arms, parameters, state
@@ -130,12 +129,12 @@ def _advance_arms(links, actuated, lanes, sizes, lane_qp, lo, hi, model_, state_
     # (_keep_alive below)
     obstacles, lane_active = np.empty((3, O, W)), np.empty((O, W), dtype=np.bool_)
     ee_owned = _end_effector_scratch(links, actuated, lanes, O, k)
-    search_owned = _qp_search_scratch(actuated, O + 4 * k, kk, O, k, v_max)
+    search_owned = _qp_search_scratch(actuated, O, k, v_max)
     ee, search = _borrowed(ee_owned), _borrowed(search_owned)
     stages = _rk4_scratch(links, actuated, lanes)
     tracker = Tracker(torque_mode, ke, dt, vi, vp, prev_ok)  # the tracker's terms the filters look ahead with
     if whole is not None:
-        owned = _whole_arm_scratch(whole, links, lanes, n, k, kk)
+        owned = _whole_arm_scratch(whole, links, lanes, n, k)
         scratch = _borrowed(owned)
     else:  # no whole-arm scratch: the steps read it only where the kernel's own `whole` is not None
         owned = None
