@@ -3,8 +3,8 @@
 The sub-step kernel is specialised for each arm kind (number of links n, number of actuated joints k):
 the first use of a kind compiles it (11–15 s and a few hundred MB on a quiet 2-core machine, 16–31 s
 on a busy one) and numba caches the result on disk, so later processes load it instead. Until a kind's
-own kernel is compiled, the engine steps it with the generic kernel (one compilation, about 7 s, for
-every kind; the same results, slower) and compiles the kind's own in a background process
+own kernel is compiled, the engine steps it with the generic kernel (one compilation, about 16 s, 29 s with
+whole-arm safety, for every kind; the same results, slower) and compiles the kind's own in a background process
 (:mod:`pan1_env.kernels.specialise`, which says so when it asks for one), which finishes and caches it
 even if the process that asked has ended. :func:`install` listens to
 numba's compile events (``numba.core.event``, which fire only for a real compilation, not for a cache
@@ -127,8 +127,9 @@ class _KernelCompileNotice(numba_event.Listener):
         self._started[id(event.data["dispatcher"])] = time.perf_counter()
         twice = "whole-arm safety" in kind
         if kind.startswith("all"):
-            notify(f"compiling the generic sub-step kernel ({kind}): once, about {14 if twice else 7} s on a "
-                   f"2-core machine; "
+            # measured 16 s (end-effector) and 29 s (whole-arm) at a load average below 1
+            notify(f"compiling the generic sub-step kernel ({kind}): once, about {30 if twice else 15} s on a "
+                   f"quiet 2-core machine; "
                    f"cached in {cache} for later runs. It steps new arm kinds at once, 3-4x slower than "
                    f"their own kernels, which compile in the background")
         else:

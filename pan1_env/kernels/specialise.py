@@ -4,8 +4,8 @@ per-kind kernel meanwhile and leaves it in the disk cache, even if the process t
 
 A per-kind kernel (:func:`~pan1_env.kernels.group_advance`) takes 11–15 s to compile on a quiet
 2-core machine (load average below 1), 16–31 s on a busy one, for every new arm kind; the generic
-kernel (:func:`~pan1_env.kernels.group_advance_generic`) about 7 s once for all kinds of up to
-:data:`GENERIC_MAX_LINKS` links, and it gives the same results bit for bit (tests/test_kernels.py),
+kernel (:func:`~pan1_env.kernels.group_advance_generic`) about 16 s (29 s with whole-arm safety) once for all
+kinds of up to :data:`GENERIC_MAX_LINKS` links, and it gives the same results bit for bit (tests/test_kernels.py),
 3–4× slower per arm-sub-step. So the first step of a team of new kinds costs one compilation instead
 of one per kind, and a long run gets the per-kind speed as soon as the background compilation has put
 the kernel into the disk cache (:func:`specialised_ready` says so on the step after; the switch
