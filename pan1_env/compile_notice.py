@@ -113,7 +113,7 @@ class _KernelCompileNotice(numba_event.Listener):
         func = getattr(event.data.get("dispatcher"), "py_func", None)
         if getattr(func, "__name__", "") != "draw_teams" or getattr(func, "__module__", "") != "pan1_env.draw_kernel":
             return False
-        notify(f"compiling the random-team draw: once, about 15 s on a quiet 2-core machine, longer on a busy one; "
+        notify(f"compiling the random-team draw: once, about 7 s on a 2-core machine, longer on a busy one; "
                f"cached in {_cache_dir(event.data['dispatcher'])} for later runs")
         return True
 
@@ -127,9 +127,9 @@ class _KernelCompileNotice(numba_event.Listener):
         self._started[id(event.data["dispatcher"])] = time.perf_counter()
         twice = "whole-arm safety" in kind
         if kind.startswith("all"):
-            # measured 16 s (end-effector) and 29 s (whole-arm) at a load average below 1
-            notify(f"compiling the generic sub-step kernel ({kind}): once, about {30 if twice else 15} s on a "
-                   f"quiet 2-core machine; "
+            # measured 16 s (end-effector) and 28.5 s (whole-arm) beside two training runs at nice 15
+            notify(f"compiling the generic sub-step kernel ({kind}): once, about {29 if twice else 16} s on a "
+                   f"2-core machine; "
                    f"cached in {cache} for later runs. It steps new arm kinds at once, 3-4x slower than "
                    f"their own kernels, which compile in the background")
         else:

@@ -82,6 +82,7 @@ def _step_teams(teams: list[tuple[str, str, dict[str, Any]]], threaded: bool, sa
         env = parallel_env(scenario, **kwargs)
         env.reset(seed=0)
         env.step({agent: np.zeros(env.action_space(agent).shape, np.float32) for agent in env.agents})
+        env.state()  # the centralised critics' state (TorchRL, MAPPO): its own two small kernels
         env.close()
         for threads in (False, True) if threaded else (False,):
             venv = Pan1VectorEnv(scenario, num_envs=1, threads=threads, **kwargs)
