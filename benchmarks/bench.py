@@ -12,6 +12,8 @@ Prints a Markdown table of medians (each over several repeats) and the ratios th
 * the vector env (:class:`pan1_env.vector.Pan1VectorEnv`, shielded) at B = 1, 64, 1024, 16384:
   arm-steps per second (one arm advanced one env step = 5 physics sub-steps, each with its QP) and
   physics arm-steps per second, against B separate shielded Gymnasium envs stepped in a loop;
+* the vector env's step at B = 1024 against the engine's step alone, its kernel calls (benchmarks/kernel_bound.py):
+  the env's rate as a share of the kernel-bound rate, on the paper's team and on random teams;
 * whole-arm safety (link capsules, other arms, moving obstacles) against end-effector safety, per
   arm-sub-step of the shielded vector env at B = 1024 on the same random teams;
 * random-team resets (RandomFormation-v1, WholeArmStaticFormation-v1) at B = 1024, in steps of the same batch
@@ -43,7 +45,8 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from reset import bench_reset  # benchmarks/ is the script's directory
+from kernel_bound import bench_kernel_bound  # benchmarks/ is the script's directory
+from reset import bench_reset
 from sizes import bench_sizes
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # compile_times.py is a script beside this one
@@ -610,8 +613,8 @@ def bench_marl(repeats: int, B: int = 1024) -> list[tuple[str, float, str]]:
 
 
 #: the groups of rows, in the order they run (``--only`` picks some)
-GROUPS = ("import", "cold_start", "warmup", "mpe", "acrobot", "vector", "kernel", "v1", "faults", "moving", "gate",
-          "whole_arm", "reset", "qp", "team_scaling", "sizes", "marl", "reproduce", "training")
+GROUPS = ("import", "cold_start", "warmup", "mpe", "acrobot", "vector", "bound", "kernel", "v1", "faults", "moving",
+          "gate", "whole_arm", "reset", "qp", "team_scaling", "sizes", "marl", "reproduce", "training")
 
 
 def main() -> int:
@@ -635,6 +638,7 @@ def main() -> int:
         "mpe": lambda: bench_env_vs_mpe(repeats, inner),
         "acrobot": lambda: bench_one_arm_vs_acrobot(repeats, inner),
         "vector": lambda: bench_vector(repeats, (1, 64, 1024) if args.quick else (1, 64, 1024, 16384)),
+        "bound": lambda: bench_kernel_bound(repeats if args.quick else 15),
         "kernel": lambda: bench_kernel(repeats),
         "v1": lambda: bench_v1(repeats),
         "faults": lambda: bench_faults(repeats),
