@@ -364,8 +364,10 @@ class FormationCore:
             rule = _team_rule(key)
             if rule == "flat":
                 out[key] = value.reshape(self.copies, -1)[:, self._columns]
+            elif rule is None:
+                out[key] = value
             else:
-                out[key] = value if rule is None else getattr(value, rule)(axis=1)
+                out[key] = _over_arms(rule, value)
         return out
 
     def team_info(self, infos: dict[str, np.ndarray], b: int = 0) -> dict[str, Any]:
@@ -437,6 +439,23 @@ class FormationCore:
 _TEAM_RULES = {"cost": "sum", "qp_counts": "sum", "min_clearance": "min", "shield_min_barrier": "min",
                "shield_intervened": "any", "shield_fallback": "any", "shield_status": "max", "shield_applied": "flat",
                "actuator_lost": "sum"}
+
+
+def _over_arms(rule: str, value: np.ndarray) -> np.ndarray:
+    """numpy's ``value.<rule>(axis=1)``, bit for bit: in one compiled pass (kernels/outcome.py) for fewer than 8
+    arms (numpy sums pairwise from 8) and integer counts, else numpy's own (a smallest value that is NaN too)."""
+    if value.shape[1] >= 8 or value.ndim > 3 or (value.ndim == 3 and (rule != "sum" or value.dtype != np.int64)):
+        return getattr(value, rule)(axis=1)
+    if value.ndim == 3:
+        out = np.empty((len(value), value.shape[2]), dtype=np.int64)
+        kernels().arms_sum_columns(value, out)
+        return out
+    dtype = np.float64 if rule == "mean" else (np.int64 if value.dtype == bool and rule == "sum" else value.dtype)
+    out = np.empty(len(value), dtype=dtype)
+    if rule == "min":
+        return out if kernels().arms_min(value, out) else value.min(axis=1)
+    getattr(kernels(), "arms_" + rule)(value, out)
+    return out
 
 
 def copy_generator(seed: int, copy: int) -> np.random.Generator:

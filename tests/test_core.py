@@ -152,6 +152,36 @@ def test_team_infos_aggregate_the_arms_as_the_reward_does() -> None:
             np.testing.assert_array_equal(value, team[key][b], err_msg=key)
 
 
+@pytest.mark.parametrize("arms", [2, 3, 7, 9])
+def test_team_infos_are_numpys_reductions_bit_for_bit(arms: int) -> None:
+    """The compiled team aggregates (below 8 arms) and numpy's (from 8) give numpy's bytes: per-arm infos of faulted
+    random teams with -0.0, NaN of either sign, infinities and magnitudes that round, in arrays and strided views."""
+    config = FormationConfig("pan1_env/FaultFormation-v1", random_options={"n_arms": arms}, safety_filter=True,
+                             effort_weight=0.1)
+    core = FormationCore(config, 16)
+    core.seed(0)
+    core.reset()
+    out = core.step(np.random.default_rng(0).uniform(-1, 1, (16, arms, core.k_max)))
+    rng = np.random.default_rng(arms)
+    infos = {}
+    for key, value in out.infos.items():
+        if value.dtype == np.float64 and value.ndim == 2:
+            value = value * 10.0 ** rng.integers(-12, 12, value.shape)
+            for odd in (-0.0, 0.0, np.nan, -np.nan, np.inf, -np.inf):
+                value[rng.random(value.shape) < 0.08] = odd
+            wide = np.repeat(value, 2, axis=1)  # a strided view of the same values
+            value = wide[:, ::2] if key.startswith("reward_") else value
+        infos[key] = value
+    team = core.team_infos(infos)
+    rules = {"cost": "sum", "actuator_lost": "sum", "shield_intervened": "any", "shield_fallback": "any",
+             "shield_status": "max", "min_clearance": "min", "shield_min_barrier": "min", "qp_counts": "sum"}
+    for key, value in infos.items():
+        rule = rules.get(key, "mean" if key.startswith("reward_") else None)
+        if rule is not None:
+            expected = getattr(value, rule)(axis=1)
+            assert team[key].dtype == expected.dtype and team[key].tobytes() == expected.tobytes(), key
+
+
 @pytest.mark.parametrize("mode", ["velocity", "torque", "residual", "gain"])
 def test_shield_report_is_flat_and_in_action_units(mode: str) -> None:
     config = FormationConfig("paper_pa_mixed_square", safety_filter=True, action_mode=mode, max_joint_speed=2.0,

@@ -40,7 +40,17 @@ from .observe import (
     reach_observations,
     scale_command,
 )
-from .outcome import formation_outcome, reach_outcome, shield_report
+from .outcome import (
+    arms_any,
+    arms_max,
+    arms_mean,
+    arms_min,
+    arms_sum,
+    arms_sum_columns,
+    formation_outcome,
+    reach_outcome,
+    shield_report,
+)
 from .physics import group_end_effectors, group_terms
 from .qp import STATUS_FALLBACK, STATUS_NOMINAL, STATUS_SOLVED, compiled_projection, qp_project
 from .substep import GENERIC_MAX_LINKS, group_advance, group_advance_generic, group_advance_parallel
@@ -69,6 +79,12 @@ __all__ = [
     "reach_observations",
     "reach_outcome",
     "shield_report",
+    "arms_sum",
+    "arms_mean",
+    "arms_max",
+    "arms_any",
+    "arms_min",
+    "arms_sum_columns",
 ]
 
 compile_notice.install()  # a first use of an arm kind compiles for tens of seconds: say so

@@ -80,3 +80,79 @@ def shield_report(counts, source, columns, padding, faulted, inv_unit, intervene
                     applied[b, i, j] = 0.0
                 else:
                     applied[b, i, j] = np.float32(source[b, i, columns[i, j]]) * np.float32(inv_unit)
+
+
+# The team views' aggregates of per-arm infos (pan1_env.core.FormationCore.team_infos): each copy's row of a (B, N)
+# array reduced over its N arms, numpy's reductions over axis 1 bit for bit below 8 arms (a sum adds one value after
+# another from 0, as numpy's does there; from 8 arms numpy sums pairwise, and the core calls numpy).
+
+
+@njit(**_JIT)
+def arms_sum(values, out):
+    """``out[b] = Σ_i values[b, i]`` (bools count as 1)."""
+    for b in range(values.shape[0]):
+        total = 0  # an integer for bools, 0.0 for floats (numba unifies the type)
+        for i in range(values.shape[1]):
+            total += values[b, i]
+        out[b] = total
+
+
+@njit(**_JIT)
+def arms_sum_columns(values, out):
+    """``out[b, j] = Σ_i values[b, i, j]`` for integer counts (the QP statuses): exact in any order."""
+    for b in range(values.shape[0]):
+        for j in range(values.shape[2]):
+            total = 0
+            for i in range(values.shape[1]):
+                total += values[b, i, j]
+            out[b, j] = total
+
+
+@njit(**_JIT)
+def arms_min(values, out):
+    """``out[b]`` = the smallest of ``values[b]`` by numpy's rule for numbers (of equal values, such as 0 and −0, the
+    later); returns False, leaving ``out`` to the caller, if some value is NaN: which NaN numpy's minimum returns
+    depends on its vector code."""
+    for b in range(values.shape[0]):
+        least = values[b, 0]
+        if least != least:
+            return False
+        for i in range(1, values.shape[1]):
+            x = values[b, i]
+            if x != x:
+                return False
+            if not least < x:
+                least = x
+        out[b] = least
+    return True
+
+
+@njit(**_JIT)
+def arms_mean(values, out):
+    """``out[b]`` = the mean of ``values[b]``: their sum (:func:`arms_sum`) over N."""
+    n = values.shape[1]
+    for b in range(values.shape[0]):
+        total = 0.0
+        for i in range(n):
+            total += values[b, i]
+        out[b] = total / n
+
+
+@njit(**_JIT)
+def arms_max(values, out):
+    """``out[b]`` = the largest of ``values[b]`` (integers: the filter's status)."""
+    for b in range(values.shape[0]):
+        most = values[b, 0]
+        for i in range(1, values.shape[1]):
+            most = max(most, values[b, i])
+        out[b] = most
+
+
+@njit(**_JIT)
+def arms_any(values, out):
+    """``out[b]`` = whether any of ``values[b]`` is true."""
+    for b in range(values.shape[0]):
+        hit = False
+        for i in range(values.shape[1]):
+            hit = hit or values[b, i]
+        out[b] = hit
