@@ -1,4 +1,4 @@
-"""The vector env against its own kernel calls (``python benchmarks/bench.py --only vector``).
+"""The vector env against its own kernel calls (``python benchmarks/bench.py --only bound``).
 
 At B = 1024 a step of the shielded vector env should cost little more than the engine's step, which is the compiled
 sub-step kernel's calls (one per arm kind) and a few array copies: everything else (the command's scaling, the

@@ -442,20 +442,26 @@ _TEAM_RULES = {"cost": "sum", "qp_counts": "sum", "min_clearance": "min", "shiel
 
 
 def _over_arms(rule: str, value: np.ndarray) -> np.ndarray:
-    """numpy's ``value.<rule>(axis=1)``, bit for bit: in one compiled pass (kernels/outcome.py) for fewer than 8
-    arms (numpy sums pairwise from 8) and integer counts, else numpy's own (a smallest value that is NaN too)."""
-    if value.shape[1] >= 8 or value.ndim > 3 or (value.ndim == 3 and (rule != "sum" or value.dtype != np.int64)):
-        return getattr(value, rule)(axis=1)
-    if value.ndim == 3:
+    """numpy's ``value.<rule>(axis=1)``, bit for bit: in one compiled pass (kernels/outcome.py) for the core's own
+    infos (float64, int64 and bool arrays of fewer than 8 arms: numpy sums pairwise from 8; int64 counts of any
+    width), else numpy's own, as for a smallest value that is NaN or any other dtype."""
+    if value.ndim == 3 and rule == "sum" and value.dtype == np.int64:
         out = np.empty((len(value), value.shape[2]), dtype=np.int64)
         kernels().arms_sum_columns(value, out)
         return out
-    dtype = np.float64 if rule == "mean" else (np.int64 if value.dtype == bool and rule == "sum" else value.dtype)
+    if value.ndim != 2 or value.shape[1] >= 8 or value.dtype not in _EXACT_DTYPES[rule]:
+        return getattr(value, rule)(axis=1)
+    dtype = np.float64 if rule == "mean" else (np.int_ if value.dtype == bool and rule == "sum" else value.dtype)
     out = np.empty(len(value), dtype=dtype)
     if rule == "min":
         return out if kernels().arms_min(value, out) else value.min(axis=1)
     getattr(kernels(), "arms_" + rule)(value, out)
     return out
+
+
+# the dtypes each compiled reduction gives numpy's answer for (a float32 sum, say, numpy adds in float32)
+_EXACT_DTYPES = {"sum": (np.float64, np.int64, np.bool_), "mean": (np.float64,), "min": (np.float64, np.int64),
+                 "max": (np.float64, np.int64), "any": (np.bool_,)}
 
 
 def copy_generator(seed: int, copy: int) -> np.random.Generator:

@@ -152,10 +152,11 @@ def test_team_infos_aggregate_the_arms_as_the_reward_does() -> None:
             np.testing.assert_array_equal(value, team[key][b], err_msg=key)
 
 
-@pytest.mark.parametrize("arms", [2, 3, 7, 9])
+@pytest.mark.parametrize("arms", [2, 3, 7, 8, 9])
 def test_team_infos_are_numpys_reductions_bit_for_bit(arms: int) -> None:
-    """The compiled team aggregates (below 8 arms) and numpy's (from 8) give numpy's bytes: per-arm infos of faulted
-    random teams with -0.0, NaN of either sign, infinities and magnitudes that round, in arrays and strided views."""
+    """The compiled team aggregates (below 8 arms) and numpy's (from 8, and for dtypes the core does not make) give
+    numpy's dtypes and bytes: per-arm infos of faulted random teams with -0.0 and 0.0, NaN of either sign,
+    infinities and magnitudes that round, random flags, statuses and counts, in arrays and strided views."""
     config = FormationConfig("pan1_env/FaultFormation-v1", random_options={"n_arms": arms}, safety_filter=True,
                              effort_weight=0.1)
     core = FormationCore(config, 16)
@@ -165,13 +166,23 @@ def test_team_infos_are_numpys_reductions_bit_for_bit(arms: int) -> None:
     rng = np.random.default_rng(arms)
     infos = {}
     for key, value in out.infos.items():
-        if value.dtype == np.float64 and value.ndim == 2:
-            value = value * 10.0 ** rng.integers(-12, 12, value.shape)
-            for odd in (-0.0, 0.0, np.nan, -np.nan, np.inf, -np.inf):
-                value[rng.random(value.shape) < 0.08] = odd
-            wide = np.repeat(value, 2, axis=1)  # a strided view of the same values
-            value = wide[:, ::2] if key.startswith("reward_") else value
+        if value.ndim >= 2 and key != "shield_applied":
+            if value.dtype == np.float64:
+                value = value * 10.0 ** rng.integers(-12, 12, value.shape)
+                for odd in (-0.0, 0.0, np.nan, -np.nan, np.inf, -np.inf):
+                    value[rng.random(value.shape) < 0.08] = odd
+            elif value.dtype == bool:
+                value = rng.random(value.shape) < 0.3
+            else:  # the filter's statuses and QP counts
+                value = rng.integers(0, 3, value.shape).astype(value.dtype)
+            if value.ndim == 2 and value.dtype == np.float64:
+                value = np.repeat(value, 2, axis=1)[:, ::2]  # a strided view of the same values
         infos[key] = value
+    ties = np.zeros((16, arms))
+    ties[:, ::2] = -0.0
+    infos["min_clearance"] = ties  # 0.0 and -0.0 alone: numpy's minimum keeps the later
+    infos["reward_single"] = rng.standard_normal((16, arms)).astype(np.float32) * 1e3  # numpy adds in float32
+    infos["cost"] = (rng.random((16, arms)) < 0.5).astype(np.float32)
     team = core.team_infos(infos)
     rules = {"cost": "sum", "actuator_lost": "sum", "shield_intervened": "any", "shield_fallback": "any",
              "shield_status": "max", "min_clearance": "min", "shield_min_barrier": "min", "qp_counts": "sum"}

@@ -84,10 +84,12 @@ def shield_report(counts, source, columns, padding, faulted, inv_unit, intervene
 
 # The team views' aggregates of per-arm infos (pan1_env.core.FormationCore.team_infos): each copy's row of a (B, N)
 # array reduced over its N arms, numpy's reductions over axis 1 bit for bit below 8 arms (a sum adds one value after
-# another from 0, as numpy's does there; from 8 arms numpy sums pairwise, and the core calls numpy).
+# another from 0, as numpy's does there; from 8 arms numpy sums pairwise, and the core calls numpy). Compiled without
+# fast-math flags: `nsz` would let LLVM drop the sign of a zero, as in 0.0 + x -> x.
+_EXACT = {**_JIT, "fastmath": False}
 
 
-@njit(**_JIT)
+@njit(**_EXACT)
 def arms_sum(values, out):
     """``out[b] = Σ_i values[b, i]`` (bools count as 1)."""
     for b in range(values.shape[0]):
@@ -97,7 +99,7 @@ def arms_sum(values, out):
         out[b] = total
 
 
-@njit(**_JIT)
+@njit(**_EXACT)
 def arms_sum_columns(values, out):
     """``out[b, j] = Σ_i values[b, i, j]`` for integer counts (the QP statuses): exact in any order."""
     for b in range(values.shape[0]):
@@ -108,7 +110,7 @@ def arms_sum_columns(values, out):
             out[b, j] = total
 
 
-@njit(**_JIT)
+@njit(**_EXACT)
 def arms_min(values, out):
     """``out[b]`` = the smallest of ``values[b]`` by numpy's rule for numbers (of equal values, such as 0 and −0, the
     later); returns False, leaving ``out`` to the caller, if some value is NaN: which NaN numpy's minimum returns
@@ -127,7 +129,7 @@ def arms_min(values, out):
     return True
 
 
-@njit(**_JIT)
+@njit(**_EXACT)
 def arms_mean(values, out):
     """``out[b]`` = the mean of ``values[b]``: their sum (:func:`arms_sum`) over N."""
     n = values.shape[1]
@@ -138,7 +140,7 @@ def arms_mean(values, out):
         out[b] = total / n
 
 
-@njit(**_JIT)
+@njit(**_EXACT)
 def arms_max(values, out):
     """``out[b]`` = the largest of ``values[b]`` (integers: the filter's status)."""
     for b in range(values.shape[0]):
@@ -148,7 +150,7 @@ def arms_max(values, out):
         out[b] = most
 
 
-@njit(**_JIT)
+@njit(**_EXACT)
 def arms_any(values, out):
     """``out[b]`` = whether any of ``values[b]`` is true."""
     for b in range(values.shape[0]):
