@@ -28,8 +28,10 @@ def bench_kernel_bound(repeats: int, B: int = 1024) -> list[tuple[str, float, st
         venv.action_space.seed(0)
         actions = [venv.action_space.sample() for _ in range(4)]
         engine, core = venv.core.engine, venv.core
-        # the velocities those actions command (velocity mode: the scaled action), padded as the engine takes them
-        commands = [core.padded_actions(a).copy() * core.config.max_joint_speed for a in actions]
+        commands = []  # the commands those actions give, padded as the engine takes them (the core's own scaling)
+        for a in actions:
+            commands.append(core.padded_actions(a).copy())
+            core.commands(commands[-1])
         substeps = core.config.substeps
         venv.step(actions[0])  # the first calls start numba's threads and load the kernels: not a step's cost
         engine.step(commands[0], substeps)

@@ -28,6 +28,9 @@ from numba.np.arrayobj import make_array, populate_array
 # later runs bit for bit (tests/test_determinism.py; arcp's case showed on a 5-link PA arm, which the
 # test covers). With afn kept, fresh and cached kernels agree there.
 _JIT = {"cache": True, "error_model": "numpy", "fastmath": {"nsz", "afn"}}
+# For the small passes that copy or reduce numbers and promise numpy's bytes (the critics' state, the team infos'
+# reductions): no fast-math flag at all, since nsz would let LLVM drop a zero's sign (0.0 + x -> x, a select of ±0).
+_EXACT = {**_JIT, "fastmath": False}
 
 # The sub-step kernel's lane count: 4 arms at once (one AVX register of doubles), in the serial and
 # the multi-threaded kernel alike (measured on this project's machine: 8 or 16 lanes were no faster

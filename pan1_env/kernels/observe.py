@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._numba_ext import _JIT, _check_chunks
+from ._numba_ext import _EXACT, _JIT, _check_chunks
 
 
 @njit(**_JIT, inline="always")
@@ -154,7 +154,7 @@ def edge_length_errors(P, edges, distances, out):
             out[b, e] = np.sqrt(dx * dx + dy * dy) - distances[b, e]
 
 
-@njit(**_JIT, inline="always")
+@njit(**_EXACT, inline="always")
 def _clipped(x, bound):
     """``x`` clipped to ±``bound`` as numpy's clip does it (NaN passes through)."""
     if x < -bound:
@@ -164,13 +164,13 @@ def _clipped(x, bound):
     return x
 
 
-@njit(**_JIT)
+@njit(**_EXACT)
 def kind_state(q, qd, p, rows, ids, A, n_max, bound, out):
     """A kind's part of the team's centralised state (:meth:`pan1_env.core.FormationCore.state`), written to
     ``out (B, S)`` (float32): for each of its ``rows`` (copy ``row // A``, arm ``ids[row % A]``) the arm's block
     ``[q, q̇, p]`` at column arm · (2 n_max + 2), its n angles and speeds from columns 0 and n_max of the block (NaN
     reads 0; the padding up to n_max is the caller's) and its end-effector at 2 n_max, each clipped
-    to ±``bound``."""
+    to ±``bound``; numpy's bytes (:data:`_EXACT`)."""
     n = q.shape[1]
     for r in rows:
         b = r // A
@@ -182,7 +182,7 @@ def kind_state(q, qd, p, rows, ids, A, n_max, bound, out):
         out[b, c + 2 * n_max + 1] = _clipped(p[r, 1], bound)
 
 
-@njit(**_JIT)
+@njit(**_EXACT)
 def obstacle_state(centers, radii, col, bound, out):
     """The obstacles' part of the team's centralised state: each obstacle's centre ``centers (B, O, 2)`` and radius
     ``radii (B, O)`` at ``out[b, col + 3j:]`` (float32), clipped to ±``bound``."""

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._numba_ext import _JIT
+from ._numba_ext import _EXACT, _JIT
 
 
 @njit(**_JIT)
@@ -85,18 +85,23 @@ def shield_report(counts, source, columns, padding, faulted, inv_unit, intervene
 # The team views' aggregates of per-arm infos (pan1_env.core.FormationCore.team_infos): each copy's row of a (B, N)
 # array reduced over its N arms, numpy's reductions over axis 1 bit for bit below 8 arms (a sum adds one value after
 # another from 0, as numpy's does there; from 8 arms numpy sums pairwise, and the core calls numpy). Compiled without
-# fast-math flags: `nsz` would let LLVM drop the sign of a zero, as in 0.0 + x -> x.
-_EXACT = {**_JIT, "fastmath": False}
+# fast-math flags (_EXACT).
+
+
+@njit(**_EXACT, inline="always")
+def _row_sum(values, b):
+    """``values[b]``'s sum, one value after another from 0 (an integer for bools, 0.0 for floats: numba unifies)."""
+    total = 0
+    for i in range(values.shape[1]):
+        total += values[b, i]
+    return total
 
 
 @njit(**_EXACT)
 def arms_sum(values, out):
     """``out[b] = Σ_i values[b, i]`` (bools count as 1)."""
     for b in range(values.shape[0]):
-        total = 0  # an integer for bools, 0.0 for floats (numba unifies the type)
-        for i in range(values.shape[1]):
-            total += values[b, i]
-        out[b] = total
+        out[b] = _row_sum(values, b)
 
 
 @njit(**_EXACT)
@@ -132,12 +137,8 @@ def arms_min(values, out):
 @njit(**_EXACT)
 def arms_mean(values, out):
     """``out[b]`` = the mean of ``values[b]``: their sum (:func:`arms_sum`) over N."""
-    n = values.shape[1]
     for b in range(values.shape[0]):
-        total = 0.0
-        for i in range(n):
-            total += values[b, i]
-        out[b] = total / n
+        out[b] = _row_sum(values, b) / values.shape[1]
 
 
 @njit(**_EXACT)
