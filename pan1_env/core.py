@@ -265,12 +265,14 @@ class FormationCore:
         """Every agent's observation, one float32 array ``(B, A, size)`` per layout group."""
         return self.task.observe(self.engine)[1]
 
-    def start(self) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
+    def start(self, copies: np.ndarray | None = None) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
         """The observations (as :meth:`observe`) and infos of the state just reset (no step yet): the same
-        infos keys a step gives."""
-        state, mats = self.task.observe(self.engine)
-        out = self.task.evaluate(None, self.engine, state, np.zeros((self.copies, len(self.agents))))
-        return mats, self._infos(out, None)
+        infos keys a step gives. With ``copies`` (indices) those copies' rows only, in their order, at a cost
+        that grows with their number (a partial reset's)."""
+        state, mats = self.task.observe(self.engine, copies)
+        n = self.copies if copies is None else len(copies)
+        out = self.task.evaluate(None, self.engine, state, np.zeros((n, len(self.agents))), copies=copies)
+        return mats, self._infos(out, None, copies)
 
     def commands(self, actions: np.ndarray) -> np.ndarray:
         """Turn actions ``(B, N, k_max)`` in place into the engine's commands from the current state (clip to
@@ -416,7 +418,7 @@ class FormationCore:
         return {"shield_intervened": intervened, "shield_fallback": fallback, "shield_status": status,
                 "shield_min_barrier": rec.min_barrier, "shield_applied": applied, "qp_counts": rec.qp_counts}
 
-    def _infos(self, out, rec: StepRecord | None) -> dict[str, np.ndarray]:
+    def _infos(self, out, rec: StepRecord | None, copies: np.ndarray | None = None) -> dict[str, np.ndarray]:
         shape = out.cost.shape
         infos: dict[str, Any] = {"cost": out.cost, "min_clearance": out.measures["min_clearance"]}
         for name, value in out.terms.items():  # (B, N), or (B, 1) for a term every arm shares
@@ -426,7 +428,7 @@ class FormationCore:
         if self.engine.filter is not None:
             infos.update(self._shield_infos(rec, shape))
         if self.engine.faults:
-            infos["actuator_lost"] = self.engine.faulted.copy()
+            infos["actuator_lost"] = self.engine.faulted.copy() if copies is None else self.engine.faulted[copies]
         infos.update((key, value) for key, value in out.measures.items() if key != "min_clearance")
         infos["is_success"] = out.success
         return infos

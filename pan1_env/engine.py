@@ -396,7 +396,9 @@ class Engine:
             kind.v[rows] = kind.v_prev[rows] = kind.qd[rows] = 0.0
             kind.momentum[rows] = 0.0
             kind.has_prev[rows] = False
-            kernels().group_end_effectors(kind.lengths, kind.base, kind.phi, kind.q, kind.p)
+            p = np.empty((len(rows), 2))  # the reset rows' only: a partial reset costs what it resets
+            kernels().group_end_effectors(kind.lengths[rows], kind.base[rows], kind.phi[rows], kind.q[rows], p)
+            kind.p[rows] = p
         if self.faults:  # a fault within the first sub-step: lost from the start (the first observation shows it)
             self.lose_actuators(np.isin(np.arange(self.copies), copies)[:, None] & (self.fault_substeps() == 0), None)
 
@@ -507,31 +509,33 @@ class Engine:
                           kind.stepped, P)
         return P
 
-    def clearance(self) -> np.ndarray:
+    def clearance(self, copies: np.ndarray | None = None) -> np.ndarray:
         """Smallest clearance of every arm's protected bodies, ``(B, N)`` (inf with nothing to hit): the
         end-effector's ‖p_i − o_j‖ − r_j, or with whole-arm safety every body's to the obstacles where
-        they are now and, with ``inter_arm``, to the other arms' capsules (:mod:`pan1_env.bodies`)."""
-        B, N, O = self.copies, self.n_arms, self.radii.shape[1]
+        they are now and, with ``inter_arm``, to the other arms' capsules (:mod:`pan1_env.bodies`). With
+        ``copies`` (indices) those copies' rows only, in their order."""
+        rows = slice(None) if copies is None else copies
+        centers, radii = self.centers[rows], self.radii[rows]
+        B, N, O = len(centers), self.n_arms, radii.shape[1]
         if not self.whole_arm:
             if O == 0:
                 return np.full((B, N), np.inf)
-            return clearance(self.positions(), self.centers[:, None], self.radii[:, None]).min(axis=-1)
-        P = self.joint_positions()
+            return clearance(self.positions()[rows], centers[:, None], radii[:, None]).min(axis=-1)
+        P = self.joint_positions()[rows]
         a, b = (P[:, :, :-1], P[:, :, 1:]) if self.link_bodies else (P[:, :, -1:], P[:, :, -1:])
         clear = np.full((B, N), np.inf)
         if O:
-            clear = capsule_clearance(a, b, self.centers[:, None], self.radii[:, None],
+            clear = capsule_clearance(a, b, centers[:, None], radii[:, None],
                                       self.link_radius if self.link_bodies else 0.0).min(axis=(2, 3))
         return np.minimum(clear, self.inter_arm_clearance(P))
 
     def inter_arm_clearance(self, P: np.ndarray | None = None) -> np.ndarray:
         """Smallest d − 2ρ between each arm's link capsules and any other arm's, ``(B, N)`` (inf without
         ``inter_arm``); ``P`` from :meth:`joint_positions`."""
-        B, N = self.copies, self.n_arms
-        if not self.inter_arm or N < 2:
-            return np.full((B, N), np.inf)
-        clear = np.full((B, N), np.inf)
-        kernels().team_geometry.inter_arm_clearance(self.joint_positions() if P is None else P, self.link_radius, clear)
+        clear = np.full((self.copies if P is None else len(P), self.n_arms), np.inf)
+        if self.inter_arm and self.n_arms > 1:
+            kernels().team_geometry.inter_arm_clearance(self.joint_positions() if P is None else P, self.link_radius,
+                                                        clear)
         return clear
 
     def kind_terms(self, kind: Kind) -> KindTerms:

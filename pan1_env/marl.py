@@ -86,6 +86,7 @@ class Pan1TorchRLEnv(EnvBase):
         B, N, k = core.copies, len(core.agents), core.k_max
         super().__init__(device=device, batch_size=torch.Size([B]))
         self.core = core
+        self._last: tuple[list[np.ndarray], dict[str, np.ndarray]] | None = None  # the observations and infos sent
         low, high = core.padded_observation_bounds()
         size = low.shape[1]
         self._mask = torch.from_numpy(np.arange(k) < np.asarray(core.n_actuated)[:, None]).expand(B, N, k)
@@ -150,13 +151,19 @@ class Pan1TorchRLEnv(EnvBase):
             if tensordict is not None and key in tensordict.keys(include_nested=True):
                 marked = tensordict.get(key).reshape(self.core.copies, -1).any(-1).cpu().numpy()
                 which = marked if which is None else which | marked
-        self.core.reset(None if which is None else which.nonzero()[0])
-        mats, infos = self.core.start()
-        return self._observations(mats, infos).to(self.device)
+        copies = None if which is None or which.all() else which.nonzero()[0]
+        self.core.reset(copies)
+        if copies is None or self._last is None:
+            mats, infos = self.core.start()
+        else:  # only the copies reset are observed; the others' state is the last step's, and so are their entries
+            mats, infos = _with_rows(*self._last, copies, *self.core.start(copies))
+        self._last = (mats, infos)
+        return self._observations(mats, infos)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         actions = tensordict.get((GROUP, "action")).detach().to("cpu", torch.float64).numpy()
         out = self.core.step(actions)
+        self._last = (out.observations, out.infos)
         td = self._observations(out.observations, out.infos)
         B, N = out.reward.shape
         terminated = torch.from_numpy(out.terminated.reshape(B, 1))
@@ -166,19 +173,34 @@ class Pan1TorchRLEnv(EnvBase):
         for name, value in (("done", done), ("terminated", terminated), ("truncated", truncated)):
             td.set(name, value)
             td.set((GROUP, name), value[:, None].expand(B, N, 1).clone())
-        return td.to(self.device)
+        return td
 
     def _observations(self, mats: list[np.ndarray], infos: dict[str, np.ndarray]) -> TensorDictBase:
         B, N = self.core.copies, len(self.core.agents)
         obs = self.core.padded_observations(mats)
         arm_info = {key: _tensor(np.broadcast_to(infos[key], (B, N, *infos[key].shape[2:]))) for key in self._arm_keys}
         cost = torch.from_numpy(infos["cost"].astype(np.float32)).reshape(B, N, 1)
+        device = self.device  # every level built on it: a level without one would be moved there again
+        arms = {"observation": torch.from_numpy(obs), "action_mask": self._mask.clone(), "cost": cost,
+                "info": TensorDict(arm_info, batch_size=(B, N), device=device)}
         return TensorDict({
-            GROUP: TensorDict({"observation": torch.from_numpy(obs), "action_mask": self._mask.clone(), "cost": cost,
-                               "info": TensorDict(arm_info, batch_size=(B, N))}, batch_size=(B, N)),
+            GROUP: TensorDict(arms, batch_size=(B, N), device=device),
             "state": torch.from_numpy(self.core.state()),
-            "info": TensorDict({key: _tensor(infos[key]) for key in self._copy_keys}, batch_size=(B,)),
-        }, batch_size=(B,))
+            "info": TensorDict({key: _tensor(infos[key]) for key in self._copy_keys}, batch_size=(B,), device=device),
+        }, batch_size=(B,), device=device)
+
+
+def _with_rows(mats: list[np.ndarray], infos: dict[str, np.ndarray], copies: np.ndarray, fresh_mats: list[np.ndarray],
+               fresh_infos: dict[str, np.ndarray]) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
+    """Copies of ``mats`` and ``infos`` (every copy's) with the rows of ``copies`` replaced by ``fresh_mats`` and
+    ``fresh_infos`` (those copies' own, in their order); infos keys missing from either are left out."""
+    def merged(old: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        out = old.copy()
+        out[copies] = rows
+        return out
+
+    return ([merged(old, rows) for old, rows in zip(mats, fresh_mats, strict=True)],
+            {key: merged(value, fresh_infos[key]) for key, value in infos.items() if key in fresh_infos})
 
 
 def _tensor(value: np.ndarray) -> torch.Tensor:

@@ -271,26 +271,31 @@ class FormationTask:
         return out
 
     def evaluate(self, record: StepRecord | None, engine: Engine | None, err: np.ndarray, effort: np.ndarray,
-                 command: np.ndarray | None = None) -> Outcome:
+                 command: np.ndarray | None = None, copies: np.ndarray | None = None) -> Outcome:
         """The step's outcome from its record, the edge errors after it (:meth:`observe`'s) and each agent's
-        effort ``‖a_i‖²/k_i (B, N)``; at a reset (``record`` None) of the state in ``engine``. The
-        intervention term needs the commanded velocities ``command (B, N, k_max)`` (rad/s; None in
-        torque mode, where the term is left out)."""
+        effort ``‖a_i‖²/k_i (B, N)``; at a reset (``record`` None) of the state in ``engine``, with ``copies``
+        (indices) for those copies only (``err`` and ``effort`` their rows). The intervention term needs the
+        commanded velocities ``command (B, N, k_max)`` (rad/s; None in torque mode, where the term is left
+        out)."""
         c = self.config
-        min_clear = record.min_clearance if record is not None else engine.clearance()
+        if record is not None and copies is not None:
+            raise ValueError("a step's outcome covers every copy; copies is for a reset's")
+        rows = slice(None) if copies is None else copies
+        min_clear = record.min_clearance if record is not None else engine.clearance(copies)
         B = len(err)
         formation, formation_error, success = np.empty(B), np.empty(B), np.empty(B, dtype=bool)
         cost = np.empty(min_clear.shape)
         kernels().formation_outcome(err, min_clear, c.formation_weight, c.success_tolerance, formation, formation_error,
                                     success, cost)
         if self.motion is not None and self.motion.placed.any():  # a placed shape: each arm also at its point
-            formation -= c.formation_weight * self.misplacement.mean(axis=1)
-            formation_error = np.maximum(formation_error, self.misplacement.max(axis=1))
+            misplacement = self.misplacement[rows]
+            formation -= c.formation_weight * misplacement.mean(axis=1)
+            formation_error = np.maximum(formation_error, misplacement.max(axis=1))
             success &= formation_error < c.success_tolerance
         if c.success_hold > 0:
-            clock = engine.elapsed
-            self.below_since = np.where(success, self.below_since, clock)
-            success &= clock - self.below_since >= c.success_hold - 1e-9
+            clock = engine.elapsed[rows]
+            self.below_since[rows] = below_since = np.where(success, self.below_since[rows], clock)
+            success &= clock - below_since >= c.success_hold - 1e-9
         reward = np.empty_like(cost)
         reward[:] = formation[:, None]
         intervention = 0.0
@@ -429,14 +434,18 @@ class ReachTask:
         return mats[0].reshape(len(mats[0]), -1)
 
     def evaluate(self, record: StepRecord | None, engine: Engine, state: None, effort: np.ndarray,
-                 command: np.ndarray | None = None) -> Outcome:
-        """The step's outcome (``record`` None at a reset) for effort ``‖a‖²/k (B, 1)``, computed in one compiled pass
-        (:func:`pan1_env.kernels.reach_outcome`; tests/test_tasks.py holds its numpy twin)."""
-        B = len(self.goal)
-        min_clear = engine.clearance() if record is None else record.min_clearance
+                 command: np.ndarray | None = None, copies: np.ndarray | None = None) -> Outcome:
+        """The step's outcome (``record`` None at a reset, with ``copies`` (indices) for those copies only) for effort
+        ``‖a‖²/k (B, 1)``, computed in one compiled pass (:func:`pan1_env.kernels.reach_outcome`; tests/test_tasks.py
+        holds its numpy twin)."""
+        if record is not None and copies is not None:
+            raise ValueError("a step's outcome covers every copy; copies is for a reset's")
+        goal, p = (self.goal, engine.kinds[0].p) if copies is None else (self.goal[copies], engine.kinds[0].p[copies])
+        B = len(goal)
+        min_clear = engine.clearance(copies) if record is None else record.min_clearance
         distance, terms, reward = np.empty(B), np.empty((B, 3)), np.empty((B, 1))
         cost, success, terminated = np.empty((B, 1)), np.empty(B, dtype=bool), np.empty(B, dtype=bool)
-        kernels().reach_outcome(self.goal, engine.kinds[0].p, min_clear[:, 0], effort[:, 0], self._weights,
+        kernels().reach_outcome(goal, p, min_clear[:, 0], effort[:, 0], self._weights,
                                 self.config.goal_tolerance, self.config.terminate_on_success,
                                 self.config.terminate_on_collision, distance, terms, reward[:, 0], cost[:, 0], success,
                                 terminated)

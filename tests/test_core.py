@@ -432,3 +432,42 @@ def test_the_compiled_state_is_its_numpy_twins_bit_for_bit(setup: str) -> None:
     kind.q[row, 0], kind.qd[row, -1], kind.p[row, 0] = np.nan, np.nan, np.nan
     kind.q[row, -1], kind.p[row, 1], kind.qd[row, 0] = 3e6, -4e6, -0.0  # clipped, clipped, kept
     assert core.state().tobytes() == _numpy_state(core).tobytes()
+
+
+def _partial_start_cores() -> dict[str, FormationCore]:
+    from pan1_env.config import ReachConfig
+
+    cores = {setup: FormationCore(FormationConfig(scenario, safety_filter=True, **kwargs), 5)
+             for setup, (scenario, kwargs) in _STATE_SETUPS.items()}
+    cores["whole arms among still obstacles"] = FormationCore(
+        FormationConfig("pan1_env/WholeArmStaticFormation-v1", safety_filter=True), 5)
+    cores["success hold"] = FormationCore(FormationConfig("pan1_env/MovingFormation-v1", safety_filter=True,
+                                                          success_hold=1.0), 5)
+    cores["reach"] = FormationCore(ReachConfig("paper_pa3_square", safety_filter=True), 5)
+    return cores
+
+
+@pytest.mark.parametrize("setup", ["random", "faults", "moving target", "moving obstacles", "padding",
+                                   "whole arms among still obstacles", "success hold", "reach"])
+def test_a_partial_start_is_the_full_starts_rows(setup: str) -> None:
+    """``start(copies)`` (a partial reset's observations and infos, at a cost of those copies alone) gives the rows
+    of ``start()`` bit for bit, after some copies are reset mid-episode, and leaves the task's state (a moving
+    formation's success clock) as ``start()`` does."""
+    core = _partial_start_cores()[setup]
+    core.seed(5)
+    core.reset()
+    rng = np.random.default_rng(1)
+    for _ in range(25):
+        core.step(rng.uniform(-1, 1, (5, len(core.agents), core.k_max)))
+    copies = np.array([3, 0])
+    core.reset(copies)
+    mats, infos = core.start(copies)
+    held = getattr(core.task, "below_since", np.zeros(0)).copy()
+    all_mats, all_infos = core.start()
+    for mat, whole in zip(mats, all_mats, strict=True):
+        assert mat.tobytes() == whole[copies].tobytes()
+    assert set(infos) == set(all_infos)
+    for key, value in infos.items():
+        assert value.tobytes() == all_infos[key][copies].tobytes(), key
+    np.testing.assert_array_equal(getattr(core.task, "below_since", np.zeros(0)), held)
+    assert core.engine.clearance(copies).tobytes() == core.engine.clearance()[copies].tobytes()
