@@ -326,10 +326,17 @@ class FormationCore:
         if len(ended) == self.copies:
             return self.observe()
         fresh = self.task.observe(self.engine, ended)[1]
-        out = [mat.copy() for mat in mats]
-        for mat, rows in zip(out, fresh, strict=True):
-            mat[ended] = rows
-        return out
+        return [_with_rows(mat, ended, rows) for mat, rows in zip(mats, fresh, strict=True)]
+
+    def start_among(self, mats: list[np.ndarray], infos: dict[str, np.ndarray],
+                    copies: np.ndarray) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
+        """Every copy's observations and infos after the copies ``copies`` were reset: theirs as :meth:`start`
+        gives them (computed for them alone), the others' rows of ``mats`` and ``infos`` (what they were given
+        last; their state has not moved since). Infos keys that a start does not give are left out."""
+        fresh_mats, fresh_infos = self.start(copies)
+        return ([_with_rows(mat, copies, rows) for mat, rows in zip(mats, fresh_mats, strict=True)],
+                {key: _with_rows(value, copies, fresh_infos[key]) for key, value in infos.items()
+                 if key in fresh_infos})
 
     def agent_infos(self, infos: dict[str, np.ndarray], b: int = 0) -> list[dict[str, Any]]:
         """Copy b's infos per agent, in agent order: per-arm values at the agent's index (``shield_applied``
@@ -441,6 +448,14 @@ class FormationCore:
 _TEAM_RULES = {"cost": "sum", "qp_counts": "sum", "min_clearance": "min", "shield_min_barrier": "min",
                "shield_intervened": "any", "shield_fallback": "any", "shield_status": "max", "shield_applied": "flat",
                "actuator_lost": "sum"}
+
+
+def _with_rows(array: np.ndarray, copies: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """A copy of ``array`` (every copy's) with the rows of ``copies`` replaced by ``rows`` (theirs, in their
+    order)."""
+    out = array.copy()
+    out[copies] = rows
+    return out
 
 
 def _over_arms(rule: str, value: np.ndarray) -> np.ndarray:

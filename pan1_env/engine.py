@@ -396,9 +396,7 @@ class Engine:
             kind.v[rows] = kind.v_prev[rows] = kind.qd[rows] = 0.0
             kind.momentum[rows] = 0.0
             kind.has_prev[rows] = False
-            p = np.empty((len(rows), 2))  # the reset rows' only: a partial reset costs what it resets
-            kernels().group_end_effectors(kind.lengths[rows], kind.base[rows], kind.phi[rows], kind.q[rows], p)
-            kind.p[rows] = p
+            _end_effectors(kind, rows)
         if self.faults:  # a fault within the first sub-step: lost from the start (the first observation shows it)
             self.lose_actuators(np.isin(np.arange(self.copies), copies)[:, None] & (self.fault_substeps() == 0), None)
 
@@ -492,22 +490,27 @@ class Engine:
         self._check_per_arm("q", q, "joint angles")
         self._check_per_arm("qd", qd, "joint speeds")
         for kind in self.kinds:
-            kind.put_state(kind.rows(np.array([copy])), np.array([q[i] for i in kind.ids], dtype=float),
+            rows = kind.rows(np.array([copy]))
+            kind.put_state(rows, np.array([q[i] for i in kind.ids], dtype=float),
                            np.array([qd[i] for i in kind.ids], dtype=float))
-            kernels().group_end_effectors(kind.lengths, kind.base, kind.phi, kind.q, kind.p)
+            _end_effectors(kind, rows)
 
     def obstacle_velocities(self) -> np.ndarray:
         """Every copy's obstacle velocities now, ``(B, O, 2)`` (zeros for still obstacles)."""
         return self.velocities.copy()
 
-    def joint_positions(self) -> np.ndarray:
+    def joint_positions(self, copies: np.ndarray | None = None) -> np.ndarray:
         """Base, joints and end-effector of every arm, ``(B, N, n_max + 1, 2)``; an arm of fewer links
-        repeats its end-effector (its padding links have length 0)."""
+        repeats its end-effector (its padding links have length 0). With ``copies`` (indices) those copies'
+        only, in their order, computed for them alone."""
         P = np.empty((self.copies, self.n_arms, self.n_max + 1, 2))
         for kind in self.kinds:
-            self.geometry("kind_joints", len(kind.stepped), kind.q, kind.lengths, kind.base, kind.phi, kind.ids,
-                          kind.stepped, P)
-        return P
+            rows = kind.stepped
+            if copies is not None:
+                rows = kind.rows(copies)
+                rows = rows[kind.active[rows]]
+            self.geometry("kind_joints", len(rows), kind.q, kind.lengths, kind.base, kind.phi, kind.ids, rows, P)
+        return P if copies is None else P[copies]
 
     def clearance(self, copies: np.ndarray | None = None) -> np.ndarray:
         """Smallest clearance of every arm's protected bodies, ``(B, N)`` (inf with nothing to hit): the
@@ -521,7 +524,7 @@ class Engine:
             if O == 0:
                 return np.full((B, N), np.inf)
             return clearance(self.positions()[rows], centers[:, None], radii[:, None]).min(axis=-1)
-        P = self.joint_positions()[rows]
+        P = self.joint_positions(copies)
         a, b = (P[:, :, :-1], P[:, :, 1:]) if self.link_bodies else (P[:, :, -1:], P[:, :, -1:])
         clear = np.full((B, N), np.inf)
         if O:
@@ -612,3 +615,11 @@ class Engine:
         from numba import get_num_threads
 
         return 4 * get_num_threads()
+
+
+def _end_effectors(kind: Kind, rows: np.ndarray) -> None:
+    """The end-effectors ``kind.p`` of the kind's rows ``rows`` from their joint angles (the others are left as they
+    are: a reset of some copies costs what it resets)."""
+    p = np.empty((len(rows), 2))
+    kernels().group_end_effectors(kind.lengths[rows], kind.base[rows], kind.phi[rows], kind.q[rows], p)
+    kind.p[rows] = p

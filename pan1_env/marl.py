@@ -86,7 +86,7 @@ class Pan1TorchRLEnv(EnvBase):
         B, N, k = core.copies, len(core.agents), core.k_max
         super().__init__(device=device, batch_size=torch.Size([B]))
         self.core = core
-        self._last: tuple[list[np.ndarray], dict[str, np.ndarray]] | None = None  # the observations and infos sent
+        self._last: tuple[list[np.ndarray], dict[str, np.ndarray]] | None = None  # what it last returned: _keep
         low, high = core.padded_observation_bounds()
         size = low.shape[1]
         self._mask = torch.from_numpy(np.arange(k) < np.asarray(core.n_actuated)[:, None]).expand(B, N, k)
@@ -152,18 +152,20 @@ class Pan1TorchRLEnv(EnvBase):
                 marked = tensordict.get(key).reshape(self.core.copies, -1).any(-1).cpu().numpy()
                 which = marked if which is None else which | marked
         copies = None if which is None or which.all() else which.nonzero()[0]
+        last, self._last = self._last, None  # (nothing kept if the reset fails half-way)
         self.core.reset(copies)
-        if copies is None or self._last is None:
+        if copies is None or last is None:
             mats, infos = self.core.start()
-        else:  # only the copies reset are observed; the others' state is the last step's, and so are their entries
-            mats, infos = _with_rows(*self._last, copies, *self.core.start(copies))
-        self._last = (mats, infos)
+        else:  # only the copies reset are observed; the others' rows are what this env last returned for them
+            mats, infos = self.core.start_among(*last, copies)
+        self._keep(mats, infos)
         return self._observations(mats, infos)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         actions = tensordict.get((GROUP, "action")).detach().to("cpu", torch.float64).numpy()
+        self._last = None  # (nothing kept if the step fails half-way)
         out = self.core.step(actions)
-        self._last = (out.observations, out.infos)
+        self._keep(out.observations, out.infos)
         td = self._observations(out.observations, out.infos)
         B, N = out.reward.shape
         terminated = torch.from_numpy(out.terminated.reshape(B, 1))
@@ -174,6 +176,12 @@ class Pan1TorchRLEnv(EnvBase):
             td.set(name, value)
             td.set((GROUP, name), value[:, None].expand(B, N, 1).clone())
         return td
+
+    def _keep(self, mats: list[np.ndarray], infos: dict[str, np.ndarray]) -> None:
+        """Keep what this env returns for a later partial reset (:meth:`FormationCore.start_among`): the
+        observations as copies, since the tensors handed out share their memory (the infos' tensors are copies
+        already)."""
+        self._last = ([mat.copy() for mat in mats], infos)
 
     def _observations(self, mats: list[np.ndarray], infos: dict[str, np.ndarray]) -> TensorDictBase:
         B, N = self.core.copies, len(self.core.agents)
@@ -188,19 +196,6 @@ class Pan1TorchRLEnv(EnvBase):
             "state": torch.from_numpy(self.core.state()),
             "info": TensorDict({key: _tensor(infos[key]) for key in self._copy_keys}, batch_size=(B,), device=device),
         }, batch_size=(B,), device=device)
-
-
-def _with_rows(mats: list[np.ndarray], infos: dict[str, np.ndarray], copies: np.ndarray, fresh_mats: list[np.ndarray],
-               fresh_infos: dict[str, np.ndarray]) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
-    """Copies of ``mats`` and ``infos`` (every copy's) with the rows of ``copies`` replaced by ``fresh_mats`` and
-    ``fresh_infos`` (those copies' own, in their order); infos keys missing from either are left out."""
-    def merged(old: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        out = old.copy()
-        out[copies] = rows
-        return out
-
-    return ([merged(old, rows) for old, rows in zip(mats, fresh_mats, strict=True)],
-            {key: merged(value, fresh_infos[key]) for key, value in infos.items() if key in fresh_infos})
 
 
 def _tensor(value: np.ndarray) -> torch.Tensor:

@@ -443,16 +443,23 @@ def _partial_start_cores() -> dict[str, FormationCore]:
         FormationConfig("pan1_env/WholeArmStaticFormation-v1", safety_filter=True), 5)
     cores["success hold"] = FormationCore(FormationConfig("pan1_env/MovingFormation-v1", safety_filter=True,
                                                           success_hold=1.0), 5)
+    cores["faulted at the start"] = FormationCore(FormationConfig("random", safety_filter=True, random_options={
+        "fault_probability": 1.0, "fault_time": (0.0, 0.02)}), 5)
     cores["reach"] = FormationCore(ReachConfig("paper_pa3_square", safety_filter=True), 5)
     return cores
 
 
 @pytest.mark.parametrize("setup", ["random", "faults", "moving target", "moving obstacles", "padding",
-                                   "whole arms among still obstacles", "success hold", "reach"])
+                                   "whole arms among still obstacles", "success hold", "faulted at the start",
+                                   "reach"])
 def test_a_partial_start_is_the_full_starts_rows(setup: str) -> None:
     """``start(copies)`` (a partial reset's observations and infos, at a cost of those copies alone) gives the rows
     of ``start()`` bit for bit, after some copies are reset mid-episode, and leaves the task's state (a moving
-    formation's success clock) as ``start()`` does."""
+    formation's success clock) as ``start()`` does; the reset put the reset arms' end-effectors where their joints
+    put them and left the others', and the joints and clearances of some copies are those copies' rows of every
+    copy's."""
+    from pan1_env.compiled import kernels
+
     core = _partial_start_cores()[setup]
     core.seed(5)
     core.reset()
@@ -460,7 +467,16 @@ def test_a_partial_start_is_the_full_starts_rows(setup: str) -> None:
     for _ in range(25):
         core.step(rng.uniform(-1, 1, (5, len(core.agents), core.k_max)))
     copies = np.array([3, 0])
+    before = [kind.p.copy() for kind in core.engine.kinds]
     core.reset(copies)
+    for kind, p in zip(core.engine.kinds, before, strict=True):  # the reset rows' from their joints, the others kept
+        reset = np.isin(np.arange(len(p)), kind.rows(copies))
+        from_joints = np.empty_like(p)
+        kernels().group_end_effectors(kind.lengths, kind.base, kind.phi, kind.q, from_joints)
+        p[reset] = from_joints[reset]
+        assert p.tobytes() == kind.p.tobytes()
+    if setup == "faulted at the start":
+        assert core.engine.faulted[copies].any()
     mats, infos = core.start(copies)
     held = getattr(core.task, "below_since", np.zeros(0)).copy()
     all_mats, all_infos = core.start()
@@ -471,3 +487,4 @@ def test_a_partial_start_is_the_full_starts_rows(setup: str) -> None:
         assert value.tobytes() == all_infos[key][copies].tobytes(), key
     np.testing.assert_array_equal(getattr(core.task, "below_since", np.zeros(0)), held)
     assert core.engine.clearance(copies).tobytes() == core.engine.clearance()[copies].tobytes()
+    assert core.engine.joint_positions(copies).tobytes() == core.engine.joint_positions()[copies].tobytes()

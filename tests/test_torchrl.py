@@ -165,6 +165,34 @@ def test_a_reset_mask_resets_only_its_copies(key) -> None:
         assert np.abs(observed[1:]).sum(axis=-1).all()
 
 
+@pytest.mark.parametrize("scenario", ["random", "pan1_env/FaultFormation-v1"])
+def test_a_group_mask_reset_returns_the_others_as_last_returned(scenario: str) -> None:
+    """With a group's mask only, TorchRL takes the env's whole output: the copies reset get a start's observations
+    and infos, computed for them alone, and the others what the step before returned (their state has not moved),
+    even after a user wrote into that step's observation tensor."""
+    B = 4
+    env = torchrl_env(scenario, num_envs=B, safety_filter=True)
+    env.set_seed(0)
+    td = env.reset()
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        shape = (B, len(env.agent_names), env.core.k_max)
+        td["arms", "action"] = torch.from_numpy(rng.uniform(-1, 1, shape).astype(np.float32))
+        td = step_mdp(env.step(td))  # the step's output, the env's own tensors
+    expected = td.clone()
+    td["arms", "observation"].add_(7.0)  # a user's write into the step's tensors
+    mask = torch.tensor([True, False, True, False])
+    out = env.reset(TensorDict({("arms", "_reset"): mask.reshape(B, 1).expand(B, len(env.agent_names)).clone()},
+                               batch_size=[B]))
+    assert env.core.steps.tolist() == [0, 5, 0, 5]
+    start = env._observations(*env.core.start())  # every copy's start, the reset ones' rows to compare
+    keep, fresh = ~mask, mask
+    for key in [("arms", "observation"), "state", *(("arms", "info", k) for k in env._arm_keys),
+                *(("info", k) for k in env._copy_keys)]:
+        assert torch.equal(out[key][keep], expected[key][keep]), key
+        assert torch.equal(out[key][fresh], start[key][fresh]), key
+
+
 def test_fault_task_specs_hold() -> None:
     """``FaultFormation-v1`` (behind the fault margin) with every full arm faulting within 0.3 s: both TorchRL views
     pass their spec check through the faults, and the infos carry ``actuator_lost``."""
