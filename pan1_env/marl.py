@@ -48,18 +48,15 @@ from typing import Any
 import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torchrl.data import Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from .config import FormationConfig, config_arguments
 from .core import FormationCore, per_arm, view_repr
+from .marl_specs import GROUP, info_tensor, output_specs
 from .masked_distribution import MaskedTanhNormal
 from .validation import hints_unknown_keywords
 
 __all__ = ["torchrl_env", "Pan1TorchRLEnv", "MaskedTanhNormal"]
-
-GROUP = "arms"
-
 
 @hints_unknown_keywords
 @config_arguments(FormationConfig)
@@ -87,33 +84,14 @@ class Pan1TorchRLEnv(EnvBase):
         super().__init__(device=device, batch_size=torch.Size([B]))
         self.core = core
         self._last: tuple[list[np.ndarray], dict[str, np.ndarray]] | None = None  # what it last returned: _keep
-        low, high = core.padded_observation_bounds()
-        size = low.shape[1]
         self._mask = torch.from_numpy(np.arange(k) < np.asarray(core.n_actuated)[:, None]).expand(B, N, k)
         core.reset()
         _, infos = core.start()  # the info keys and shapes, the same after every reset and step
         self._arm_keys = [key for key in infos if per_arm(key) and key != "cost"]
         self._copy_keys = [key for key in infos if not per_arm(key) and infos[key].dtype.kind in "biuf"]
-        low, high = torch.from_numpy(low).expand(B, N, size), torch.from_numpy(high).expand(B, N, size)
-        arm = {"observation": Bounded(low, high, shape=(B, N, size), dtype=torch.float32),
-               "action_mask": Bounded(False, True, shape=(B, N, k), dtype=torch.bool),
-               "cost": Unbounded(shape=(B, N, 1), dtype=torch.float32),
-               "info": Composite({key: Unbounded(shape=(B, N, *infos[key].shape[2:]), dtype=_dtype(infos[key]))
-                                  for key in self._arm_keys}, shape=(B, N))}
-        self.observation_spec = Composite({
-            GROUP: Composite(arm, shape=(B, N)),
-            "state": Unbounded(shape=(B, core.state_size), dtype=torch.float32),
-            "info": Composite({key: Unbounded(shape=(B,), dtype=_dtype(infos[key])) for key in self._copy_keys},
-                              shape=(B,))}, shape=(B,))
-        self.action_spec = Composite({GROUP: Composite({"action": Bounded(-1.0, 1.0, shape=(B, N, k),
-                                                                          dtype=torch.float32)}, shape=(B, N))},
-                                     shape=(B,))
-        self.reward_spec = Composite({GROUP: Composite({"reward": Unbounded(shape=(B, N, 1), dtype=torch.float32)},
-                                                       shape=(B, N))}, shape=(B,))
-        flag = {name: Bounded(False, True, shape=(B, 1), dtype=torch.bool)
-                for name in ("done", "terminated", "truncated")}
-        arm_flag = {name: Bounded(False, True, shape=(B, N, 1), dtype=torch.bool) for name in flag}
-        self.done_spec = Composite({**flag, GROUP: Composite(arm_flag, shape=(B, N))}, shape=(B,))
+        specs = output_specs(core, infos, self._arm_keys, self._copy_keys)
+        self.observation_spec, self.action_spec = specs["observation"], specs["action"]
+        self.reward_spec, self.done_spec = specs["reward"], specs["done"]
 
     @property
     def group_map(self) -> dict[str, list[str]]:
@@ -186,24 +164,14 @@ class Pan1TorchRLEnv(EnvBase):
     def _observations(self, mats: list[np.ndarray], infos: dict[str, np.ndarray]) -> TensorDictBase:
         B, N = self.core.copies, len(self.core.agents)
         obs = self.core.padded_observations(mats)
-        arm_info = {key: _tensor(np.broadcast_to(infos[key], (B, N, *infos[key].shape[2:]))) for key in self._arm_keys}
+        arm_info = {key: info_tensor(np.broadcast_to(infos[key], (B, N, *infos[key].shape[2:])))
+                    for key in self._arm_keys}
+        copy_info = {key: info_tensor(infos[key]) for key in self._copy_keys}
         cost = torch.from_numpy(infos["cost"].astype(np.float32)).reshape(B, N, 1)
         device = self.device  # every level built on it: a level without one would be moved there again
         arms = {"observation": torch.from_numpy(obs), "action_mask": self._mask.clone(), "cost": cost,
                 "info": TensorDict(arm_info, batch_size=(B, N), device=device)}
-        return TensorDict({
-            GROUP: TensorDict(arms, batch_size=(B, N), device=device),
-            "state": torch.from_numpy(self.core.state()),
-            "info": TensorDict({key: _tensor(infos[key]) for key in self._copy_keys}, batch_size=(B,), device=device),
-        }, batch_size=(B,), device=device)
-
-
-def _tensor(value: np.ndarray) -> torch.Tensor:
-    """A tensor of its own (the core's arrays and broadcast views are not the env's to hand out), float32 where
-    the core's is a float, as every other float of the env."""
-    value = np.asarray(value)
-    return torch.from_numpy(np.array(value, dtype=np.float32 if value.dtype.kind == "f" else value.dtype))
-
-
-def _dtype(value: np.ndarray) -> torch.dtype:
-    return _tensor(value[..., :0]).dtype
+        return TensorDict({GROUP: TensorDict(arms, batch_size=(B, N), device=device),
+                           "state": torch.from_numpy(self.core.state()),
+                           "info": TensorDict(copy_info, batch_size=(B,), device=device)},
+                          batch_size=(B,), device=device)

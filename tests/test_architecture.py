@@ -266,8 +266,8 @@ LAYERS = {
     "engine": ("engine", "kinds", "step_record", "kernel_step", "piqp_filter"),
     "tasks": ("env_ids", "config", "tasks", "observation"),
     "core": ("core",),
-    "views": ("environment", "centralized", "vector", "reach", "marl", "masked_distribution", "render", "registration",
-              "benchmarl_task", "benchmarl_tasks", "simulation", "experiment"),
+    "views": ("environment", "centralized", "vector", "reach", "marl", "marl_specs", "masked_distribution", "render",
+              "registration", "benchmarl_task", "benchmarl_tasks", "simulation", "experiment"),
     "front ends": ("", "__main__", "cli", "figures", "warmup", "wrappers", "baselines"),
 }
 
