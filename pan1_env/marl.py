@@ -58,6 +58,7 @@ from .validation import hints_unknown_keywords
 
 __all__ = ["torchrl_env", "Pan1TorchRLEnv", "MaskedTanhNormal"]
 
+
 @hints_unknown_keywords
 @config_arguments(FormationConfig)
 def torchrl_env(scenario: Any = "paper_pa3_square", num_envs: int = 1, *, threads: bool | str = "auto",
