@@ -476,9 +476,10 @@ def _over_arms(rule: str, value: np.ndarray) -> np.ndarray:
     return out
 
 
-# the dtypes each compiled reduction gives numpy's answer for (a float32 sum, say, numpy adds in float32)
+# the dtypes each compiled reduction gives numpy's answer for (a float32 sum, say, numpy adds in float32; a float
+# maximum would have to carry numpy's NaN rule, and the only maximum the core takes is of the integer status)
 _EXACT_DTYPES = {"sum": (np.float64, np.int64, np.bool_), "mean": (np.float64,), "min": (np.float64, np.int64),
-                 "max": (np.float64, np.int64), "any": (np.bool_,)}
+                 "max": (np.int64,), "any": (np.bool_,)}
 
 
 def copy_generator(seed: int, copy: int) -> np.random.Generator:
