@@ -434,19 +434,18 @@ def test_the_compiled_state_is_its_numpy_twins_bit_for_bit(setup: str) -> None:
     assert core.state().tobytes() == _numpy_state(core).tobytes()
 
 
-def _partial_start_cores() -> dict[str, FormationCore]:
+def _partial_start_core(setup: str) -> FormationCore:
+    """Five copies of a state set-up (:data:`_STATE_SETUPS`) or of the set-ups below, the filter on."""
     from pan1_env.config import ReachConfig
 
-    cores = {setup: FormationCore(FormationConfig(scenario, safety_filter=True, **kwargs), 5)
-             for setup, (scenario, kwargs) in _STATE_SETUPS.items()}
-    cores["whole arms among still obstacles"] = FormationCore(
-        FormationConfig("pan1_env/WholeArmStaticFormation-v1", safety_filter=True), 5)
-    cores["success hold"] = FormationCore(FormationConfig("pan1_env/MovingFormation-v1", safety_filter=True,
-                                                          success_hold=1.0), 5)
-    cores["faulted at the start"] = FormationCore(FormationConfig("random", safety_filter=True, random_options={
-        "fault_probability": 1.0, "fault_time": (0.0, 0.02)}), 5)
-    cores["reach"] = FormationCore(ReachConfig("paper_pa3_square", safety_filter=True), 5)
-    return cores
+    if setup == "reach":
+        return FormationCore(ReachConfig("paper_pa3_square", safety_filter=True), 5)
+    scenario, kwargs = {
+        "whole arms among still obstacles": ("pan1_env/WholeArmStaticFormation-v1", {}),
+        "success hold": ("pan1_env/MovingFormation-v1", {"success_hold": 1.0}),
+        "faulted at the start": ("random", {"random_options": {"fault_probability": 1.0, "fault_time": (0.0, 0.02)}}),
+    }.get(setup) or _STATE_SETUPS[setup]
+    return FormationCore(FormationConfig(scenario, safety_filter=True, **kwargs), 5)
 
 
 @pytest.mark.parametrize("setup", ["random", "faults", "moving target", "moving obstacles", "padding",
@@ -460,7 +459,7 @@ def test_a_partial_start_is_the_full_starts_rows(setup: str) -> None:
     copy's."""
     from pan1_env.compiled import kernels
 
-    core = _partial_start_cores()[setup]
+    core = _partial_start_core(setup)
     core.seed(5)
     core.reset()
     rng = np.random.default_rng(1)
@@ -488,3 +487,15 @@ def test_a_partial_start_is_the_full_starts_rows(setup: str) -> None:
     np.testing.assert_array_equal(getattr(core.task, "below_since", np.zeros(0)), held)
     assert core.engine.clearance(copies).tobytes() == core.engine.clearance()[copies].tobytes()
     assert core.engine.joint_positions(copies).tobytes() == core.engine.joint_positions()[copies].tobytes()
+
+
+@pytest.mark.parametrize("setup", ["random", "reach"])
+def test_a_steps_outcome_refuses_copies(setup: str) -> None:
+    """``copies`` is for a reset's outcome: with a step's record the tasks refuse it rather than mix rows."""
+    core = _partial_start_core(setup)
+    core.seed(0)
+    core.reset()
+    core.step(np.zeros((5, len(core.agents), core.k_max)))
+    state = core.task.observe(core.engine)[0]
+    with pytest.raises(ValueError, match="covers every copy"):
+        core.task.evaluate(core.record, core.engine, state, np.zeros((5, len(core.agents))), copies=np.array([0]))
