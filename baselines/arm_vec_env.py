@@ -47,7 +47,7 @@ class SB3ArmVecEnv(SB3VecEnv):
             bound = np.full(core.state_size, OBS_BOUND, np.float32)
             low, high = np.concatenate([low, -bound]), np.concatenate([high, bound])
         observation = gymnasium.spaces.Box(low, high, dtype=np.float32)
-        action = gymnasium.spaces.Box(-1.0, 1.0, (core.k_max,), np.float32)
+        action = gymnasium.spaces.Box(-1.0, 1.0, (core.action_width,), np.float32)
         return self.venv.num_envs * self._arms, observation, action
 
     @property
@@ -70,7 +70,8 @@ class SB3ArmVecEnv(SB3VecEnv):
         if self._actions is None:
             raise RuntimeError("step_wait() called without step_async()")
         core, N = self.venv.core, self._arms
-        actions = float_array("actions", self._actions, (self.num_envs, core.k_max)).reshape(-1, N, core.k_max)
+        width = core.action_width
+        actions = float_array("actions", self._actions, (self.num_envs, width)).reshape(-1, N, width)
         self._actions = None
         out = core.step(actions.astype(np.float64), autoreset=True, final_state=self.critic_state)
         infos = self._arm_infos(out.infos)
@@ -90,7 +91,7 @@ class SB3ArmVecEnv(SB3VecEnv):
         return self.venv.core.padded_from_flat(flat).reshape(-1, self.local_size)
 
     def team_actions(self, arm_actions: np.ndarray) -> np.ndarray:
-        """This view's actions ``(B'·N, k_max)`` as the team views' flat actions ``(B', Σ k_i)``."""
+        """This view's actions ``(B'·N, action_width)`` as the team views' flat actions ``(B', Σ sizes)``."""
         return self.venv.core.flat_actions(arm_actions)
 
     def _arm_rows(self, mats: list[np.ndarray], state: np.ndarray | None = None) -> np.ndarray:

@@ -397,10 +397,12 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
         meta |= {"cost_limit": cost_limit, "lagrangian_lr": lagrangian_lr}
 
     model_env_kwargs = dict(env_kwargs or {})
-    if model_env_kwargs.get("action_mode") == "gain":  # the gains the model was trained with, whatever the default
-        from pan1_env.config import DEFAULT_GAIN_RANGE
+    if model_env_kwargs.get("action_mode") in ("gain", "circulation"):  # the settings the model was trained with,
+        from pan1_env.config import FormationConfig  # whatever the defaults are when it is loaded
 
-        model_env_kwargs.setdefault("gain_range", DEFAULT_GAIN_RANGE)
+        for name in ("gain_range",) + (("circulation_gain", "circulation_activation")
+                                        if model_env_kwargs["action_mode"] == "circulation" else ()):
+            model_env_kwargs.setdefault(name, getattr(FormationConfig, name))
 
     def sidecar(path: Path, normalizer) -> None:
         info = {"scenario": scenario, "env_kwargs": model_env_kwargs, "param_sharing": param_sharing,

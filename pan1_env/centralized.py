@@ -43,7 +43,7 @@ class OneCopyGymEnv(gymnasium.Env):
 
     def _flat_spaces(self) -> None:
         self.observation_space = gymnasium.spaces.Box(*self.core.flat_observation_bounds(), dtype=np.float32)
-        self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (sum(self.core.n_actuated),), np.float32)
+        self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (sum(self.core.action_sizes),), np.float32)
         self._needs_reset = True
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -83,7 +83,7 @@ class CentralizedEnv(CoreView, OneCopyGymEnv):
         self.render_mode = self.parallel.render_mode
         self.possible_agents = self.core.agents
         self._flat_spaces()
-        self._splits = np.cumsum(self.core.n_actuated)[:-1]
+        self._splits = np.cumsum(self.core.action_sizes)[:-1]
 
     def agent_actions(self, action: np.ndarray) -> dict[str, np.ndarray]:
         """The flat action split into the agents' actions (agent order)."""

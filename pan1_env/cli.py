@@ -140,9 +140,10 @@ def _parser() -> argparse.ArgumentParser:
     tr.add_argument("--max-steps", type=_positive_int, default=None,
                     help="env steps per episode (default: the env's max_steps)")
     # pan1_env.config.ACTION_MODES, written out so that the parser does not import the env (a test checks)
-    tr.add_argument("--action-mode", choices=("velocity", "torque", "residual", "gain"), default="velocity",
-                    help="what an action means (residual: a correction to the paper's law; gain: a re-weighting "
-                         "of it; default: %(default)s)")
+    tr.add_argument("--action-mode", choices=("velocity", "torque", "residual", "gain", "circulation"),
+                    default="velocity", help="what an action means (residual: a correction to the paper's law; "
+                    "gain: a re-weighting of it; circulation: a re-weighting and a turn round obstacles; default: "
+                    "%(default)s)")
     tr.add_argument("--normalize", action=argparse.BooleanOptionalAction, default=True,
                     help="standardise observations and scale rewards (SB3's VecNormalize, saved in model.json)")
     tr.add_argument("--env-kwargs", type=json_object, default=None, metavar="JSON",
@@ -216,7 +217,7 @@ def _parser() -> argparse.ArgumentParser:
                                        "the suite's tasks (docs/BENCHMARK.md).")
     suite.add_argument("--tasks", default=None, metavar="T,T,…", help="task names or ids (default: every task)")
     suite.add_argument("--entries", default=None, metavar="E,E,…",
-                       help="law, circulation, ippo, mappo, mappo-lagrangian, ippo-unshielded (default: all)")
+                       help="the leaderboard's entries, by name (default: all; an unknown name lists them)")
     suite.add_argument("--runs", type=Path, default=Path("runs/suite"),
                        help="where the learners' runs are, <runs>/<entry>/<task>/seed_<s> (default: %(default)s)")
     suite.add_argument("--out", type=Path, default=Path("runs/leaderboard"), help="output directory")

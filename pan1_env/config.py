@@ -32,7 +32,7 @@ from .validation import positive_int, real, refuse_unknown, whole_ratio
 __all__ = ["FormationConfig", "ReachConfig", "config_arguments", "ACTION_MODES", "DEFAULT_CONTROL_DT",
            "DEFAULT_GAIN_RANGE", "MAX_KE_DT", "default_physics_dt", "SUCCESS_TOLERANCE"]
 
-ACTION_MODES = ("velocity", "torque", "residual", "gain")
+ACTION_MODES = ("velocity", "torque", "residual", "gain", "circulation")
 DEFAULT_CONTROL_DT = 0.05  # s per env step
 DEFAULT_PHYSICS_DT = 0.01  # s per RK4 sub-step: 5 sub-steps per env step, like Gymnasium's MuJoCo tasks
 DEFAULT_GAIN_RANGE = 4.0  # action_mode="gain": gains from 1/4 to 4
@@ -97,7 +97,8 @@ class FormationConfig:
       TOML file, a :class:`~pan1_env.scenario.Scenario`, ``"random"``, or a registered Gymnasium id
       (``"pan1_env/WholeArmStaticFormation-v0"``, with or without ``pan1_env:``), which stands for its
       scenario and options (``random_options`` given here are merged over the id's, key by key).
-    * ``action_mode``: ``"velocity"``, ``"torque"``, ``"residual"`` or ``"gain"`` (docs/ENVIRONMENTS.md).
+    * ``action_mode``: ``"velocity"``, ``"torque"``, ``"residual"``, ``"gain"`` or ``"circulation"``
+      (docs/ENVIRONMENTS.md).
     * ``control_dt``: seconds per env step (default 0.05); a whole multiple of ``physics_dt``.
     * ``physics_dt``: RK4 step in seconds. Default: :func:`default_physics_dt` (10 ms in velocity mode,
       2 ms in torque mode, or the next shorter step that divides ``control_dt`` and keeps K_e·dt ≤ 1).
@@ -109,7 +110,11 @@ class FormationConfig:
       ``intervention_penalty``: reward weights (defaults 1, 0, 0, 0, 0).
     * ``residual_gate``, ``blocked_gate``: gates of the residual correction (``action_mode="residual"``
       only; default 0, no gate).
-    * ``gain_range``: ``action_mode="gain"``: gains from 1/``gain_range`` to ``gain_range`` (> 1, default 4).
+    * ``gain_range``: ``action_mode="gain"`` or ``"circulation"``: gains from 1/``gain_range`` to ``gain_range`` (> 1,
+      default 4).
+    * ``circulation_gain``, ``circulation_activation``: ``action_mode="circulation"``: the circulation term at an
+      action of ±1 (> 0, default 1: the law's speed into an obstacle becomes as fast a turn round it), and how near
+      an obstacle (m, > 0, default 0.1) a body point must be for it to act.
     * ``max_joint_speed`` (rad/s, default 2), ``max_torque`` (N·m, default 5): what an action of 1 means.
     * ``torque_bound``: in torque mode behind the filter, keep its torques within ``max_torque`` too, as a
       constraint of its QP (docs/MODEL.md §5d). Default False: the filter reaches its answer in one sub-step
@@ -143,6 +148,8 @@ class FormationConfig:
     intervention_penalty: float = 0.0
     blocked_gate: float = 0.0
     gain_range: float = DEFAULT_GAIN_RANGE
+    circulation_gain: float = 1.0
+    circulation_activation: float = 0.1
     max_joint_speed: float = MAX_JOINT_SPEED
     max_torque: float = 5.0
     torque_bound: bool = False
@@ -176,6 +183,8 @@ class FormationConfig:
             put(name, real(name, getattr(self, name), non_negative=True))
         put("terminate_on_collision", bool(self.terminate_on_collision))
         put("terminate_on_success", bool(self.terminate_on_success))
+        for name in ("circulation_gain", "circulation_activation"):
+            put(name, real(name, getattr(self, name), positive=True))
         if self.gain_range <= 1.0:
             raise ValueError(f"gain_range must be > 1 (gains from 1/gain_range to gain_range), got {self.gain_range}")
         if self.action_mode != "residual" and (self.residual_gate > 0 or self.blocked_gate > 0):
@@ -234,8 +243,9 @@ class FormationConfig:
     @property
     def action_scale(self) -> float:
         """Physical units of an action of 1: ``max_joint_speed`` (rad/s), ``max_torque`` (N·m), or 1 for a
-        gain action (the exponent of the gain)."""
-        return {"torque": self.max_torque, "gain": 1.0}.get(self.action_mode, self.max_joint_speed)
+        gain or circulation action (the exponent of the gain, the circulation's signed strength)."""
+        return {"torque": self.max_torque, "gain": 1.0, "circulation": 1.0}.get(self.action_mode,
+                                                                                self.max_joint_speed)
 
     @property
     def neighbour_slots(self) -> int:

@@ -95,14 +95,19 @@ class FormationCore:
         self.agents = [f"arm_{i}" for i in range(team.n_arms)]
         self.n_links = [a.n_links for a in team.arms]
         self.n_actuated = [a.n_actuated for a in team.arms]
+        #: each arm's action entries: one per actuated joint, and in circulation mode one more, its circulation
+        self.action_sizes = [k + (c.action_mode == "circulation") for k in self.n_actuated]
         self.rngs = [np.random.default_rng() for _ in range(B)]
         self.steps = np.zeros(B, dtype=np.int64)
         self.record: StepRecord | None = None
-        self._k_rows = np.tile(np.asarray(self.n_actuated), B)
-        # the team views' flat action: where each of its columns goes in the padded (N, k_max) command
+        self._k_rows = np.tile(np.asarray(self.action_sizes), B)
+        # the flat team layout's columns in the padded (N, k_max) command (the filter's report) and in the padded
+        # (N, action_width) actions (the team views' flat action)
         k_max = max(self.n_actuated)
         self._columns = np.concatenate([i * k_max + np.arange(k) for i, k in enumerate(self.n_actuated)])
-        self._command = np.zeros((B, team.n_arms, k_max))
+        width = max(self.action_sizes)
+        self._action_columns = np.concatenate([i * width + np.arange(k) for i, k in enumerate(self.action_sizes)])
+        self._command = np.zeros((B, team.n_arms, width))
         # each arm's actuated joints among the torque record's n_max columns (its last k), and its padding
         k = np.asarray(self.n_actuated)[:, None]
         slot = np.minimum(np.arange(k_max), k - 1)
@@ -138,7 +143,13 @@ class FormationCore:
 
     @property
     def k_max(self) -> int:
+        """The most actuated joints of an arm: the width of the engine's command and of the filter's report."""
         return self.engine.k_max
+
+    @property
+    def action_width(self) -> int:
+        """The most action entries of an arm (:attr:`action_sizes`): the width of the padded actions."""
+        return len(self._command[0, 0])
 
     @property
     def state_size(self) -> int:
@@ -203,9 +214,9 @@ class FormationCore:
         return out
 
     def flat_actions(self, padded: np.ndarray) -> np.ndarray:
-        """Padded actions ``(B', N, k_max)`` (any number of rows; each arm's first k_i entries count) as the team
-        views' flat actions ``(B', Σ k_i)``: the inverse of :meth:`padded_actions`."""
-        return np.asarray(padded).reshape(-1, len(self.agents) * self.k_max)[:, self._columns]
+        """Padded actions ``(B', N, action_width)`` (any number of rows; each arm's first :attr:`action_sizes`
+        entries count) as the team views' flat actions ``(B', Σ sizes)``: the inverse of :meth:`padded_actions`."""
+        return np.asarray(padded).reshape(-1, len(self.agents) * self.action_width)[:, self._action_columns]
 
     def flat_observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Bounds of the team views' flat observation: the agents' observations concatenated in agent order."""
@@ -217,12 +228,12 @@ class FormationCore:
         return self.task.flat(mats)
 
     def padded_actions(self, flat: np.ndarray) -> np.ndarray:
-        """A flat team action ``(B, Σ k_i)`` (agent order) as the padded ``(B, N, k_max)`` array :meth:`step`
-        takes (a scratch array of the core's, overwritten by the next call)."""
-        if self._uniform_actions:  # every arm has k_max actions: the padded array is the flat one reshaped
+        """A flat team action ``(B, Σ sizes)`` (agent order) as the padded ``(B, N, action_width)`` array
+        :meth:`step` takes (a scratch array of the core's, overwritten by the next call)."""
+        if self._uniform_actions:  # every arm has as many actions: the padded array is the flat one reshaped
             self._command.reshape(self.copies, -1)[:] = flat
         else:
-            self._command.reshape(self.copies, -1)[:, self._columns] = flat
+            self._command.reshape(self.copies, -1)[:, self._action_columns] = flat
         return self._command
 
     def seed(self, seeds: int | list[int | None]) -> None:
@@ -274,34 +285,35 @@ class FormationCore:
         out = self.task.evaluate(None, self.engine, state, np.zeros((n, len(self.agents))), copies=copies)
         return mats, self._infos(out, None, copies)
 
-    def commands(self, actions: np.ndarray) -> np.ndarray:
-        """Turn actions ``(B, N, k_max)`` in place into the engine's commands from the current state (clip to
-        [−1, 1], scale, compose with the paper's law in residual and gain modes) and return each arm's
-        effort ‖clip(a)‖²/k ``(B, N)``. ``ValueError`` for NaN or inf, before anything changes."""
+    def commands(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The engine's commands ``(B, N, k_max)`` from actions ``(B, N, action_width)`` at the current state (clip to
+        [−1, 1], scale, compose with the paper's law in residual, gain and circulation modes; in place in the
+        actions' array but in circulation mode, whose actions are one entry wider) and each arm's effort
+        ‖clip(a)‖²/size ``(B, N)``. ``ValueError`` for NaN or inf, before anything changes."""
         effort = np.empty(len(self._k_rows))
         flat = actions.reshape(len(effort), -1)
         bad = kernels().scale_command(flat, self._k_rows, self.config.action_scale, effort)
         if bad >= 0:
             b, i = divmod(bad, len(self.agents))
             where = f"action for {self.agents[i]}" + (f" of copy {b}" if self.copies > 1 else "")
-            raise ValueError(f"{where} contains NaN or inf: {flat[bad, : self.n_actuated[i]].tolist()}")
-        self.task.compose(self.config.action_mode, actions, self.engine)
-        return effort.reshape(self.copies, -1)
+            raise ValueError(f"{where} contains NaN or inf: {flat[bad, : self.action_sizes[i]].tolist()}")
+        command = self.task.compose(self.config.action_mode, actions, self.engine)
+        return command, effort.reshape(self.copies, -1)
 
     def step(self, actions: np.ndarray, *, autoreset: bool = False, final_state: bool = False) -> CoreStep:
-        """One env step of every copy. ``actions (B, N, k_max)``: each arm's actions in [−1, 1] (clipped),
+        """One env step of every copy. ``actions (B, N, action_width)``: each arm's actions in [−1, 1] (clipped),
         padding ignored; the array is used as scratch. With ``autoreset`` the copies that end start a new
         episode in the same call (the returned observations are the new episodes' first), and with
         ``final_state`` the step also keeps every copy's :meth:`state` from before that reset (a centralised
         critic's input at an episode's end; it costs about 6 % of a step at B = 1024, so only on request)."""
         c, engine = self.config, self.engine
         torque = c.action_mode == "torque"
-        effort = self.commands(actions)
-        rec = engine.step(actions, c.substeps, torque=torque)
+        command, effort = self.commands(actions)
+        rec = engine.step(command, c.substeps, torque=torque)
         self.record = rec
         self.steps += 1
         state, mats = self.task.observe(engine)
-        out = self.task.evaluate(rec, engine, state, effort, command=None if torque else actions)
+        out = self.task.evaluate(rec, engine, state, effort, command=None if torque else command)
         truncated = self.steps >= c.max_steps
         infos = self._infos(out, rec)
         if not rec.all_finite:  # a numerical fault truncates its copies

@@ -551,6 +551,17 @@ class Engine:
                               kind.momentum, p, Jbar, Mc, Hc, momentum, drift)
         return KindTerms(p, Jbar, momentum, drift)
 
+    def circulation(self, kind: Kind, v0: np.ndarray, activation: float) -> np.ndarray:
+        """The anticlockwise circulation term of every arm of ``kind`` for its command ``v0 (B·A, k)`` (rad/s),
+        ``(B·A, k)``: round the obstacles where they are now, from each link's closest point with whole-arm bodies,
+        else from the end-effector, for body points within ``activation`` m (:mod:`pan1_env.kernels.circulation`;
+        the rule's :func:`~pan1_env.baselines.circulation.circulation_term` is its numpy twin)."""
+        out = np.empty_like(v0)
+        kernels().group_circulation(kind.lam, kind.lengths, kind.base, kind.phi, kind.passive, kind.q,
+                                    np.arange(len(kind.q)) // kind.A, self.centers, self.radii, self.link_radius,
+                                    self.link_bodies, float(activation), np.ascontiguousarray(v0, dtype=float), out)
+        return out
+
     # --------------------------------------------------------------- stepping
     def step(self, command: np.ndarray, substeps: int, *, torque: bool = False) -> StepRecord:
         """Hold ``command (B, N, k_max)`` (desired actuated velocities in rad/s, or with ``torque``

@@ -77,14 +77,14 @@ class Pan1ParallelEnv(CoreView, ParallelEnv):
         self.render_mode = render_mode
         self.possible_agents = list(self.core.agents)
         self.agents: list[str] = []
-        n_links, n_actuated = self.core.n_links, self.core.n_actuated
+        n_links, sizes = self.core.n_links, self.core.action_sizes
         self.observation_spaces = {a: gymnasium.spaces.Box(*self.core.layout.bounds(n), dtype=np.float32)
                                    for a, n in zip(self.possible_agents, n_links, strict=True)}
         self.action_spaces = {a: gymnasium.spaces.Box(-1.0, 1.0, (k,), np.float32)
-                              for a, k in zip(self.possible_agents, n_actuated, strict=True)}
+                              for a, k in zip(self.possible_agents, sizes, strict=True)}
         self.state_space = gymnasium.spaces.Box(-OBS_BOUND, OBS_BOUND, (self.core.state_size,), np.float32)
-        self._actions = np.zeros((1, len(n_links), self.core.k_max))
-        self._uniform = len(set(n_actuated)) == 1
+        self._actions = np.zeros((1, len(n_links), self.core.action_width))
+        self._uniform = len(set(sizes)) == 1
         self._renderer = None
 
     def observation_space(self, agent: str) -> gymnasium.spaces.Box:
@@ -132,13 +132,13 @@ class Pan1ParallelEnv(CoreView, ParallelEnv):
 
     def commands(self, actions: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """The engine's commands ``(1, N, k_max)`` (rad/s; N·m in torque mode) and efforts ``(N,)`` that
-        ``actions`` give from the current state (residual and gain modes compose them with the paper's
-        law), without stepping."""
-        command = self._padded(actions).copy()
-        return command, self.core.commands(command)[0]
+        ``actions`` give from the current state (the residual, gain and circulation modes compose them with the
+        paper's law), without stepping."""
+        command, effort = self.core.commands(self._padded(actions).copy())
+        return command, effort[0]
 
     def _padded(self, actions: Mapping[str, np.ndarray]) -> np.ndarray:
-        """The agents' actions as the core's padded ``(1, N, k_max)`` array, each checked (a specific error)."""
+        """The agents' actions as the core's padded ``(1, N, action_width)`` array, each checked."""
         if not isinstance(actions, Mapping):
             raise ValueError(f"actions must be a dict keyed by agent, got {type(actions).__name__}")
         if set(actions) != set(self.agents):
@@ -153,7 +153,7 @@ class Pan1ParallelEnv(CoreView, ParallelEnv):
                 self._actions[0] = batch
                 return self._actions
         for i, agent in enumerate(self.possible_agents):
-            self._actions[0, i, : self.core.n_actuated[i]] = float_array(f"action for {agent}", actions[agent],
+            self._actions[0, i, : self.core.action_sizes[i]] = float_array(f"action for {agent}", actions[agent],
                                                                          self.action_spaces[agent].shape)
         return self._actions
 

@@ -14,12 +14,13 @@ actions to the CPU and the results back. An unknown keyword gets a "did you mean
 Keys (batch size ``[B]``; every arm of a copy starts and ends its episode together; every float is float32):
 
 * ``("arms", "observation") [B, N, obs]``: each arm's local observation, zero-padded at its end to the largest
-  arm's size; ``("arms", "action_mask") [B, N, k_max]`` bool: which action entries the arm uses; ``"state"
+  arm's size; ``("arms", "action_mask") [B, N, width]`` bool: which action entries the arm uses; ``"state"
   [B, state_size]``: the global state, for centralised critics.
-* ``("arms", "action") [B, N, k_max]`` in [−1, 1]: an arm applies its own first k_i entries, the rest is
-  ignored. Arms of different kinds (link counts, PA or fully actuated) are padded into one group rather
-  than split into one group per kind, so that one shared network (BenchMARL's default,
-  ``share_policy_params``) serves every arm of a team, whatever its kinds.
+* ``("arms", "action") [B, N, width]`` in [−1, 1]: an arm applies its own first entries (its actuated joints
+  k_i, and one more in circulation mode: ``core.action_sizes``), the rest is ignored. Arms of different kinds
+  (link counts, PA or fully actuated) are padded into one group rather than split into one group per kind, so
+  that one shared network (BenchMARL's default, ``share_policy_params``) serves every arm of a team, whatever
+  its kinds.
 * ``("arms", "reward") [B, N, 1]``, and beside the observation ``("arms", "cost") [B, N, 1]`` (1.0 where the
   arm entered an obstacle at some sub-step of the step, the safety-gymnasium convention; 0 after a reset):
   constrained learners read it from ``("next", "arms", "cost")``.
@@ -29,8 +30,8 @@ Keys (batch size ``[B]``; every arm of a copy starts and ends its episode togeth
   filter on ``shield_intervened``, ``shield_fallback``, ``shield_status``, ``shield_min_barrier``; and
   ``("info", key) [B]`` for the per-copy ones (``formation_error``, ``is_success``).
 
-**Padded action entries.** In a team of mixed kinds an arm's entries past its own k_i are ignored by the env, but
-a policy still samples them, and a plain ``TanhNormal`` over all k_max entries counts them in its log-prob and
+**Padded action entries.** In a team of mixed kinds an arm's entries past its own are ignored by the env, but
+a policy still samples them, and a plain ``TanhNormal`` over all the width's entries counts them in its log-prob and
 entropy: PPO's ratio and entropy bonus then move parameters that change nothing. Mask them: a policy whose
 distribution is :class:`MaskedTanhNormal`, reading ``("arms", "action_mask")`` beside its ``loc`` and ``scale``
 (``ProbabilisticActor(in_keys={"loc": …, "scale": …, "mask": ("arms", "action_mask")}, …)``), sums the log-prob
@@ -81,11 +82,11 @@ class Pan1TorchRLEnv(EnvBase):
         return view_repr(self)
 
     def __init__(self, core: FormationCore, device: torch.device | str = "cpu") -> None:
-        B, N, k = core.copies, len(core.agents), core.k_max
+        B, N, k = core.copies, len(core.agents), core.action_width
         super().__init__(device=device, batch_size=torch.Size([B]))
         self.core = core
         self._last: tuple[list[np.ndarray], dict[str, np.ndarray]] | None = None  # what it last returned: _keep
-        self._mask = torch.from_numpy(np.arange(k) < np.asarray(core.n_actuated)[:, None]).expand(B, N, k)
+        self._mask = torch.from_numpy(np.arange(k) < np.asarray(core.action_sizes)[:, None]).expand(B, N, k)
         core.reset()
         _, infos = core.start()  # the info keys and shapes, the same after every reset and step
         self._arm_keys = [key for key in infos if per_arm(key) and key != "cost"]

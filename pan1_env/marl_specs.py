@@ -19,7 +19,7 @@ def output_specs(core: FormationCore, infos: dict[str, np.ndarray], arm_keys: li
                  copy_keys: list[str]) -> dict[str, Composite]:
     """The ``observation``, ``action``, ``reward`` and ``done`` specs of the TorchRL view of ``core``, with the infos
     ``arm_keys`` per arm and ``copy_keys`` per copy (``infos``: a start's, for their shapes and dtypes)."""
-    B, N, k = core.copies, len(core.agents), core.k_max
+    B, N, k = core.copies, len(core.agents), core.action_width
     low, high = core.padded_observation_bounds()
     size = low.shape[1]
     low, high = torch.from_numpy(low).expand(B, N, size), torch.from_numpy(high).expand(B, N, size)

@@ -32,13 +32,16 @@ GOAL_DRAWS = 1000  # attempts at a reach goal clear of the obstacles before givi
 
 
 def law_velocity(engine: Engine, e_hat: np.ndarray, kp: np.ndarray, feed_forward: np.ndarray | None = None,
-                 gain: np.ndarray | None = None, max_speed: float | None = None) -> np.ndarray:
+                 gain: np.ndarray | None = None, max_speed: float | None = None,
+                 circulation: tuple[np.ndarray, float] | None = None) -> np.ndarray:
     """The paper's distributed law (Eq. 39, :func:`~pan1_env.control.nominal_velocity`) for every arm of every copy of
     ``engine``, ``(B, N, k_max)`` rad/s (padding zero), from each arm's formation gradient ``e_hat (B, N, 2)`` and each
     copy's gain ``kp (B,)``: a PAn−1 arm's drift and a moving formation's ``feed_forward (B, N, 2)`` compensated,
     ``gain (B, N, k_max)`` multiplying each joint's term, and each arm's vector scaled down as a whole to
-    ``max_speed`` (None: unbounded). The one assembly of the law: the envs' and
-    :class:`~pan1_env.simulation.Simulation`'s."""
+    ``max_speed`` (None: unbounded). With ``circulation = (strength (B, N), activation)`` each arm's scaled vector
+    then gets ``strength`` times its circulation term round the obstacles within ``activation`` m
+    (:meth:`Engine.circulation`; > 0 anticlockwise) and is scaled down again. The one assembly of the law: the envs'
+    and :class:`~pan1_env.simulation.Simulation`'s."""
     out = np.zeros((engine.copies, engine.n_arms, engine.k_max))
     for kind in engine.kinds:
         terms = engine.kind_terms(kind)
@@ -47,7 +50,14 @@ def law_velocity(engine: Engine, e_hat: np.ndarray, kp: np.ndarray, feed_forward
         v0 = nominal_velocity(terms.Jbar, e, np.repeat(kp, kind.A)[:, None], terms.drift, ff)
         if gain is not None:
             v0 *= kind.from_team(gain, kind.k)
-        kind.to_team(out, v0 if max_speed is None else within_speed(v0, max_speed))
+        if max_speed is not None:
+            within_speed(v0, max_speed)
+        if circulation is not None:
+            strength, activation = circulation
+            v0 += kind.from_team(strength)[:, None] * engine.circulation(kind, v0, activation)
+            if max_speed is not None:
+                within_speed(v0, max_speed)
+        kind.to_team(out, v0)
     return out
 
 
@@ -193,28 +203,46 @@ class FormationTask:
         self.track(engine)
         return np.concatenate([self.distances, self.feed_forward.reshape(engine.copies, -1)], axis=1)
 
-    def nominal_velocity(self, engine: Engine, gain: np.ndarray | None = None) -> np.ndarray:
+    def nominal_velocity(self, engine: Engine, gain: np.ndarray | None = None,
+                         circulation: np.ndarray | None = None) -> np.ndarray:
         """The paper's distributed law for every arm, ``(B, N, k_max)`` rad/s (padding zero):
         ``v_i0 = −K_P J̄_iᵀ ê_i``, ``ê_i = Σ_j 2 (p_i − p_j)(‖p_i − p_j‖² − d_ij²)`` (Eq. 39; for a PAn−1 arm
         whose passive joint turns, minus J̄⁺ of its end-effector's drift, docs/MODEL.md §7), each arm's
         vector scaled down as a whole to ``max_joint_speed`` when an entry exceeds it (so it stays a
         descent direction of V), as :class:`~pan1_env.baselines.ReferencePolicy` does from observations.
         ``gain (B, N, k_max)``, if given, multiplies each joint's term before that scaling. A moving formation
-        adds J̄⁺ ṗ_ff (its feed-forward) before that scaling."""
+        adds J̄⁺ ṗ_ff (its feed-forward) before that scaling. ``circulation (B, N)``, if given, adds that multiple
+        of each arm's circulation term (``circulation_activation``) after it, and scales down again."""
         self.track(engine)
         z = self.incidence.edge_vectors(engine.positions())  # (B, E, 2)
         e_hat = self.incidence.gradient(z, edge_errors(z, self.distances))  # (B, N, 2)
+        c = self.config
         return law_velocity(engine, e_hat, self.kp, self.feed_forward if self.motion is not None else None, gain,
-                            self.config.max_joint_speed)
+                            c.max_joint_speed, None if circulation is None else (circulation,
+                                                                                   c.circulation_activation))
 
-    def compose(self, action_mode: str, command: np.ndarray, engine: Engine) -> None:
-        """Turn the scaled actions ``command (B, N, k_max)`` into velocities in place: :meth:`add_nominal`
-        for ``"residual"``, :meth:`scale_nominal` for ``"gain"``; the other modes' actions are their
-        commands already."""
+    def compose(self, action_mode: str, command: np.ndarray, engine: Engine) -> np.ndarray:
+        """The engine's command ``(B, N, k_max)`` from the scaled actions ``command`` (``(B, N, action_width)``):
+        :meth:`add_nominal` for ``"residual"`` and :meth:`scale_nominal` for ``"gain"``, in place;
+        :meth:`circulate` for ``"circulation"``, a new array; the other modes' actions are their commands
+        already."""
         if action_mode == "residual":
             self.add_nominal(command, engine)
         elif action_mode == "gain":
             self.scale_nominal(command, engine)
+        elif action_mode == "circulation":
+            return self.circulate(command, engine)
+        return command
+
+    def circulate(self, actions: np.ndarray, engine: Engine) -> np.ndarray:
+        """Circulation actions ``(B, N, 1 + k_max)``: arm i's entry 0 adds that multiple of ``circulation_gain`` times
+        its circulation term, where the law drives a body point within ``circulation_activation`` m of an obstacle
+        as fast a turn round it (> 0 anticlockwise, < 0 clockwise; :mod:`pan1_env.kernels.circulation`); its next
+        k_i entries re-weight the paper's law as gain actions do. Entry 0 means the same for every arm kind, so one
+        network shared by the arms reads it alike. The zero action is the law. The term turns only the part of the
+        command that points into an obstacle, and the filter keeps the arm out whatever the action."""
+        return self.nominal_velocity(engine, self.config.gain_range ** actions[..., 1:],
+                                     actions[..., 0] * self.config.circulation_gain)
 
     def scale_nominal(self, command: np.ndarray, engine: Engine) -> None:
         """Gain actions: joint j of arm i gets the paper's law with its term multiplied by
@@ -406,8 +434,9 @@ class ReachTask:
         """Nothing: the goal is not part of the state (``(B, 0)``)."""
         return np.empty((engine.copies, 0))
 
-    def compose(self, action_mode: str, command: np.ndarray, engine: Engine) -> None:
+    def compose(self, action_mode: str, command: np.ndarray, engine: Engine) -> np.ndarray:
         """Velocity actions only: the command is the action."""
+        return command
 
     def bounds(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """cos/sin in [−1, 1], presence flags in [0, 1], everything else in ±OBS_BOUND."""

@@ -107,7 +107,7 @@ class Pan1VectorEnv(CoreView, VectorEnv):
         self.num_envs = self.core.copies
         self.agents = list(self.core.agents)
         self.single_observation_space = gymnasium.spaces.Box(*self.core.flat_observation_bounds(), dtype=np.float32)
-        self.single_action_space = gymnasium.spaces.Box(-1.0, 1.0, (sum(self.core.n_actuated),), np.float32)
+        self.single_action_space = gymnasium.spaces.Box(-1.0, 1.0, (sum(self.core.action_sizes),), np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._needs_reset = True

@@ -18,7 +18,8 @@ from pan1_env.core import FormationCore
 from pan1_env.environment import parallel_env
 from pan1_env.vector import Pan1VectorEnv
 
-MODE_ARGS = {"velocity": {}, "torque": {}, "gain": {}, "residual": {"blocked_gate": 0.05, "residual_gate": 0.02}}
+MODE_ARGS = {"velocity": {}, "torque": {}, "gain": {}, "circulation": {},
+             "residual": {"blocked_gate": 0.05, "residual_gate": 0.02}}
 FIRST_STEPS = 6
 
 

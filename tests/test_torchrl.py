@@ -71,10 +71,11 @@ def test_the_wrapper_steps_the_env_as_it_is() -> None:
 
 
 @pytest.mark.parametrize("shield", [True, False])
-@pytest.mark.parametrize("scenario", ["paper_pa3_square", "paper_pa_mixed_square", "random",
-                                      "pan1_env/WholeArmStaticFormation-v0"])
-def test_native_env_specs_hold(scenario: str, shield: bool) -> None:
-    env = torchrl_env(scenario, num_envs=3, max_steps=10, safety_filter=shield)
+@pytest.mark.parametrize(("scenario", "mode"), [
+    ("paper_pa3_square", "velocity"), ("paper_pa_mixed_square", "velocity"), ("random", "velocity"),
+    ("pan1_env/WholeArmStaticFormation-v0", "velocity"), ("pan1_env/WholeArmStaticFormation-v1", "circulation")])
+def test_native_env_specs_hold(scenario: str, mode: str, shield: bool) -> None:
+    env = torchrl_env(scenario, num_envs=3, max_steps=10, safety_filter=shield, action_mode=mode)
     check_env_specs(env, seed=0)
     rollout = env.rollout(25, break_when_any_done=False)  # past two ends: TorchRL resets the ended copies
     assert rollout["next", "arms", "reward"].shape == (3, 25, 4, 1)
@@ -84,25 +85,27 @@ def test_native_env_specs_hold(scenario: str, shield: bool) -> None:
         assert rollout["next", "arms", "cost"].sum() == 0
 
 
-@pytest.mark.parametrize("scenario", ["paper_pa_mixed_square", "random"])
-def test_native_env_matches_the_vector_env_step_for_step(scenario: str) -> None:
+@pytest.mark.parametrize(("scenario", "mode"), [("paper_pa_mixed_square", "velocity"), ("random", "velocity"),
+                                                ("paper_pa_mixed_square", "circulation")])
+def test_native_env_matches_the_vector_env_step_for_step(scenario: str, mode: str) -> None:
     """The same seeds and actions give the vector env's observations (per arm, unpadded), rewards (the
     vector env's is the arms' mean), costs and ends, through the reset of the copies that end (random teams:
-    the same new teams from the same generators)."""
+    the same new teams from the same generators). Circulation actions: one entry more per arm, in a team of
+    two kinds."""
     B = 3
-    env = torchrl_env(scenario, num_envs=B, max_steps=6, safety_filter=True)
-    venv = Pan1VectorEnv(scenario, B, max_steps=6)
+    env = torchrl_env(scenario, num_envs=B, max_steps=6, safety_filter=True, action_mode=mode)
+    venv = Pan1VectorEnv(scenario, B, max_steps=6, action_mode=mode)
     env.set_seed(11)
     td = env.reset()
     obs, _ = venv.reset(seed=11)
     core = env.core
-    sizes, ks = [len(core.task.bounds(i)[0]) for i in range(len(core.agents))], core.n_actuated
+    sizes, ks = [len(core.task.bounds(i)[0]) for i in range(len(core.agents))], core.action_sizes
     rng = np.random.default_rng(0)
     for _ in range(9):  # the copies end at step 6 and start again
         per_arm = np.concatenate([td["arms", "observation"][:, i, :n].numpy() for i, n in enumerate(sizes)], axis=1)
         np.testing.assert_array_equal(per_arm, obs)
         flat = rng.uniform(-1, 1, (B, sum(ks))).astype(np.float32)
-        padded = np.zeros((B, 4, core.k_max), np.float32)
+        padded = np.zeros((B, 4, core.action_width), np.float32)
         for i, (start, k) in enumerate(zip(np.cumsum([0, *ks[:-1]]), ks, strict=True)):
             padded[:, i, :k] = flat[:, start : start + k]
         td["arms", "action"] = torch.from_numpy(padded)

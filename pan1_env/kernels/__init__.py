@@ -11,6 +11,7 @@ costs a handful of calls whatever the team size.
 The package is split by job: :mod:`.physics` (the building blocks of dynamics and kinematics),
 :mod:`.qp` (the filter's QP) and :mod:`.last_resort` (its answer when the QP has none), :mod:`.capsules`
 (whole-arm geometry and rows) and :mod:`.team_geometry` (its passes over a team between kernel calls),
+:mod:`.circulation` (the circulation term round obstacles of ``action_mode="circulation"``),
 :mod:`.substep` (the sub-step kernel), :mod:`.steps` and :mod:`.scratch` (its steps and scratch space, inlined
 into it), :mod:`.specialise` (which kernel an arm kind steps with), :mod:`.observe` (observations and small
 helpers), :mod:`.outcome` (the tasks' per-step numbers) and :mod:`._numba_ext` (numba plumbing).
@@ -30,6 +31,7 @@ from __future__ import annotations
 
 from .. import compile_notice
 from . import capsules, last_resort, specialise, team_geometry
+from .circulation import group_circulation
 from .observe import (
     edge_length_errors,
     formation_observations,
@@ -66,6 +68,7 @@ __all__ = [
     "last_resort",
     "team_geometry",
     "group_end_effectors",
+    "group_circulation",
     "group_observations",
     "group_observations_parallel",
     "kind_state",
