@@ -104,6 +104,12 @@ ENTRIES = (
           tasks=_ONE_SIZE_TASKS),
     Entry("mappo", "MAPPO behind the shield: IPPO with a critic that also reads the team's state",
           recipe={"algo": "ppo", "shield": True, "centralised_critic": True, **_SHARED}, tasks=_ONE_SIZE_TASKS),
+    # the rule's turn round an obstacle as one more action of the learner, on the tasks whose failures are deadlocks
+    Entry("mappo-circulation", "MAPPO behind the shield whose arms also choose the circulation term: when and which "
+                               "way to turn round an obstacle (circulation actions)",
+          recipe={"algo": "ppo", "shield": True, "centralised_critic": True, **_SHARED,
+                  "env_kwargs": {"success_bonus": 1.0, "action_mode": "circulation"}},
+          tasks=("pan1_env/WholeArmStaticFormation-v1", "pan1_env/WholeArmFormation-v2")),
     Entry("mappo-lagrangian", "MAPPO-Lagrangian without the shield: the cost (arm-steps inside an obstacle) "
                               "held to 1 per episode by a multiplier",
           recipe={"algo": "ppo-lagrangian", "shield": False, "centralised_critic": True, "cost_limit": 1.0, **_SHARED},
