@@ -34,8 +34,8 @@ import numpy as np
 
 from .suite import SUITE, SuiteTask, suite_task
 
-__all__ = ["Entry", "ENTRIES", "entry", "run_suite", "load_leaderboard", "task_dir", "finished_runs", "shipped_model",
-           "train_entry", "EPISODE_METRICS"]
+__all__ = ["Entry", "ENTRIES", "entry", "run_suite", "load_leaderboard", "merge_leaderboards", "task_dir",
+           "finished_runs", "shipped_model", "train_entry", "EPISODE_METRICS"]
 
 # no return: the learners are trained and scored with their own reward arguments, so returns do not compare
 EPISODE_METRICS = ("success", "time_to_formation", "cost", "min_clearance", "intervention_rate")
@@ -425,6 +425,41 @@ def load_leaderboard(path: str | Path) -> dict[str, Any]:
         raise ValueError(f"{path}: not a pan1-env suite leaderboard.json (it needs {', '.join(keys)}, raw in "
                          "marl-eval's layout)")
     return data
+
+
+def merge_leaderboards(boards: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """One leaderboard from several (:func:`load_leaderboard`'s), for an entry scored on its own and added to a
+    board: every (task, entry) cell of a later board replaces the earlier boards' cell, with its runs and its
+    per-team numbers; tasks and entries are the union of the boards' (a later declaration replaces an earlier one
+    of the same name), and what is missing is worked out again. ValueError if the boards judge a task on different
+    held-out teams, since their cells would not compare."""
+    tasks: dict[str, dict] = {}
+    entries: dict[str, dict] = {}
+    runs: dict[str, dict] = {}
+    raw: dict[str, dict] = {}
+    for data in boards:
+        for task in data["tasks"]:
+            seen = tasks.get(task["env_id"])
+            if seen is not None and (seen["held_out"], seen["teams"]) != (task["held_out"], task["teams"]):
+                raise ValueError(f"the boards judge {task['env_id']} on different held-out teams "
+                                 f"({seen['held_out']}, {seen['teams']} teams against {task['held_out']}, "
+                                 f"{task['teams']}): their cells do not compare")
+            tasks[task["env_id"]] = task
+        entries |= {e["name"]: e for e in data["entries"]}
+        for env_id, cells in data["runs"].items():
+            runs.setdefault(env_id, {}).update(cells)
+            raw.setdefault(env_id, {}).update({name: data["raw"]["pan1_env"][env_id][name] for name in cells})
+
+    def enters(e: dict, env_id: str) -> bool:
+        return e["tasks"] is None or env_id in e["tasks"]
+
+    return {"tasks": list(tasks.values()), "entries": list(entries.values()),
+            "runs": {t: {e: runs[t][e] for e in entries if e in runs.get(t, {})} for t in tasks if t in runs},
+            "missing": [[t, e["name"]] for t in tasks for e in entries.values()
+                        if enters(e, t) and e["name"] not in runs.get(t, {})],
+            "raw": {"pan1_env": {t: {e: raw[t][e] for e in entries if e in raw.get(t, {})} for t in tasks
+                                 if t in raw}},
+            "quick": any(data.get("quick", False) for data in boards)}
 
 
 def resolve(tasks: str | None, entries: str | None) -> tuple[list[SuiteTask], list[Entry]]:

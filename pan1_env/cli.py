@@ -230,8 +230,10 @@ def _parser() -> argparse.ArgumentParser:
                             "instead of scoring")
     suite.add_argument("--seeds", type=_seeds, default=None, metavar="S,S,…",
                        help="with --train: these training seeds only (default: the task's)")
-    suite.add_argument("--from", dest="source", type=Path, default=None, metavar="JSON",
-                       help="re-render a leaderboard JSON (pan1-env suite's leaderboard.json) without scoring")
+    suite.add_argument("--from", dest="source", type=Path, action="append", default=None, metavar="JSON",
+                       help="re-render a leaderboard JSON (pan1-env suite's leaderboard.json) without scoring; "
+                            "given again, merge the boards, a later one's (task, entry) cells replacing the "
+                            "earlier's (an entry scored on its own, added to a board)")
     suite.add_argument("--docs", type=Path, default=None, metavar="PATH",
                        help="also write the benchmark page (docs/BENCHMARK.md) there, figures beside it")
     suite.add_argument("--workers", type=_positive_int, default=None,
@@ -568,7 +570,7 @@ def _cmd_suite(args) -> int:
         board.train_entry(board.entry(args.train[0]), suite_task(args.train[1]), runs=args.runs, seeds=args.seeds)
         return 0
     if args.source is not None:
-        data = board.load_leaderboard(args.source)
+        data = board.merge_leaderboards([board.load_leaderboard(path) for path in args.source])
     else:
         data = board.run_suite(tasks, entries, runs=args.runs, teams=QUICK_TEAMS if args.quick else args.teams,
                                max_steps=QUICK_STEPS if args.quick else None, workers=args.workers, bar=True,

@@ -304,3 +304,42 @@ def test_the_targets_nearest_learner_among_equals_is_the_one_that_reaches_the_ta
     entries = [{"name": "law"}, {"name": "slow", "recipe": learner}, {"name": "fast", "recipe": learner}]
     line = targets_table({"tasks": [task], "entries": entries}, rows).splitlines()[-1]
     assert line.split("|")[3].strip() == "fast" and line.split("|")[4].strip().startswith("fast:")
+
+
+def _cell(data: dict, env_id: str, name: str) -> dict:
+    return data["raw"]["pan1_env"][env_id][name]
+
+
+def test_an_entry_scored_alone_is_merged_into_the_shipped_board(tmp_path, capsys) -> None:
+    """A board of the law and one new entry on one task (what ``pan1-env suite --tasks T --entries law,E`` writes)
+    merged after the shipped board: its cells replace the shipped ones, every other cell is kept, the new entry is
+    declared, and what is missing is worked out again; a board on other held-out teams is refused."""
+    shipped = board.load_leaderboard(DOCS / "leaderboard.json")
+    assert board.merge_leaderboards([shipped]) == {**shipped, "quick": shipped.get("quick", False)}
+    task = next(t for t in shipped["tasks"] if t["env_id"] == "pan1_env/FaultFormation-v1")
+    law = _cell(shipped, task["env_id"], "law")
+    new = {"name": "made-up", "description": "made up", "policy": None, "recipe": {}, "tasks": [task["env_id"]],
+           "trained_on": None}
+    flipped = {"seed_0": {"absolute_metrics": {**law["seed_0"]["absolute_metrics"],
+                                               "success": [1.0] * task["teams"]}}}
+    alone = {"tasks": [task], "entries": [shipped["entries"][0], new],
+             "runs": {task["env_id"]: {"law": shipped["runs"][task["env_id"]]["law"],
+                                       "made-up": [{"seed": 0, "source": "made up"}]}},
+             "missing": [], "raw": {"pan1_env": {task["env_id"]: {"law": law, "made-up": flipped}}}, "quick": False}
+    merged = board.merge_leaderboards([shipped, alone])
+    assert _cell(merged, task["env_id"], "made-up") == flipped
+    assert [e["name"] for e in merged["entries"]] == [e["name"] for e in shipped["entries"]] + ["made-up"]
+    for env_id, cells in shipped["raw"]["pan1_env"].items():
+        for name, cell in cells.items():
+            assert _cell(merged, env_id, name) == cell
+    assert merged["missing"] == shipped["missing"]
+    (tmp_path / "alone.json").write_text(json.dumps(alone))
+    out = tmp_path / "out"
+    assert main(["suite", "--from", str(DOCS / "leaderboard.json"), "--from", str(tmp_path / "alone.json"),
+                 "--out", str(out), "--no-figures", "--reps", "50"]) == 0
+    assert "made-up" in (out / "leaderboard.md").read_text()
+    assert json.loads((out / "leaderboard.json").read_text()) == merged
+    other = {**alone, "tasks": [{**task, "held_out": [task["held_out"][0] + 1, task["held_out"][1]]}]}
+    with pytest.raises(ValueError, match="different held-out teams"):
+        board.merge_leaderboards([shipped, other])
+    capsys.readouterr()
