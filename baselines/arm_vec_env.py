@@ -24,8 +24,9 @@ class SB3ArmVecEnv(SB3VecEnv):
     """The B copies × N arms of a :class:`~pan1_env.vector.Pan1VectorEnv` as B·N SB3 envs, for one network
     shared by the arms, each acting on its own observation (IPPO when trained with PPO). Sub-env ``b·N + i``
     is arm i of copy b: its observation is the arm's, zero-padded to the largest arm's (``local_size``), its
-    action the largest arm's size (the arm applies its first k_i entries), its reward and info (``cost``,
-    ``min_clearance``, shield flags) its own beside its copy's ``formation_error`` and ``is_success``. A
+    action the largest arm's size (the arm applies its own first entries, ``core.action_sizes``), its reward
+    and info (``cost``, ``min_clearance``, shield flags) its own beside its copy's ``formation_error`` and
+    ``is_success``. A
     copy's arms start and end together; ``seed(s)`` seeds the copies as :class:`SB3VecEnv` does.
     ``critic_state=True`` appends the copy's global state (:meth:`~pan1_env.core.FormationCore.state`) to
     each row, for MAPPO's critic (:class:`~pan1_env.baselines.mappo.LocalActorPolicy`'s actor reads only

@@ -25,12 +25,14 @@ import numpy as np
 from pan1_env.config import SUCCESS_TOLERANCE
 from pan1_env.safety import FilterParams
 
-__all__ = ["evaluate", "summarise", "model_policy", "law_policy", "EVAL_SEEDS", "TOLERANCES", "eval_callback"]
+__all__ = ["evaluate", "summarise", "model_policy", "law_policy", "EVAL_SEEDS", "TOLERANCES", "eval_callback",
+           "LAW_MODES"]
 
 # held out: one-copy seeds, which no training copy's spawned stream is (pan1_env.core.copy_generator)
 EVAL_SEEDS = range(1_000_000, 1_000_064)
 # m: success at 1 cm is the task's; 2 and 5 cm show how close the rest came
 TOLERANCES = (SUCCESS_TOLERANCE, 0.02, 0.05)
+LAW_MODES = ("residual", "gain", "circulation")  #: the action modes whose zero action is the paper's law
 EVAL_FIELDS = ("timesteps", "success_1cm", "success_2cm", "success_5cm", "median_final_error_m", "mean_return",
                "cost", "mean_time_to_formation_s")
 
@@ -118,12 +120,13 @@ def model_policy(path: str | Path, env_kwargs: dict[str, Any] | None = None
 
 def law_policy(scenario: str, env_kwargs: dict[str, Any]) -> Callable[[np.ndarray], np.ndarray]:
     """The paper's law as a policy for :func:`evaluate` in an env whose actions correct or re-weight it
-    (``action_mode`` ``"residual"`` or ``"gain"``): the zero action of the team's size, which leaves it as it is."""
+    (``action_mode`` ``"residual"``, ``"gain"`` or ``"circulation"``): the zero action of the team's size, which
+    leaves it as it is."""
     from pan1_env.vector import Pan1VectorEnv
 
-    if env_kwargs.get("action_mode") not in ("residual", "gain"):
-        raise ValueError(f"the zero action is the paper's law only with action_mode 'residual' or 'gain', "
-                         f"not {env_kwargs.get('action_mode', 'velocity')!r}")
+    if env_kwargs.get("action_mode") not in LAW_MODES:
+        raise ValueError(f"the zero action is the paper's law only with action_mode 'residual', 'gain' or "
+                         f"'circulation', not {env_kwargs.get('action_mode', 'velocity')!r}")
     size = Pan1VectorEnv(scenario, 1, **env_kwargs).single_action_space.shape[0]
     return lambda obs: np.zeros((len(obs), size), np.float32)
 

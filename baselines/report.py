@@ -39,7 +39,7 @@ import numpy as np
 from scipy import stats
 
 from .curves import group_labels, group_runs, run_arguments
-from .evaluation import evaluate, law_policy, model_policy
+from .evaluation import LAW_MODES, evaluate, law_policy, model_policy
 
 __all__ = ["report", "iqm", "iqm_interval", "time_ratio", "markdown", "marl_eval_json", "marl_eval_data", "METRICS",
            "HELD_OUT_FIRST"]
@@ -118,7 +118,7 @@ def report(run_dirs: Sequence[str | Path], *, first: int = HELD_OUT_FIRST, teams
         scenario, shield, seeds = meta["scenario"], meta.get("shield", True), _held_out(meta, first, teams)
         kwargs = group[0]["env_kwargs"]  # the env the models were trained in (model.json), defaults resolved
         task = json.dumps([scenario, kwargs, shield], sort_keys=True)
-        if task not in references and kwargs.get("action_mode") in ("residual", "gain"):
+        if task not in references and kwargs.get("action_mode") in LAW_MODES:
             if progress:
                 progress(f"the paper's law on {len(seeds)} held-out episodes of {scenario} …")
             references[task] = evaluate(law_policy(scenario, kwargs), scenario, seeds, shield=shield, env_kwargs=kwargs)

@@ -74,6 +74,10 @@ def sb3_policy(path: Path, env) -> Callable[[Mapping[str, np.ndarray]], dict[str
     and action mode; a model trained on residual (or gain) actions runs on a velocity-mode env by adding
     the reference law to its correction (or by re-weighting the law's terms with its gains)."""
     model, meta = load_model(path)
+    trained_mode = meta.get("env_kwargs", {}).get("action_mode", "velocity")
+    if "circulation" in (trained_mode, env.config.action_mode) and trained_mode != env.config.action_mode:
+        raise ValueError(f"{path} was trained with action_mode={trained_mode!r}; this env has "
+                         f"action_mode={env.config.action_mode!r} (a circulation action runs in circulation mode only)")
     agents = list(env.possible_agents)
     sizes = [env.action_space(a).shape[0] for a in agents]
     obs_sizes = [env.observation_space(a).shape[0] for a in agents]
@@ -87,7 +91,6 @@ def sb3_policy(path: Path, env) -> Callable[[Mapping[str, np.ndarray]], dict[str
     from pan1_env.config import DEFAULT_GAIN_RANGE
 
     norm, trained = meta.get("observation_normalization"), meta.get("env_kwargs", {})
-    trained_mode = trained.get("action_mode", "velocity")
     gate = float(trained.get("residual_gate", 0.0))
     blocked_gate = float(trained.get("blocked_gate", 0.0))
     gain_range = float(trained.get("gain_range", DEFAULT_GAIN_RANGE))
@@ -95,6 +98,11 @@ def sb3_policy(path: Path, env) -> Callable[[Mapping[str, np.ndarray]], dict[str
     if trained_mode == env.config.action_mode == "gain" and env.config.gain_range != gain_range:
         raise ValueError(f"{path} was trained with gain_range={gain_range}; this env has "
                          f"gain_range={env.config.gain_range}")
+    if trained_mode == env.config.action_mode == "circulation":  # its actions mean what they meant in training
+        for name in ("gain_range", "circulation_gain", "circulation_activation"):
+            if name in trained and float(trained[name]) != getattr(env.config, name):
+                raise ValueError(f"{path} was trained with {name}={trained[name]}; this env has "
+                                 f"{name}={getattr(env.config, name)}")
     reference = None
     if trained_mode != env.config.action_mode:
         if trained_mode not in ("residual", "gain") or env.config.action_mode != "velocity":

@@ -30,8 +30,7 @@ def bench_kernel_bound(repeats: int, B: int = 1024) -> list[tuple[str, float, st
         engine, core = venv.core.engine, venv.core
         commands = []  # the commands those actions give, padded as the engine takes them (the core's own scaling)
         for a in actions:
-            commands.append(core.padded_actions(a).copy())
-            core.commands(commands[-1])
+            commands.append(core.commands(core.padded_actions(a).copy())[0])
         substeps = core.config.substeps
         venv.step(actions[0])  # the first calls start numba's threads and load the kernels: not a step's cost
         engine.step(commands[0], substeps)

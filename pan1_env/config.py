@@ -36,6 +36,9 @@ ACTION_MODES = ("velocity", "torque", "residual", "gain", "circulation")
 DEFAULT_CONTROL_DT = 0.05  # s per env step
 DEFAULT_PHYSICS_DT = 0.01  # s per RK4 sub-step: 5 sub-steps per env step, like Gymnasium's MuJoCo tasks
 DEFAULT_GAIN_RANGE = 4.0  # action_mode="gain": gains from 1/4 to 4
+# action_mode="circulation": the rule's own term at an action of 1, acting within 10 cm of an obstacle (the rule's
+# defaults, baselines/circulation.py)
+DEFAULT_CIRCULATION = {"circulation_gain": 1.0, "circulation_activation": 0.1}
 SUCCESS_TOLERANCE = 0.01  # m: the team is formed when every edge is this close to its length
 # Largest K_e · physics_dt accepted. RK4 on the tracker's error, ė = −K_e e, is stable up to 2.78;
 # at 1.0 it still shrinks the error by 0.375 a step against the exact e⁻¹ = 0.368.
@@ -148,8 +151,8 @@ class FormationConfig:
     intervention_penalty: float = 0.0
     blocked_gate: float = 0.0
     gain_range: float = DEFAULT_GAIN_RANGE
-    circulation_gain: float = 1.0
-    circulation_activation: float = 0.1
+    circulation_gain: float = DEFAULT_CIRCULATION["circulation_gain"]
+    circulation_activation: float = DEFAULT_CIRCULATION["circulation_activation"]
     max_joint_speed: float = MAX_JOINT_SPEED
     max_torque: float = 5.0
     torque_bound: bool = False
@@ -190,6 +193,9 @@ class FormationConfig:
         if self.action_mode != "residual" and (self.residual_gate > 0 or self.blocked_gate > 0):
             raise ValueError(f"residual_gate and blocked_gate scale a residual correction: they need "
                              f"action_mode='residual', got action_mode={self.action_mode!r}")
+        if self.action_mode != "circulation" and any(getattr(self, k) != v for k, v in DEFAULT_CIRCULATION.items()):
+            raise ValueError(f"circulation_gain and circulation_activation shape a circulation action: they need "
+                             f"action_mode='circulation', got action_mode={self.action_mode!r}")
         put("n_obstacle_obs", positive_int("n_obstacle_obs", self.n_obstacle_obs, minimum=0))
         if self.qp_solver not in QP_SOLVERS:
             raise ValueError(f"qp_solver must be one of {QP_SOLVERS}, got {self.qp_solver!r}")

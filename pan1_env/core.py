@@ -17,11 +17,11 @@ Infos (:meth:`FormationCore.infos`) are flat arrays, the same keys after a reset
   ``shield_fallback`` (its QP was infeasible and the fallback ran), ``shield_status`` (the worst QP status
   over the sub-steps, 0 nominal, 1 solved, 2 fallback: :class:`~pan1_env.safety.QPStatus`),
   ``shield_min_barrier`` (the smallest barrier value the filter saw; inf with none), ``shield_applied
-  (B, N, k_max)`` float32 (the command applied at the last sub-step, in action units: the filtered velocity
-  v*/``max_joint_speed``, or the torque/``max_torque``; 0 in the padding and for a lost joint) and
+  (B, N, k_max)`` float32 (the command applied at the last sub-step, one entry per actuated joint: the filtered
+  velocity v*/``max_joint_speed``, or the torque/``max_torque``; 0 in the padding and for a lost joint) and
   ``qp_counts (B, N, 3)`` (sub-steps per QP status); on a team whose arms may lose an actuator
-  (``Scenario.fault_times``), ``actuator_lost`` (the arm's first joint has lost its drive: the first entry of
-  its action is ignored);
+  (``Scenario.fault_times``), ``actuator_lost`` (the arm's first joint has lost its drive: the action entry of
+  that joint, the first, or in circulation mode the second, is ignored);
 * per copy ``(B,)``: ``formation_error`` (m, largest edge-length error), ``is_success``, and ``fault`` (a
   message, "" for the copies without one) only in a step where some copy's state went non-finite.
 """
@@ -132,6 +132,8 @@ class FormationCore:
         self.__dict__.update(state)
         if "_slots" not in state:  # pickled by a build before the filter's report was compiled
             self._slots = _command_slots(self.engine.n_arms, self.engine.k_max)
+        if "_action_columns" not in state:  # pickled before circulation actions: the actions are the command's width
+            self.action_sizes, self._action_columns = list(self.n_actuated), self._columns
 
     def set_safety_filter(self, safety_filter) -> None:
         """Switch the engine's filter (``False``, ``True`` or a :class:`~pan1_env.safety.FilterParams`), after
@@ -378,8 +380,8 @@ class FormationCore:
         """The infos per copy ``(B,)``, as the team views give them: ``cost`` the number of arms that entered
         an obstacle (``actuator_lost``: that have lost an actuator), ``min_clearance`` and ``shield_min_barrier``
         the smallest, ``reward_<term>`` the mean over arms (as the team reward is), ``shield_intervened``/
-        ``_fallback`` any arm's, ``shield_status`` the worst, ``shield_applied (B, Σ k_i)`` laid out as the flat
-        team action; per-copy keys as they are."""
+        ``_fallback`` any arm's, ``shield_status`` the worst, ``shield_applied (B, Σ k_i)`` one entry per actuated
+        joint in agent order (the flat team action's layout but in circulation mode); per-copy keys as they are."""
         out: dict[str, np.ndarray] = {}
         for key, value in infos.items():
             rule = _team_rule(key)

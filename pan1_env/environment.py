@@ -37,9 +37,9 @@ class Pan1ParallelEnv(CoreView, ParallelEnv):
 
     ## Action Space
 
-    ``Box(-1, 1, (k,), float32)`` per agent, k = n − 1 for a PA arm and n for a fully actuated one;
-    clipped. ``action_mode``: ``"velocity"`` (default; tracked by the paper's backstepping law at every
-    physics sub-step), ``"torque"``, ``"residual"`` or ``"gain"`` (:class:`~pan1_env.tasks.FormationTask`).
+    ``Box(-1, 1, (k,), float32)`` per agent, k = n − 1 for a PA arm and n for a fully actuated one (one more
+    in circulation mode); clipped. ``action_mode``: ``"velocity"`` (default; tracked by the paper's backstepping
+    law at every physics sub-step) or another of :class:`~pan1_env.tasks.FormationTask`'s.
 
     ## Observation Space
 

@@ -15,11 +15,11 @@ __all__ = ["MaskedTanhNormal"]
 class MaskedTanhNormal(torch.distributions.Distribution):
     """TorchRL's ``TanhNormal`` over an arm's padded action whose log-prob sums over the entries ``mask`` keeps.
 
-    Batch shape ``loc.shape[:-1]`` (copies, arms), event shape ``loc.shape[-1:]`` (k_max), as a ``TanhNormal`` over
-    the action: each entry is drawn from its own ``TanhNormal`` (``low``, ``high`` and the other keywords are
-    ``TanhNormal``'s), and an arm's padding entries (``("arms", "action_mask")`` False) are still sampled, and
-    ignored by the env, but count in no log-prob, so neither in PPO's ratio nor in its sampled entropy estimate
-    (``entropy()`` has no closed form, as for ``TanhNormal``)."""
+    Batch shape ``loc.shape[:-1]`` (copies, arms), event shape ``loc.shape[-1:]`` (the padded action's width),
+    as a ``TanhNormal`` over the action: each entry is drawn from its own ``TanhNormal`` (``low``, ``high`` and
+    the other keywords are ``TanhNormal``'s), and an arm's padding entries (``("arms", "action_mask")`` False)
+    are still sampled, and ignored by the env, but count in no log-prob, so neither in PPO's ratio nor in its
+    sampled entropy estimate (``entropy()`` has no closed form, as for ``TanhNormal``)."""
 
     arg_constraints: dict = {}
     has_rsample = True

@@ -116,6 +116,8 @@ class FormationTask:
       residual, a gain cannot point against the law. The effort term penalises the log-gains a. That holds
       for a still formation and an arm without drift: the gains multiply the whole command, so they also
       re-weight a drift's cancellation (§7) and a moving formation's feed-forward (§8).
+    * ``action_mode="circulation"``: gain actions with one entry more, first, a signed turn round the obstacles
+      an arm is driven into (:meth:`circulate`); the zero action is the reference controller.
     """
 
     _tracked: tuple | None = None  # the inputs track() last computed the targets from (None: none yet)
@@ -239,8 +241,10 @@ class FormationTask:
         its circulation term, where the law drives a body point within ``circulation_activation`` m of an obstacle
         as fast a turn round it (> 0 anticlockwise, < 0 clockwise; :mod:`pan1_env.kernels.circulation`); its next
         k_i entries re-weight the paper's law as gain actions do. Entry 0 means the same for every arm kind, so one
-        network shared by the arms reads it alike. The zero action is the law. The term turns only the part of the
-        command that points into an obstacle, and the filter keeps the arm out whatever the action."""
+        network shared by the arms reads it alike. The zero action is the law. The term adds, for each body point
+        and obstacle in range, a turn round the obstacle as fast (in joint space) as the command's push into it;
+        the push itself stays, for the filter, if it is on, to hold back; the sum is scaled down to the speed
+        bound."""
         return self.nominal_velocity(engine, self.config.gain_range ** actions[..., 1:],
                                      actions[..., 0] * self.config.circulation_gain)
 

@@ -37,8 +37,8 @@ class Pan1VectorEnv(CoreView, VectorEnv):
 
     ## Action Space
 
-    ``Box(-1, 1, (num_envs, Σ k_i), float32)``: row b is copy b's concatenated per-arm actions
-    (agent order), meant as in the parallel env (``action_mode`` velocity, torque, residual or gain). Values are
+    ``Box(-1, 1, (num_envs, Σ k_i), float32)`` (Σ (k_i + 1) in circulation mode): row b is copy b's concatenated
+    per-arm actions (agent order), meant as in the parallel env (``action_mode``). Values are
     clipped to [−1, 1]; a wrong shape, NaN/inf or a non-numeric batch (a dict, a string) raises
     ``ValueError``.
 

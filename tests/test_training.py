@@ -546,6 +546,31 @@ def test_a_gain_model_runs_as_a_velocity_policy_by_re_weighting_the_law(tmp_path
                                                       .values())), raw)
 
 
+def test_a_circulation_model_trains_per_arm_and_is_refused_where_its_actions_would_mean_otherwise(tmp_path) -> None:
+    """The leaderboard's mappo-circulation set-up in miniature (a network shared by the arms, circulation actions,
+    whole arms): it trains, runs on its own env, and is refused on an env whose circulation settings differ and on a
+    velocity env (whose law it cannot turn from observations)."""
+    from pan1_env.baselines import make_policy
+    from pan1_env.environment import parallel_env
+
+    whole = "pan1_env/WholeArmStaticFormation-v1"
+    train("ppo", whole, shield=True, timesteps=256, seed=0, out=tmp_path, checkpoint_every=256, progress=False,
+          n_envs=2, param_sharing=True, centralised_critic=True,
+          env_kwargs={"max_steps": 32, "action_mode": "circulation", "circulation_gain": 0.5},
+          algo_kwargs={"n_steps": 32, "batch_size": 64, "n_epochs": 1})
+    model = f"sb3:{tmp_path / 'model.zip'}"
+    env = parallel_env(whole, action_mode="circulation", circulation_gain=0.5, max_steps=32)
+    policy = make_policy(model, env)
+    obs, _ = env.reset(seed=0)
+    actions = policy(obs)
+    assert [len(actions[a]) for a in env.agents] == [k + 1 for k in env.core.n_actuated]
+    env.step(actions)
+    with pytest.raises(ValueError, match="circulation_gain=0.5; this env has circulation_gain=1.0"):
+        make_policy(model, parallel_env(whole, action_mode="circulation"), 0)
+    with pytest.raises(ValueError, match="action_mode='circulation'"):
+        make_policy(model, parallel_env(whole), 0)
+
+
 def test_a_gain_model_serves_velocity_and_gain_envs_but_not_residual_ones() -> None:
     from pan1_env.baselines import shipped
     from pan1_env.environment import parallel_env
@@ -639,7 +664,7 @@ def test_heldout_compares_gain_models_with_the_law_and_refuses_what_it_cannot_co
     with pytest.raises(SystemExit):
         heldout.main([str(tmp_path / "velocity" / "model.zip"), "--teams", "2"])
     err = capsys.readouterr().err
-    assert "has no reference to compare with" in err and "action_mode 'residual' or 'gain'" in err
+    assert "has no reference to compare with" in err and "action_mode 'residual', 'gain' or 'circulation'" in err
     with pytest.raises(SystemExit):
         heldout.main([str(tmp_path / "gain" / "model.zip"), str(tmp_path / "gain_other" / "model.zip"), "--teams", "2"])
     assert "was trained on other env arguments" in capsys.readouterr().err
