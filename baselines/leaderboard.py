@@ -189,11 +189,15 @@ def shipped_model(entry_: Entry, task: SuiteTask) -> str | None:
 
 
 def _trained_for(model: Path, task: SuiteTask) -> bool:
+    """Whether the model was trained on the task: its scenario and options, in the model's own action mode (the
+    suite scores a model in the mode it was trained in; the task's id sets none)."""
     from pan1_env.registration import env_arguments
 
     from .shipped import serves
 
-    return serves(json.loads(model.with_suffix(".json").read_text()), *env_arguments(task.env_id, task.env_kwargs))
+    meta = json.loads(model.with_suffix(".json").read_text())
+    scenario, kwargs = env_arguments(task.env_id, task.env_kwargs)
+    return serves(meta, scenario, kwargs | {"action_mode": meta.get("env_kwargs", {}).get("action_mode", "velocity")})
 
 
 def _records(result: dict[str, np.ndarray]) -> dict[str, list]:

@@ -343,3 +343,23 @@ def test_an_entry_scored_alone_is_merged_into_the_shipped_board(tmp_path, capsys
     with pytest.raises(ValueError, match="different held-out teams"):
         board.merge_leaderboards([shipped, other])
     capsys.readouterr()
+
+
+def test_a_circulation_run_is_scored_in_its_own_action_mode(tmp_path) -> None:
+    """The suite scores a run in the mode it was trained in: a circulation model (trained for a few steps, its
+    run.json then the entry's recipe, as if trained with it) is a run of mappo-circulation on its task."""
+    pytest.importorskip("stable_baselines3")
+    from pan1_env.baselines.training import train
+
+    circulation, task = board.entry("mappo-circulation"), suite_task("pan1_env/WholeArmStaticFormation-v1")
+    run = board.task_dir(tmp_path, circulation, task) / "seed_1"
+    recipe = circulation.recipe
+    train("ppo", task.env_id, shield=True, timesteps=128, seed=1, out=run, checkpoint_every=128, progress=False,
+          n_envs=2, param_sharing=True, centralised_critic=True, env_kwargs={"max_steps": 16, **recipe["env_kwargs"]},
+          algo_kwargs={"n_steps": 32, "batch_size": 64, "n_epochs": 1})
+    recorded = json.loads((run / "run.json").read_text())
+    (run / "run.json").write_text(json.dumps(recorded | {k: v for k, v in recipe.items() if k != "checkpoint_every"}
+                                             | {"timesteps": task.train_steps, "seed": 1}))
+    data = board.run_suite([task], [circulation], runs=tmp_path, teams=1, max_steps=5)
+    assert data["runs"][task.env_id]["mappo-circulation"] == [{"seed": 1, "source": str(run)}]
+    assert len(data["raw"]["pan1_env"][task.env_id]["mappo-circulation"]["seed_1"]["absolute_metrics"]["success"]) == 1
