@@ -74,10 +74,9 @@ def sb3_policy(path: Path, env) -> Callable[[Mapping[str, np.ndarray]], dict[str
     and action mode; a model trained on residual (or gain) actions runs on a velocity-mode env by adding
     the reference law to its correction (or by re-weighting the law's terms with its gains)."""
     model, meta = load_model(path)
-    trained_mode = meta.get("env_kwargs", {}).get("action_mode", "velocity")
-    if "circulation" in (trained_mode, env.config.action_mode) and trained_mode != env.config.action_mode:
-        raise ValueError(f"{path} was trained with action_mode={trained_mode!r}; this env has "
-                         f"action_mode={env.config.action_mode!r} (a circulation action runs in circulation mode only)")
+    trained_mode, mode = meta.get("env_kwargs", {}).get("action_mode", "velocity"), env.config.action_mode
+    if trained_mode != mode and (trained_mode not in ("residual", "gain") or mode != "velocity"):
+        raise ValueError(f"{path} was trained with action_mode={trained_mode!r}; this env has action_mode={mode!r}")
     agents = list(env.possible_agents)
     sizes = [env.action_space(a).shape[0] for a in agents]
     obs_sizes = [env.observation_space(a).shape[0] for a in agents]
@@ -88,26 +87,19 @@ def sb3_policy(path: Path, env) -> Callable[[Mapping[str, np.ndarray]], dict[str
                          f"{team_shapes[0]} → {team_shapes[1]} for the team, {arm_shapes[0]} → {arm_shapes[1]} "
                          "per arm (padded)")
     per_arm = shapes == arm_shapes and (shapes != team_shapes or bool(meta.get("param_sharing")))
-    from pan1_env.config import DEFAULT_GAIN_RANGE
+    from pan1_env.config import DEFAULT_GAIN_RANGE, MODE_SETTINGS, FormationConfig
 
     norm, trained = meta.get("observation_normalization"), meta.get("env_kwargs", {})
     gate = float(trained.get("residual_gate", 0.0))
     blocked_gate = float(trained.get("blocked_gate", 0.0))
     gain_range = float(trained.get("gain_range", DEFAULT_GAIN_RANGE))
     last: dict[str, np.ndarray] = {}  # the velocity actions sent at the previous step (blocked gate)
-    if trained_mode == env.config.action_mode == "gain" and env.config.gain_range != gain_range:
-        raise ValueError(f"{path} was trained with gain_range={gain_range}; this env has "
-                         f"gain_range={env.config.gain_range}")
-    if trained_mode == env.config.action_mode == "circulation":  # its actions mean what they meant in training
-        for name in ("gain_range", "circulation_gain", "circulation_activation"):
-            if name in trained and float(trained[name]) != getattr(env.config, name):
-                raise ValueError(f"{path} was trained with {name}={trained[name]}; this env has "
-                                 f"{name}={getattr(env.config, name)}")
+    for name in MODE_SETTINGS.get(mode, ()) if trained_mode == mode else ():  # its actions mean what they meant
+        value = float(trained.get(name, getattr(FormationConfig, name)))
+        if value != getattr(env.config, name):
+            raise ValueError(f"{path} was trained with {name}={value}; this env has {name}={getattr(env.config, name)}")
     reference = None
-    if trained_mode != env.config.action_mode:
-        if trained_mode not in ("residual", "gain") or env.config.action_mode != "velocity":
-            raise ValueError(f"{path} was trained with action_mode={trained_mode!r}; this env has "
-                             f"action_mode={env.config.action_mode!r}")
+    if trained_mode != mode:
         reference = ReferencePolicy(env)  # the paper's law from observations, corrected or re-weighted
     splits = np.cumsum(sizes)[:-1]
 

@@ -397,12 +397,10 @@ def train(algo: str = "ppo", scenario: str = "paper_pa3_square", *, shield: bool
         meta |= {"cost_limit": cost_limit, "lagrangian_lr": lagrangian_lr}
 
     model_env_kwargs = dict(env_kwargs or {})
-    if model_env_kwargs.get("action_mode") in ("gain", "circulation"):  # the settings the model was trained with,
-        from pan1_env.config import FormationConfig  # whatever the defaults are when it is loaded
+    from pan1_env.config import MODE_SETTINGS, FormationConfig
 
-        for name in ("gain_range",) + (("circulation_gain", "circulation_activation")
-                                        if model_env_kwargs["action_mode"] == "circulation" else ()):
-            model_env_kwargs.setdefault(name, getattr(FormationConfig, name))
+    for name in MODE_SETTINGS.get(model_env_kwargs.get("action_mode"), ()):  # the settings the model was trained
+        model_env_kwargs.setdefault(name, getattr(FormationConfig, name))  # with, whatever the defaults when loaded
 
     def sidecar(path: Path, normalizer) -> None:
         info = {"scenario": scenario, "env_kwargs": model_env_kwargs, "param_sharing": param_sharing,

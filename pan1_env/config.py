@@ -30,7 +30,7 @@ from .team_draw import draw_teams
 from .validation import positive_int, real, refuse_unknown, whole_ratio
 
 __all__ = ["FormationConfig", "ReachConfig", "config_arguments", "ACTION_MODES", "DEFAULT_CONTROL_DT",
-           "DEFAULT_GAIN_RANGE", "MAX_KE_DT", "default_physics_dt", "SUCCESS_TOLERANCE"]
+           "DEFAULT_GAIN_RANGE", "MAX_KE_DT", "default_physics_dt", "SUCCESS_TOLERANCE", "MODE_SETTINGS"]
 
 ACTION_MODES = ("velocity", "torque", "residual", "gain", "circulation")
 DEFAULT_CONTROL_DT = 0.05  # s per env step
@@ -39,6 +39,9 @@ DEFAULT_GAIN_RANGE = 4.0  # action_mode="gain": gains from 1/4 to 4
 # action_mode="circulation": the rule's own term at an action of 1, acting within 10 cm of an obstacle (the rule's
 # defaults, baselines/circulation.py)
 DEFAULT_CIRCULATION = {"circulation_gain": 1.0, "circulation_activation": 0.1}
+#: the settings that give an action mode's actions their meaning: recorded with a model trained in the mode, and
+#: compared with the env's when it runs there
+MODE_SETTINGS = {"gain": ("gain_range",), "circulation": ("gain_range", *DEFAULT_CIRCULATION)}
 SUCCESS_TOLERANCE = 0.01  # m: the team is formed when every edge is this close to its length
 # Largest K_e · physics_dt accepted. RK4 on the tracker's error, ė = −K_e e, is stable up to 2.78;
 # at 1.0 it still shrinks the error by 0.375 a step against the exact e⁻¹ = 0.368.
