@@ -14,6 +14,7 @@ import numpy as np
 from numba import njit
 
 from ._numba_ext import _JIT
+from .capsules import _joints
 from .physics import _lane_angles, _mass_lanes
 
 TINY = 1e-12  #: a row or a tangent shorter than this has no direction (the rule's threshold)
@@ -34,18 +35,16 @@ def group_circulation(lam, lengths, base, phi, passive, q, copy_of_row, centers,
     Mc1, Hc1 = np.empty((k, k, 1)), np.empty((k, 1))
     joints, g0, Jg = np.empty((n + 1, 2)), np.zeros((n, k)), np.empty((2, k))
     av, tv = np.empty(k), np.empty(k)
-    ph = np.empty(1)
+    ph, ln, bx, by = np.empty(1), np.empty((n, 1)), np.empty(1), np.empty(1)
     for i in range(A):
         for a in range(n):
             qi[a, 0] = q[i, a]
+            ln[a, 0] = lengths[i, a]
             for b in range(n):
                 lm[a, b, 0] = lam[i, a, b]
-        ph[0] = phi[i]
+        ph[0], bx[0], by[0] = phi[i], base[i, 0], base[i, 1]
         _lane_angles(qi, ph, n, 0, c, s)
-        joints[0, 0], joints[0, 1] = base[i, 0], base[i, 1]
-        for a in range(n):  # p = p0 + Σ L_α (sin, cos)(θ_α + φ), as the engine's kinematics
-            joints[a + 1, 0] = joints[a, 0] + lengths[i, a] * s[a, 0]
-            joints[a + 1, 1] = joints[a, 1] + lengths[i, a] * c[a, 0]
+        _joints(ln, bx, by, c, s, n, 0, joints)  # the whole-arm rows' joint positions
         for j in range(k):
             out[i, j] = 0.0
         _circulation_pairs(i, n, k, passive, copy_of_row[i], centers, radii, link_radius, links, activation, joints,
