@@ -9,7 +9,8 @@ whole-arm safety, for every kind; the same results, slower) and compiles the kin
 even if the process that asked has ended. :func:`install` listens to
 numba's compile events (``numba.core.event``, which fire only for a real compilation, not for a cache
 load) and says which kernel is being compiled, that it happens once, how long it took and where the
-cache lives; and, once, the whole-arm geometry helpers and the random-team draw (:mod:`pan1_env.draw_kernel`).
+cache lives; and, once, the whole-arm geometry helpers, the random-team draw (:mod:`pan1_env.draw_kernel`) and the
+circulation term of ``action_mode="circulation"`` (:mod:`pan1_env.kernels.circulation`).
 
 The notice goes to the ``pan1_env`` logger at level INFO when the application's logging shows that
 logger's INFO messages, and to standard error otherwise (:func:`notify`).
@@ -109,11 +110,16 @@ class _KernelCompileNotice(numba_event.Listener):
 
     @staticmethod
     def _draw(event) -> bool:
-        """Whether the event compiles the random-team draw (:mod:`pan1_env.draw_kernel`); says so."""
+        """Whether the event compiles the random-team draw (:mod:`pan1_env.draw_kernel`) or the circulation term
+        (:mod:`pan1_env.kernels.circulation`); says so."""
         func = getattr(event.data.get("dispatcher"), "py_func", None)
-        if getattr(func, "__name__", "") != "draw_teams" or getattr(func, "__module__", "") != "pan1_env.draw_kernel":
+        what = {("draw_teams", "pan1_env.draw_kernel"): "the random-team draw: once, about 7 s",
+                ("group_circulation", "pan1_env.kernels.circulation"):
+                    "the circulation term (action_mode='circulation'): once, a few seconds"}.get(
+            (getattr(func, "__name__", ""), getattr(func, "__module__", "")))
+        if what is None:
             return False
-        notify(f"compiling the random-team draw: once, about 7 s on a 2-core machine, longer on a busy one; "
+        notify(f"compiling {what} on a 2-core machine, longer on a busy one; "
                f"cached in {_cache_dir(event.data['dispatcher'])} for later runs")
         return True
 

@@ -3,6 +3,9 @@ twin, the rule's :func:`~pan1_env.baselines.circulation.circulation_term` (itsel
 test_circulation_study.py); the zero action is the paper's law; entry 0 turns the command one way or the other;
 every view gives each arm one entry more."""
 
+import os
+import subprocess
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -153,3 +156,22 @@ def test_the_circulation_env_passes_the_api_tests() -> None:
                       num_cycles=40)
     check_env(CentralizedEnv(WHOLE_ARM, action_mode="circulation", safety_filter=True, max_steps=40),
               skip_render_check=True)
+
+
+_COMPILE = """
+import numpy as np
+from pan1_env.kernels import group_circulation
+group_circulation(np.ones((1, 3, 3)), np.ones((1, 3)), np.zeros((1, 2)), np.zeros(1), True, np.zeros((1, 3)),
+                  np.zeros(1, np.int64), np.ones((1, 1, 2)), np.full((1, 1), 0.1), 0.03, True, 0.1, np.ones((1, 2)),
+                  np.empty((1, 2)))
+"""
+
+
+def test_the_term_says_once_that_it_compiles(tmp_path) -> None:
+    """Its first use compiles for a few seconds: one notice on an empty cache, none once it is cached."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    first = subprocess.run([sys.executable, "-c", _COMPILE], env=env, capture_output=True, text=True, timeout=600)
+    assert first.returncode == 0, first.stderr[-2000:]
+    assert first.stderr.count("compiling the circulation term") == 1, first.stderr
+    again = subprocess.run([sys.executable, "-c", _COMPILE], env=env, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0 and "compil" not in again.stderr, again.stderr[-2000:]
